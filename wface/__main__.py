@@ -1,0 +1,5 @@
+import sys
+
+from wface.cli import main
+
+sys.exit(main())

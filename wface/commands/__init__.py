@@ -1,0 +1,1 @@
+"""Sub-commands of the ``wface`` CLI, one module each (see ``wface.cli``)."""

@@ -1,0 +1,42 @@
+"""``wface bench --suite NAME``: timings as JSON (speed goals live here, never in tests)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+
+from wface.bench import SUITES, machine_info
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "bench",
+        help="run a benchmark suite and print timings (JSON with --json)",
+        description="Benchmarks. Suites: " + ", ".join(SUITES) + ". Numbers are wall-clock seconds on this machine.",
+    )
+    p.add_argument("--suite", required=True, choices=SUITES, help="which benchmark to run")
+    p.add_argument("--tets", type=int, action="append", help="mesh size(s) in tetrahedra (repeatable)")
+    p.add_argument("--device", default="auto", help="Warp device: cpu, cuda:0 or auto (default)")
+    p.add_argument("--repeat", type=int, default=3, help="repetitions per timing; the median is reported")
+    p.add_argument("--json", action="store_true", help="print JSON only")
+    p.add_argument("--out", help="also write the JSON to this file")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    module = importlib.import_module(f"wface.bench.{args.suite}")
+    result = {"suite": args.suite, "machine": machine_info(), **module.run(args)}
+    text = json.dumps(result, indent=2)
+    if args.out:
+        with open(args.out, "w") as f:
+            f.write(text + "\n")
+    if args.json:
+        print(text)
+    else:
+        for key, value in result.items():
+            if not isinstance(value, dict | list):
+                print(f"{key:>32}: {value}")
+        print(text if not args.out else f"(full JSON written to {args.out})", file=sys.stdout)
+    return 0

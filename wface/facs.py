@@ -1,0 +1,180 @@
+"""FACS action units, canonical muscle names and expression presets, shared by every face in wface.
+
+One table serves the FEM face, the actuation basis and the Waters vector muscles, so an action
+unit means the same muscles everywhere. Muscle names are snake_case anatomical names; bilateral
+muscles carry a side suffix ``_l`` (the subject's left, +x) or ``_r``. Midline muscles have no suffix.
+
+Action unit values are intensities in [0, 1] (FACS A..E mapped to 0.2..1.0). ``jaw_open_deg`` is
+the jaw rotation an action unit asks for: AU26/AU27 act through the jaw, not through a muscle.
+
+References: Ekman & Friesen, Facial Action Coding System (1978); Waters (1987) for the muscle
+set of the vector-muscle model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+__all__ = [
+    "ACTION_UNITS",
+    "BILATERAL_MUSCLES",
+    "EXPRESSIONS",
+    "MIDLINE_MUSCLES",
+    "ActionUnit",
+    "all_muscle_names",
+    "expand_muscle",
+    "expression_action_units",
+    "interpolate_action_units",
+    "muscle_activations",
+    "parse_action_unit",
+]
+
+# Bilateral muscles: one per side, named base + "_l" / "_r".
+BILATERAL_MUSCLES: tuple[str, ...] = (
+    "frontalis_medial",
+    "frontalis_lateral",
+    "corrugator",
+    "orbicularis_oculi",
+    "levator_palpebrae",
+    "nasalis",
+    "levator_labii_superioris_alaeque_nasi",
+    "levator_labii_superioris",
+    "zygomaticus_major",
+    "zygomaticus_minor",
+    "levator_anguli_oris",
+    "risorius",
+    "buccinator",
+    "depressor_anguli_oris",
+    "depressor_labii_inferioris",
+    "mentalis",
+    "platysma",
+)
+# Midline muscles: a single muscle across the midline.
+MIDLINE_MUSCLES: tuple[str, ...] = ("procerus", "orbicularis_oris_upper", "orbicularis_oris_lower")
+
+
+def all_muscle_names() -> list[str]:
+    """Every canonical muscle name (bilateral ones with both sides)."""
+    names = [f"{base}_{side}" for base in BILATERAL_MUSCLES for side in ("l", "r")]
+    return names + list(MIDLINE_MUSCLES)
+
+
+def expand_muscle(base: str, side: str = "both") -> list[str]:
+    """Full muscle names for a base name: ``expand_muscle("risorius")`` -> ``["risorius_l", "risorius_r"]``."""
+    if base in MIDLINE_MUSCLES:
+        return [base]
+    if base not in BILATERAL_MUSCLES:
+        raise KeyError(f"unknown muscle {base!r}; known: {', '.join(BILATERAL_MUSCLES + MIDLINE_MUSCLES)}")
+    sides = {"both": ("l", "r"), "l": ("l",), "r": ("r",)}[side]
+    return [f"{base}_{s}" for s in sides]
+
+
+@dataclass(frozen=True)
+class ActionUnit:
+    """One FACS action unit: the muscles it contracts (weights at full intensity) and jaw opening."""
+
+    number: int
+    name: str
+    muscles: Mapping[str, float] = field(default_factory=dict)  # base muscle name -> activation at intensity 1
+    jaw_open_deg: float = 0.0
+
+
+ACTION_UNITS: dict[str, ActionUnit] = {
+    f"AU{au.number}": au
+    for au in (
+        ActionUnit(1, "Inner brow raiser", {"frontalis_medial": 1.0}),
+        ActionUnit(2, "Outer brow raiser", {"frontalis_lateral": 1.0}),
+        ActionUnit(4, "Brow lowerer", {"corrugator": 1.0, "procerus": 0.6}),
+        ActionUnit(5, "Upper lid raiser", {"levator_palpebrae": 1.0}),
+        ActionUnit(6, "Cheek raiser", {"orbicularis_oculi": 0.7}),
+        ActionUnit(7, "Lid tightener", {"orbicularis_oculi": 1.0}),
+        ActionUnit(9, "Nose wrinkler", {"levator_labii_superioris_alaeque_nasi": 1.0, "nasalis": 0.5, "procerus": 0.4}),
+        ActionUnit(10, "Upper lip raiser", {"levator_labii_superioris": 1.0}),
+        ActionUnit(11, "Nasolabial deepener", {"zygomaticus_minor": 1.0}),
+        ActionUnit(12, "Lip corner puller", {"zygomaticus_major": 1.0}),
+        ActionUnit(13, "Sharp lip puller", {"levator_anguli_oris": 1.0}),
+        ActionUnit(14, "Dimpler", {"buccinator": 1.0}),
+        ActionUnit(15, "Lip corner depressor", {"depressor_anguli_oris": 1.0}),
+        ActionUnit(16, "Lower lip depressor", {"depressor_labii_inferioris": 1.0}),
+        ActionUnit(17, "Chin raiser", {"mentalis": 1.0}),
+        ActionUnit(18, "Lip pucker", {"orbicularis_oris_upper": 0.8, "orbicularis_oris_lower": 0.8}),
+        ActionUnit(20, "Lip stretcher", {"risorius": 1.0, "platysma": 0.4}),
+        ActionUnit(22, "Lip funneler", {"orbicularis_oris_upper": 0.6, "orbicularis_oris_lower": 0.6}),
+        ActionUnit(23, "Lip tightener", {"orbicularis_oris_upper": 1.0, "orbicularis_oris_lower": 1.0}),
+        ActionUnit(24, "Lip pressor", {"orbicularis_oris_upper": 0.9, "orbicularis_oris_lower": 0.9, "mentalis": 0.3}),
+        ActionUnit(25, "Lips part", {"depressor_labii_inferioris": 0.4}, jaw_open_deg=2.0),
+        ActionUnit(26, "Jaw drop", {}, jaw_open_deg=12.0),
+        ActionUnit(27, "Mouth stretch", {"platysma": 0.3}, jaw_open_deg=25.0),
+        ActionUnit(28, "Lip suck", {"orbicularis_oris_upper": 1.0, "orbicularis_oris_lower": 1.0}),
+        ActionUnit(43, "Eyes closed", {"orbicularis_oculi": 0.5}),
+    )
+}
+
+# Expression presets as action units with intensities (after Ekman & Friesen's prototypes).
+EXPRESSIONS: dict[str, dict[str, float]] = {
+    "neutral": {},
+    "happy": {"AU6": 0.8, "AU12": 1.0, "AU25": 0.4},
+    "sad": {"AU1": 0.9, "AU4": 0.6, "AU15": 0.9, "AU17": 0.4},
+    "fear": {"AU1": 0.9, "AU2": 0.8, "AU4": 0.5, "AU5": 0.9, "AU20": 0.8, "AU26": 0.6},
+    "anger": {"AU4": 1.0, "AU5": 0.6, "AU7": 0.8, "AU23": 0.9},
+    "surprise": {"AU1": 1.0, "AU2": 1.0, "AU5": 0.8, "AU26": 1.0},
+    "disgust": {"AU9": 1.0, "AU10": 0.6, "AU15": 0.5, "AU16": 0.4},
+}
+
+
+def parse_action_unit(key: str) -> tuple[str, str]:
+    """Split ``"AU12"``, ``"AU12L"`` or ``"au12r"`` into (``"AU12"``, side in {"both", "l", "r"})."""
+    k = key.strip().upper()
+    side = "both"
+    if k.endswith(("L", "R")) and k[:-1] in ACTION_UNITS:
+        side, k = k[-1].lower(), k[:-1]
+    if k not in ACTION_UNITS:
+        raise KeyError(f"unknown action unit {key!r}; known: {', '.join(ACTION_UNITS)}")
+    return k, side
+
+
+def muscle_activations(
+    action_units: Mapping[str, float], *, muscle_names: Iterable[str] | None = None
+) -> tuple[dict[str, float], float]:
+    """Turn action-unit intensities into muscle activations and a jaw opening.
+
+    Contributions to one muscle combine by maximum (an AU never adds beyond full activation).
+
+    Args:
+        action_units: ``{"AU12": 1.0, "AU6L": 0.5, ...}``, intensities in [0, 1].
+        muscle_names: the muscles a face has; muscles it lacks are dropped. ``None`` keeps all.
+
+    Returns:
+        (``{muscle name: activation in [0, 1]}``, jaw opening in degrees).
+    """
+    keep = None if muscle_names is None else set(muscle_names)
+    out: dict[str, float] = {}
+    jaw_deg = 0.0
+    for key, value in action_units.items():
+        v = float(value)
+        if not (0.0 <= v <= 1.0):
+            raise ValueError(f"action unit {key!r} intensity {v} is outside [0, 1]")
+        au_key, side = parse_action_unit(key)
+        au = ACTION_UNITS[au_key]
+        jaw_deg = max(jaw_deg, au.jaw_open_deg * v)
+        for base, weight in au.muscles.items():
+            for name in expand_muscle(base, side if base not in MIDLINE_MUSCLES else "both"):
+                if keep is not None and name not in keep:
+                    continue
+                out[name] = max(out.get(name, 0.0), min(1.0, weight * v))
+    return out, jaw_deg
+
+
+def expression_action_units(name: str) -> dict[str, float]:
+    """Action units of a preset expression (``neutral``, ``happy``, ``sad``, ``fear``, ``anger``, ``surprise``, ``disgust``)."""
+    try:
+        return dict(EXPRESSIONS[name.lower()])
+    except KeyError:
+        raise KeyError(f"unknown expression {name!r}; known: {', '.join(EXPRESSIONS)}") from None
+
+
+def interpolate_action_units(a: Mapping[str, float], b: Mapping[str, float], t: float) -> dict[str, float]:
+    """Linear blend (1 - t) a + t b of two action-unit sets (missing units count as 0)."""
+    keys = set(a) | set(b)
+    return {k: (1.0 - t) * float(a.get(k, 0.0)) + t * float(b.get(k, 0.0)) for k in sorted(keys)}

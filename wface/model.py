@@ -1,0 +1,427 @@
+"""The face model: tetrahedral flesh, embedded muscles, bones, jaw joint, markers and FACS table.
+
+Everything in SI units (metres, pascals). A ``FaceModel`` is plain data: numpy arrays and small
+dataclasses, validated on construction (``validate``) and saved to / loaded from ``.npz`` with a
+format version so that a round trip is bit-exact.
+
+Muscles are embedded per tetrahedron as a sparse list of entries (tet, muscle, volume fraction,
+unit fibre direction in rest space), sorted by tet. Bones are rigid: nodes attached to a bone
+follow it (Dirichlet nodes), and bone surfaces serve contact and rendering.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "BONES",
+    "FORMAT_VERSION",
+    "BoneMesh",
+    "FaceModel",
+    "JawJoint",
+    "Material",
+    "ModelError",
+    "load_model",
+    "save_model",
+]
+
+FORMAT_VERSION = 1
+BONES = ("cranium", "jaw")  # bone ids 0 and 1 in attachment arrays
+
+
+class ModelError(ValueError):
+    """A face model is inconsistent; the message names the problem and where it is."""
+
+
+@dataclass(frozen=True)
+class Material:
+    """Flesh and muscle material (Teran et al. 2005; DESIGN.md section 3).
+
+    Flesh: Psi = mu10 (I1~ - 3) + mu01 (I2~ - 3) + kappa/2 (ln J)^2.
+    Muscle: fibre tension T = sigma_max (a f_L(lam) + f_P(lam)), times the tet's volume fraction.
+    """
+
+    mu10_pa: float = 6.0e4
+    mu01_pa: float = 2.0e4
+    kappa_pa: float = 3.0e6
+    sigma_max_pa: float = 3.0e5
+    inversion_clamp: float = 0.1  # singular values are clamped below at this value (Irving et al. 2004)
+    density_kg_m3: float = 1040.0
+
+    @classmethod
+    def artisynth(cls) -> Material:
+        """ArtiSynth "Badin" face material: C10 = 2500 Pa, C20 = 1175 Pa (as mu01), bulk 10 C10."""
+        return cls(mu10_pa=2500.0, mu01_pa=1175.0, kappa_pa=25000.0)
+
+
+@dataclass(frozen=True)
+class JawJoint:
+    """Temporomandibular joint geometry (seed 000, section 7; DESIGN.md section 4).
+
+    ``u``: unit vector from the right to the left condyle; ``v``: unit vector along the sliding
+    tracks, back to front; ``w = v x u``; ``midpoint_m``: condyle midpoint; ``condyle_distance_m``
+    (l); ``track_length_m`` (d); ``max_opening_sine`` (s = sin of the largest opening angle).
+    """
+
+    u: tuple[float, float, float]
+    v: tuple[float, float, float]
+    midpoint_m: tuple[float, float, float]
+    condyle_distance_m: float
+    track_length_m: float
+    max_opening_sine: float
+
+    @property
+    def w(self) -> np.ndarray:
+        return np.cross(np.asarray(self.v), np.asarray(self.u))
+
+    def validate(self) -> None:
+        u, v = np.asarray(self.u, float), np.asarray(self.v, float)
+        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(v)) and np.all(np.isfinite(self.midpoint_m))):
+            raise ModelError("jaw joint: non-finite axis or midpoint")
+        if abs(np.linalg.norm(u) - 1) > 1e-9 or abs(np.linalg.norm(v) - 1) > 1e-9:
+            raise ModelError(f"jaw joint: u and v must be unit vectors (|u|={np.linalg.norm(u)}, |v|={np.linalg.norm(v)})")
+        if abs(u @ v) > 1e-9:
+            raise ModelError(f"jaw joint: u and v must be orthogonal (u.v = {u @ v:.3g})")
+        if not (self.condyle_distance_m > 0 and self.track_length_m >= 0 and 0 < self.max_opening_sine <= 1):
+            raise ModelError("jaw joint: need condyle_distance_m > 0, track_length_m >= 0, 0 < max_opening_sine <= 1")
+
+
+@dataclass
+class BoneMesh:
+    """A rigid triangle surface that moves with a bone (``bone`` is "cranium" or "jaw")."""
+
+    vertices_m: np.ndarray  # (k, 3) float64
+    triangles: np.ndarray  # (t, 3) int32
+    bone: str
+
+
+def _names_json(names) -> str:
+    return json.dumps(list(names))
+
+
+@dataclass
+class FaceModel:
+    """An anatomical face for the quasistatic FEM (DESIGN.md section 2). Shapes: n nodes, m tets."""
+
+    rest_positions_m: np.ndarray  # (n, 3) float64
+    tets: np.ndarray  # (m, 4) int32, positively oriented
+    skin_triangles: np.ndarray  # (k, 3) int32, outer skin (markers, rendering, contact)
+    muscle_names: list[str]
+    fibre_tet: np.ndarray  # (e,) int32, sorted
+    fibre_muscle: np.ndarray  # (e,) int32 index into muscle_names
+    fibre_fraction: np.ndarray  # (e,) float64 in [0, 1]
+    fibre_direction: np.ndarray  # (e, 3) float64 unit, rest space
+    attached_nodes: np.ndarray  # (a,) int32
+    attached_bone: np.ndarray  # (a,) int8, index into BONES
+    jaw_joint: JawJoint
+    material: Material = field(default_factory=Material)
+    muscle_strength: np.ndarray | None = None  # (M,) float64 multiplier of sigma_max, default ones
+    bone_meshes: dict[str, BoneMesh] = field(default_factory=dict)
+    surface_groups: dict[str, np.ndarray] = field(default_factory=dict)  # name -> (t, 3) int32 triangles
+    marker_names: list[str] = field(default_factory=list)
+    marker_positions_m: np.ndarray | None = None  # (k, 3) rest positions of the default markers
+    facs: dict[str, dict[str, float]] = field(default_factory=dict)  # AU -> {muscle: weight}
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.rest_positions_m = np.asarray(self.rest_positions_m, dtype=np.float64)
+        self.tets = np.asarray(self.tets, dtype=np.int32)
+        self.skin_triangles = np.asarray(self.skin_triangles, dtype=np.int32).reshape(-1, 3)
+        self.muscle_names = [str(s) for s in self.muscle_names]
+        self.fibre_tet = np.asarray(self.fibre_tet, dtype=np.int32)
+        self.fibre_muscle = np.asarray(self.fibre_muscle, dtype=np.int32)
+        self.fibre_fraction = np.asarray(self.fibre_fraction, dtype=np.float64)
+        self.fibre_direction = np.asarray(self.fibre_direction, dtype=np.float64).reshape(-1, 3)
+        self.attached_nodes = np.asarray(self.attached_nodes, dtype=np.int32)
+        self.attached_bone = np.asarray(self.attached_bone, dtype=np.int8)
+        if self.muscle_strength is None:
+            self.muscle_strength = np.ones(len(self.muscle_names))
+        self.muscle_strength = np.asarray(self.muscle_strength, dtype=np.float64)
+        if self.marker_positions_m is None:
+            self.marker_positions_m = np.zeros((0, 3))
+        self.marker_positions_m = np.asarray(self.marker_positions_m, dtype=np.float64).reshape(-1, 3)
+        self.marker_names = [str(s) for s in self.marker_names]
+        self._derived: dict[str, np.ndarray] = {}
+
+    # ------------------------------------------------------------------ sizes and derived data
+    @property
+    def n_nodes(self) -> int:
+        return int(self.rest_positions_m.shape[0])
+
+    @property
+    def n_tets(self) -> int:
+        return int(self.tets.shape[0])
+
+    @property
+    def n_muscles(self) -> int:
+        return len(self.muscle_names)
+
+    def muscle_index(self, name: str) -> int:
+        """Index of a muscle by name; a clear KeyError lists the known names."""
+        try:
+            return self.muscle_names.index(name)
+        except ValueError:
+            raise KeyError(f"unknown muscle {name!r}; this model has: {', '.join(self.muscle_names)}") from None
+
+    def activation_vector(self, activations: dict[str, float] | np.ndarray | None = None) -> np.ndarray:
+        """Activations as an (M,) float64 vector from a {name: value} dict or an array; values in [0, 1]."""
+        a = np.zeros(self.n_muscles)
+        if activations is None:
+            return a
+        if isinstance(activations, dict):
+            for name, value in activations.items():
+                a[self.muscle_index(name)] = float(value)
+        else:
+            a = np.asarray(activations, dtype=np.float64).reshape(-1)
+            if a.shape != (self.n_muscles,):
+                raise ValueError(f"activation vector has shape {a.shape}, expected ({self.n_muscles},)")
+        if not np.all(np.isfinite(a)):
+            raise ValueError("activations contain NaN or inf")
+        if np.any(a < 0) or np.any(a > 1):
+            bad = [self.muscle_names[i] for i in np.flatnonzero((a < 0) | (a > 1))]
+            raise ValueError(f"activations must lie in [0, 1]; out of range: {', '.join(bad)}")
+        return a
+
+    def nodes_of_bone(self, bone: str) -> np.ndarray:
+        """Node ids attached to ``bone`` ("cranium" or "jaw")."""
+        if bone not in BONES:
+            raise KeyError(f"unknown bone {bone!r}; known: {BONES}")
+        return self.attached_nodes[self.attached_bone == BONES.index(bone)]
+
+    @property
+    def free_nodes(self) -> np.ndarray:
+        """Node ids not attached to a bone."""
+        mask = np.ones(self.n_nodes, dtype=bool)
+        mask[self.attached_nodes] = False
+        return np.flatnonzero(mask).astype(np.int32)
+
+    def _edge_matrices(self, x: np.ndarray) -> np.ndarray:
+        p = x[self.tets]
+        return np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]], axis=2)  # columns
+
+    @property
+    def rest_volume_m3(self) -> np.ndarray:
+        """(m,) rest volume of each tet."""
+        if "vol" not in self._derived:
+            self._derived["vol"] = np.linalg.det(self._edge_matrices(self.rest_positions_m)) / 6.0
+        return self._derived["vol"]
+
+    @property
+    def dm_inv(self) -> np.ndarray:
+        """(m, 3, 3) inverse rest edge matrices Dm^-1 (columns x1-x0, x2-x0, x3-x0)."""
+        if "dminv" not in self._derived:
+            self._derived["dminv"] = np.linalg.inv(self._edge_matrices(self.rest_positions_m))
+        return self._derived["dminv"]
+
+    def muscle_volume_m3(self) -> np.ndarray:
+        """(M,) volume of each muscle: sum of fraction x tet volume."""
+        return np.bincount(
+            self.fibre_muscle, weights=self.fibre_fraction * self.rest_volume_m3[self.fibre_tet], minlength=self.n_muscles
+        )
+
+    # ------------------------------------------------------------------ validation
+    def validate(self, *, volume_tol: float = 1e-9) -> FaceModel:
+        """Check consistency; raise ``ModelError`` naming the first problem found. Returns self.
+
+        Args:
+            volume_tol: a tet whose volume is below ``volume_tol`` x the median volume is degenerate.
+        """
+        x, t = self.rest_positions_m, self.tets
+        n = x.shape[0] if x.ndim == 2 else 0
+        if x.ndim != 2 or x.shape[1] != 3 or n == 0:
+            raise ModelError(f"rest_positions_m must have shape (n, 3) with n > 0, got {x.shape}")
+        bad = np.flatnonzero(~np.all(np.isfinite(x), axis=1))
+        if bad.size:
+            raise ModelError(f"rest_positions_m has NaN/inf at {bad.size} node(s), first ids {bad[:5].tolist()}")
+        if t.ndim != 2 or t.shape[1] != 4 or t.shape[0] == 0:
+            raise ModelError(f"tets must have shape (m, 4) with m > 0, got {t.shape}")
+        out = np.flatnonzero(np.any((t < 0) | (t >= n), axis=1))
+        if out.size:
+            raise ModelError(
+                f"tets reference nodes outside [0, {n}): {out.size} tet(s), first tet {out[0]} = {t[out[0]].tolist()}"
+            )
+        rep = np.flatnonzero(np.sort(t, axis=1)[:, 1:] == np.sort(t, axis=1)[:, :-1])
+        if rep.size:
+            raise ModelError(f"tet {int(rep[0])} repeats a node: {t[rep[0]].tolist()}")
+        vol = np.linalg.det(self._edge_matrices(x)) / 6.0
+        inv = np.flatnonzero(vol <= 0)
+        if inv.size:
+            raise ModelError(
+                f"{inv.size} tet(s) have non-positive volume (inverted or flat), first ids {inv[:5].tolist()} "
+                f"with volumes {vol[inv[:3]].tolist()} m^3"
+            )
+        tiny = np.flatnonzero(vol < volume_tol * np.median(vol))
+        if tiny.size:
+            raise ModelError(
+                f"{tiny.size} tet(s) have near-zero volume (< {volume_tol:g} x median), first ids {tiny[:5].tolist()}"
+            )
+        st = self.skin_triangles
+        if st.size and (st.min() < 0 or st.max() >= n):
+            raise ModelError(f"skin_triangles reference nodes outside [0, {n})")
+        for name, tri in self.surface_groups.items():
+            if tri.size and (tri.min() < 0 or tri.max() >= n):
+                raise ModelError(f"surface group {name!r} references nodes outside [0, {n})")
+        self._validate_muscles()
+        an, ab = self.attached_nodes, self.attached_bone
+        if an.shape != ab.shape:
+            raise ModelError(f"attached_nodes {an.shape} and attached_bone {ab.shape} differ in shape")
+        if an.size and (an.min() < 0 or an.max() >= n):
+            raise ModelError(f"attached_nodes reference nodes outside [0, {n})")
+        if np.unique(an).size != an.size:
+            raise ModelError("a node is attached twice (attached_nodes has duplicates)")
+        if ab.size and (ab.min() < 0 or ab.max() >= len(BONES)):
+            raise ModelError(f"attached_bone must be 0 (cranium) or 1 (jaw); found {sorted(set(ab.tolist()))}")
+        for bname, mesh in self.bone_meshes.items():
+            if mesh.bone not in BONES:
+                raise ModelError(f"bone mesh {bname!r} follows unknown bone {mesh.bone!r}; known: {BONES}")
+            if not np.all(np.isfinite(mesh.vertices_m)):
+                raise ModelError(f"bone mesh {bname!r} has NaN/inf vertices")
+            if mesh.triangles.size and (mesh.triangles.min() < 0 or mesh.triangles.max() >= len(mesh.vertices_m)):
+                raise ModelError(f"bone mesh {bname!r} triangles reference vertices out of range")
+        self.jaw_joint.validate()
+        if len(self.marker_names) != len(self.marker_positions_m):
+            raise ModelError(f"{len(self.marker_names)} marker names but {len(self.marker_positions_m)} positions")
+        if len(set(self.marker_names)) != len(self.marker_names):
+            raise ModelError("marker names are not unique")
+        if not np.all(np.isfinite(self.marker_positions_m)):
+            raise ModelError("marker_positions_m has NaN/inf")
+        known = set(self.muscle_names)
+        for au, table in self.facs.items():
+            unknown = [m for m in table if m not in known]
+            if unknown:
+                raise ModelError(f"FACS entry {au} names unknown muscle(s) {unknown}")
+        return self
+
+    def _validate_muscles(self) -> None:
+        m = self.n_tets
+        e = self.fibre_tet.shape[0]
+        names = self.muscle_names
+        if len(set(names)) != len(names):
+            raise ModelError("muscle names are not unique")
+        for arr, label in ((self.fibre_muscle, "fibre_muscle"), (self.fibre_fraction, "fibre_fraction")):
+            if arr.shape != (e,):
+                raise ModelError(f"{label} has shape {arr.shape}, expected ({e},) like fibre_tet")
+        if self.fibre_direction.shape != (e, 3):
+            raise ModelError(f"fibre_direction has shape {self.fibre_direction.shape}, expected ({e}, 3)")
+        if e:
+            if self.fibre_tet.min() < 0 or self.fibre_tet.max() >= m:
+                raise ModelError(f"fibre_tet references tets outside [0, {m})")
+            if np.any(np.diff(self.fibre_tet) < 0):
+                raise ModelError("fibre entries must be sorted by tet (fibre_tet non-decreasing)")
+            if self.fibre_muscle.min() < 0 or self.fibre_muscle.max() >= len(names):
+                raise ModelError(f"fibre_muscle references muscles outside [0, {len(names)})")
+            f = self.fibre_fraction
+            bad = np.flatnonzero(~np.isfinite(f) | (f < 0) | (f > 1))
+            if bad.size:
+                raise ModelError(
+                    f"volume fractions outside [0, 1] at {bad.size} entr(ies), first: tet {self.fibre_tet[bad[0]]}, "
+                    f"muscle {names[self.fibre_muscle[bad[0]]]!r}, fraction {f[bad[0]]}"
+                )
+            norms = np.linalg.norm(self.fibre_direction, axis=1)
+            bad = np.flatnonzero(~np.isfinite(norms) | (np.abs(norms - 1.0) > 1e-6))
+            if bad.size:
+                raise ModelError(
+                    f"fibre directions must be unit vectors: {bad.size} are not, first: tet {self.fibre_tet[bad[0]]}, "
+                    f"muscle {names[self.fibre_muscle[bad[0]]]!r}, |d| = {norms[bad[0]]}"
+                )
+        if self.muscle_strength.shape != (len(names),):
+            raise ModelError(f"muscle_strength has shape {self.muscle_strength.shape}, expected ({len(names)},)")
+        if np.any(~np.isfinite(self.muscle_strength)) or np.any(self.muscle_strength < 0):
+            raise ModelError("muscle_strength must be finite and non-negative")
+
+    def with_material(self, material: Material) -> FaceModel:
+        """A copy with another material (arrays shared)."""
+        return replace(self, material=material)
+
+
+# ---------------------------------------------------------------------- save / load
+_ARRAY_FIELDS = (
+    "rest_positions_m",
+    "tets",
+    "skin_triangles",
+    "fibre_tet",
+    "fibre_muscle",
+    "fibre_fraction",
+    "fibre_direction",
+    "attached_nodes",
+    "attached_bone",
+    "muscle_strength",
+    "marker_positions_m",
+)
+
+
+def save_model(model: FaceModel, path: str | Path) -> Path:
+    """Write a model to ``.npz`` (uncompressed arrays: bit-exact round trip). Returns the path."""
+    path = Path(path)
+    if path.suffix != ".npz":
+        raise ValueError(f"face models are saved as .npz, got {path.name!r}")
+    arrays = {name: getattr(model, name) for name in _ARRAY_FIELDS}
+    for name, mesh in model.bone_meshes.items():
+        arrays[f"bone/{name}/vertices_m"] = mesh.vertices_m
+        arrays[f"bone/{name}/triangles"] = mesh.triangles
+    for name, tri in model.surface_groups.items():
+        arrays[f"surface/{name}"] = tri
+    header = {
+        "format": "wface.FaceModel",
+        "format_version": FORMAT_VERSION,
+        "muscle_names": model.muscle_names,
+        "marker_names": model.marker_names,
+        "bones": {name: mesh.bone for name, mesh in model.bone_meshes.items()},
+        "surface_groups": list(model.surface_groups),
+        "jaw_joint": {f.name: getattr(model.jaw_joint, f.name) for f in fields(JawJoint)},
+        "material": {f.name: getattr(model.material, f.name) for f in fields(Material)},
+        "facs": model.facs,
+        "metadata": model.metadata,
+    }
+    arrays["header_json"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".part.npz")
+    np.savez(tmp, **arrays)
+    tmp.replace(path)  # never leave a half-written model under the real name
+    return path
+
+
+def load_model(path: str | Path, *, validate: bool = True) -> FaceModel:
+    """Read a model written by ``save_model``. A newer format version is refused."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"face model file not found: {path}")
+    try:
+        data = np.load(path, allow_pickle=False)
+    except Exception as exc:  # noqa: BLE001 - report any unreadable file the same way
+        raise ModelError(f"{path}: not a readable .npz face model ({exc})") from exc
+    with data:
+        if "header_json" not in data.files:
+            raise ModelError(f"{path}: not a wface face model (no header)")
+        header = json.loads(bytes(data["header_json"]).decode())
+        version = int(header.get("format_version", -1))
+        if header.get("format") != "wface.FaceModel":
+            raise ModelError(f"{path}: not a wface face model (format {header.get('format')!r})")
+        if version > FORMAT_VERSION:
+            raise ModelError(
+                f"{path}: written by a newer wface (model format {version}; this version reads up to "
+                f"{FORMAT_VERSION}). Upgrade wface to load it."
+            )
+        arrays = {name: data[name] for name in _ARRAY_FIELDS}
+        bones = {
+            name: BoneMesh(data[f"bone/{name}/vertices_m"], data[f"bone/{name}/triangles"], bone)
+            for name, bone in header["bones"].items()
+        }
+        surfaces = {name: data[f"surface/{name}"] for name in header["surface_groups"]}
+    jj = header["jaw_joint"]
+    model = FaceModel(
+        **arrays,
+        muscle_names=header["muscle_names"],
+        marker_names=header["marker_names"],
+        jaw_joint=JawJoint(**{k: tuple(v) if isinstance(v, list) else v for k, v in jj.items()}),
+        material=Material(**header["material"]),
+        bone_meshes=bones,
+        surface_groups=surfaces,
+        facs=header["facs"],
+        metadata=header["metadata"],
+    )
+    return model.validate() if validate else model
