@@ -1,0 +1,1 @@
+"""Mesh utilities: surfaces, closest points, quality, import/export."""
