@@ -13,7 +13,7 @@ from wface.mesh.quality import dihedral_angles_deg, signed_volumes
 from wface.mesh.surface import boundary_faces
 from wface.model import load_model, save_model
 
-MIN_DIHEDRAL_DEG = 1.0  # the importer reaches 1.02 deg on this mesh (source hexes that are nearly flat)
+MIN_DIHEDRAL_DEG = 1.5  # the importer reaches 1.54 deg on this mesh (source hexes that are nearly flat)
 SYMMETRY_TOL = 0.08  # left/right muscle volumes: the mesh is symmetric only to ~0.6 mm (99th pct)
 
 
@@ -159,7 +159,7 @@ def test_surfaces_are_classified(model):
     qs = [SurfaceQuery(b.vertices_m, b.triangles) for b in (jaw, mx)]
 
     def bone_dist(tris):
-        c = x[tris].mean(axis=1)
+        c = x[tris[::7]].mean(axis=1)  # a subsample keeps the test fast
         return np.min([q.closest(c).distance_m for q in qs], axis=0)
 
     assert np.median(bone_dist(g["inner"])) < 0.5 * np.median(bone_dist(g["skin"]))

@@ -181,39 +181,67 @@ def _trilinear(p: np.ndarray, uvw: np.ndarray) -> np.ndarray:
     return (1 - w) * bottom + w * top
 
 
-def _cone_scores(pts: np.ndarray, apexes: np.ndarray, tris: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
-    """Cones from each apex (k,) over triangles (t, 3): oriented tets per apex, and min dihedral (k,).
+def _batch_cones(pts: np.ndarray, apexes: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Score the cones of many cells at once.
 
-    Triangles that contain the apex are skipped; a cone with a tet of volume <= 0 scores -1.
+    Args:
+        pts: (p, 3) points.
+        apexes: (c, k) candidate apex ids per cell, -1 for none.
+        tris: (c, t, 3) outward boundary triangles per cell, rows of -1 for padding.
+
+    Returns:
+        (score (c, k): smallest dihedral angle of the cone in degrees, -1 when a tet is flat or
+        inverted, -inf for no apex; skip (c, k, t): triangle not used by the cone (contains the apex
+        or padding); flip (c, k): the cone's tets need reorienting.)
     """
     from wface.mesh.quality import dihedral_angles_deg
 
-    k, t = len(apexes), len(tris)
-    tets = np.concatenate([np.repeat(np.asarray(apexes)[:, None, None], t, axis=1), np.broadcast_to(tris, (k, t, 3))], axis=2)
-    member = np.any(tris[None, :, :] == np.asarray(apexes)[:, None, None], axis=2)  # (k, t)
-    flat = tets.reshape(-1, 4)
-    vol = _signed_volume(pts, flat).reshape(k, t)
-    vol = np.where(member, 0.0, vol)
-    sign = np.where(vol.sum(axis=1) < 0, -1.0, 1.0)
-    vol = vol * sign[:, None]
+    c, k = apexes.shape
+    t = tris.shape[1]
+    a = np.maximum(apexes, 0)
+    tr = np.maximum(tris, 0)
+    skip = np.any(tris[:, None, :, :] == apexes[:, :, None, None], axis=3) | (tris[:, None, :, 0] < 0)
+    tets = np.concatenate(
+        [np.broadcast_to(a[:, :, None, None], (c, k, t, 1)), np.broadcast_to(tr[:, None], (c, k, t, 3))], axis=3
+    ).reshape(-1, 4)
+    vol = np.where(skip, 0.0, _signed_volume(pts, tets).reshape(c, k, t))
+    total = vol.sum(axis=2)
+    flip = total < 0
+    vol = np.where(flip[:, :, None], -vol, vol)
+    ok = skip | (vol > 1e-9 * np.abs(total)[:, :, None])
     with np.errstate(invalid="ignore", divide="ignore"):
-        dmin = dihedral_angles_deg(pts, flat).min(axis=1).reshape(k, t)
-    total = np.maximum(vol.sum(axis=1, keepdims=True), 1e-300)
-    ok = member | (vol > 1e-9 * total)
-    dmin = np.where(member, np.inf, np.nan_to_num(dmin, nan=-1.0))
-    scores = np.where(ok.all(axis=1), dmin.min(axis=1), -1.0)
-    cones = []
-    for a in range(k):
-        c = tets[a][~member[a]]
-        cones.append(c[:, [0, 2, 1, 3]] if sign[a] < 0 else c)
-    return cones, scores
+        dmin = dihedral_angles_deg(pts, tets).min(axis=1).reshape(c, k, t)
+    dmin = np.where(skip, np.inf, np.nan_to_num(dmin, nan=-1.0))
+    score = np.where(ok.all(axis=2) & (np.abs(total) > 0), dmin.min(axis=2), -1.0)
+    score = np.where(apexes < 0, -np.inf, score)
+    return score, skip, flip
+
+
+def _cone(apex: int, tris: np.ndarray, skip: np.ndarray, flip: bool) -> np.ndarray:
+    tt = tris[~skip]
+    tets = np.concatenate([np.full((len(tt), 1), apex), tt], axis=1)
+    return tets[:, [0, 2, 1, 3]] if flip else tets
+
+
+def _padded_triangles(cells: np.ndarray, split: dict) -> np.ndarray:
+    lists = [_cell_triangles(cell, split) for cell in cells]
+    t = max(len(tr) for tr in lists)
+    out = np.full((len(cells), t, 3), -1, dtype=np.int64)
+    for i, tr in enumerate(lists):
+        out[i, : len(tr)] = tr
+    return out
 
 
 _GRID5 = np.stack(np.meshgrid(*(np.linspace(0.15, 0.85, 5),) * 3, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
 def hexes_to_tets(
-    hexes: np.ndarray, x: np.ndarray, *, steiner_below_deg: float = 10.0, max_rounds: int = 4
+    hexes: np.ndarray,
+    x: np.ndarray,
+    *,
+    steiner_below_deg: float = 10.0,
+    split_below_deg: float = 3.0,
+    max_rounds: int = 4,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Split (possibly degenerate) 8-node hexahedra into positively oriented, conforming tetrahedra.
 
@@ -221,81 +249,95 @@ def hexes_to_tets(
     share (conforming). The interior is the best cone over the cell's boundary triangles: from one of
     its vertices (no new node), else, when no vertex cone has all dihedral angles above
     ``steiner_below_deg``, from a new node inside the cell (the vertex mean, or the best point of a
-    5^3 lattice of the trilinear cell) if that does better. Cells that remain inverted or worse than
-    the bound have their quad faces split through a new face-centre node (four triangles, shared with
-    the neighbour, so still conforming) and all cells touching those faces are redone, up to
-    ``max_rounds`` times.
+    5^3 lattice of the trilinear cell) if that does better. Cells still below ``split_below_deg``
+    (inverted, or twisted so that no interior point sees all the boundary triangles well) have their
+    quad faces split through a new face-centre node (four triangles, shared with the neighbour, so
+    still conforming) and every cell touching those faces is redone, up to ``max_rounds`` times.
 
     Args:
         hexes: (m, 8) int 0-based node ids in ANSYS brick order; repeated ids make wedges, pyramids, tets.
         x: (n, 3) node positions.
-        steiner_below_deg: cells whose best vertex cone has a smaller dihedral angle get a new node.
+        steiner_below_deg: cells whose best vertex cone has a smaller dihedral angle may get a new node.
+        split_below_deg: cells whose best cone stays below this get their faces split.
         max_rounds: rounds of face splitting.
 
     Returns:
         (tets (k, 4) int32, parent (k,) int32 element of each tet, new_points (s, 3) added nodes,
         which get ids n, n + 1, ... in this order).
     """
-    hexes = np.asarray(hexes)
+    hexes = np.asarray(hexes, dtype=np.int64)
     x = np.asarray(x, dtype=np.float64)
     n, m = len(x), len(hexes)
     split: dict[tuple[int, ...], int] = {}
-    new_points: list[np.ndarray] = []
+    face_points: list[np.ndarray] = []  # face-centre nodes, ids n, n + 1, ... in order
+    cell_point: dict[int, np.ndarray] = {}  # cell-centre nodes, numbered after the face centres
     cell_tets: list[np.ndarray] = [np.zeros((0, 4), np.int64)] * m
     cell_score = np.full(m, -np.inf)
-    todo = np.arange(m)
     quad_cells: dict[tuple[int, ...], list[int]] = {}
     for e, cell in enumerate(hexes):
         for q in _quads(cell):
             quad_cells.setdefault(q, []).append(e)
+    todo = np.arange(m)
+    placeholder = -2  # apex id of a cell's own centre node until the final numbering
     for _round in range(max_rounds + 1):
-        pts = np.vstack([x, *new_points]) if new_points else x
-        pending_points: list[np.ndarray] = []
-        for e in todo:
-            cell = hexes[e]
-            verts = np.unique(cell)
-            tris = np.asarray(_cell_triangles(cell, split))
-            extra = np.unique(tris[tris >= n]) if np.any(tris >= n) else np.zeros(0, np.int64)
-            cones, scores = _cone_scores(pts, np.concatenate([verts, extra]), tris)
-            best = int(np.argmax(scores))
-            if scores[best] < steiner_below_deg:
-                cand = pts[verts].mean(axis=0, keepdims=True)
-                base = len(pts)
-                s_cones, s_scores = _cone_scores(np.vstack([pts, cand]), np.array([base]), tris)
-                if s_scores[0] < steiner_below_deg:  # the vertex mean is not good enough: search a lattice
-                    cand = np.vstack([cand, _trilinear(x[cell], _GRID5)])
-                    s_cones, s_scores = _cone_scores(np.vstack([pts, cand]), base + np.arange(len(cand)), tris)
-                sb = int(np.argmax(s_scores))
-                if s_scores[sb] > scores[best]:
-                    new_id = n + sum(len(p) for p in new_points) + len(pending_points)
-                    tets = s_cones[sb].copy()
-                    tets[tets == base + sb] = new_id
-                    pending_points.append(cand[sb])
-                    cell_tets[e], cell_score[e] = tets, s_scores[sb]
-                    continue
-            cell_tets[e], cell_score[e] = cones[best], scores[best]
-        if pending_points:
-            new_points.append(np.asarray(pending_points))
-        bad = np.flatnonzero(cell_score < min(steiner_below_deg, 1.0))
+        pts = np.vstack([x, *face_points]) if face_points else x
+        cells = hexes[todo]
+        tris = _padded_triangles(cells, split)
+        # vertex cones (the cell's nodes and its face-centre nodes)
+        apex = np.full((len(todo), 8 + 6), -1, dtype=np.int64)
+        for i, cell in enumerate(cells):
+            cand = np.unique(np.concatenate([cell, tris[i][tris[i] >= n]]))
+            apex[i, : len(cand)] = cand
+        score, skip, flip = _batch_cones(pts, apex, tris)
+        best = np.argmax(score, axis=1)
+        best_score = score[np.arange(len(todo)), best]
+        # a new node at the vertex mean, for cells without a good vertex cone
+        centres = np.array([x[np.unique(c)].mean(axis=0) for c in cells])
+        c_score, c_skip, c_flip = _batch_cones(
+            np.vstack([pts, centres]), (len(pts) + np.arange(len(todo)))[:, None], tris
+        )
+        for i, e in enumerate(todo):
+            cell_point.pop(int(e), None)
+            if best_score[i] >= steiner_below_deg or max(c_score[i, 0], best_score[i]) == best_score[i]:
+                if best_score[i] < steiner_below_deg:  # the centre did not help: try a lattice of points
+                    grid = _trilinear(x[cells[i]], _GRID5)
+                    g_score, g_skip, g_flip = _batch_cones(
+                        np.vstack([pts, grid]), (len(pts) + np.arange(len(grid)))[None, :], tris[i : i + 1]
+                    )
+                    j = int(np.argmax(g_score[0]))
+                    if g_score[0, j] > best_score[i]:
+                        cell_point[int(e)] = grid[j]
+                        cell_tets[e] = _cone(placeholder, tris[i], g_skip[0, j], bool(g_flip[0, j]))
+                        cell_score[e] = g_score[0, j]
+                        continue
+                cell_tets[e] = _cone(int(apex[i, best[i]]), tris[i], skip[i, best[i]], bool(flip[i, best[i]]))
+                cell_score[e] = best_score[i]
+            else:
+                cell_point[int(e)] = centres[i]
+                cell_tets[e] = _cone(placeholder, tris[i], c_skip[i, 0], bool(c_flip[i, 0]))
+                cell_score[e] = c_score[i, 0]
+        bad = np.flatnonzero(cell_score < split_below_deg)
         if bad.size == 0 or _round == max_rounds:
             break
         touched: set[int] = set()
         for e in bad:
             for q in _quads(hexes[e]):
                 if q not in split:
-                    split[q] = n + sum(len(p) for p in new_points)
-                    new_points.append(x[list(q)].mean(axis=0, keepdims=True))
+                    split[q] = n + len(face_points)
+                    face_points.append(x[list(q)].mean(axis=0, keepdims=True))
                     touched.update(quad_cells[q])
-        # Redone cells drop their old cell-centre nodes: rebuild the numbering afterwards.
-        todo = np.asarray(sorted(touched), dtype=np.int64)
-        if todo.size == 0:
+        if not touched:
             break
+        todo = np.asarray(sorted(touched), dtype=np.int64)
+    # final numbering: face centres first, then cell centres in cell order
+    n_face = len(face_points)
+    centre_cells = sorted(cell_point)
+    centre_id = {e: n + n_face + i for i, e in enumerate(centre_cells)}
+    for e in centre_cells:
+        t = cell_tets[e].copy()
+        t[t == placeholder] = centre_id[e]
+        cell_tets[e] = t
     tets = np.concatenate(cell_tets)
     parent = np.repeat(np.arange(m), [len(t) for t in cell_tets])
-    pts_new = np.vstack(new_points) if new_points else np.zeros((0, 3))
-    used = np.unique(tets[tets >= n]) - n  # compact: drop added nodes no tet uses any more
-    remap = np.full(len(pts_new), -1)
-    remap[used] = n + np.arange(len(used))
-    big = tets >= n
-    tets[big] = remap[tets[big] - n]
-    return tets.astype(np.int32), parent.astype(np.int32), pts_new[used]
+    new = np.vstack([*face_points, *(cell_point[e][None] for e in centre_cells)]) if (n_face or centre_cells) else np.zeros((0, 3))
+    return tets.astype(np.int32), parent.astype(np.int32), new
