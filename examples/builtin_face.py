@@ -36,7 +36,9 @@ def render_face(model, path: Path, *, size=(1200, 900), show_muscles=True) -> Pa
             grid.cell_data["muscle"] = model.fibre_muscle[strong]
             plotter.add_mesh(grid, scalars="muscle", cmap="tab20", show_scalar_bar=False)
         if model.marker_positions_m.size:
-            plotter.add_mesh(pv.PolyData(model.marker_positions_m), color="red", point_size=9, render_points_as_spheres=True)
+            plotter.add_mesh(
+                pv.PolyData(model.marker_positions_m), color="red", point_size=9, render_points_as_spheres=True
+            )
         plotter.camera_position = "xy"
         plotter.camera.azimuth = azimuth
         plotter.camera.elevation = 5.0
@@ -58,7 +60,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     model = build_face(args.tets, progress=True)
     q = model.metadata["quality"]
-    print(f"{model.n_tets} tets, {model.n_nodes} nodes, {model.n_muscles} muscles, min dihedral {q['min_dihedral_deg']:.1f} deg")
+    print(
+        f"{model.n_tets} tets, {model.n_nodes} nodes, {model.n_muscles} muscles, min dihedral {q['min_dihedral_deg']:.1f} deg"
+    )
     path = render_face(model, Path(args.out), size=(args.width, int(args.width * 0.6)))
     print(f"wrote {path}")
     return 0

@@ -52,16 +52,22 @@ MUSCLES: tuple[MuscleSpec, ...] = (
     MuscleSpec("orbicularis_oculi", _ellipse(0.50, 0.0, 0.30, 0.024, 0.5), 0.007, closed=True),
     MuscleSpec("nasalis", ((0.26, -0.036, 0.20), (0.15, -0.030, 0.55), (0.04, -0.016, 0.60)), 0.004),
     MuscleSpec(
-        "levator_labii_superioris_alaeque_nasi", ((0.12, 0.000, 0.15), (0.15, -0.025, 0.45), (0.19, M + 0.016, 0.70)), 0.005
+        "levator_labii_superioris_alaeque_nasi",
+        ((0.12, 0.000, 0.15), (0.15, -0.025, 0.45), (0.19, M + 0.016, 0.70)),
+        0.005,
     ),
-    MuscleSpec("levator_labii_superioris", ((0.36, -0.012, 0.15), (0.30, -0.035, 0.45), (0.22, M + 0.010, 0.70)), 0.006),
+    MuscleSpec(
+        "levator_labii_superioris", ((0.36, -0.012, 0.15), (0.30, -0.035, 0.45), (0.22, M + 0.010, 0.70)), 0.006
+    ),
     MuscleSpec("zygomaticus_minor", ((0.72, -0.014, 0.15), (0.50, -0.035, 0.50), (0.31, M + 0.009, 0.70)), 0.005),
     MuscleSpec("zygomaticus_major", ((1.00, -0.022, 0.15), (0.72, -0.045, 0.50), (0.43, M + 0.002, 0.70)), 0.006),
     MuscleSpec("levator_anguli_oris", ((0.38, -0.030, 0.10), (0.41, -0.048, 0.40), (0.43, M + 0.001, 0.60)), 0.005),
     MuscleSpec("risorius", ((1.25, M - 0.004, 0.55), (0.80, M - 0.002, 0.60), (0.44, M, 0.70)), 0.005),
     MuscleSpec("buccinator", ((1.10, M, 0.08), (0.75, M, 0.20), (0.44, M, 0.35)), 0.008),
     MuscleSpec("depressor_anguli_oris", ((0.62, -0.112, 0.15), (0.52, -0.090, 0.45), (0.43, M - 0.003, 0.70)), 0.006),
-    MuscleSpec("depressor_labii_inferioris", ((0.32, -0.106, 0.15), (0.24, -0.090, 0.45), (0.15, M - 0.009, 0.70)), 0.006),
+    MuscleSpec(
+        "depressor_labii_inferioris", ((0.32, -0.106, 0.15), (0.24, -0.090, 0.45), (0.15, M - 0.009, 0.70)), 0.006
+    ),
     MuscleSpec("mentalis", ((0.08, -0.084, 0.12), (0.09, -0.095, 0.45), (0.10, -0.106, 0.75)), 0.005),
     MuscleSpec("orbicularis_oris_upper", _lip_arc(+1.0), 0.006, bilateral=False),
     MuscleSpec("orbicularis_oris_lower", _lip_arc(-1.0), 0.006, bilateral=False),

@@ -57,7 +57,9 @@ def bone_meshes(shape: FaceShape, *, resolution: int = 48) -> dict[str, BoneMesh
     out: dict[str, BoneMesh] = {}
     # Cranium: all around the head, from the upper gum line to the top of the forehead patch, plus a dome.
     theta = np.linspace(-np.pi, np.pi, 2 * r, endpoint=False)
-    y_cr = np.concatenate([np.linspace(Y_MOUTH + 0.012, Y_TOP, r), Y_TOP + 0.045 * np.sin(np.linspace(0, np.pi / 2, 12)[1:])])
+    y_cr = np.concatenate(
+        [np.linspace(Y_MOUTH + 0.012, Y_TOP, r), Y_TOP + 0.045 * np.sin(np.linspace(0, np.pi / 2, 12)[1:])]
+    )
     T, Y = np.meshgrid(theta, y_cr, indexing="ij")
     pts = shape.bone(T, np.minimum(Y, Y_TOP))
     dome = Y > Y_TOP
@@ -85,7 +87,12 @@ def bone_meshes(shape: FaceShape, *, resolution: int = 48) -> dict[str, BoneMesh
     verts = np.concatenate([outer.reshape(-1, 3), inner.reshape(-1, 3)])
     faces = [tri, tri[:, ::-1] + nu * nv]
     off = nu * nv
-    for rim in (np.arange(nv), (nu - 1) * nv + np.arange(nv)[::-1], np.arange(nu)[::-1] * nv, np.arange(nu) * nv + nv - 1):
+    for rim in (
+        np.arange(nv),
+        (nu - 1) * nv + np.arange(nv)[::-1],
+        np.arange(nu)[::-1] * nv,
+        np.arange(nu) * nv + nv - 1,
+    ):
         a, b = rim[:-1], rim[1:]
         faces += [np.stack([a, b, b + off], -1), np.stack([a, b + off, a + off], -1)]
     out["jaw"] = BoneMesh(verts, np.concatenate(faces).astype(np.int32), "jaw")

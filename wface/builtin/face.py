@@ -103,7 +103,9 @@ def build_face(target_tets: int = 20_000, *, progress: bool = False, material: M
     shape = FaceShape()
     n_theta, n_y, layers = _resolution(int(target_tets))
     theta_axis = graded_axis(
-        [-THETA_MAX, -THETA_MOUTH, 0.0, THETA_MOUTH, THETA_MAX], n_theta, lambda s: 1.0 + 1.2 * np.exp(-((s / 0.6) ** 2))
+        [-THETA_MAX, -THETA_MOUTH, 0.0, THETA_MOUTH, THETA_MAX],
+        n_theta,
+        lambda s: 1.0 + 1.2 * np.exp(-((s / 0.6) ** 2)),
     )
     y_axis = graded_axis([Y_BOTTOM, Y_MOUTH, Y_TOP], n_y, lambda s: 1.0 + 1.0 * np.exp(-(((s - Y_MOUTH) / 0.035) ** 2)))
     grid = build_grid(theta_axis, y_axis, layers, THETA_MOUTH, Y_MOUTH)

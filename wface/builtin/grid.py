@@ -57,7 +57,9 @@ class ParamGrid:
     tet_cell: np.ndarray  # (m, 3) grid cell (i, j, k) of each tet
 
 
-def build_grid(theta_axis: np.ndarray, y_axis: np.ndarray, n_layers: int, theta_mouth: float, y_mouth: float) -> ParamGrid:
+def build_grid(
+    theta_axis: np.ndarray, y_axis: np.ndarray, n_layers: int, theta_mouth: float, y_mouth: float
+) -> ParamGrid:
     """Kuhn-split tet grid of the box with a duplicated cut at y = y_mouth, |theta| < theta_mouth."""
     ni, nj, nk = len(theta_axis), len(y_axis), n_layers + 1
     w_axis = np.linspace(0.0, 1.0, nk)
