@@ -18,6 +18,8 @@ import warnings
 from dataclasses import dataclass
 from typing import Callable
 
+import os
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -96,6 +98,9 @@ class DirectFactor:
         elif self.backend == "pardiso":
             import pypardiso
 
+            # pypardiso searches the whole prefix for libmkl_rt on every new solver (~0.5 s);
+            # point it at the library its module-level solver already found.
+            os.environ.setdefault("PYPARDISO_MKL_RT", pypardiso.ps.libmkl._name)
             # Real SPD (mtype 2): PARDISO reads the upper triangle only.
             self._matrix = sp.triu(sp.csr_matrix(A, dtype=np.float64), format="csr")
             self._matrix.sort_indices()
