@@ -33,7 +33,7 @@ ANIMFACE_DLIB_SEEDS: dict[str, int] = {
 
 def load_ict_animface_landmarks() -> dict[str, int]:
     """{AnimFace marker name: ICT-FaceKit vertex index} for the 41 AnimFace markers."""
-    text = resources.files("wface.data").joinpath("ict_animface_landmarks.json").read_text()
+    text = resources.files("wface").joinpath("data", "ict_animface_landmarks.json").read_text()
     return {str(k): int(v) for k, v in json.loads(text).items()}
 
 
