@@ -41,7 +41,7 @@ def summary(model, seconds: float) -> str:
     vol = model.muscle_volume_m3() * 1e6
     for i in range(0, model.n_muscles, 2):
         pair = model.muscle_names[i : i + 2]
-        lines.append("    " + "   ".join(f"{n:8s} {v:5.2f}" for n, v in zip(pair, vol[i : i + 2])))
+        lines.append("    " + "   ".join(f"{n:8s} {v:5.2f}" for n, v in zip(pair, vol[i : i + 2], strict=True)))
     lines.append(f"  markers: {', '.join(model.marker_names)}")
     lines.append(f"  FACS action units: {', '.join(model.facs)}")
     return "\n".join(lines)
@@ -62,7 +62,7 @@ def render(model, png: Path, *, window_size=(1600, 800)) -> Path:
 
     # dominant muscle of each muscle tet
     best = {}
-    for t, m, f in zip(model.fibre_tet, model.fibre_muscle, model.fibre_fraction):
+    for t, m, f in zip(model.fibre_tet, model.fibre_muscle, model.fibre_fraction, strict=True):
         if f > best.get(t, (0, -1.0))[1]:
             best[t] = (m, f)
     tet_ids = np.array(sorted(best))

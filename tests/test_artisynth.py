@@ -35,7 +35,8 @@ def raw(data_dir):
 
 
 def _boundary_hex_nodes(hexes0: np.ndarray, n: int) -> np.ndarray:
-    faces = hexes0[:, [[0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]].reshape(-1, 4)
+    quads = [[0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
+    faces = hexes0[:, quads].reshape(-1, 4)
     _, inv, cnt = np.unique(np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True)
     on = np.zeros(n, dtype=bool)
     on[faces[cnt[inv.ravel()] == 1].ravel()] = True
@@ -96,7 +97,8 @@ def test_jaw_attached_nodes_lie_on_the_jaw(model):
     jaw_nodes = model.nodes_of_bone("jaw")
     assert len(jaw_nodes) == 329
     bones = [model.bone_meshes["jaw"], model.bone_meshes["lower_teeth"]]
-    d = np.min([SurfaceQuery(b.vertices_m, b.triangles).closest(model.rest_positions_m[jaw_nodes]).distance_m for b in bones], axis=0)
+    p = model.rest_positions_m[jaw_nodes]
+    d = np.min([SurfaceQuery(b.vertices_m, b.triangles).closest(p).distance_m for b in bones], axis=0)
     assert np.median(d) < 1e-3 and d.max() < 0.011
 
 
@@ -213,6 +215,7 @@ def test_muscles(model):
 
 def test_fibre_directions_follow_the_fibres(model):
     """Risorius runs sideways (mostly +-x), LLS mostly vertical (y)."""
+
     def mean_abs_dir(name):
         k = model.fibre_muscle == model.muscle_index(name)
         w = model.fibre_fraction[k]
@@ -237,9 +240,11 @@ def test_facs_and_markers(model):
     assert model.facs["AU12"] == {"ZYG_l": 1.0, "ZYG_r": 1.0}
     assert set(model.facs["AU23"]) == {"OOM_l", "OOM_r", "OOP_l", "OOP_r"}
     assert model.metadata["canonical_muscles"]["RIS_r"] == ["risorius_r"]
-    m = dict(zip(model.marker_names, model.marker_positions_m))
+    m = dict(zip(model.marker_names, model.marker_positions_m, strict=True))
     assert {"NoseHead", "Mouth_Up", "Mouth_Down", "Mouth_Lend", "Mouth_Rend", "Chin"} <= set(m)
     assert m["Mouth_Lend"][0] > 0.015 and m["Mouth_Rend"][0] < -0.015
+    assert m["Mouth_Lend"][0] > m["Mouth_UpL"][0] > 0 > m["Mouth_UpR"][0] > m["Mouth_Rend"][0]
+    assert m["Mouth_UpL"][1] > m["Mouth_DownL"][1]
     assert m["NoseHead"][1] > m["Mouth_Up"][1] > m["Mouth_Down"][1] > m["Chin"][1]
     skin_q = SurfaceQuery(model.rest_positions_m, model.skin_triangles)
     assert skin_q.closest(model.marker_positions_m).distance_m.max() < 1e-6  # markers on the skin
@@ -261,8 +266,18 @@ def test_validate_and_round_trip(model, tmp_path):
 
 def test_import_is_deterministic(model, data_dir):
     again = import_artisynth(data_dir, progress=False)
-    for name in ("rest_positions_m", "tets", "fibre_tet", "fibre_muscle", "fibre_fraction", "fibre_direction",
-                 "attached_nodes", "attached_bone", "marker_positions_m", "skin_triangles"):
+    for name in (
+        "rest_positions_m",
+        "tets",
+        "fibre_tet",
+        "fibre_muscle",
+        "fibre_fraction",
+        "fibre_direction",
+        "attached_nodes",
+        "attached_bone",
+        "marker_positions_m",
+        "skin_triangles",
+    ):
         assert np.array_equal(getattr(again, name), getattr(model, name)), name
 
 
@@ -281,3 +296,19 @@ def test_fibre_radius_controls_the_muscle_volume(model):
         ideal = np.pi * r**2 * length + 4 / 3 * np.pi * r**3
         assert 0.3 * ideal < vols[-1] < 1.2 * ideal
     assert vols[0] < vols[1]
+
+
+def test_example_summary_and_render(model, tmp_path):
+    """examples/artisynth_face.py doubles as a test: summary text and an off-screen picture."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "artisynth_face.py"
+    spec = importlib.util.spec_from_file_location("artisynth_face_example", path)
+    ex = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ex)
+    text = ex.summary(model, 1.0)
+    assert f"{model.n_tets} tets" in text and "OOP_l" in text
+    pytest.importorskip("pyvista")
+    png = ex.render(model, tmp_path / "badin.png", window_size=(400, 200))
+    assert png.stat().st_size > 1000

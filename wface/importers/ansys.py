@@ -39,7 +39,8 @@ __all__ = [
 _HEX_FACES = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
 
 
-_NODE_ROW = re.compile(r"^\s*(\d+)\s*([-+]?[\d.]+(?:[eE][-+]?\d+)?)\s*([-+]?[\d.]+(?:[eE][-+]?\d+)?)\s*([-+]?[\d.]+(?:[eE][-+]?\d+)?)")
+_FLOAT = r"\s*([-+]?[\d.]+(?:[eE][-+]?\d+)?)"
+_NODE_ROW = re.compile(r"^\s*(\d+)" + _FLOAT * 3)
 
 
 def read_ansys_nodes(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -339,5 +340,6 @@ def hexes_to_tets(
         cell_tets[e] = t
     tets = np.concatenate(cell_tets)
     parent = np.repeat(np.arange(m), [len(t) for t in cell_tets])
-    new = np.vstack([*face_points, *(cell_point[e][None] for e in centre_cells)]) if (n_face or centre_cells) else np.zeros((0, 3))
+    new = [*face_points, *(cell_point[e][None] for e in centre_cells)]
+    new = np.vstack(new) if new else np.zeros((0, 3))
     return tets.astype(np.int32), parent.astype(np.int32), new

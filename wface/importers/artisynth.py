@@ -139,7 +139,7 @@ def read_badin_fibres(directory: str | Path) -> dict[str, list[np.ndarray]]:
     """
     directory = Path(directory)
     ids, pts = read_ansys_nodes(directory / FIBRE_POINT_FILE)
-    pos = {int(i): p for i, p in zip(ids, pts)}
+    pos = {int(i): p for i, p in zip(ids, pts, strict=True)}
     topology = read_apdl_fibres(directory / FIBRE_TOPOLOGY_FILE)
     out: dict[str, list[np.ndarray]] = {}
     for mi, fibres in topology.items():
@@ -191,6 +191,15 @@ def _front_point(v: np.ndarray, t: np.ndarray, x: float, y: float) -> np.ndarray
     return None if s.size == 0 else origin + s[-1] * np.array([0.0, 0.0, 1.0])
 
 
+def _polyline_midpoint(p: np.ndarray) -> np.ndarray:
+    """The point halfway along a polyline (by arc length)."""
+    seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    half = s[-1] / 2
+    i = min(int(np.searchsorted(s, half, side="right")) - 1, len(seg) - 1)
+    return p[i] + (half - s[i]) / max(seg[i], 1e-300) * (p[i + 1] - p[i])
+
+
 def _default_markers(
     x: np.ndarray, skin: np.ndarray, fibres_l: dict[str, list[np.ndarray]]
 ) -> tuple[list[str], np.ndarray, dict[str, str]]:
@@ -217,6 +226,14 @@ def _default_markers(
                 names.append(name)
                 pos.append(fp)
                 how[name] = "midline skin point in front of the OOM midline fibre point"
+        for name, fibre in (("Mouth_UpL", oom[0]), ("Mouth_DownL", oom[1])):
+            p = _polyline_midpoint(fibre)
+            for nm, px in ((name, p[0]), (name[:-1] + "R", -p[0])):
+                fp = _front_point(x, skin, px, p[1])
+                if fp is not None:
+                    names.append(nm)
+                    pos.append(fp)
+                    how[nm] = "skin point in front of the middle of the OOM upper/lower fibre"
         if "Mouth_Down" in names:
             y_down = pos[names.index("Mouth_Down")][1]
             best = None
@@ -293,9 +310,13 @@ def import_artisynth(
     tets, parent, steiner_points = hexes_to_tets(hexes, x, steiner_below_deg=steiner_below_deg)
     x = np.vstack([x, steiner_points])
     quality = quality_report(x, tets)
-    _log(progress, t0, f"{n} nodes (+{len(steiner_points)} cell centres), {len(hexes)} hexes "
-         f"({n_wedges} degenerate) -> {len(tets)} tets; "
-         f"min dihedral {quality.min_dihedral_deg:.2f} deg, inverted {quality.inverted}")
+    _log(
+        progress,
+        t0,
+        f"{n} nodes (+{len(steiner_points)} cell centres), {len(hexes)} hexes "
+        f"({n_wedges} degenerate) -> {len(tets)} tets; "
+        f"min dihedral {quality.min_dihedral_deg:.2f} deg, inverted {quality.inverted}",
+    )
 
     # ---- surfaces (atlas lists hold node numbers)
     external = by_number(read_ansys_nodes(directory / "atlas_external.node")[0], "atlas_external.node")
@@ -368,8 +389,12 @@ def import_artisynth(
     fibre_tet, fibre_muscle = fibre_tet[order], fibre_muscle[order]
     fibre_fraction, fibre_direction = fibre_fraction[order], fibre_direction[order]
     fibre_direction /= np.linalg.norm(fibre_direction, axis=1, keepdims=True)
-    _log(progress, t0, f"{len(muscle_names)} muscles embedded in {np.unique(fibre_tet).size} tets "
-         f"(radius {fibre_radius_m * 1e3:g} mm; {n_overfull} tets rescaled to sum 1)")
+    _log(
+        progress,
+        t0,
+        f"{len(muscle_names)} muscles embedded in {np.unique(fibre_tet).size} tets "
+        f"(radius {fibre_radius_m * 1e3:g} mm; {n_overfull} tets rescaled to sum 1)",
+    )
 
     # ---- markers and FACS
     marker_names, marker_pos, marker_how = _default_markers(x, groups["skin"], fibres_l)
