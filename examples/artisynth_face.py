@@ -96,7 +96,8 @@ def render(model, png: Path, *, window_size=(1600, 800)) -> Path:
         plotter.camera.position = centre + np.array([0.0, 0.0, 0.45])
         plotter.camera.up = (0.0, 1.0, 0.0)
         plotter.camera.azimuth = azimuth
-        plotter.reset_camera_clipping_range()
+        plotter.reset_camera()  # keep the view direction, fit everything in
+        plotter.camera.zoom(1.15)
     plotter.subplot(0, 0)
     legend = []
     for base in sorted({n.rsplit("_", 1)[0] for n in names}):

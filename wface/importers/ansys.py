@@ -285,9 +285,9 @@ def hexes_to_tets(
         cells = hexes[todo]
         tris = _padded_triangles(cells, split)
         # vertex cones (the cell's nodes and its face-centre nodes)
-        apex = np.full((len(todo), 8 + 6), -1, dtype=np.int64)
-        for i, cell in enumerate(cells):
-            cand = np.unique(np.concatenate([cell, tris[i][tris[i] >= n]]))
+        cands = [np.unique(np.concatenate([cell, tris[i][tris[i] >= n]])) for i, cell in enumerate(cells)]
+        apex = np.full((len(todo), max(len(c) for c in cands)), -1, dtype=np.int64)
+        for i, cand in enumerate(cands):
             apex[i, : len(cand)] = cand
         score, skip, flip = _batch_cones(pts, apex, tris)
         best = np.argmax(score, axis=1)

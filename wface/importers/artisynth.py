@@ -313,7 +313,7 @@ def import_artisynth(
     _log(
         progress,
         t0,
-        f"{n} nodes (+{len(steiner_points)} cell centres), {len(hexes)} hexes "
+        f"{n} nodes (+{len(steiner_points)} added face/cell centres), {len(hexes)} hexes "
         f"({n_wedges} degenerate) -> {len(tets)} tets; "
         f"min dihedral {quality.min_dihedral_deg:.2f} deg, inverted {quality.inverted}",
     )
