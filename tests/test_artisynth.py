@@ -95,7 +95,9 @@ def test_fixed_and_atlas_lists_hold_node_numbers(raw, data_dir, name):
 
 def test_jaw_attached_nodes_lie_on_the_jaw(model):
     jaw_nodes = model.nodes_of_bone("jaw")
-    assert len(jaw_nodes) == 329
+    first_added = model.metadata["added_nodes"]["first_id"]
+    assert first_added == 8720 and np.count_nonzero(jaw_nodes < first_added) == 329
+    assert len(jaw_nodes) == 329 + model.metadata["added_nodes"]["attached_to_jaw"]
     bones = [model.bone_meshes["jaw"], model.bone_meshes["lower_teeth"]]
     p = model.rest_positions_m[jaw_nodes]
     d = np.min([SurfaceQuery(b.vertices_m, b.triangles).closest(p).distance_m for b in bones], axis=0)
