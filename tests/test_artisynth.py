@@ -314,3 +314,16 @@ def test_example_summary_and_render(model, tmp_path):
     pytest.importorskip("pyvista")
     png = ex.render(model, tmp_path / "badin.png", window_size=(400, 200))
     assert png.stat().st_size > 1000
+
+
+def test_skin_is_a_connected_surface_without_holes_from_the_split(model):
+    """Split boundary quads (with a face-centre node) stay in their surface group."""
+    x = model.rest_positions_m
+    added = model.metadata["added_nodes"]["first_id"]
+    assert np.any(model.skin_triangles >= added)  # split skin quads are skin
+    # every skin edge is shared by two skin triangles, except along the rim of the skin
+    e = np.sort(model.skin_triangles[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2), axis=1)
+    _, cnt = np.unique(e, axis=0, return_counts=True)
+    assert cnt.max() == 2
+    assert np.count_nonzero(cnt == 1) < 0.1 * len(cnt)  # the rim is short compared with the surface
+    assert x[np.unique(model.skin_triangles), 2].max() > x[:, 2].max() - 1e-9  # the nose tip is skin

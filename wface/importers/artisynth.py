@@ -323,7 +323,11 @@ def import_artisynth(
     # ---- surfaces (atlas lists hold node numbers)
     external = by_number(read_ansys_nodes(directory / "atlas_external.node")[0], "atlas_external.node")
     internal = by_number(read_ansys_nodes(directory / "atlas_internal.node")[0], "atlas_internal.node")
-    groups = _classify_boundary(boundary_faces(tets), external, internal)
+    # an added face-centre node belongs to a surface list when its four corners do
+    quad_centres = [(n + k, src) for k, src in enumerate(steiner_sources) if len(src) == 4]
+    external = np.concatenate([external, [i for i, src in quad_centres if np.isin(src, external).all()]])
+    internal = np.concatenate([internal, [i for i, src in quad_centres if np.isin(src, internal).all()]])
+    groups = _classify_boundary(boundary_faces(tets), external.astype(np.int64), internal.astype(np.int64))
 
     # ---- bones
     bone_meshes = {}
