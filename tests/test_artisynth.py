@@ -327,3 +327,22 @@ def test_skin_is_a_connected_surface_without_holes_from_the_split(model):
     assert cnt.max() == 2
     assert np.count_nonzero(cnt == 1) < 0.1 * len(cnt)  # the rim is short compared with the surface
     assert x[np.unique(model.skin_triangles), 2].max() > x[:, 2].max() - 1e-9  # the nose tip is skin
+
+
+# ---------------------------------------------------------------------------- readers (no data needed)
+def test_readers_on_small_files(tmp_path):
+    from wface.importers.ansys import read_obj
+
+    (tmp_path / "a.node").write_text("       1    0.5   -1.0E-03  2.0\n    1204-0.3651439041000E-05  78.8  -67.8\n")
+    num, xyz = read_ansys_nodes(tmp_path / "a.node")
+    assert num.tolist() == [1, 1204]
+    assert np.allclose(xyz, [[0.5, -1e-3, 2.0], [-0.3651439041e-5, 78.8, -67.8]])
+    (tmp_path / "a.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1 4//1\n")
+    v, t = read_obj(tmp_path / "a.obj")
+    assert v.shape == (4, 3) and t.tolist() == [[0, 1, 2], [0, 2, 3]]
+    (tmp_path / "m.mac").write_text(
+        "nb_muscles = 2\nNB_FIBERS(1)=1 ! one\nNB_FIBERS(2)=1\nNB_NODES_FIBER(1,1)= 2\nNB_NODES_FIBER(2,1)= 3\n"
+        "FIBER(1,1,1)= 11\nFIBER(1,1,2)= 12\n!FIBER(2,1,1)= 99\nFIBER(2,1,1)= 21\nFIBER(2,1,2)= 22\n"
+        "FIBER(2,1,3)= 23\nFIBER(2,1,4)= 24\n"
+    )
+    assert read_apdl_fibres(tmp_path / "m.mac") == {1: [[11, 12]], 2: [[21, 22, 23]]}

@@ -418,7 +418,10 @@ def import_artisynth(
     canonical = {}
     for name in muscle_names:
         badin, _, side = name.partition("_")
-        canonical[name] = [b if b.startswith("orbicularis_oris") else f"{b}_{side}" for b in CANONICAL_MUSCLES[badin]]
+        sides = [side] if side else ["l", "r"]  # a midline muscle stands for both sides
+        canonical[name] = sorted(
+            {b if b.startswith("orbicularis_oris") else f"{b}_{s}" for b in CANONICAL_MUSCLES[badin] for s in sides}
+        )
     metadata = {
         "source": "ArtiSynth Models, Badin face (artisynth_models src/artisynth/models/face/geometry)",
         "citation": CITATION,
