@@ -157,13 +157,14 @@ def newton_quasistatic(
     history.append(residual / scale)
     if stiffness not in ("auto", "projected", "exact"):
         raise ValueError(f"stiffness must be 'auto', 'projected' or 'exact', got {stiffness!r}")
-    try_exact = stiffness != "projected"
+    skip_exact = False  # after a failed exact attempt, the next step goes straight to the projected K
     projected_steps = 0
     while residual / scale > tol and iterations < max_iterations:
         rhs = pattern.gather(f)
         eta = float(np.clip(0.1 * residual / scale, 1e-12, 1e-2))
         dx = None
-        if try_exact:
+        attempted = stiffness != "projected" and not skip_exact
+        if attempted:
             tan = sim.tangent(x, a, project=False)
             try:
                 dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta)
@@ -174,14 +175,12 @@ def newton_quasistatic(
                 if stiffness == "exact":
                     raise
                 dx = None
+        skip_exact = attempted and dx is None
         if dx is None:
             tan = sim.tangent(x, a)
             dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta)
             cg_total += its
             projected_steps += 1
-            try_exact = stiffness == "exact"
-        else:
-            try_exact = stiffness != "projected"
         dx = dx.reshape(-1, 3)
         slope = float(rhs @ dx.reshape(-1))  # -dE/dt at t = 0 (> 0 for a descent direction)
         if not slope > 0:  # not a descent direction (should not happen with SPD K): steepest descent
