@@ -292,7 +292,7 @@ class Simulator:
             x0,
             tol=tol,
             max_iterations=max_iterations,
-            solver=solver or self.solver,
+            solver=solver or self.linear_solver,
             stiffness=stiffness,
         )
         result.seconds = time.perf_counter() - start
