@@ -280,3 +280,50 @@ def test_material_parameters_are_used():
     art = Material.artisynth()
     total = Simulator(base.with_material(art)).energy(x)
     assert total == pytest.approx(art.mu10_pa * e[0] + art.mu01_pa * e[1] + art.kappa_pa * e[2], rel=1e-10)
+
+
+def test_flesh_energy_density_matches_closed_form_mooney_rivlin():
+    """psi(s), its gradient and Hessian in the singular values against the textbook formula
+    psi = mu10 (J^-2/3 I1 - 3) + mu01 (J^-4/3 I2 - 3) + kappa/2 ln^2 J, by complex-step
+    derivatives (exact to round-off) for the gradient and complex-step over central differences
+    (h = 1e-6, truncation ~1e-10 relative) for the Hessian."""
+    import warp as wp
+
+    from wface.kernels.fem import fem_kernels
+    from wface.warp_runtime import init_warp
+
+    init_warp()
+    mat = Material()
+    mu10, mu01, kappa = mat.mu10_pa, mat.mu01_pa, mat.kappa_pa
+
+    def psi(s):
+        J = s[0] * s[1] * s[2]
+        I1 = s[0] ** 2 + s[1] ** 2 + s[2] ** 2
+        I2 = (s[0] * s[1]) ** 2 + (s[0] * s[2]) ** 2 + (s[1] * s[2]) ** 2
+        return mu10 * (J ** (-2 / 3) * I1 - 3) + mu01 * (J ** (-4 / 3) * I2 - 3) + 0.5 * kappa * np.log(J) ** 2
+
+    rng = np.random.default_rng(11)
+    S = np.sort(rng.uniform(0.3, 2.0, size=(8, 3)), axis=1)[:, ::-1].copy()
+    S = np.vstack([S, [1.0, 1.0, 1.0], [1.5, 1.5, 0.6]])
+    k = fem_kernels(wp.float64)
+    n = len(S)
+    p, g, H = wp.zeros(n, dtype=wp.float64), wp.zeros(n, dtype=wp.vec3d), wp.zeros(n, dtype=wp.mat33d)
+    wp.launch(
+        k.flesh_in_singular_values,
+        n,
+        inputs=[wp.array(S, dtype=wp.vec3d), mu10, mu01, kappa, mat.inversion_clamp, p, g, H],
+    )
+    e, hc, hd = np.eye(3), 1e-30, 1e-6
+    for i, s in enumerate(S):
+        grad = np.array([np.imag(psi(s + 1j * hc * e[d])) / hc for d in range(3)])
+        hess = np.array(
+            [
+                [(np.imag(psi(s + 1j * hc * e[d] + hd * e[c])) - np.imag(psi(s + 1j * hc * e[d] - hd * e[c]))) / (2 * hc * hd)
+                 for c in range(3)]
+                for d in range(3)
+            ]
+        )
+        scale = mu10 + mu01 + kappa
+        assert p.numpy()[i] == pytest.approx(psi(s), abs=1e-12 * scale)
+        np.testing.assert_allclose(g.numpy()[i], grad, rtol=0, atol=1e-11 * scale)
+        np.testing.assert_allclose(H.numpy()[i], hess, rtol=0, atol=1e-8 * np.abs(hess).max())
