@@ -622,6 +622,36 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         out[i, 4] = dfp
         out[i, 5] = gp
 
+    @wp.kernel(module="unique", enable_backward=False)
+    def masked_axpby(
+        # In:
+        ax: wp.array(dtype=vec3),
+        y: wp.array(dtype=vec3),
+        mask: wp.array(dtype=S),
+        alpha: S,
+        beta: S,
+        # Out:
+        z_out: wp.array(dtype=vec3),
+    ):
+        """z = alpha mask * ax + beta y (mask = 1 on unknown nodes, 0 on Dirichlet nodes)."""
+        i = wp.tid()
+        z_out[i] = (alpha * mask[i]) * ax[i] + beta * y[i]
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def diagonal_axpby(
+        # In:
+        inv_diag: wp.array(dtype=vec3),
+        x: wp.array(dtype=vec3),
+        y: wp.array(dtype=vec3),
+        alpha: S,
+        beta: S,
+        # Out:
+        z_out: wp.array(dtype=vec3),
+    ):
+        """z = alpha diag(inv_diag) x + beta y (Jacobi preconditioner)."""
+        i = wp.tid()
+        z_out[i] = alpha * wp.cw_mul(inv_diag[i], x[i]) + beta * y[i]
+
     class _Kernels:
         pass
 
@@ -641,6 +671,8 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         singular_values,
         fibre_curves,
         flesh_in_singular_values,
+        masked_axpby,
+        diagonal_axpby,
     ):
         setattr(ns, k.func.__name__, k)
     return ns

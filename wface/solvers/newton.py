@@ -84,8 +84,11 @@ def solve_free(tangent, pattern, rhs: np.ndarray, *, engine: str, rtol: float = 
             return factor.solve(rhs), 0
         finally:
             factor.free()
-    mask = np.zeros((pattern.n_nodes, 3))
-    mask[pattern.dof_nodes] = 1.0
+    if str(tangent._sim.device).startswith("cuda"):
+        from wface.solvers.warp_cg import warp_pcg
+
+        X, its = warp_pcg(tangent, pattern, rhs, rtol=rtol)
+        return X, its
 
     def matvec(v):
         if v.ndim == 1:
