@@ -120,7 +120,7 @@ def test_fibre_curves_match_design_formulas_and_are_c1():
     np.testing.assert_allclose(c[away, 1], ((cp[:, 0] - cm[:, 0]) / (2 * h))[away], atol=1e-7)
     np.testing.assert_allclose(c[away, 4], ((cp[:, 3] - cm[:, 3]) / (2 * h))[away], atol=1e-7)
     # integrals from 1 (the fibre energy per unit volume and sigma_max) against quadrature
-    for lv, row in zip(lam[::50], c[::50]):
+    for lv, row in zip(lam[::50], c[::50], strict=True):
         il = quad(_fl, 1.0, lv, points=[0.4, 0.6, 1.4, 1.6], limit=200)[0]
         ip = quad(_fp, 1.0, lv, points=[1.4], limit=200)[0]
         assert row[2] == pytest.approx(il, abs=1e-10) and row[5] == pytest.approx(ip, abs=1e-10)
@@ -318,8 +318,11 @@ def test_flesh_energy_density_matches_closed_form_mooney_rivlin():
         grad = np.array([np.imag(psi(s + 1j * hc * e[d])) / hc for d in range(3)])
         hess = np.array(
             [
-                [(np.imag(psi(s + 1j * hc * e[d] + hd * e[c])) - np.imag(psi(s + 1j * hc * e[d] - hd * e[c]))) / (2 * hc * hd)
-                 for c in range(3)]
+                [
+                    (np.imag(psi(s + 1j * hc * e[d] + hd * e[c])) - np.imag(psi(s + 1j * hc * e[d] - hd * e[c])))
+                    / (2 * hc * hd)
+                    for c in range(3)
+                ]
                 for d in range(3)
             ]
         )

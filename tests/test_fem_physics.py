@@ -177,7 +177,10 @@ def face():
 
     model = build_face(3000)
     X = model.rest_positions_m
-    nearest = {n: int(np.argmin(np.linalg.norm(X - p, axis=1))) for n, p in zip(model.marker_names, model.marker_positions_m)}
+    nearest = {
+        n: int(np.argmin(np.linalg.norm(X - p, axis=1)))
+        for n, p in zip(model.marker_names, model.marker_positions_m, strict=True)
+    }
     return model, Simulator(model), nearest
 
 

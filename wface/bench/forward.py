@@ -71,11 +71,12 @@ def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_max
     def forces32():
         sim32._f.zero_()
         wp.launch(
-            sim32._k.element_forces, model.n_tets, inputs=[*sim32._model_inputs(), sim32._x, sim32._a, sim32._f, sim32._e]
+            sim32._k.element_forces,
+            model.n_tets,
+            inputs=[*sim32._model_inputs(), sim32._x, sim32._a, sim32._f, sim32._e],
         )
 
     out["forces_float32_seconds"] = _median_time(forces32, repeat, sync)
-    del sim32
 
     tangent_holder = {}
     tangent_holder["t"] = sim.tangent(x, a)
@@ -92,7 +93,9 @@ def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_max
 
     def kv():
         sim._out.zero_()
-        wp.launch(sim._k.tangent_matvec, model.n_tets, inputs=[sim._tets, sim._dm_inv, tan.element_tangents, sim._v, sim._out])
+        wp.launch(
+            sim._k.tangent_matvec, model.n_tets, inputs=[sim._tets, sim._dm_inv, tan.element_tangents, sim._v, sim._out]
+        )
 
     out["kv_seconds"] = _median_time(kv, repeat, sync)
     t0 = time.perf_counter()

@@ -16,8 +16,8 @@ from __future__ import annotations
 import os
 import platform
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp

@@ -36,8 +36,12 @@ def warp_pcg(tangent, pattern, rhs: np.ndarray, *, rtol: float = 1e-8, maxiter: 
 
     def matvec(x, y, z, alpha, beta):
         tmp.zero_()
-        wp.launch(k.tangent_matvec, sim.model.n_tets, inputs=[sim._tets, sim._dm_inv, tangent.element_tangents, x, tmp],
-                  device=dev)
+        wp.launch(
+            k.tangent_matvec,
+            sim.model.n_tets,
+            inputs=[sim._tets, sim._dm_inv, tangent.element_tangents, x, tmp],
+            device=dev,
+        )
         wp.launch(k.masked_axpby, n, inputs=[tmp, y, mask, k.scalar(alpha), k.scalar(beta), z], device=dev)
 
     def precond(x, y, z, alpha, beta):
