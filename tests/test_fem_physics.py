@@ -129,8 +129,10 @@ def test_solution_does_not_depend_on_the_linear_solver_or_stiffness_choice():
     direct = sim.solve(act, solver="direct", tol=1e-10)
     cg = sim.solve(act, solver="cg", tol=1e-10)
     projected = sim.solve(act, solver="direct", stiffness="projected", tol=1e-10)
+    reused = sim.solve(act, solver="direct", reuse_factor=True, tol=1e-10)
     assert direct.solver == "direct" and cg.solver == "cg" and cg.cg_iterations > 0
-    for other in (cg, projected):
+    assert reused.factorizations >= 1 and reused.factorizations <= reused.iterations
+    for other in (cg, projected, reused):
         assert other.converged
         np.testing.assert_allclose(other.x, direct.x, atol=1e-8 * 0.04)
     # contracting fibres along x shorten the bar

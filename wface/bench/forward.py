@@ -151,6 +151,8 @@ def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_max
     out["quasistatic_seconds"] = eq.seconds
     out["quasistatic_newton_iterations"] = eq.iterations
     out["quasistatic_projected_steps"] = eq.projected_steps
+    out["quasistatic_factorizations"] = eq.factorizations
+    out["quasistatic_cg_iterations"] = eq.cg_iterations
     out["quasistatic_residual_rel"] = eq.residual_rel
     out["quasistatic_converged"] = eq.converged
     out["quasistatic_solver"] = eq.solver

@@ -108,6 +108,7 @@ def _run(args: argparse.Namespace) -> int:
         "inverted_elements": eq.inverted_elements,
         "energy_j": eq.energy,
         "cg_iterations": eq.cg_iterations,
+        "factorizations": eq.factorizations,
         "solve_seconds": eq.seconds,
         "seconds": time.perf_counter() - start,
     }

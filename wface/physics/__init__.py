@@ -2,7 +2,8 @@
 
 Main entry point: ``Simulator(model, device="cpu", precision="float64", solver="auto")`` with
 ``energy``, ``forces``, ``muscle_forces``, ``tangent`` / ``stiffness_matvec`` /
-``assemble_stiffness``, ``stiffness_solver`` (many right-hand sides) and ``solve``. Bone placement helpers are in ``wface.physics.bones``.
+``assemble_stiffness``, ``stiffness_solver`` (many right-hand sides) and ``solve``.
+Bone placement helpers are in ``wface.physics.bones``.
 """
 
 from wface.physics.simulator import Simulator, StiffnessSolver, Tangent, count_inverted
