@@ -467,9 +467,9 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         # State in:
         v: wp.array(dtype=vec3),
         # Out:
-        out: wp.array(dtype=vec3),
+        kv_out: wp.array(dtype=vec3),
     ):
-        """out += K v with K = -df/dx (matrix-free, from the per-tet 9x9 tangents)."""
+        """kv_out += K v with K = -df/dx (matrix-free, from the per-tet 9x9 tangents)."""
         t = wp.tid()
         r0, r1, r2, r3 = node_gradients(dm_inv[t])
         v0 = v[tets[t, 0]]
@@ -486,10 +486,10 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         c1 = dP * r1
         c2 = dP * r2
         c3 = dP * r3
-        wp.atomic_add(out, tets[t, 1], c1)
-        wp.atomic_add(out, tets[t, 2], c2)
-        wp.atomic_add(out, tets[t, 3], c3)
-        wp.atomic_add(out, tets[t, 0], -(c1 + c2 + c3))
+        wp.atomic_add(kv_out, tets[t, 1], c1)
+        wp.atomic_add(kv_out, tets[t, 2], c2)
+        wp.atomic_add(kv_out, tets[t, 3], c3)
+        wp.atomic_add(kv_out, tets[t, 0], -(c1 + c2 + c3))
 
     @wp.func
     def tangent_block(C: mat99, ra: vec3, rb: vec3):
@@ -609,18 +609,18 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         # In:
         lam: wp.array(dtype=S),
         # Out:
-        out: wp.array2d(dtype=S),
+        curves_out: wp.array2d(dtype=S),
     ):
         """Columns: f_L, f_L', int f_L, f_P, f_P', int f_P at each stretch (integrals from 1)."""
         i = wp.tid()
         fl, dfl, gl = force_length(lam[i] - S(1.0))
         fp, dfp, gp = passive_curve(lam[i] - S(1.0))
-        out[i, 0] = fl
-        out[i, 1] = dfl
-        out[i, 2] = gl
-        out[i, 3] = fp
-        out[i, 4] = dfp
-        out[i, 5] = gp
+        curves_out[i, 0] = fl
+        curves_out[i, 1] = dfl
+        curves_out[i, 2] = gl
+        curves_out[i, 3] = fp
+        curves_out[i, 4] = dfp
+        curves_out[i, 5] = gp
 
     @wp.kernel(module="unique", enable_backward=False)
     def masked_axpby(

@@ -330,3 +330,13 @@ def test_flesh_energy_density_matches_closed_form_mooney_rivlin():
         assert p.numpy()[i] == pytest.approx(psi(s), abs=1e-12 * scale)
         np.testing.assert_allclose(g.numpy()[i], grad, rtol=0, atol=1e-11 * scale)
         np.testing.assert_allclose(H.numpy()[i], hess, rtol=0, atol=1e-8 * np.abs(hess).max())
+
+
+def test_float32_newton_reaches_the_float64_equilibrium():
+    model = box_model((4, 2, 2), cranium_faces=("x-",), muscles=2)
+    act = {"muscle_0": 0.8}
+    r64 = Simulator(model).solve(act, tol=1e-10)
+    r32 = Simulator(model, precision="float32").solve(act, tol=1e-4)  # float32 forces: ~1e-6 relative noise
+    assert r32.converged
+    u = np.abs(r64.x - model.rest_positions_m).max()
+    assert np.abs(r32.x - r64.x).max() < 1e-4 * u

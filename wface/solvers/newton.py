@@ -231,7 +231,7 @@ def newton_quasistatic(
         if not slope > 0:  # not a descent direction (should not happen with SPD K): steepest descent
             dx = f[free] / max(float(np.abs(tan.diagonal()[free]).max()), 1e-30)
             slope = float(rhs @ dx.reshape(-1))
-        slack = 64 * np.finfo(float).eps * float(np.abs(sim.element_energies(x, a)).sum())
+        slack = 64 * np.finfo(sim._np_dtype).eps * float(np.abs(sim.element_energies(x, a)).sum())
         t = 1.0
         trial = x.copy()
         for _ in range(max_line_search):
