@@ -212,3 +212,17 @@ def test_jaw_opening_lowers_the_chin(face):
     d = _marker_motion_mm(face, None, jaw_deg=10.0)
     assert d["Chin"][1] < -3.0  # ~ 10 deg about a condyle axis several cm behind the chin
     assert abs(d["ForeHead_M"][1]) < 0.1 * abs(d["Chin"][1])
+
+
+@pytest.mark.parametrize(
+    "muscle, marker, axis, sign",
+    [
+        ("levator_labii_superioris_l", "Mouth_UpL1", 1, +1),  # raises the upper lip
+        ("risorius_l", "Mouth_Lend", 0, +1),  # draws the corner sideways (+x is the subject's left)
+        ("corrugator_l", "Leyebrow_Inside", 0, -1),  # pulls the brow towards the midline
+        ("orbicularis_oris_lower", "Mouth_Down", 2, -1),  # the sphincter draws the lower lip in
+    ],
+)
+def test_single_muscles_move_their_landmark_the_anatomical_way(face, muscle, marker, axis, sign):
+    d = _marker_motion_mm(face, {muscle: 1.0})[marker]
+    assert sign * d[axis] > 0.1, (muscle, marker, d)  # at least 0.1 mm along the anatomical direction
