@@ -17,9 +17,18 @@ from pathlib import Path
 import numpy as np
 
 __all__ = [
+    "BlendShapeBasis",
+    "UsdValidationFailed",
     "UsdWriteError",
+    "affine_to_matrix4d",
     "as_polygons",
+    "assert_stage_valid",
+    "blendshape_points",
+    "check_extents",
+    "validate_stage",
+    "write_blendshape_basis",
     "write_mesh_animation",
+    "write_take",
 ]
 
 
@@ -99,9 +108,9 @@ def _vt_float(a: np.ndarray):
     return Vt.FloatArray.FromNumpy(np.ascontiguousarray(a, dtype=np.float32))
 
 
-def _new_stage(path: Path, *, fps: float, n_frames: int, up_axis: str, root: str):
-    """Create a stage (replacing any file there) with wface's metadata and a root Xform."""
-    from pxr import Sdf, Usd, UsdGeom
+def _new_stage(path: Path, *, fps: float, n_frames: int, up_axis: str, root: str, root_type: str = "Xform"):
+    """Create a stage (replacing any file there) with wface's metadata and a root prim (the default prim)."""
+    from pxr import Sdf, Usd, UsdGeom, UsdSkel
 
     if not (np.isfinite(fps) and fps > 0):
         raise UsdWriteError(f"fps must be a positive number, got {fps}")
@@ -122,14 +131,15 @@ def _new_stage(path: Path, *, fps: float, n_frames: int, up_axis: str, root: str
     stage.SetFramesPerSecond(float(fps))
     stage.SetStartTimeCode(0.0)
     stage.SetEndTimeCode(float(max(n_frames - 1, 0)))
-    root_prim = UsdGeom.Xform.Define(stage, f"/{root}").GetPrim()
+    schema = UsdSkel.Root if root_type == "SkelRoot" else UsdGeom.Xform
+    root_prim = schema.Define(stage, f"/{root}").GetPrim()
     stage.SetDefaultPrim(root_prim)
     return stage
 
 
 def _write_mesh(stage, prim_path: str, points: np.ndarray, counts, indices, colors=None):
     """Author a UsdGeom.Mesh: topology once; points and extent static (n,3) or per frame (F,n,3)."""
-    from pxr import Sdf, UsdGeom
+    from pxr import UsdGeom
 
     mesh = UsdGeom.Mesh.Define(stage, prim_path)
     mesh.CreateFaceVertexCountsAttr(_vt_int(counts))
@@ -146,7 +156,6 @@ def _write_mesh(stage, prim_path: str, points: np.ndarray, counts, indices, colo
             ext_attr.Set(_vt_vec3f(_extent(p)), float(f))
     if colors is not None:
         _set_display_color(mesh, colors, n_points=points.shape[-2], n_frames=points.shape[0] if points.ndim == 3 else None)
-    del Sdf
     return mesh
 
 
@@ -225,3 +234,553 @@ def write_mesh_animation(
     _write_mesh(stage, f"/{name}/Mesh", p, counts, indices, colors=colors)
     stage.GetRootLayer().Save()
     return path
+
+
+# ---------------------------------------------------------------------- names and small writers
+def _identifier(name: str, taken: set[str]) -> str:
+    """A valid, unique USD identifier for ``name`` (adds it to ``taken``)."""
+    from pxr import Tf
+
+    base = Tf.MakeValidIdentifier(str(name)) or "_"
+    ident, k = base, 1
+    while ident in taken:
+        ident, k = f"{base}_{k}", k + 1
+    taken.add(ident)
+    return ident
+
+
+def affine_to_matrix4d(affine: np.ndarray):
+    """A 3x4 affine ``[A | t]`` (x' = A x + t, column vectors) as USD's row-vector Gf.Matrix4d."""
+    from pxr import Gf
+
+    a = np.asarray(affine, dtype=np.float64)
+    m = np.eye(4)
+    m[:3, :3] = a[:, :3].T
+    m[3, :3] = a[:, 3]
+    return Gf.Matrix4d(m.tolist())
+
+
+def _check_frames(name: str, a, n_frames: int, tail: tuple, *, allow_nan: bool = False) -> np.ndarray:
+    arr = np.asarray(a, dtype=np.float64)
+    want = (n_frames, *tail)
+    ok = arr.ndim == len(want) and all(w is None or s == w for s, w in zip(arr.shape, want))
+    if not ok:
+        shown = ", ".join("k" if w is None else str(w) for w in want)
+        raise UsdWriteError(f"{name} must have shape ({shown}) (frames first, like node_positions_m); got {arr.shape}")
+    if allow_nan:
+        if np.any(np.isinf(arr)):
+            raise UsdWriteError(f"{name} contains inf (use NaN for a missing value)")
+    else:
+        _check_finite(name, arr)
+    return arr
+
+
+def _write_points(stage, prim_path: str, points: np.ndarray, *, radius_m: float, rgb, names: list[str]):
+    """UsdGeom.Points per frame; NaN rows (missing markers) are left out and ``ids`` says which remain."""
+    from pxr import Sdf, UsdGeom, Vt
+
+    pts = UsdGeom.Points.Define(stage, prim_path)
+    pts.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(_vt_vec3f(np.asarray(rgb)[None]))
+    w_attr = pts.CreateWidthsAttr()
+    pts.SetWidthsInterpolation(UsdGeom.Tokens.vertex)  # one width per point
+    pts.GetPrim().CreateAttribute("wface:markerNames", Sdf.ValueTypeNames.StringArray, custom=True,
+                                  variability=Sdf.VariabilityUniform).Set(Vt.StringArray(list(names)))
+    p_attr, i_attr, e_attr = pts.CreatePointsAttr(), pts.CreateIdsAttr(), pts.CreateExtentAttr()
+    last_extent = None
+    for f, pf in enumerate(points):
+        present = np.flatnonzero(np.all(np.isfinite(pf), axis=1))
+        p32 = _vt_vec3f(pf[present])
+        widths = _vt_float(np.full(present.size, 2.0 * radius_m))
+        p_attr.Set(p32, float(f))
+        w_attr.Set(widths, float(f))
+        i_attr.Set(Vt.Int64Array([int(i) for i in present]), float(f))
+        ext = UsdGeom.Points.ComputeExtent(p32, widths) if present.size else None
+        if ext is None or len(ext) != 2:
+            ext = last_extent if last_extent is not None else _vt_vec3f(np.zeros((2, 3)))
+        e_attr.Set(ext, float(f))
+        last_extent = ext
+    return pts
+
+
+def _write_float_primvar(gprim, name: str, values: np.ndarray, interpolation: str) -> None:
+    from pxr import Sdf, UsdGeom
+
+    pv = UsdGeom.PrimvarsAPI(gprim.GetPrim()).CreatePrimvar(name, Sdf.ValueTypeNames.FloatArray, interpolation)
+    if values.ndim == 1:
+        pv.Set(_vt_float(values))
+    else:
+        for f, v in enumerate(values):
+            pv.Set(_vt_float(v), float(f))
+
+
+# ---------------------------------------------------------------------- blend shapes (UsdSkel)
+class BlendShapeBasis:
+    """A linear actuation basis E = E0 + sum_i x_i e_i (seed 003) to write as UsdSkel blend shapes.
+
+    Args:
+        neutral_m: (n, 3) rest shape E0 in metres.
+        deltas_m: (B, n, 3) basis displacements e_i in metres.
+        names: B names (made into unique USD identifiers on write); default ``shape_<i>``.
+    """
+
+    def __init__(self, neutral_m: np.ndarray, deltas_m: np.ndarray, names: list[str] | None = None):
+        self.neutral_m = _as_points(neutral_m, "neutral_m")
+        if self.neutral_m.ndim != 2:
+            raise UsdWriteError(f"neutral_m must have shape (n, 3); got {self.neutral_m.shape}")
+        n = self.neutral_m.shape[0]
+        d = np.asarray(deltas_m, dtype=np.float64)
+        if d.ndim != 3 or d.shape[1:] != (n, 3):
+            raise UsdWriteError(f"deltas_m must have shape (B, {n}, 3) like neutral_m (n = {n}); got {d.shape}")
+        _check_finite("deltas_m", d)
+        self.deltas_m = d
+        self.names = [f"shape_{i}" for i in range(d.shape[0])] if names is None else [str(s) for s in names]
+        if len(self.names) != d.shape[0]:
+            raise UsdWriteError(f"{len(self.names)} basis names for {d.shape[0]} deltas")
+
+    @property
+    def n_shapes(self) -> int:
+        return int(self.deltas_m.shape[0])
+
+    def synthesize(self, weights: np.ndarray) -> np.ndarray:
+        """E0 + sum_i x_i e_i for weights (B,) -> (n, 3) or (F, B) -> (F, n, 3)."""
+        return self.neutral_m + np.tensordot(np.asarray(weights, dtype=np.float64), self.deltas_m, axes=(-1, 0))
+
+    def restricted(self, vertices: np.ndarray) -> BlendShapeBasis:
+        """The basis on a subset of its vertices (e.g. the skin nodes of a volumetric model)."""
+        return BlendShapeBasis(self.neutral_m[vertices], self.deltas_m[:, vertices], self.names)
+
+
+def _write_blendshapes(stage, root_path: str, basis: BlendShapeBasis, weights: np.ndarray | None, counts, indices,
+                       *, sparse_tol_m: float = 0.0):
+    """SkelRoot with a one-joint Skeleton, a SkelAnimation (blendShapeWeights per frame) and a bound Mesh.
+
+    What Blender's USD importer needs is here: the Skeleton's ``skel:animationSource`` names the
+    SkelAnimation; the mesh has SkelBindingAPI, ``skel:skeleton``, and ``skel:blendShapes`` /
+    ``skel:blendShapeTargets`` of equal length; the animation's ``blendShapes`` tokens match.
+    """
+    from pxr import Gf, UsdGeom, UsdSkel, Vt
+
+    root = UsdSkel.Root.Define(stage, root_path)
+    skel = UsdSkel.Skeleton.Define(stage, f"{root_path}/Skel")
+    skel.CreateJointsAttr(Vt.TokenArray(["root"]))
+    skel.CreateBindTransformsAttr(Vt.Matrix4dArray([Gf.Matrix4d(1.0)]))
+    skel.CreateRestTransformsAttr(Vt.Matrix4dArray([Gf.Matrix4d(1.0)]))
+    anim = UsdSkel.Animation.Define(stage, f"{root_path}/Skel/Anim")
+    anim.CreateJointsAttr(Vt.TokenArray(["root"]))
+    anim.CreateTranslationsAttr(Vt.Vec3fArray([Gf.Vec3f(0.0)]))
+    anim.CreateRotationsAttr(Vt.QuatfArray([Gf.Quatf(1.0)]))
+    anim.CreateScalesAttr(Vt.Vec3hArray([Gf.Vec3h(1.0)]))
+    UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+
+    mesh = _write_mesh(stage, f"{root_path}/Mesh", basis.neutral_m, counts, indices)
+    binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
+    binding.CreateJointIndicesPrimvar(constant=True, elementSize=1).Set(Vt.IntArray([0]))
+    binding.CreateJointWeightsPrimvar(constant=True, elementSize=1).Set(Vt.FloatArray([1.0]))
+    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+
+    taken: set[str] = set()
+    tokens, targets = [], []
+    for name, delta in zip(basis.names, basis.deltas_m):
+        ident = _identifier(name, taken)
+        shape = UsdSkel.BlendShape.Define(stage, mesh.GetPath().AppendChild(ident))
+        moved = np.flatnonzero(np.max(np.abs(delta), axis=1) > sparse_tol_m)
+        shape.CreateOffsetsAttr(_vt_vec3f(delta[moved]))
+        shape.CreatePointIndicesAttr(_vt_int(moved))
+        tokens.append(ident)
+        targets.append(shape.GetPath())
+    binding.CreateBlendShapesAttr(Vt.TokenArray(tokens))
+    binding.CreateBlendShapeTargetsRel().SetTargets(targets)
+    anim.CreateBlendShapesAttr(Vt.TokenArray(tokens))
+    w_attr = anim.CreateBlendShapeWeightsAttr()
+    if weights is None:
+        w_attr.Set(_vt_float(np.zeros(basis.n_shapes)))
+    else:
+        for f, w in enumerate(weights):
+            w_attr.Set(_vt_float(w), float(f))
+    # The skinned points move with the weights: give the SkelRoot a bound over all frames.
+    if weights is not None and len(weights):
+        all_pts = basis.synthesize(weights).reshape(-1, 3)
+        all_pts = np.concatenate([all_pts, basis.neutral_m])
+    else:
+        all_pts = basis.neutral_m
+    UsdGeom.ModelAPI.Apply(root.GetPrim()).SetExtentsHint(_vt_vec3f(_extent(all_pts)))
+    return root
+
+
+def write_blendshape_basis(
+    path: str | Path,
+    *,
+    basis: BlendShapeBasis,
+    face_vertex_counts: np.ndarray | None,
+    face_vertex_indices: np.ndarray,
+    weights: np.ndarray | None = None,
+    fps: float = 60.0,
+    name: str = "Face",
+    up_axis: str = "Y",
+) -> Path:
+    """Write an actuation basis as UsdSkel blend shapes, optionally animated by per-frame weights.
+
+    Layout: ``/<name>`` (SkelRoot, default prim) with ``Skel`` (Skeleton, one identity joint),
+    ``Skel/Anim`` (SkelAnimation with ``blendShapes`` and time-sampled ``blendShapeWeights``) and
+    ``Mesh`` (the neutral E0, SkelBindingAPI) whose BlendShape children hold the sparse offsets
+    e_i. A DCC tool (Blender, usdview, Maya) then shows E0 + sum_i x_i e_i per frame.
+
+    Args:
+        path: ``.usda`` or ``.usdc`` file.
+        basis: neutral shape, deltas and names.
+        face_vertex_counts / face_vertex_indices: mesh topology (see ``write_mesh_animation``).
+        weights: (F, B) per-frame weights x_i; None writes static zero weights (the neutral).
+        fps: frames per second.
+        name: root prim name.
+        up_axis: "Y" or "Z" (metadata only).
+
+    Returns:
+        The path written.
+    """
+    path = _check_path(path)
+    counts, indices = as_polygons(face_vertex_counts, face_vertex_indices, basis.neutral_m.shape[0])
+    w = None if weights is None else _check_frames("weights", weights, np.asarray(weights).shape[0], (basis.n_shapes,))
+    stage = _new_stage(path, fps=fps, n_frames=1 if w is None else len(w), up_axis=up_axis, root=name, root_type="SkelRoot")
+    _write_blendshapes(stage, f"/{name}", basis, w, counts, indices)
+    stage.GetRootLayer().Save()
+    return path
+
+
+# ---------------------------------------------------------------------- a whole take
+def write_take(
+    path: str | Path,
+    *,
+    model,
+    node_positions_m: np.ndarray,
+    fps: float,
+    captured_markers_m: np.ndarray | None = None,
+    simulated_markers_m: np.ndarray | None = None,
+    marker_names: list[str] | None = None,
+    cranium_affines: np.ndarray | None = None,
+    jaw_affines: np.ndarray | None = None,
+    activations: np.ndarray | None = None,
+    basis: BlendShapeBasis | None = None,
+    basis_weights: np.ndarray | None = None,
+    marker_radius_m: float = 0.002,
+    muscle_radius_m: float | None = None,
+    name: str = "Face",
+    up_axis: str = "Y",
+    metadata: dict | None = None,
+) -> Path:
+    """Write a tracked or simulated take of a ``FaceModel`` as one USD stage.
+
+    Frame f (0-based) is time code f; the stage's timeCodesPerSecond is ``fps``. Prims under the
+    default prim ``/<name>`` (an Xform):
+
+    - ``Skin`` (Mesh): the nodes used by ``model.skin_triangles``, renumbered compactly (their
+      model node ids in the constant primvar ``wface:nodeId``); topology once, points and extent
+      per frame. With ``activations``: ``primvars:wface:activation`` (float per vertex per frame,
+      max_m w_m a_m over nearby muscles) and a ``displayColor`` heat map (skin; muscles red when
+      inactive, yellow when active). Without: a constant skin colour.
+    - ``Markers/Captured`` and ``Markers/Simulated`` (Points, red and green, one width per point,
+      ``ids`` = marker indices; NaN captured positions, i.e. missing markers, are left out of
+      that frame). Marker names in the uniform attribute ``wface:markerNames``.
+    - ``Bones/Cranium`` and ``Bones/Jaw`` (Xforms with one time-sampled transform op from the
+      per-frame affines) holding the model's ``bone_meshes`` at rest position.
+    - ``Muscles`` (Scope): per muscle a time-sampled float ``wface:activation:<muscle>`` (the name
+      made a valid identifier; the original names in ``wface:muscleNames``), and all of them as
+      a float[] ``wface:activations``.
+    - ``Basis`` (SkelRoot) when ``basis`` is given: see ``write_blendshape_basis``.
+
+    Args:
+        path: ``.usdc`` (binary, default) or ``.usda`` (text).
+        model: the ``FaceModel``.
+        node_positions_m: (F, n, 3) node positions per frame (n = model.n_nodes), world metres.
+        fps: capture rate in frames per second.
+        captured_markers_m: (F, k, 3) captured markers in the model's frame; NaN = missing.
+        simulated_markers_m: (F, k, 3) markers on the simulated / tracked skin.
+        marker_names: k names; default ``model.marker_names`` when it has k entries, else m<i>.
+        cranium_affines: (F, 3, 4) per-frame rest-to-world affine [A | t] of the cranium
+            (x_world = A x_rest + t).
+        jaw_affines: (F, 3, 4) per-frame rest-to-world affine of the jaw (world, not relative
+            to the cranium: the two Xforms are siblings).
+        activations: (F, M) muscle activations (M = model.n_muscles), usually in [0, 1].
+        basis: an actuation basis on the model's nodes (n) or on the compact skin vertices.
+        basis_weights: (F, B) weights of ``basis`` per frame (required with ``basis``).
+        marker_radius_m: marker sphere radius (widths = 2 r).
+        muscle_radius_m: falloff radius of the muscle heat map (default: 2 x median tet edge).
+        name: root prim name.
+        up_axis: "Y" (the model's convention) or "Z"; metadata only.
+        metadata: small JSON-able dict stored in the layer's customLayerData under "wface".
+
+    Returns:
+        The path written.
+
+    Raises:
+        UsdWriteError: a shape, frame count or value is wrong; the message names it.
+    """
+    from pxr import Sdf, UsdGeom, Vt
+
+    from wface.viz.muscles import SKIN_RGB, activation_colors, skin_muscle_influence
+
+    path = _check_path(path)
+    x = np.asarray(node_positions_m, dtype=np.float64)
+    if x.ndim != 3 or x.shape[1:] != (model.n_nodes, 3) or x.shape[0] == 0:
+        raise UsdWriteError(
+            f"node_positions_m must have shape (frames, {model.n_nodes}, 3) for this model; got {x.shape}"
+        )
+    _check_finite("node_positions_m", x)
+    n_frames = x.shape[0]
+    if model.skin_triangles.size == 0:
+        raise UsdWriteError("model has no skin_triangles to write")
+    skin_nodes = np.unique(model.skin_triangles)
+    remap = np.full(model.n_nodes, -1, dtype=np.int64)
+    remap[skin_nodes] = np.arange(skin_nodes.size)
+    tri = remap[model.skin_triangles]
+    counts, indices = as_polygons(None, tri, skin_nodes.size)
+
+    act = None if activations is None else _check_frames("activations", activations, n_frames, (model.n_muscles,))
+    markers = {}
+    for label, arr, nan_ok in (("Captured", captured_markers_m, True), ("Simulated", simulated_markers_m, False)):
+        if arr is not None:
+            key = "captured_markers_m" if label == "Captured" else "simulated_markers_m"
+            markers[label] = _check_frames(key, arr, n_frames, (None, 3), allow_nan=nan_ok)
+    ks = {a.shape[1] for a in markers.values()}
+    if len(ks) > 1:
+        raise UsdWriteError(f"captured and simulated markers differ in count: {sorted(ks)}")
+    affines = {}
+    for label, arr in (("Cranium", cranium_affines), ("Jaw", jaw_affines)):
+        if arr is not None:
+            affines[label] = _check_frames(f"{label.lower()}_affines", arr, n_frames, (3, 4))
+    if basis is not None:
+        if basis_weights is None:
+            raise UsdWriteError("basis given without basis_weights (frames, B)")
+        bw = _check_frames("basis_weights", basis_weights, n_frames, (basis.n_shapes,))
+        nb = basis.neutral_m.shape[0]
+        if nb == model.n_nodes:
+            basis = basis.restricted(skin_nodes)
+        elif nb != skin_nodes.size:
+            raise UsdWriteError(
+                f"basis has {nb} vertices; expected the model's {model.n_nodes} nodes or its {skin_nodes.size} skin vertices"
+            )
+    elif basis_weights is not None:
+        raise UsdWriteError("basis_weights given without a basis")
+    if not (np.isfinite(marker_radius_m) and marker_radius_m > 0):
+        raise UsdWriteError(f"marker_radius_m must be positive, got {marker_radius_m}")
+
+    stage = _new_stage(path, fps=fps, n_frames=n_frames, up_axis=up_axis, root=name)
+    root = f"/{name}"
+    info = {"kind": "take", "frames": int(n_frames), "nodes": int(model.n_nodes), "muscles": int(model.n_muscles)}
+    info.update({str(k): _json_safe(v) for k, v in (metadata or {}).items()})
+    stage.GetRootLayer().customLayerData = {"wface": info}
+
+    skin = _write_mesh(stage, f"{root}/Skin", x[:, skin_nodes], counts, indices)
+    node_id = UsdGeom.PrimvarsAPI(skin.GetPrim()).CreatePrimvar(
+        "wface:nodeId", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex
+    )
+    node_id.Set(_vt_int(skin_nodes))
+    if act is not None:
+        influence = skin_muscle_influence(model, skin_nodes, radius_m=muscle_radius_m)
+        v_act, rgb = activation_colors(influence, act)
+        _write_float_primvar(skin, "wface:activation", v_act, UsdGeom.Tokens.vertex)
+        _set_display_color(skin, rgb, n_points=skin_nodes.size, n_frames=n_frames)
+    else:
+        _set_display_color(skin, SKIN_RGB, n_points=skin_nodes.size, n_frames=n_frames)
+
+    if markers:
+        UsdGeom.Scope.Define(stage, f"{root}/Markers")
+        k = next(iter(markers.values())).shape[1]
+        if marker_names is None:
+            marker_names = list(model.marker_names) if len(model.marker_names) == k else [f"m{i}" for i in range(k)]
+        if len(marker_names) != k:
+            raise UsdWriteError(f"{len(marker_names)} marker names for {k} markers")
+        colours = {"Captured": (0.9, 0.05, 0.05), "Simulated": (0.05, 0.8, 0.1)}
+        for label, arr in markers.items():
+            _write_points(stage, f"{root}/Markers/{label}", arr, radius_m=marker_radius_m, rgb=colours[label],
+                          names=marker_names)
+
+    bone_groups: dict[str, list[tuple[str, object]]] = {"Cranium": [], "Jaw": []}
+    for mesh_name, mesh in model.bone_meshes.items():
+        bone_groups["Jaw" if mesh.bone == "jaw" else "Cranium"].append((mesh_name, mesh))
+    if any(bone_groups.values()) or affines:
+        UsdGeom.Scope.Define(stage, f"{root}/Bones")
+    bone_rgb = np.array([0.93, 0.91, 0.84])
+    for label, meshes in bone_groups.items():
+        if not meshes and label not in affines:
+            continue
+        xf = UsdGeom.Xform.Define(stage, f"{root}/Bones/{label}")
+        if label in affines:
+            op = xf.AddTransformOp()
+            for f, a in enumerate(affines[label]):
+                op.Set(affine_to_matrix4d(a), float(f))
+        taken: set[str] = set()
+        for mesh_name, mesh in meshes:
+            ident = _identifier(mesh_name, taken)
+            v = _as_points(mesh.vertices_m, f"bone mesh {mesh_name!r} vertices_m")
+            c, i = as_polygons(None, np.asarray(mesh.triangles).reshape(-1, 3), v.shape[0])
+            _write_mesh(stage, f"{root}/Bones/{label}/{ident}", v, c, i, colors=bone_rgb)
+
+    if act is not None:
+        muscles = UsdGeom.Scope.Define(stage, f"{root}/Muscles").GetPrim()
+        muscles.CreateAttribute("wface:muscleNames", Sdf.ValueTypeNames.StringArray, custom=True,
+                                variability=Sdf.VariabilityUniform).Set(Vt.StringArray(list(model.muscle_names)))
+        all_attr = muscles.CreateAttribute("wface:activations", Sdf.ValueTypeNames.FloatArray, custom=True)
+        taken = set()
+        per_muscle = []
+        for m_name in model.muscle_names:
+            ident = _identifier(m_name, taken)
+            per_muscle.append(muscles.CreateAttribute(f"wface:activation:{ident}", Sdf.ValueTypeNames.Float, custom=True))
+        for f, a in enumerate(act):
+            t = float(f)
+            all_attr.Set(_vt_float(a), t)
+            for attr, value in zip(per_muscle, a):
+                attr.Set(float(value), t)
+
+    if basis is not None:
+        _write_blendshapes(stage, f"{root}/Basis", basis, bw, counts, indices)
+    stage.GetRootLayer().Save()
+    return path
+
+
+def _json_safe(v):
+    import json
+
+    if isinstance(v, (bool, int, float, str)):
+        return v
+    if isinstance(v, np.generic):
+        return v.item()
+    return json.dumps(v, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+
+
+# ---------------------------------------------------------------------- validation
+class UsdValidationFailed(AssertionError):
+    """A stage failed a UsdValidation validator, the extent check, or the blend-shape check."""
+
+
+def _open(stage_or_path):
+    from pxr import Usd
+
+    if isinstance(stage_or_path, (str, Path)):
+        p = Path(stage_or_path)
+        if not p.exists():
+            raise FileNotFoundError(f"USD file not found: {p}")
+        stage = Usd.Stage.Open(str(p))
+        if stage is None:
+            raise UsdValidationFailed(f"{p}: USD could not open it")
+        return stage
+    return stage_or_path
+
+
+def validate_stage(stage_or_path, *, keywords: list[str] | None = None) -> list[str]:
+    """Run USD's registered validators (``UsdValidation``) on a stage.
+
+    Args:
+        stage_or_path: a ``Usd.Stage`` or a file path.
+        keywords: only validators with one of these keywords (e.g. ``["UsdGeomValidators"]``);
+            default: every registered validator (usd-core >= 24.11).
+
+    Returns:
+        One line per error or warning: ``"<validator>: <message>"``; empty when the stage passes.
+    """
+    from pxr import UsdValidation
+
+    stage = _open(stage_or_path)
+    registry = UsdValidation.ValidationRegistry()
+    if keywords is None:
+        validators = registry.GetOrLoadAllValidators()
+    else:
+        names = [m.name for m in registry.GetValidatorMetadataForKeywords(keywords)]
+        validators = registry.GetOrLoadValidatorsByName(names)
+    if not validators:
+        raise UsdValidationFailed("no USD validators are registered (usd-core too old?)")
+    errors = UsdValidation.ValidationContext(validators).Validate(stage)
+    return [f"{e.GetName() or e.GetValidator().GetMetadata().name}: {e.GetErrorAsString()}"
+            for e in errors if not e.HasNoError()]
+
+
+def check_extents(stage_or_path, *, rtol: float = 1e-6) -> list[str]:
+    """Check that every authored extent contains its prim's points at each time sample.
+
+    For each UsdGeom.PointBased prim with an authored extent, at the union of the time samples of
+    ``points`` and ``extent`` (or the default time when neither is animated), the points must lie
+    inside [min, max] up to ``rtol`` x the extent's size (float32 storage).
+
+    Returns:
+        One line per violation (prim, time, how far outside); empty when all is well.
+    """
+    from pxr import Usd, UsdGeom
+
+    stage = _open(stage_or_path)
+    problems = []
+    for prim in stage.Traverse():
+        if not prim.IsA(UsdGeom.PointBased):
+            continue
+        geom = UsdGeom.PointBased(prim)
+        ext_attr, pts_attr = geom.GetExtentAttr(), geom.GetPointsAttr()
+        if not ext_attr.HasAuthoredValue():
+            if pts_attr.HasAuthoredValue():
+                problems.append(f"{prim.GetPath()}: points authored without an extent")
+            continue
+        times = sorted(set(pts_attr.GetTimeSamples()) | set(ext_attr.GetTimeSamples()))
+        for t in times or [Usd.TimeCode.Default()]:
+            pts = pts_attr.Get(t)
+            ext = ext_attr.Get(t)
+            if pts is None or len(pts) == 0:
+                continue
+            label = "default" if not times else f"{t:g}"
+            if ext is None or len(ext) != 2:
+                problems.append(f"{prim.GetPath()} at time {label}: extent missing or malformed")
+                continue
+            p, e = np.asarray(pts, dtype=np.float64), np.asarray(ext, dtype=np.float64)
+            tol = rtol * max(float(np.max(e[1] - e[0])), 1e-12)
+            below, above = np.max(e[0] - p), np.max(p - e[1])
+            if below > tol or above > tol:
+                problems.append(
+                    f"{prim.GetPath()} at time {label}: points lie {max(below, above):.3g} m outside the extent"
+                )
+    return problems
+
+
+def blendshape_points(stage_or_path, mesh_path: str, time: float) -> np.ndarray:
+    """Points of a blend-shape mesh at ``time`` as USD itself computes them (UsdSkel queries).
+
+    Uses UsdSkel.Cache -> SkinningQuery -> the SkelAnimation's blendShapeWeights, remapped to the
+    mesh's ``skel:blendShapes`` order, and UsdSkel.BlendShapeQuery.ComputeDeformedPoints.
+
+    Returns:
+        (n, 3) float64 deformed points (neutral + sum of weighted offsets).
+    """
+    from pxr import Usd, UsdSkel, Vt
+
+    stage = _open(stage_or_path)
+    prim = stage.GetPrimAtPath(mesh_path)
+    if not prim:
+        raise UsdValidationFailed(f"no prim at {mesh_path}")
+    skel_root = UsdSkel.Root.Find(prim)
+    if not skel_root:
+        raise UsdValidationFailed(f"{mesh_path} is not under a SkelRoot")
+    cache = UsdSkel.Cache()
+    cache.Populate(skel_root, Usd.PrimDefaultPredicate)
+    skinning = cache.GetSkinningQuery(prim)
+    if not skinning:
+        raise UsdValidationFailed(f"{mesh_path}: no skinning query (SkelBindingAPI / skel:skeleton missing)")
+    skel_query = cache.GetSkelQuery(UsdSkel.BindingAPI(prim).GetInheritedSkeleton())
+    anim_query = skel_query.GetAnimQuery()
+    if not anim_query:
+        raise UsdValidationFailed(f"{mesh_path}: skeleton has no animationSource")
+    weights = anim_query.ComputeBlendShapeWeights(Usd.TimeCode(time))
+    mapper = skinning.GetBlendShapeMapper()
+    if mapper is not None and not mapper.IsNull():
+        weights = mapper.Remap(weights)
+    query = UsdSkel.BlendShapeQuery(UsdSkel.BindingAPI(prim))
+    sub_w, shape_idx, sub_idx = query.ComputeSubShapeWeights(weights)
+    points = Vt.Vec3fArray(prim.GetAttribute("points").Get(Usd.TimeCode(time)))
+    ok = query.ComputeDeformedPoints(sub_w, shape_idx, sub_idx, query.ComputeBlendShapePointIndices(),
+                                     query.ComputeSubShapePointOffsets(), points)
+    if not ok:
+        raise UsdValidationFailed(f"{mesh_path}: UsdSkel.BlendShapeQuery.ComputeDeformedPoints failed")
+    return np.asarray(points, dtype=np.float64)
+
+
+def assert_stage_valid(stage_or_path) -> None:
+    """Raise ``UsdValidationFailed`` listing every UsdValidation error and extent violation."""
+    problems = validate_stage(stage_or_path) + check_extents(stage_or_path)
+    if problems:
+        name = stage_or_path if isinstance(stage_or_path, (str, Path)) else "stage"
+        raise UsdValidationFailed(f"{name}: {len(problems)} problem(s):\n  " + "\n  ".join(problems))

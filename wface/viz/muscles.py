@@ -1,0 +1,101 @@
+"""Muscle colours on the skin: which muscle lies under each skin vertex, and a heat map.
+
+Seed 000's figure convention: active muscles yellow, inactive muscles red, skin elsewhere.
+Muscles usually sit under the skin, so a skin vertex takes the muscles whose tets lie near it:
+for each muscle m the distance d_m from the vertex to the nearest centroid of m's tets gives an
+influence w_m = exp(-(d_m / r)^2) (r: ``radius_m``). Pure numpy + scipy: usable by both the USD
+writer (``displayColor``) and the pyvista pictures.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "ACTIVE_RGB",
+    "INACTIVE_RGB",
+    "SKIN_RGB",
+    "activation_colors",
+    "muscle_centroids",
+    "skin_muscle_influence",
+]
+
+ACTIVE_RGB = np.array([1.0, 0.86, 0.10])  # yellow: fully active muscle
+INACTIVE_RGB = np.array([0.80, 0.10, 0.08])  # red: inactive muscle
+SKIN_RGB = np.array([0.87, 0.74, 0.65])  # neutral skin
+
+
+def muscle_centroids(model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rest centroids of the muscle tets.
+
+    Returns:
+        ``(centroids_m (e, 3), muscle (e,), fraction (e,))``, one row per fibre entry.
+    """
+    c = model.rest_positions_m[model.tets[model.fibre_tet]].mean(axis=1)
+    return c, model.fibre_muscle.astype(np.int64), model.fibre_fraction
+
+
+def _default_radius(model) -> float:
+    t = model.tets
+    x = model.rest_positions_m
+    e = np.linalg.norm(x[t[:, 1]] - x[t[:, 0]], axis=1)
+    return float(2.0 * np.median(e)) if e.size else 1e-2
+
+
+def skin_muscle_influence(model, vertices: np.ndarray | None = None, *, radius_m: float | None = None) -> np.ndarray:
+    """Influence of each muscle on each given node, from rest geometry.
+
+    Args:
+        model: a ``FaceModel``.
+        vertices: node ids (v,); default: the nodes used by ``model.skin_triangles``.
+        radius_m: falloff radius r (default: twice the median tet edge length).
+
+    Returns:
+        (v, M) float64 in [0, 1]; column m is exp(-(d_m / r)^2), 0 for a muscle without tets.
+    """
+    from scipy.spatial import cKDTree
+
+    if vertices is None:
+        vertices = np.unique(model.skin_triangles)
+    vertices = np.asarray(vertices, dtype=np.int64)
+    r = _default_radius(model) if radius_m is None else float(radius_m)
+    if not (np.isfinite(r) and r > 0):
+        raise ValueError(f"radius_m must be positive, got {radius_m}")
+    p = model.rest_positions_m[vertices]
+    cent, mus, frac = muscle_centroids(model)
+    out = np.zeros((len(vertices), model.n_muscles))
+    for m in range(model.n_muscles):
+        sel = (mus == m) & (frac > 0)
+        if not np.any(sel):
+            continue
+        d, _ = cKDTree(cent[sel]).query(p, k=1, distance_upper_bound=4.0 * r)
+        out[:, m] = np.where(np.isfinite(d), np.exp(-((np.minimum(d, 4.0 * r) / r) ** 2)), 0.0)
+    return out
+
+
+def activation_colors(influence: np.ndarray, activations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-vertex activation and colour: skin where no muscle, red (inactive) to yellow (active).
+
+    Args:
+        influence: (v, M) from ``skin_muscle_influence``.
+        activations: (M,) or (F, M) activations in [0, 1].
+
+    Returns:
+        ``(vertex_activation, rgb)``: (v,) / (F, v) = max_m w_m a_m, and (v, 3) / (F, v, 3) colours
+        (1 - p) skin + p lerp(red, yellow, a_v / p) with presence p = max_m w_m.
+    """
+    w = np.asarray(influence, dtype=np.float64)
+    a = np.asarray(activations, dtype=np.float64)
+    single = a.ndim == 1
+    a2 = a[None] if single else a
+    if a2.ndim != 2 or a2.shape[1] != w.shape[1]:
+        raise ValueError(f"activations have shape {a.shape}; expected ({w.shape[1]},) or (frames, {w.shape[1]})")
+    if not np.all(np.isfinite(a2)):
+        raise ValueError("activations contain NaN/inf")
+    a2 = np.clip(a2, 0.0, 1.0)
+    va = np.max(w[None] * a2[:, None, :], axis=2) if w.shape[1] else np.zeros((a2.shape[0], w.shape[0]))
+    presence = w.max(axis=1) if w.shape[1] else np.zeros(w.shape[0])
+    t = np.divide(va, presence[None], out=np.zeros_like(va), where=presence[None] > 1e-12)
+    muscle_rgb = INACTIVE_RGB + t[..., None] * (ACTIVE_RGB - INACTIVE_RGB)
+    rgb = (1 - presence)[None, :, None] * SKIN_RGB + presence[None, :, None] * muscle_rgb
+    return (va[0], rgb[0]) if single else (va, rgb)
