@@ -2,8 +2,9 @@
 
 Seed 000's figure convention: active muscles yellow, inactive muscles red, skin elsewhere.
 Muscles usually sit under the skin, so a skin vertex takes the muscles whose tets lie near it:
-for each muscle m the distance d_m from the vertex to the nearest centroid of m's tets gives an
-influence w_m = exp(-(d_m / r)^2) (r: ``radius_m``). Pure numpy + scipy: usable by both the USD
+for each muscle m the distance d_m from the vertex to the nearest centroid of m's tets, less the
+muscle's depth under the skin D_m = min over skin vertices of d_m, gives an influence
+w_m = exp(-(max(d_m - D_m, 0) / r)^2) (r: ``radius_m``): each muscle's footprint on the skin. Pure numpy + scipy: usable by both the USD
 writer (``displayColor``) and the pyvista pictures.
 """
 
@@ -39,7 +40,7 @@ def _default_radius(model) -> float:
     t = model.tets
     x = model.rest_positions_m
     e = np.linalg.norm(x[t[:, 1]] - x[t[:, 0]], axis=1)
-    return float(2.0 * np.median(e)) if e.size else 1e-2
+    return float(np.median(e)) if e.size else 1e-2
 
 
 def skin_muscle_influence(model, vertices: np.ndarray | None = None, *, radius_m: float | None = None) -> np.ndarray:
@@ -48,10 +49,11 @@ def skin_muscle_influence(model, vertices: np.ndarray | None = None, *, radius_m
     Args:
         model: a ``FaceModel``.
         vertices: node ids (v,); default: the nodes used by ``model.skin_triangles``.
-        radius_m: falloff radius r (default: twice the median tet edge length).
+        radius_m: falloff radius r (default: the median tet edge length).
 
     Returns:
-        (v, M) float64 in [0, 1]; column m is exp(-(d_m / r)^2), 0 for a muscle without tets.
+        (v, M) float64 in [0, 1]; column m is exp(-(max(d_m - D_m, 0) / r)^2), 0 for a muscle
+        without tets. The depth D_m is measured over the model's skin vertices (not only ``vertices``).
     """
     from scipy.spatial import cKDTree
 
@@ -62,14 +64,17 @@ def skin_muscle_influence(model, vertices: np.ndarray | None = None, *, radius_m
     if not (np.isfinite(r) and r > 0):
         raise ValueError(f"radius_m must be positive, got {radius_m}")
     p = model.rest_positions_m[vertices]
+    skin = model.rest_positions_m[np.unique(model.skin_triangles)] if model.skin_triangles.size else p
     cent, mus, frac = muscle_centroids(model)
     out = np.zeros((len(vertices), model.n_muscles))
     for m in range(model.n_muscles):
         sel = (mus == m) & (frac > 0)
         if not np.any(sel):
             continue
-        d, _ = cKDTree(cent[sel]).query(p, k=1, distance_upper_bound=4.0 * r)
-        out[:, m] = np.where(np.isfinite(d), np.exp(-((np.minimum(d, 4.0 * r) / r) ** 2)), 0.0)
+        tree = cKDTree(cent[sel])
+        depth = float(tree.query(skin, k=1)[0].min())
+        d, _ = tree.query(p, k=1)
+        out[:, m] = np.exp(-((np.maximum(d - depth, 0.0) / r) ** 2))
     return out
 
 
