@@ -1,0 +1,85 @@
+"""Tetrahedron quality metrics.
+
+- Dihedral angles: the six angles between face pairs along the edges (degrees).
+- Volume-ratio quality: q = 6 sqrt(2) V / l_rms^3, with l_rms the root-mean-square edge length;
+  1 for the regular tet, 0 for a flat one (Parthasarathy et al. 1994's "mean ratio" family).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+__all__ = ["QualityReport", "dihedral_angles_deg", "quality_report", "signed_volumes", "volume_ratio_quality"]
+
+_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
+# For edge (i, j), the two other vertices (k, l).
+_OPPOSITE = np.array([[2, 3], [1, 3], [1, 2], [0, 3], [0, 2], [0, 1]])
+
+
+def signed_volumes(x: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """(m,) signed tet volumes; positive for positively oriented tets."""
+    p = x[tets]
+    return np.einsum("ij,ij->i", p[:, 1] - p[:, 0], np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0])) / 6.0
+
+
+def dihedral_angles_deg(x: np.ndarray, tets: np.ndarray, *, chunk: int = 200_000) -> np.ndarray:
+    """(m, 6) interior dihedral angles in degrees at the six edges of each tet."""
+    out = np.empty((len(tets), 6))
+    for s in range(0, len(tets), chunk):
+        p = x[tets[s : s + chunk]]
+        for e in range(6):
+            i, j = _EDGES[e]
+            k, l = _OPPOSITE[e]
+            axis = p[:, j] - p[:, i]
+            axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+            u = p[:, k] - p[:, i]
+            v = p[:, l] - p[:, i]
+            u -= np.einsum("ij,ij->i", u, axis)[:, None] * axis
+            v -= np.einsum("ij,ij->i", v, axis)[:, None] * axis
+            cosang = np.einsum("ij,ij->i", u, v) / (np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1))
+            out[s : s + chunk, e] = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
+    return out
+
+
+def volume_ratio_quality(x: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """(m,) q = 6 sqrt(2) V / l_rms^3 in [0, 1] (negative for inverted tets)."""
+    p = x[tets]
+    l2 = np.zeros(len(tets))
+    for i, j in _EDGES:
+        l2 += np.sum((p[:, j] - p[:, i]) ** 2, axis=1)
+    l_rms = np.sqrt(l2 / 6.0)
+    return 6.0 * np.sqrt(2.0) * signed_volumes(x, tets) / l_rms**3
+
+
+@dataclass
+class QualityReport:
+    tets: int
+    min_dihedral_deg: float
+    max_dihedral_deg: float
+    min_volume_m3: float
+    min_volume_ratio: float
+    mean_volume_ratio: float
+    slivers_below_5deg: int
+    inverted: int
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def quality_report(x: np.ndarray, tets: np.ndarray) -> QualityReport:
+    """Summary quality numbers of a tet mesh."""
+    dih = dihedral_angles_deg(x, tets)
+    vol = signed_volumes(x, tets)
+    q = volume_ratio_quality(x, tets)
+    return QualityReport(
+        tets=int(len(tets)),
+        min_dihedral_deg=float(dih.min()),
+        max_dihedral_deg=float(dih.max()),
+        min_volume_m3=float(vol.min()),
+        min_volume_ratio=float(q.min()),
+        mean_volume_ratio=float(q.mean()),
+        slivers_below_5deg=int(np.count_nonzero(dih.min(axis=1) < 5.0)),
+        inverted=int(np.count_nonzero(vol <= 0)),
+    )
