@@ -113,8 +113,8 @@ class _Scene:
                 self.p.add_mesh(surf, color=INACTIVE_RGB, smooth_shading=True, specular=0.2, name=f"muscle{m}")
                 self.muscles.append((m, surf, ids))
             if show_bones:
-                for mesh in model.bone_meshes.values():
-                    bp = _tri_polydata(pv, mesh.vertices_m, mesh.triangles)
+                for mesh, tri in _cropped_bones(model):
+                    bp = _tri_polydata(pv, mesh.vertices_m, tri)
                     self.p.add_mesh(bp, color=BONE_RGB, smooth_shading=True, specular=0.1)
                     self.bones.append((bp, mesh))
         self.marker_actors: dict[str, object] = {}
@@ -155,11 +155,31 @@ class _Scene:
                                                       reset_camera=False, render=False)
 
 
-def _bounds_of(model, arrays) -> np.ndarray:
+def _cropped_bones(model, margin: float = 0.03) -> list[tuple[object, np.ndarray]]:
+    """Bone meshes with only the triangles whose rest centroid lies in the skin's box (+ margin).
+
+    A skull usually reaches far beyond the face's skin (the top of the head): drawing it whole
+    would shrink the face in the picture.
+    """
+    skin = model.rest_positions_m[np.unique(model.skin_triangles)]
+    lo, hi = skin.min(axis=0), skin.max(axis=0)
+    pad = margin * (hi - lo)
+    out = []
+    for mesh in model.bone_meshes.values():
+        tri = np.asarray(mesh.triangles).reshape(-1, 3)
+        c = np.asarray(mesh.vertices_m)[tri].mean(axis=1)
+        keep = np.all((c >= lo - pad) & (c <= hi + pad), axis=1)
+        if np.any(keep):
+            out.append((mesh, tri[keep]))
+    return out
+
+
+def _bounds_of(model, arrays, *, bones: bool) -> np.ndarray:
     pts = [np.asarray(a, dtype=np.float64).reshape(-1, 3) for a in arrays if a is not None]
     pts = np.concatenate([p[np.all(np.isfinite(p), axis=1)] for p in pts])
-    for mesh in model.bone_meshes.values():
-        pts = np.concatenate([pts, mesh.vertices_m])
+    if bones:
+        for mesh, tri in _cropped_bones(model):
+            pts = np.concatenate([pts, np.asarray(mesh.vertices_m)[np.unique(tri)]])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     return np.array([lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]])
 
@@ -222,7 +242,8 @@ def render_panels(
     out_path.parent.mkdir(parents=True, exist_ok=True)
     xs = [_check_nodes(model, pnl.node_positions_m, f"panel {i} node_positions_m") for i, pnl in enumerate(panels)]
     bounds = _bounds_of(model, [x[np.unique(model.skin_triangles)] for x in xs]
-                        + [pnl.captured_markers_m for pnl in panels] + [pnl.simulated_markers_m for pnl in panels])
+                        + [pnl.captured_markers_m for pnl in panels] + [pnl.simulated_markers_m for pnl in panels],
+                        bones=show_bones and style == "muscles")
     r = marker_radius_m or 0.01 * float(np.linalg.norm(bounds[1::2] - bounds[0::2]))
     bounds = bounds + np.array([-r, r] * 3)
     p = _new_plotter(pv, (1, len(panels)), (panel_size[0] * len(panels), panel_size[1]))
@@ -325,7 +346,8 @@ def render_take_movie(
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     skin_nodes = np.unique(model.skin_triangles)
-    bounds = _bounds_of(model, [x[:, skin_nodes], captured_markers_m, simulated_markers_m])
+    bounds = _bounds_of(model, [x[:, skin_nodes], captured_markers_m, simulated_markers_m],
+                        bones=show_bones and style == "muscles")
     r = marker_radius_m or 0.01 * float(np.linalg.norm(bounds[1::2] - bounds[0::2]))
     bounds = bounds + np.array([-r, r] * 3)
     w, h = (int(window_size[0]) // 16 * 16, int(window_size[1]) // 16 * 16)
