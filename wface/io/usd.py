@@ -25,6 +25,7 @@ __all__ = [
     "assert_stage_valid",
     "blendshape_points",
     "check_extents",
+    "compare_stages",
     "validate_stage",
     "write_blendshape_basis",
     "write_mesh_animation",
@@ -464,6 +465,7 @@ def write_take(
     basis_weights: np.ndarray | None = None,
     marker_radius_m: float = 0.002,
     muscle_radius_m: float | None = None,
+    bone_meshes: dict | None = None,
     name: str = "Face",
     up_axis: str = "Y",
     metadata: dict | None = None,
@@ -504,7 +506,9 @@ def write_take(
         basis: an actuation basis on the model's nodes (n) or on the compact skin vertices.
         basis_weights: (F, B) weights of ``basis`` per frame (required with ``basis``).
         marker_radius_m: marker sphere radius (widths = 2 r).
-        muscle_radius_m: falloff radius of the muscle heat map (default: 2 x median tet edge).
+        muscle_radius_m: falloff radius of the muscle heat map (default: the median tet edge).
+        bone_meshes: {name: BoneMesh} to draw under the bones instead of ``model.bone_meshes``
+            (``{}``: none, e.g. to keep a file small).
         name: root prim name.
         up_axis: "Y" (the model's convention) or "Z"; metadata only.
         metadata: small JSON-able dict stored in the layer's customLayerData under "wface".
@@ -596,7 +600,7 @@ def write_take(
                           names=marker_names)
 
     bone_groups: dict[str, list[tuple[str, object]]] = {"Cranium": [], "Jaw": []}
-    for mesh_name, mesh in model.bone_meshes.items():
+    for mesh_name, mesh in (model.bone_meshes if bone_meshes is None else bone_meshes).items():
         bone_groups["Jaw" if mesh.bone == "jaw" else "Cranium"].append((mesh_name, mesh))
     if any(bone_groups.values()) or affines:
         UsdGeom.Scope.Define(stage, f"{root}/Bones")
@@ -784,3 +788,97 @@ def assert_stage_valid(stage_or_path) -> None:
     if problems:
         name = stage_or_path if isinstance(stage_or_path, (str, Path)) else "stage"
         raise UsdValidationFailed(f"{name}: {len(problems)} problem(s):\n  " + "\n  ".join(problems))
+
+
+def _numeric(v):
+    """A float array for numeric USD values (arrays, vectors, matrices, quaternions), else None."""
+    from pxr import Gf
+
+    if isinstance(v, (bool, str)) or v is None:
+        return None
+    if isinstance(v, (Gf.Quatf, Gf.Quatd, Gf.Quath)):
+        return np.array([v.GetReal(), *v.GetImaginary()], dtype=np.float64)
+    try:
+        if hasattr(v, "__len__") and len(v) and isinstance(v[0], (Gf.Quatf, Gf.Quatd, Gf.Quath)):
+            return np.array([[q.GetReal(), *q.GetImaginary()] for q in v], dtype=np.float64)
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    return a
+
+
+def compare_stages(a, b, *, rtol: float = 1e-5, atol: float = 1e-7, max_report: int = 20) -> list[str]:
+    """Differences in authored content between two stages (e.g. a committed scene and a fresh one).
+
+    Compares stage metadata (timeCodesPerSecond, start/end, upAxis, metersPerUnit, defaultPrim,
+    customLayerData), the prim paths and types, applied API schemas, attribute names, time samples
+    and values (numbers with ``rtol`` / ``atol``: float32 round-off across platforms), and
+    relationship targets.
+
+    Returns:
+        Up to ``max_report`` lines describing differences; empty when the stages match.
+    """
+    from pxr import UsdGeom
+
+    sa, sb = _open(a), _open(b)
+    out: list[str] = []
+
+    def note(msg: str) -> bool:
+        out.append(msg)
+        return len(out) >= max_report
+
+    for label, get in (
+        ("timeCodesPerSecond", lambda s: s.GetTimeCodesPerSecond()),
+        ("startTimeCode", lambda s: s.GetStartTimeCode()),
+        ("endTimeCode", lambda s: s.GetEndTimeCode()),
+        ("upAxis", UsdGeom.GetStageUpAxis),
+        ("metersPerUnit", UsdGeom.GetStageMetersPerUnit),
+        ("defaultPrim", lambda s: str(s.GetDefaultPrim().GetPath()) if s.GetDefaultPrim() else None),
+        ("customLayerData", lambda s: dict(s.GetRootLayer().customLayerData)),
+    ):
+        if get(sa) != get(sb) and note(f"stage {label}: {get(sa)!r} != {get(sb)!r}"):
+            return out
+    prims_a = {str(p.GetPath()): p for p in sa.TraverseAll()}
+    prims_b = {str(p.GetPath()): p for p in sb.TraverseAll()}
+    for path in sorted(set(prims_a) ^ set(prims_b)):
+        if note(f"prim {path} only in {'first' if path in prims_a else 'second'} stage"):
+            return out
+    for path in sorted(set(prims_a) & set(prims_b)):
+        pa, pb = prims_a[path], prims_b[path]
+        if pa.GetTypeName() != pb.GetTypeName() and note(f"{path}: type {pa.GetTypeName()} != {pb.GetTypeName()}"):
+            return out
+        if list(pa.GetAppliedSchemas()) != list(pb.GetAppliedSchemas()) and note(f"{path}: applied schemas differ"):
+            return out
+        ra = {r.GetName(): r.GetTargets() for r in pa.GetRelationships() if r.HasAuthoredTargets()}
+        rb = {r.GetName(): r.GetTargets() for r in pb.GetRelationships() if r.HasAuthoredTargets()}
+        if ra != rb and note(f"{path}: relationships differ ({sorted(ra)} vs {sorted(rb)})"):
+            return out
+        aa = {x.GetName(): x for x in pa.GetAttributes() if x.HasAuthoredValue()}
+        ab = {x.GetName(): x for x in pb.GetAttributes() if x.HasAuthoredValue()}
+        for name in sorted(set(aa) ^ set(ab)):
+            if note(f"{path}.{name} authored only in {'first' if name in aa else 'second'} stage"):
+                return out
+        for name in sorted(set(aa) & set(ab)):
+            xa, xb = aa[name], ab[name]
+            ta, tb = xa.GetTimeSamples(), xb.GetTimeSamples()
+            if ta != tb:
+                if note(f"{path}.{name}: time samples differ ({len(ta)} vs {len(tb)})"):
+                    return out
+                continue
+            for t in ta or [None]:
+                va, vb = (xa.Get(t), xb.Get(t)) if t is not None else (xa.Get(), xb.Get())
+                na, nb = _numeric(va), _numeric(vb)
+                when = "" if t is None else f" at time {t:g}"
+                if na is not None and nb is not None:
+                    if na.shape != nb.shape:
+                        same, why = False, f"shape {na.shape} != {nb.shape}"
+                    else:
+                        same = bool(np.allclose(na, nb, rtol=rtol, atol=atol, equal_nan=True))
+                        why = "" if same else f"max |difference| {np.max(np.abs(na - nb)):.3g}"
+                else:
+                    same, why = va == vb, f"{str(va)[:60]!r} != {str(vb)[:60]!r}"
+                if not same:
+                    if note(f"{path}.{name}{when}: {why}"):
+                        return out
+                    break
+    return out
