@@ -95,9 +95,16 @@ def builtin_face(path: Path) -> Path:
     smile = {n: 1.0 for n in model.muscle_names if n.startswith(("zygomaticus_major", "levator_anguli_oris"))}
     act = model.activation_vector(smile)[None]
     markers = model.marker_positions_m[None]
-    return write_take(path, model=model, node_positions_m=model.rest_positions_m[None], fps=24.0,
-                      simulated_markers_m=markers if markers.shape[1] else None, activations=act, bone_meshes={},
-                      metadata={"source": "examples/make_usd_scenes.py builtin_face", "note": "rest pose, no physics"})
+    return write_take(
+        path,
+        model=model,
+        node_positions_m=model.rest_positions_m[None],
+        fps=24.0,
+        simulated_markers_m=markers if markers.shape[1] else None,
+        activations=act,
+        bone_meshes={},
+        metadata={"source": "examples/make_usd_scenes.py builtin_face", "note": "rest pose, no physics"},
+    )
 
 
 def waters_expression(path: Path) -> Path:
@@ -113,8 +120,9 @@ def waters_expression(path: Path) -> Path:
 
     mesh = synthetic_head(24, 48)
     layout = load_layout("ict")
-    layout = fit_layout(layout, synthetic_landmarks(layout), target_vertices_m=mesh.vertices_m,
-                        target_triangles=mesh.triangles())
+    layout = fit_layout(
+        layout, synthetic_landmarks(layout), target_vertices_m=mesh.vertices_m, target_triangles=mesh.triangles()
+    )
     rig = WatersRig(layout, mesh.vertices_m)
     frames = []
     for k in range(8):
@@ -124,9 +132,15 @@ def waters_expression(path: Path) -> Path:
     disp_mm = np.linalg.norm(frames[-1] - frames[0], axis=1) * 1000.0
     t = np.clip(disp_mm / max(float(disp_mm.max()), 1e-9), 0, 1)[:, None]
     colors = (1 - t) * np.array([0.87, 0.74, 0.65]) + t * np.array([1.0, 0.86, 0.10])  # skin -> yellow where it moves
-    return write_mesh_animation(path, points_m=frames, face_vertex_counts=mesh.face_vertex_counts,
-                                face_vertex_indices=mesh.face_vertex_indices, fps=24.0, name="WatersHead",
-                                colors=colors)
+    return write_mesh_animation(
+        path,
+        points_m=frames,
+        face_vertex_counts=mesh.face_vertex_counts,
+        face_vertex_indices=mesh.face_vertex_indices,
+        fps=24.0,
+        name="WatersHead",
+        colors=colors,
+    )
 
 
 SCENES: dict[str, Callable[[Path], Path]] = {

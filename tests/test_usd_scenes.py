@@ -11,6 +11,7 @@ import pytest
 pytest.importorskip("pxr")
 
 from conftest import REPO_ROOT  # noqa: E402
+
 from wface.io.usd import compare_stages  # noqa: E402
 
 _SCRIPT = REPO_ROOT / "examples" / "make_usd_scenes.py"

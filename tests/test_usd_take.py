@@ -67,8 +67,9 @@ def test_take_content(tmp_path, face, take):
     tri = node_id[np.asarray(skin.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)]
     np.testing.assert_array_equal(tri, face.skin_triangles)
     for f in (0, F // 2, F - 1):
-        np.testing.assert_allclose(np.asarray(skin.GetPointsAttr().Get(f)), take["node_positions_m"][f, node_id],
-                                   atol=_F32)
+        np.testing.assert_allclose(
+            np.asarray(skin.GetPointsAttr().Get(f)), take["node_positions_m"][f, node_id], atol=_F32
+        )
     act_pv = UsdGeom.PrimvarsAPI(skin).GetPrimvar("wface:activation")
     assert act_pv.GetInterpolation() == "vertex" and len(act_pv.Get(0)) == node_id.size
     assert len(skin.GetDisplayColorPrimvar().GetAttr().GetTimeSamples()) == F
@@ -83,14 +84,18 @@ def test_take_content(tmp_path, face, take):
         present = np.flatnonzero(np.all(np.isfinite(take["captured_markers_m"][f]), axis=1))
         np.testing.assert_array_equal(ids, present)
         assert len(cap.GetWidthsAttr().Get(f)) == len(cap.GetPointsAttr().Get(f)) == present.size
-        np.testing.assert_allclose(np.asarray(cap.GetPointsAttr().Get(f)), take["captured_markers_m"][f, present],
-                                   atol=_F32)
+        np.testing.assert_allclose(
+            np.asarray(cap.GetPointsAttr().Get(f)), take["captured_markers_m"][f, present], atol=_F32
+        )
     assert any(len(cap.GetIdsAttr().Get(f)) < take["captured_markers_m"].shape[1] for f in range(F))
     assert list(sim.GetPrim().GetAttribute("wface:markerNames").Get()) == face.marker_names
 
     # Bones: the world transform at each frame maps rest bone vertices like the affine does.
     cache = UsdGeom.XformCache()
-    for label, bone_mesh, aff in (("Cranium", "skull", take["cranium_affines"]), ("Jaw", "mandible", take["jaw_affines"])):
+    for label, bone_mesh, aff in (
+        ("Cranium", "skull", take["cranium_affines"]),
+        ("Jaw", "mandible", take["jaw_affines"]),
+    ):
         prim = stage.GetPrimAtPath(f"/Face/Bones/{label}/{bone_mesh}")
         rest = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(), dtype=np.float64)
         for f in (0, F - 1):
@@ -107,8 +112,9 @@ def test_take_content(tmp_path, face, take):
         assert attr.GetTimeSamples() == [float(f) for f in range(F)]
         got = [attr.Get(f) for f in range(F)]
         np.testing.assert_allclose(got, take["activations"][:, m], atol=1e-7)
-    np.testing.assert_allclose(np.asarray(prim.GetAttribute("wface:activations").Get(3)), take["activations"][3],
-                               atol=1e-7)
+    np.testing.assert_allclose(
+        np.asarray(prim.GetAttribute("wface:activations").Get(3)), take["activations"][3], atol=1e-7
+    )
 
 
 def test_activation_heat_map_follows_activation(tmp_path, face, take):
@@ -143,9 +149,14 @@ def test_standalone_basis_blender_structure(tmp_path, face, take):
     remap = np.full(face.n_nodes, -1)
     remap[skin] = np.arange(skin.size)
     basis = take["basis"].restricted(skin)
-    path = usd.write_blendshape_basis(tmp_path / "basis.usda", basis=basis, face_vertex_counts=None,
-                                      face_vertex_indices=remap[face.skin_triangles], weights=take["basis_weights"],
-                                      fps=30)
+    path = usd.write_blendshape_basis(
+        tmp_path / "basis.usda",
+        basis=basis,
+        face_vertex_counts=None,
+        face_vertex_indices=remap[face.skin_triangles],
+        weights=take["basis_weights"],
+        fps=30,
+    )
     usd.assert_stage_valid(path)
     stage = Usd.Stage.Open(str(path))
     root = stage.GetDefaultPrim()
@@ -162,8 +173,9 @@ def test_standalone_basis_blender_structure(tmp_path, face, take):
     assert list(anim.GetBlendShapesAttr().Get()) == shapes
     assert len(anim.GetBlendShapeWeightsAttr().GetTimeSamples()) == len(take["basis_weights"])
     for f in (2, 5):
-        np.testing.assert_allclose(usd.blendshape_points(path, "/Face/Mesh", f),
-                                   basis.synthesize(take["basis_weights"][f]), atol=_F32)
+        np.testing.assert_allclose(
+            usd.blendshape_points(path, "/Face/Mesh", f), basis.synthesize(take["basis_weights"][f]), atol=_F32
+        )
 
 
 def test_take_minimal_inputs(tmp_path, face, take):
@@ -201,8 +213,12 @@ def test_node_positions_nan_is_refused(tmp_path, face, take):
 def test_check_extents_catches_a_stale_extent(tmp_path):
     from pxr import Usd, UsdGeom
 
-    path = usd.write_mesh_animation(tmp_path / "m.usda", points_m=np.random.default_rng(1).random((3, 6, 3)),
-                                    face_vertex_counts=None, face_vertex_indices=[[0, 1, 2], [3, 4, 5]])
+    path = usd.write_mesh_animation(
+        tmp_path / "m.usda",
+        points_m=np.random.default_rng(1).random((3, 6, 3)),
+        face_vertex_counts=None,
+        face_vertex_indices=[[0, 1, 2], [3, 4, 5]],
+    )
     stage = Usd.Stage.Open(str(path))
     UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Mesh")).GetExtentAttr().Set([(0, 0, 0), (0.1, 0.1, 0.1)], 1.0)
     problems = usd.check_extents(stage)

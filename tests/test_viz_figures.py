@@ -19,14 +19,30 @@ def test_take_figures_and_report(tmp_path):
     model = synthetic_face(nx=6, ny=6, nz=1)
     take = synthetic_take(model, n_frames=5, fps=10.0)
     images = write_take_figures(
-        tmp_path, model=model, node_positions_m=take["node_positions_m"], fps=take["fps"],
-        activations=take["activations"], captured_markers_m=take["captured_markers_m"],
-        simulated_markers_m=take["simulated_markers_m"], cranium_affines=take["cranium_affines"],
-        jaw_affines=take["jaw_affines"], truth_activations=take["activations"],
-        truth_jaw_angle_deg=take["jaw_angle_deg"], movie_max_frames=3, panel_size=(240, 260))
+        tmp_path,
+        model=model,
+        node_positions_m=take["node_positions_m"],
+        fps=take["fps"],
+        activations=take["activations"],
+        captured_markers_m=take["captured_markers_m"],
+        simulated_markers_m=take["simulated_markers_m"],
+        cranium_affines=take["cranium_affines"],
+        jaw_affines=take["jaw_affines"],
+        truth_activations=take["activations"],
+        truth_jaw_angle_deg=take["jaw_angle_deg"],
+        movie_max_frames=3,
+        panel_size=(240, 260),
+    )
     names = {p.name for p in images.values()}
-    assert names == {"expression.png", "muscles.png", "before_after.png", "activations.png", "marker_error.png",
-                     "jaw_opening.png", "take.mp4"}
+    assert names == {
+        "expression.png",
+        "muscles.png",
+        "before_after.png",
+        "activations.png",
+        "marker_error.png",
+        "jaw_opening.png",
+        "take.mp4",
+    }
     assert all(p.stat().st_size > 1000 for p in images.values())
     report = {"frames": 5, "marker_rms_mm": [0.4, 0.5, 0.6, 0.5, 0.4], "marker_rms_mm_mean": 0.48}
     html = write_html_report(tmp_path, report, images).read_text()

@@ -52,9 +52,14 @@ def _border_is_background(img, width=3):
 
 def test_markers_red_and_green_and_nothing_clipped(tmp_path, face, take):
     f = 3
-    out = render.render_expression(face, take["node_positions_m"][f], tmp_path / "m.png",
-                                   captured_markers_m=take["captured_markers_m"][f],
-                                   simulated_markers_m=take["simulated_markers_m"][f], panel_size=_SIZE)
+    out = render.render_expression(
+        face,
+        take["node_positions_m"][f],
+        tmp_path / "m.png",
+        captured_markers_m=take["captured_markers_m"][f],
+        simulated_markers_m=take["simulated_markers_m"][f],
+        panel_size=_SIZE,
+    )
     img = _img(out)
     assert img.shape[:2] == (_SIZE[1], _SIZE[0])
     assert _count(img, _red) > 20 and _count(img, _green) > 20
@@ -69,31 +74,56 @@ def test_without_markers_there_is_no_red_or_green(tmp_path, face):
 
 def test_muscle_colours_follow_activation(tmp_path, face):
     M = face.n_muscles
-    off = _img(render.render_expression(face, face.rest_positions_m, tmp_path / "off.png", activations=np.zeros(M),
-                                        style="muscles", panel_size=_SIZE))
-    on = _img(render.render_expression(face, face.rest_positions_m, tmp_path / "on.png", activations=np.ones(M),
-                                       style="muscles", panel_size=_SIZE))
+    off = _img(
+        render.render_expression(
+            face,
+            face.rest_positions_m,
+            tmp_path / "off.png",
+            activations=np.zeros(M),
+            style="muscles",
+            panel_size=_SIZE,
+        )
+    )
+    on = _img(
+        render.render_expression(
+            face, face.rest_positions_m, tmp_path / "on.png", activations=np.ones(M), style="muscles", panel_size=_SIZE
+        )
+    )
     assert _count(off, _red) > 200 and _count(off, _yellow) < 0.1 * _count(off, _red)  # inactive: red
     assert _count(on, _yellow) > 200 and _count(on, _red) < 0.1 * _count(on, _yellow)  # active: yellow
-    skin = _img(render.render_expression(face, face.rest_positions_m, tmp_path / "s.png", activations=np.ones(M),
-                                         style="skin", panel_size=_SIZE))
+    skin = _img(
+        render.render_expression(
+            face, face.rest_positions_m, tmp_path / "s.png", activations=np.ones(M), style="skin", panel_size=_SIZE
+        )
+    )
     assert _count(skin, _yellow) > 200
 
 
 def test_before_after_is_two_panels(tmp_path, face, take):
-    out = render.render_before_after(face, render.Panel(face.rest_positions_m),
-                                     render.Panel(take["node_positions_m"][2], take["activations"][2]),
-                                     tmp_path / "ba.png", panel_size=_SIZE)
+    out = render.render_before_after(
+        face,
+        render.Panel(face.rest_positions_m),
+        render.Panel(take["node_positions_m"][2], take["activations"][2]),
+        tmp_path / "ba.png",
+        panel_size=_SIZE,
+    )
     img = _img(out)
     assert img.shape[:2] == (_SIZE[1], 2 * _SIZE[0])
-    left, right = img[:, : _SIZE[0]], img[:, _SIZE[0]:]
+    left, right = img[:, : _SIZE[0]], img[:, _SIZE[0] :]
     assert _count(right, _yellow) > _count(left, _yellow)
 
 
 def test_movie_has_one_frame_per_take_frame(tmp_path, face, take):
-    out = render.render_take_movie(face, take["node_positions_m"], tmp_path / "take.mp4", fps=take["fps"],
-                                   activations=take["activations"], captured_markers_m=take["captured_markers_m"],
-                                   simulated_markers_m=take["simulated_markers_m"], window_size=(330, 250))
+    out = render.render_take_movie(
+        face,
+        take["node_positions_m"],
+        tmp_path / "take.mp4",
+        fps=take["fps"],
+        activations=take["activations"],
+        captured_markers_m=take["captured_markers_m"],
+        simulated_markers_m=take["simulated_markers_m"],
+        window_size=(330, 250),
+    )
     frames = list(imageio.v3.imiter(out))
     assert len(frames) == take["node_positions_m"].shape[0]
     assert frames[0].shape[:2] == (240, 320)  # rounded down to multiples of 16 for H.264

@@ -81,9 +81,13 @@ def as_polygons(
             raise UsdWriteError(f"face_vertex_counts must be >= 3 (found {int(counts.min())})")
     idx = idx.astype(np.int64).reshape(-1)
     if int(counts.sum()) != idx.size:
-        raise UsdWriteError(f"face_vertex_counts sum to {int(counts.sum())} but there are {idx.size} face vertex indices")
+        raise UsdWriteError(
+            f"face_vertex_counts sum to {int(counts.sum())} but there are {idx.size} face vertex indices"
+        )
     if idx.size and (idx.min() < 0 or idx.max() >= n_points):
-        raise UsdWriteError(f"face_vertex_indices reference points outside [0, {n_points}) (range {idx.min()}..{idx.max()})")
+        raise UsdWriteError(
+            f"face_vertex_indices reference points outside [0, {n_points}) (range {idx.min()}..{idx.max()})"
+        )
     return counts, idx.astype(np.int32)
 
 
@@ -156,7 +160,9 @@ def _write_mesh(stage, prim_path: str, points: np.ndarray, counts, indices, colo
             pts_attr.Set(_vt_vec3f(p), float(f))
             ext_attr.Set(_vt_vec3f(_extent(p)), float(f))
     if colors is not None:
-        _set_display_color(mesh, colors, n_points=points.shape[-2], n_frames=points.shape[0] if points.ndim == 3 else None)
+        _set_display_color(
+            mesh, colors, n_points=points.shape[-2], n_frames=points.shape[0] if points.ndim == 3 else None
+        )
     return mesh
 
 
@@ -264,7 +270,7 @@ def affine_to_matrix4d(affine: np.ndarray):
 def _check_frames(name: str, a, n_frames: int, tail: tuple, *, allow_nan: bool = False) -> np.ndarray:
     arr = np.asarray(a, dtype=np.float64)
     want = (n_frames, *tail)
-    ok = arr.ndim == len(want) and all(w is None or s == w for s, w in zip(arr.shape, want))
+    ok = arr.ndim == len(want) and all(w is None or s == w for s, w in zip(arr.shape, want, strict=False))
     if not ok:
         shown = ", ".join("k" if w is None else str(w) for w in want)
         raise UsdWriteError(f"{name} must have shape ({shown}) (frames first, like node_positions_m); got {arr.shape}")
@@ -284,8 +290,9 @@ def _write_points(stage, prim_path: str, points: np.ndarray, *, radius_m: float,
     pts.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(_vt_vec3f(np.asarray(rgb)[None]))
     w_attr = pts.CreateWidthsAttr()
     pts.SetWidthsInterpolation(UsdGeom.Tokens.vertex)  # one width per point
-    pts.GetPrim().CreateAttribute("wface:markerNames", Sdf.ValueTypeNames.StringArray, custom=True,
-                                  variability=Sdf.VariabilityUniform).Set(Vt.StringArray(list(names)))
+    pts.GetPrim().CreateAttribute(
+        "wface:markerNames", Sdf.ValueTypeNames.StringArray, custom=True, variability=Sdf.VariabilityUniform
+    ).Set(Vt.StringArray(list(names)))
     p_attr, i_attr, e_attr = pts.CreatePointsAttr(), pts.CreateIdsAttr(), pts.CreateExtentAttr()
     last_extent = None
     for f, pf in enumerate(points):
@@ -351,8 +358,16 @@ class BlendShapeBasis:
         return BlendShapeBasis(self.neutral_m[vertices], self.deltas_m[:, vertices], self.names)
 
 
-def _write_blendshapes(stage, root_path: str, basis: BlendShapeBasis, weights: np.ndarray | None, counts, indices,
-                       *, sparse_tol_m: float = 0.0):
+def _write_blendshapes(
+    stage,
+    root_path: str,
+    basis: BlendShapeBasis,
+    weights: np.ndarray | None,
+    counts,
+    indices,
+    *,
+    sparse_tol_m: float = 0.0,
+):
     """SkelRoot with a one-joint Skeleton, a SkelAnimation (blendShapeWeights per frame) and a bound Mesh.
 
     What Blender's USD importer needs is here: the Skeleton's ``skel:animationSource`` names the
@@ -382,7 +397,7 @@ def _write_blendshapes(stage, root_path: str, basis: BlendShapeBasis, weights: n
 
     taken: set[str] = set()
     tokens, targets = [], []
-    for name, delta in zip(basis.names, basis.deltas_m):
+    for name, delta in zip(basis.names, basis.deltas_m, strict=True):
         ident = _identifier(name, taken)
         shape = UsdSkel.BlendShape.Define(stage, mesh.GetPath().AppendChild(ident))
         moved = np.flatnonzero(np.max(np.abs(delta), axis=1) > sparse_tol_m)
@@ -442,7 +457,9 @@ def write_blendshape_basis(
     path = _check_path(path)
     counts, indices = as_polygons(face_vertex_counts, face_vertex_indices, basis.neutral_m.shape[0])
     w = None if weights is None else _check_frames("weights", weights, np.asarray(weights).shape[0], (basis.n_shapes,))
-    stage = _new_stage(path, fps=fps, n_frames=1 if w is None else len(w), up_axis=up_axis, root=name, root_type="SkelRoot")
+    stage = _new_stage(
+        path, fps=fps, n_frames=1 if w is None else len(w), up_axis=up_axis, root=name, root_type="SkelRoot"
+    )
     _write_blendshapes(stage, f"/{name}", basis, w, counts, indices)
     stage.GetRootLayer().Save()
     return path
@@ -561,7 +578,8 @@ def write_take(
             basis = basis.restricted(skin_nodes)
         elif nb != skin_nodes.size:
             raise UsdWriteError(
-                f"basis has {nb} vertices; expected the model's {model.n_nodes} nodes or its {skin_nodes.size} skin vertices"
+                f"basis has {nb} vertices; expected the model's {model.n_nodes} nodes "
+                f"or its {skin_nodes.size} skin vertices"
             )
     elif basis_weights is not None:
         raise UsdWriteError("basis_weights given without a basis")
@@ -596,8 +614,9 @@ def write_take(
             raise UsdWriteError(f"{len(marker_names)} marker names for {k} markers")
         colours = {"Captured": (0.9, 0.05, 0.05), "Simulated": (0.05, 0.8, 0.1)}
         for label, arr in markers.items():
-            _write_points(stage, f"{root}/Markers/{label}", arr, radius_m=marker_radius_m, rgb=colours[label],
-                          names=marker_names)
+            _write_points(
+                stage, f"{root}/Markers/{label}", arr, radius_m=marker_radius_m, rgb=colours[label], names=marker_names
+            )
 
     bone_groups: dict[str, list[tuple[str, object]]] = {"Cranium": [], "Jaw": []}
     for mesh_name, mesh in (model.bone_meshes if bone_meshes is None else bone_meshes).items():
@@ -622,18 +641,21 @@ def write_take(
 
     if act is not None:
         muscles = UsdGeom.Scope.Define(stage, f"{root}/Muscles").GetPrim()
-        muscles.CreateAttribute("wface:muscleNames", Sdf.ValueTypeNames.StringArray, custom=True,
-                                variability=Sdf.VariabilityUniform).Set(Vt.StringArray(list(model.muscle_names)))
+        muscles.CreateAttribute(
+            "wface:muscleNames", Sdf.ValueTypeNames.StringArray, custom=True, variability=Sdf.VariabilityUniform
+        ).Set(Vt.StringArray(list(model.muscle_names)))
         all_attr = muscles.CreateAttribute("wface:activations", Sdf.ValueTypeNames.FloatArray, custom=True)
         taken = set()
         per_muscle = []
         for m_name in model.muscle_names:
             ident = _identifier(m_name, taken)
-            per_muscle.append(muscles.CreateAttribute(f"wface:activation:{ident}", Sdf.ValueTypeNames.Float, custom=True))
+            per_muscle.append(
+                muscles.CreateAttribute(f"wface:activation:{ident}", Sdf.ValueTypeNames.Float, custom=True)
+            )
         for f, a in enumerate(act):
             t = float(f)
             all_attr.Set(_vt_float(a), t)
-            for attr, value in zip(per_muscle, a):
+            for attr, value in zip(per_muscle, a, strict=True):
                 attr.Set(float(value), t)
 
     if basis is not None:
@@ -694,8 +716,11 @@ def validate_stage(stage_or_path, *, keywords: list[str] | None = None) -> list[
     if not validators:
         raise UsdValidationFailed("no USD validators are registered (usd-core too old?)")
     errors = UsdValidation.ValidationContext(validators).Validate(stage)
-    return [f"{e.GetName() or e.GetValidator().GetMetadata().name}: {e.GetErrorAsString()}"
-            for e in errors if not e.HasNoError()]
+    return [
+        f"{e.GetName() or e.GetValidator().GetMetadata().name}: {e.GetErrorAsString()}"
+        for e in errors
+        if not e.HasNoError()
+    ]
 
 
 def check_extents(stage_or_path, *, rtol: float = 1e-6) -> list[str]:
@@ -775,8 +800,9 @@ def blendshape_points(stage_or_path, mesh_path: str, time: float) -> np.ndarray:
     query = UsdSkel.BlendShapeQuery(UsdSkel.BindingAPI(prim))
     sub_w, shape_idx, sub_idx = query.ComputeSubShapeWeights(weights)
     points = Vt.Vec3fArray(prim.GetAttribute("points").Get(Usd.TimeCode(time)))
-    ok = query.ComputeDeformedPoints(sub_w, shape_idx, sub_idx, query.ComputeBlendShapePointIndices(),
-                                     query.ComputeSubShapePointOffsets(), points)
+    ok = query.ComputeDeformedPoints(
+        sub_w, shape_idx, sub_idx, query.ComputeBlendShapePointIndices(), query.ComputeSubShapePointOffsets(), points
+    )
     if not ok:
         raise UsdValidationFailed(f"{mesh_path}: UsdSkel.BlendShapeQuery.ComputeDeformedPoints failed")
     return np.asarray(points, dtype=np.float64)

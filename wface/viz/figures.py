@@ -17,7 +17,9 @@ import numpy as np
 __all__ = ["peak_frame", "write_take_figures"]
 
 
-def peak_frame(node_positions_m: np.ndarray, rest_positions_m: np.ndarray, activations: np.ndarray | None = None) -> int:
+def peak_frame(
+    node_positions_m: np.ndarray, rest_positions_m: np.ndarray, activations: np.ndarray | None = None
+) -> int:
     """The most expressive frame: largest total activation, else largest mean displacement from rest."""
     if activations is not None and np.asarray(activations).size:
         return int(np.argmax(np.asarray(activations).sum(axis=1)))
@@ -70,10 +72,16 @@ def write_take_figures(
     if x.ndim != 3 or x.shape[1:] != (model.n_nodes, 3) or x.shape[0] == 0:
         raise ValueError(f"node_positions_m must have shape (frames, {model.n_nodes}, 3); got {x.shape}")
     F = x.shape[0]
-    for name, arr in (("activations", activations), ("captured_markers_m", captured_markers_m),
-                      ("simulated_markers_m", simulated_markers_m), ("jaw_affines", jaw_affines),
-                      ("cranium_affines", cranium_affines), ("jaw_angle_deg", jaw_angle_deg),
-                      ("truth_activations", truth_activations), ("truth_jaw_angle_deg", truth_jaw_angle_deg)):
+    for name, arr in (
+        ("activations", activations),
+        ("captured_markers_m", captured_markers_m),
+        ("simulated_markers_m", simulated_markers_m),
+        ("jaw_affines", jaw_affines),
+        ("cranium_affines", cranium_affines),
+        ("jaw_angle_deg", jaw_angle_deg),
+        ("truth_activations", truth_activations),
+        ("truth_jaw_angle_deg", truth_jaw_angle_deg),
+    ):
         if arr is not None and len(arr) != F:
             raise ValueError(f"{name} has {len(arr)} frames but node_positions_m has {F}")
 
@@ -84,32 +92,43 @@ def write_take_figures(
     f = peak_frame(x, model.rest_positions_m, activations)
     t = f / fps
     images[f"Expression at frame {f} ({t:.2f} s): captured markers red, tracked green"] = render.render_expression(
-        model, x[f], out / "expression.png", activations=at(activations, f),
-        captured_markers_m=at(captured_markers_m, f), simulated_markers_m=at(simulated_markers_m, f),
-        panel_size=panel_size)
+        model,
+        x[f],
+        out / "expression.png",
+        activations=at(activations, f),
+        captured_markers_m=at(captured_markers_m, f),
+        simulated_markers_m=at(simulated_markers_m, f),
+        panel_size=panel_size,
+    )
     if activations is not None:
         images[f"Muscles at frame {f}: yellow active, red inactive"] = render.render_expression(
-            model, x[f], out / "muscles.png", activations=activations[f], style="muscles", panel_size=panel_size)
+            model, x[f], out / "muscles.png", activations=activations[f], style="muscles", panel_size=panel_size
+        )
     images["First frame and most expressive frame"] = render.render_before_after(
         model,
-        render.Panel(x[0], at(activations, 0), at(captured_markers_m, 0), at(simulated_markers_m, 0),
-                     title="frame 0"),
-        render.Panel(x[f], at(activations, f), at(captured_markers_m, f), at(simulated_markers_m, f),
-                     title=f"frame {f}"),
-        out / "before_after.png", panel_size=panel_size)
+        render.Panel(x[0], at(activations, 0), at(captured_markers_m, 0), at(simulated_markers_m, 0), title="frame 0"),
+        render.Panel(
+            x[f], at(activations, f), at(captured_markers_m, f), at(simulated_markers_m, f), title=f"frame {f}"
+        ),
+        out / "before_after.png",
+        panel_size=panel_size,
+    )
 
     if activations is not None:
         images["Muscle activations"] = plots.plot_activations(
-            activations, model.muscle_names, out / "activations.png", fps=fps, truth=truth_activations)
+            activations, model.muscle_names, out / "activations.png", fps=fps, truth=truth_activations
+        )
     if captured_markers_m is not None and simulated_markers_m is not None:
         rms, mx = plots.marker_errors_mm(captured_markers_m, simulated_markers_m)
-        images["Marker error per frame"] = plots.plot_marker_error(rms, out / "marker_error.png", marker_max_mm=mx,
-                                                                   fps=fps)
+        images["Marker error per frame"] = plots.plot_marker_error(
+            rms, out / "marker_error.png", marker_max_mm=mx, fps=fps
+        )
     if jaw_angle_deg is None and jaw_affines is not None:
         jaw_angle_deg = plots.jaw_opening_deg(jaw_affines, cranium_affines, axis=model.jaw_joint.u)
     if jaw_angle_deg is not None:
-        images["Jaw opening"] = plots.plot_jaw_opening(jaw_angle_deg, out / "jaw_opening.png", fps=fps,
-                                                       truth_deg=truth_jaw_angle_deg)
+        images["Jaw opening"] = plots.plot_jaw_opening(
+            jaw_angle_deg, out / "jaw_opening.png", fps=fps, truth_deg=truth_jaw_angle_deg
+        )
     if movie:
         step = max(1, int(np.ceil(F / movie_max_frames)))
         sel = np.arange(0, F, step)
@@ -118,7 +137,15 @@ def write_take_figures(
             return None if arr is None else np.asarray(arr)[sel]
 
         images["Take (movie)"] = render.render_take_movie(
-            model, x[sel], out / "take.mp4", fps=max(1.0, fps / step), activations=sub(activations),
-            captured_markers_m=sub(captured_markers_m), simulated_markers_m=sub(simulated_markers_m),
-            cranium_affines=sub(cranium_affines), jaw_affines=sub(jaw_affines), window_size=panel_size)
+            model,
+            x[sel],
+            out / "take.mp4",
+            fps=max(1.0, fps / step),
+            activations=sub(activations),
+            captured_markers_m=sub(captured_markers_m),
+            simulated_markers_m=sub(simulated_markers_m),
+            cranium_affines=sub(cranium_affines),
+            jaw_affines=sub(jaw_affines),
+            window_size=panel_size,
+        )
     return images

@@ -4,8 +4,8 @@ Seed 000's figure convention: active muscles yellow, inactive muscles red, skin 
 Muscles usually sit under the skin, so a skin vertex takes the muscles whose tets lie near it:
 for each muscle m the distance d_m from the vertex to the nearest centroid of m's tets, less the
 muscle's depth under the skin D_m = min over skin vertices of d_m, gives an influence
-w_m = exp(-(max(d_m - D_m, 0) / r)^2) (r: ``radius_m``): each muscle's footprint on the skin. Pure numpy + scipy: usable by both the USD
-writer (``displayColor``) and the pyvista pictures.
+w_m = exp(-(max(d_m - D_m, 0) / r)^2) (r: ``radius_m``): each muscle's footprint on the skin.
+Pure numpy + scipy: usable by both the USD writer (``displayColor``) and the pyvista pictures.
 """
 
 from __future__ import annotations

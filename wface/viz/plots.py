@@ -62,7 +62,9 @@ def marker_errors_mm(captured_m: np.ndarray, simulated_m: np.ndarray) -> tuple[n
     return rms, mx
 
 
-def jaw_opening_deg(jaw_affines: np.ndarray, cranium_affines: np.ndarray | None = None, *, axis=(1.0, 0.0, 0.0)) -> np.ndarray:
+def jaw_opening_deg(
+    jaw_affines: np.ndarray, cranium_affines: np.ndarray | None = None, *, axis=(1.0, 0.0, 0.0)
+) -> np.ndarray:
     """Jaw opening angle (degrees) per frame from bone affines (F, 3, 4).
 
     The jaw's rotation relative to the cranium, R = R_c^T R_j, is measured about ``axis`` (the
@@ -105,7 +107,9 @@ def plot_activations(
         raise ValueError(f"truth has shape {np.shape(truth)}, activations {a.shape}")
     t, xlabel = _time_axis(a.shape[0], fps)
     M = a.shape[1]
-    top = max(1.0, float(np.nanmax(a)) if a.size else 1.0, float(np.nanmax(truth)) if truth is not None and a.size else 1.0)
+    top = max(
+        1.0, float(np.nanmax(a)) if a.size else 1.0, float(np.nanmax(truth)) if truth is not None and a.size else 1.0
+    )
     if M <= max_single_axis:
         fig, ax = plt.subplots(figsize=(8, 4))
         for m in range(M):
@@ -121,8 +125,9 @@ def plot_activations(
     else:
         cols = 4 if M <= 24 else 6
         rows = int(np.ceil(M / cols))
-        fig, axes = plt.subplots(rows, cols, figsize=(2.6 * cols, 1.55 * rows + 0.6), sharex=True, sharey=True,
-                                 squeeze=False)
+        fig, axes = plt.subplots(
+            rows, cols, figsize=(2.6 * cols, 1.55 * rows + 0.6), sharex=True, sharey=True, squeeze=False
+        )
         for m, ax in enumerate(axes.ravel()):
             if m >= M:
                 ax.axis("off")

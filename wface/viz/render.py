@@ -83,8 +83,9 @@ def _tri_polydata(pv, points, triangles):
 class _Scene:
     """The actors of one panel, built once and updated per frame (for movies)."""
 
-    def __init__(self, pv, plotter, model, *, style: str, marker_radius_m: float, show_bones: bool,
-                 muscle_radius_m: float | None):
+    def __init__(
+        self, pv, plotter, model, *, style: str, marker_radius_m: float, show_bones: bool, muscle_radius_m: float | None
+    ):
         if style not in ("skin", "muscles"):
             raise ValueError(f"style must be 'skin' or 'muscles', got {style!r}")
         self.pv, self.p, self.model, self.style = pv, plotter, model, style
@@ -99,7 +100,9 @@ class _Scene:
         self.bones: list[tuple[object, np.ndarray]] = []
         if style == "skin":
             self.skin["rgb"] = np.tile(SKIN_RGB, (self.skin.n_points, 1))
-            self.p.add_mesh(self.skin, scalars="rgb", rgb=True, smooth_shading=True, specular=0.1, diffuse=0.8, ambient=0.08)
+            self.p.add_mesh(
+                self.skin, scalars="rgb", rgb=True, smooth_shading=True, specular=0.1, diffuse=0.8, ambient=0.08
+            )
         else:
             self.skin_actor = self.p.add_mesh(self.skin, color=SKIN_RGB, opacity=0.22, smooth_shading=True)
             for m in range(model.n_muscles):
@@ -149,10 +152,12 @@ class _Scene:
             pts = pts[np.all(np.isfinite(pts), axis=1)]
             if pts.size == 0:
                 continue
-            glyphs = self.pv.PolyData(pts).glyph(geom=self.pv.Sphere(radius=self.r, theta_resolution=16,
-                                                                    phi_resolution=16), scale=False, orient=False)
-            self.marker_actors[key] = self.p.add_mesh(glyphs, color=rgb, smooth_shading=True, specular=0.4,
-                                                      reset_camera=False, render=False)
+            glyphs = self.pv.PolyData(pts).glyph(
+                geom=self.pv.Sphere(radius=self.r, theta_resolution=16, phi_resolution=16), scale=False, orient=False
+            )
+            self.marker_actors[key] = self.p.add_mesh(
+                glyphs, color=rgb, smooth_shading=True, specular=0.4, reset_camera=False, render=False
+            )
 
 
 def _cropped_bones(model, margin: float = 0.03) -> list[tuple[object, np.ndarray]]:
@@ -241,16 +246,21 @@ def render_panels(
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     xs = [_check_nodes(model, pnl.node_positions_m, f"panel {i} node_positions_m") for i, pnl in enumerate(panels)]
-    bounds = _bounds_of(model, [x[np.unique(model.skin_triangles)] for x in xs]
-                        + [pnl.captured_markers_m for pnl in panels] + [pnl.simulated_markers_m for pnl in panels],
-                        bones=show_bones and style == "muscles")
+    bounds = _bounds_of(
+        model,
+        [x[np.unique(model.skin_triangles)] for x in xs]
+        + [pnl.captured_markers_m for pnl in panels]
+        + [pnl.simulated_markers_m for pnl in panels],
+        bones=show_bones and style == "muscles",
+    )
     r = marker_radius_m or 0.01 * float(np.linalg.norm(bounds[1::2] - bounds[0::2]))
     bounds = bounds + np.array([-r, r] * 3)
     p = _new_plotter(pv, (1, len(panels)), (panel_size[0] * len(panels), panel_size[1]))
-    for i, (pnl, x) in enumerate(zip(panels, xs)):
+    for i, (pnl, x) in enumerate(zip(panels, xs, strict=True)):
         p.subplot(0, i)
-        scene = _Scene(pv, p, model, style=style, marker_radius_m=r, show_bones=show_bones,
-                       muscle_radius_m=muscle_radius_m)
+        scene = _Scene(
+            pv, p, model, style=style, marker_radius_m=r, show_bones=show_bones, muscle_radius_m=muscle_radius_m
+        )
         scene.update(x, pnl.activations, pnl.captured_markers_m, pnl.simulated_markers_m)
         if pnl.title:
             p.add_text(pnl.title, position="upper_left", font_size=14, color="black")
@@ -338,16 +348,21 @@ def render_take_movie(
     if not np.all(np.isfinite(x)):
         raise ValueError("node_positions_m contains NaN/inf")
     F = x.shape[0]
-    for name, arr in (("activations", activations), ("captured_markers_m", captured_markers_m),
-                      ("simulated_markers_m", simulated_markers_m), ("cranium_affines", cranium_affines),
-                      ("jaw_affines", jaw_affines)):
+    for name, arr in (
+        ("activations", activations),
+        ("captured_markers_m", captured_markers_m),
+        ("simulated_markers_m", simulated_markers_m),
+        ("cranium_affines", cranium_affines),
+        ("jaw_affines", jaw_affines),
+    ):
         if arr is not None and np.asarray(arr).shape[0] != F:
             raise ValueError(f"{name} has {np.asarray(arr).shape[0]} frames but node_positions_m has {F}")
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     skin_nodes = np.unique(model.skin_triangles)
-    bounds = _bounds_of(model, [x[:, skin_nodes], captured_markers_m, simulated_markers_m],
-                        bones=show_bones and style == "muscles")
+    bounds = _bounds_of(
+        model, [x[:, skin_nodes], captured_markers_m, simulated_markers_m], bones=show_bones and style == "muscles"
+    )
     r = marker_radius_m or 0.01 * float(np.linalg.norm(bounds[1::2] - bounds[0::2]))
     bounds = bounds + np.array([-r, r] * 3)
     w, h = (int(window_size[0]) // 16 * 16, int(window_size[1]) // 16 * 16)

@@ -64,20 +64,26 @@ def _sparkline(values: list[float], width: int = 160, height: int = 28) -> str:
     lo, hi = min(vals), max(vals)
     span = hi - lo or 1.0
     n = len(vals)
-    pts = " ".join(f"{i * (width - 2) / (n - 1) + 1:.1f},{height - 1 - (v - lo) / span * (height - 2):.1f}"
-                   for i, v in enumerate(vals))
-    return (f'<svg width="{width}" height="{height}" viewBox="0 0 {width} {height}">'
-            f'<polyline fill="none" stroke="#1f77b4" stroke-width="1.3" points="{pts}"/></svg>')
+    pts = " ".join(
+        f"{i * (width - 2) / (n - 1) + 1:.1f},{height - 1 - (v - lo) / span * (height - 2):.1f}"
+        for i, v in enumerate(vals)
+    )
+    return (
+        f'<svg width="{width}" height="{height}" viewBox="0 0 {width} {height}">'
+        f'<polyline fill="none" stroke="#1f77b4" stroke-width="1.3" points="{pts}"/></svg>'
+    )
 
 
 def _value_cell(v) -> str:
     if isinstance(v, list) and v and all(_is_number(x) for x in v):
         finite = [float(x) for x in v if math.isfinite(float(x))]
         if not finite:
-            return f'<td>{len(v)} values, none finite</td>'
+            return f"<td>{len(v)} values, none finite</td>"
         mean = sum(finite) / len(finite)
-        return (f'<td class="num">n={len(v)}, mean {_fmt(mean)}, min {_fmt(min(finite))}, '
-                f'max {_fmt(max(finite))}<br>{_sparkline(v)}</td>')
+        return (
+            f'<td class="num">n={len(v)}, mean {_fmt(mean)}, min {_fmt(min(finite))}, '
+            f"max {_fmt(max(finite))}<br>{_sparkline(v)}</td>"
+        )
     if _is_number(v):
         return f'<td class="num">{_fmt(v)}</td>'
     if isinstance(v, (list, dict)):
@@ -93,8 +99,7 @@ def _embed(path: Path, caption: str) -> str:
     data = base64.b64encode(path.read_bytes()).decode("ascii")
     cap = f"<figcaption>{html.escape(caption)}</figcaption>"
     if mime.startswith("video/"):
-        return (f'<figure><video controls loop muted playsinline src="data:{mime};base64,{data}"></video>'
-                f"{cap}</figure>")
+        return f'<figure><video controls loop muted playsinline src="data:{mime};base64,{data}"></video>{cap}</figure>'
     return f'<figure><img alt="{html.escape(caption)}" src="data:{mime};base64,{data}">{cap}</figure>'
 
 
@@ -140,16 +145,17 @@ def write_html_report(
     for key, v in report.items():
         if isinstance(v, dict) and v and all(_is_number(x) or x is None for x in v.values()):
             body = "".join(f"<tr><td>{html.escape(str(k))}</td>{_value_cell(x)}</tr>" for k, x in v.items())
-            sub_tables.append(f"<h2>{html.escape(str(key))}</h2><table><tr><th>name</th><th>value</th></tr>"
-                              f"{body}</table>")
+            sub_tables.append(
+                f"<h2>{html.escape(str(key))}</h2><table><tr><th>name</th><th>value</th></tr>{body}</table>"
+            )
         else:
             rows.append(f"<tr><th>{html.escape(str(key))}</th>{_value_cell(v)}</tr>")
     figures = "".join(_embed(p, c) for c, p in paths.items())
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     doc = (
-        "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
+        '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
         f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>"
-        f"<h1>{html.escape(title)}</h1><p class=\"meta\">generated {stamp}</p>"
+        f'<h1>{html.escape(title)}</h1><p class="meta">generated {stamp}</p>'
         + (f"<h2>Pictures and plots</h2>{figures}" if figures else "")
         + f"<h2>Numbers</h2><table>{''.join(rows)}</table>"
         + "".join(sub_tables)

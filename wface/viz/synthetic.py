@@ -131,8 +131,14 @@ def synthetic_face(*, nx: int = 12, ny: int = 12, nz: int = 2):
         fibre_direction=fibre_direction,
         attached_nodes=attached_nodes,
         attached_bone=attached_bone,
-        jaw_joint=JawJoint(u=(1.0, 0.0, 0.0), v=(0.0, 0.0, 1.0), midpoint_m=(0.0, -0.01, -0.07),
-                           condyle_distance_m=0.1, track_length_m=0.01, max_opening_sine=0.5),
+        jaw_joint=JawJoint(
+            u=(1.0, 0.0, 0.0),
+            v=(0.0, 0.0, 1.0),
+            midpoint_m=(0.0, -0.01, -0.07),
+            condyle_distance_m=0.1,
+            track_length_m=0.01,
+            max_opening_sine=0.5,
+        ),
         bone_meshes=bone_meshes,
         marker_names=[f"M{i:02d}" for i in range(marker_nodes.size)],
         marker_positions_m=x[marker_nodes],
@@ -181,11 +187,14 @@ def synthetic_take(model, *, n_frames: int = 24, fps: float = 24.0, seed: int = 
 
     t = np.arange(n_frames) / fps
     s = np.linspace(0.0, 1.0, n_frames)
-    act = np.stack([
-        np.clip(np.sin(np.pi * s) ** 2, 0, 1),
-        np.clip(np.sin(np.pi * np.clip(1.4 * s - 0.2, 0, 1)) ** 2, 0, 1),
-        np.clip(0.5 - 0.5 * np.cos(4 * np.pi * s), 0, 1) * (s > 0.5),
-    ], axis=1)[:, : model.n_muscles]
+    act = np.stack(
+        [
+            np.clip(np.sin(np.pi * s) ** 2, 0, 1),
+            np.clip(np.sin(np.pi * np.clip(1.4 * s - 0.2, 0, 1)) ** 2, 0, 1),
+            np.clip(0.5 - 0.5 * np.cos(4 * np.pi * s), 0, 1) * (s > 0.5),
+        ],
+        axis=1,
+    )[:, : model.n_muscles]
     jaw_deg = 12.0 * np.sin(np.pi * s) ** 4
     head_deg = 6.0 * np.sin(2 * np.pi * s)
     fields = muscle_displacement_fields(model)
@@ -215,7 +224,7 @@ def synthetic_take(model, *, n_frames: int = 24, fps: float = 24.0, seed: int = 
     rng = np.random.default_rng(seed)
     cap = sim + rng.normal(scale=0.0005, size=sim.shape)
     if cap.shape[1]:
-        cap[n_frames // 3: n_frames // 2, 0] = np.nan
+        cap[n_frames // 3 : n_frames // 2, 0] = np.nan
     skin_nodes = np.unique(model.skin_triangles)
     jaw_delta = np.zeros_like(x0)
     Rj = rotation_about(jj.u, np.radians(12.0))
