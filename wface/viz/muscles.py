@@ -78,16 +78,22 @@ def skin_muscle_influence(model, vertices: np.ndarray | None = None, *, radius_m
     return out
 
 
-def activation_colors(influence: np.ndarray, activations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-vertex activation and colour: skin where no muscle, red (inactive) to yellow (active).
+def activation_colors(
+    influence: np.ndarray, activations: np.ndarray, *, inactive_tint: float = 0.3
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-vertex activation and colour: skin where no muscle, a red tint over inactive muscles,
+    yellow over active ones.
 
     Args:
         influence: (v, M) from ``skin_muscle_influence``.
         activations: (M,) or (F, M) activations in [0, 1].
+        inactive_tint: opacity of the red over a fully inactive muscle (1: solid red, as in the
+            muscle view; the default keeps the skin's shape readable at rest).
 
     Returns:
-        ``(vertex_activation, rgb)``: (v,) / (F, v) = max_m w_m a_m, and (v, 3) / (F, v, 3) colours
-        (1 - p) skin + p lerp(red, yellow, a_v / p) with presence p = max_m w_m.
+        ``(vertex_activation, rgb)``: (v,) / (F, v) = a_v = max_m w_m a_m, and (v, 3) / (F, v, 3)
+        colours (1 - o) skin + o lerp(red, yellow, t), with presence p = max_m w_m, t = a_v / p and
+        opacity o = p (inactive_tint + (1 - inactive_tint) t).
     """
     w = np.asarray(influence, dtype=np.float64)
     a = np.asarray(activations, dtype=np.float64)
@@ -102,5 +108,6 @@ def activation_colors(influence: np.ndarray, activations: np.ndarray) -> tuple[n
     presence = w.max(axis=1) if w.shape[1] else np.zeros(w.shape[0])
     t = np.divide(va, presence[None], out=np.zeros_like(va), where=presence[None] > 1e-12)
     muscle_rgb = INACTIVE_RGB + t[..., None] * (ACTIVE_RGB - INACTIVE_RGB)
-    rgb = (1 - presence)[None, :, None] * SKIN_RGB + presence[None, :, None] * muscle_rgb
+    opacity = (presence[None] * (inactive_tint + (1.0 - inactive_tint) * t))[..., None]
+    rgb = (1 - opacity) * SKIN_RGB + opacity * muscle_rgb
     return (va[0], rgb[0]) if single else (va, rgb)
