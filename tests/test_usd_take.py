@@ -237,3 +237,19 @@ def test_usd_validators_run_and_report(tmp_path):
     text = "\n".join(problems)
     assert "StageMetadataChecker" in text
     assert "SkelBindingApiAppliedValidator" in text
+
+
+def test_z_up_rotates_the_root(tmp_path, face, take):
+    from pxr import Usd, UsdGeom
+
+    x = take["node_positions_m"][:2]
+    path = usd.write_take(tmp_path / "z.usda", model=face, node_positions_m=x, fps=24, up_axis="Z")
+    usd.assert_stage_valid(path)
+    stage = Usd.Stage.Open(str(path))
+    assert UsdGeom.GetStageUpAxis(stage) == "Z"
+    skin = stage.GetPrimAtPath("/Face/Skin")
+    m = np.asarray(UsdGeom.Xformable(skin).ComputeLocalToWorldTransform(Usd.TimeCode(1)))
+    local = np.asarray(UsdGeom.Mesh(skin).GetPointsAttr().Get(1), dtype=np.float64)
+    world = local @ m[:3, :3] + m[3, :3]
+    want = np.stack([local[:, 0], -local[:, 2], local[:, 1]], axis=1)  # +y up -> +z up, front +z -> -y
+    np.testing.assert_allclose(world, want, atol=1e-12)

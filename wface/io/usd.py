@@ -6,6 +6,9 @@ everywhere in wface), ``upAxis`` (``"Y"`` by default, matching the model's +y up
 ``timeCodesPerSecond`` = the capture rate, and start/end time codes covering the frames. Frame
 ``f`` of an animation is written at time code ``f`` (0-based).
 
+With ``up_axis="Z"`` the data stay as they are and the root prim gets a rotateX(90) op, so the
+model's +y points up in a Z-up world.
+
 The path's suffix picks the format: ``.usdc`` (binary crate, the default for ``.usd`` too) or
 ``.usda`` (text, diff-able).
 """
@@ -137,8 +140,10 @@ def _new_stage(path: Path, *, fps: float, n_frames: int, up_axis: str, root: str
     stage.SetStartTimeCode(0.0)
     stage.SetEndTimeCode(float(max(n_frames - 1, 0)))
     schema = UsdSkel.Root if root_type == "SkelRoot" else UsdGeom.Xform
-    root_prim = schema.Define(stage, f"/{root}").GetPrim()
-    stage.SetDefaultPrim(root_prim)
+    root_xf = schema.Define(stage, f"/{root}")
+    if up_axis == "Z":  # data stay +y up; the root turns them so that world +z is up (front: -y)
+        UsdGeom.Xformable(root_xf.GetPrim()).AddRotateXOp().Set(90.0)
+    stage.SetDefaultPrim(root_xf.GetPrim())
     return stage
 
 
@@ -223,7 +228,8 @@ def write_mesh_animation(
         face_vertex_indices: flat USD face vertex indices, or (t, 3) triangles.
         fps: frames per second (the stage's timeCodesPerSecond).
         name: name of the root prim (a valid USD identifier).
-        up_axis: "Y" (default, wface's convention) or "Z". Only metadata: points are not rotated.
+        up_axis: "Y" (default, wface's convention) or "Z": the root prim then gets a rotateX(90)
+            op so that the model's +y points along world +z (points are written unchanged).
         colors: optional displayColor: (3,) constant, (n, 3) per vertex or (F, n, 3) per vertex
             and frame; linear RGB in [0, 1].
 
@@ -449,7 +455,7 @@ def write_blendshape_basis(
         weights: (F, B) per-frame weights x_i; None writes static zero weights (the neutral).
         fps: frames per second.
         name: root prim name.
-        up_axis: "Y" or "Z" (metadata only).
+        up_axis: "Y" or "Z" (see ``write_mesh_animation``).
 
     Returns:
         The path written.
@@ -527,7 +533,7 @@ def write_take(
         bone_meshes: {name: BoneMesh} to draw under the bones instead of ``model.bone_meshes``
             (``{}``: none, e.g. to keep a file small).
         name: root prim name.
-        up_axis: "Y" (the model's convention) or "Z"; metadata only.
+        up_axis: "Y" (the model's convention) or "Z" (a rotateX(90) on the root prim).
         metadata: small JSON-able dict stored in the layer's customLayerData under "wface".
 
     Returns:
