@@ -7,7 +7,7 @@ import pytest
 
 pytest.importorskip("pxr")
 
-from wface.io.usd import UsdWriteError, write_mesh_animation  # noqa: E402
+from wface.io.usd import UsdWriteError, assert_stage_valid, write_mesh_animation  # noqa: E402
 
 
 def _sheet(frames: int = 3):
@@ -25,6 +25,7 @@ def test_animated_mesh_round_trip(tmp_path, suffix):
     out = write_mesh_animation(
         tmp_path / f"m{suffix}", points_m=pts, face_vertex_counts=None, face_vertex_indices=tri, fps=30.0
     )
+    assert_stage_valid(out)  # every registered UsdValidation validator + the extent check
     stage = Usd.Stage.Open(str(out))
     assert stage.GetRootLayer().GetFileFormat().formatId == ("usda" if suffix == ".usda" else "usdc")
     assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0
@@ -57,6 +58,7 @@ def test_static_mesh_polygons_and_overwrite(tmp_path):
         name="Quad",
         colors=(1.0, 0.0, 0.0),
     )  # rewriting the same file replaces it
+    assert_stage_valid(path)
     stage = Usd.Stage.Open(str(path))
     assert not stage.GetPrimAtPath("/Face")
     mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Quad/Mesh"))

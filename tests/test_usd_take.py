@@ -253,3 +253,16 @@ def test_z_up_rotates_the_root(tmp_path, face, take):
     world = local @ m[:3, :3] + m[3, :3]
     want = np.stack([local[:, 0], -local[:, 2], local[:, 1]], axis=1)  # +y up -> +z up, front +z -> -y
     np.testing.assert_allclose(world, want, atol=1e-12)
+
+
+def test_check_extents_catches_a_small_extents_hint(tmp_path, face, take):
+    from pxr import Usd, UsdGeom, Vt
+
+    path = _write(tmp_path, face, take, ".usda")
+    stage = Usd.Stage.Open(str(path))
+    basis = UsdGeom.ModelAPI(stage.GetPrimAtPath("/Face/Basis"))
+    neutral = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Basis/Mesh")).GetPointsAttr().Get())
+    box = np.stack([neutral.min(0), neutral.max(0)]).astype(np.float32)
+    basis.SetExtentsHint(Vt.Vec3fArray.FromNumpy(box))  # the neutral only: too small for the animation
+    problems = usd.check_extents(stage)
+    assert problems and all("extentsHint" in p for p in problems)

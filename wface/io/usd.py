@@ -729,12 +729,21 @@ def validate_stage(stage_or_path, *, keywords: list[str] | None = None) -> list[
     ]
 
 
+def _outside(p: np.ndarray, e: np.ndarray, rtol: float) -> float | None:
+    """How far points p (n, 3) lie outside the box e (2, 3), or None when inside up to rtol x size."""
+    tol = rtol * max(float(np.max(e[1] - e[0])), 1e-12)
+    worst = max(float(np.max(e[0] - p)), float(np.max(p - e[1])))
+    return worst if worst > tol else None
+
+
 def check_extents(stage_or_path, *, rtol: float = 1e-6) -> list[str]:
     """Check that every authored extent contains its prim's points at each time sample.
 
     For each UsdGeom.PointBased prim with an authored extent, at the union of the time samples of
     ``points`` and ``extent`` (or the default time when neither is animated), the points must lie
-    inside [min, max] up to ``rtol`` x the extent's size (float32 storage).
+    inside [min, max] up to ``rtol`` x the extent's size (float32 storage). For each SkelRoot with
+    an ``extentsHint``, the blend-shape meshes under it, deformed by UsdSkel at every time sample
+    of their animation's weights (``blendshape_points``), must lie inside the hint.
 
     Returns:
         One line per violation (prim, time, how far outside); empty when all is well.
@@ -762,13 +771,44 @@ def check_extents(stage_or_path, *, rtol: float = 1e-6) -> list[str]:
             if ext is None or len(ext) != 2:
                 problems.append(f"{prim.GetPath()} at time {label}: extent missing or malformed")
                 continue
-            p, e = np.asarray(pts, dtype=np.float64), np.asarray(ext, dtype=np.float64)
-            tol = rtol * max(float(np.max(e[1] - e[0])), 1e-12)
-            below, above = np.max(e[0] - p), np.max(p - e[1])
-            if below > tol or above > tol:
-                problems.append(
-                    f"{prim.GetPath()} at time {label}: points lie {max(below, above):.3g} m outside the extent"
-                )
+            worst = _outside(np.asarray(pts, dtype=np.float64), np.asarray(ext, dtype=np.float64), rtol)
+            if worst is not None:
+                problems.append(f"{prim.GetPath()} at time {label}: points lie {worst:.3g} m outside the extent")
+    problems += _check_skel_extents_hints(stage, rtol)
+    return problems
+
+
+def _check_skel_extents_hints(stage, rtol: float) -> list[str]:
+    from pxr import Usd, UsdGeom, UsdSkel
+
+    problems = []
+    xf = UsdGeom.XformCache()
+    for root in stage.Traverse():
+        if not root.IsA(UsdSkel.Root):
+            continue
+        hint_attr = UsdGeom.ModelAPI(root).GetExtentsHintAttr()
+        if not hint_attr.HasAuthoredValue():
+            continue
+        hint = np.asarray(hint_attr.Get(), dtype=np.float64)[:2]  # the default purpose's box
+        for prim in Usd.PrimRange(root):
+            if not (prim.IsA(UsdGeom.Mesh) and prim.HasAPI(UsdSkel.BindingAPI)):
+                continue
+            binding = UsdSkel.BindingAPI(prim)
+            if not binding.GetBlendShapeTargetsRel().GetTargets():
+                continue
+            skel = binding.GetInheritedSkeleton()
+            src = UsdSkel.BindingAPI(skel.GetPrim()).GetAnimationSourceRel().GetTargets() if skel else []
+            anim = UsdSkel.Animation(stage.GetPrimAtPath(src[0])) if src else None
+            times = anim.GetBlendShapeWeightsAttr().GetTimeSamples() if anim else []
+            m = np.asarray(xf.ComputeRelativeTransform(prim, root)[0])
+            for t in times or [Usd.TimeCode.Default().GetValue()]:
+                pts = blendshape_points(stage, str(prim.GetPath()), t)
+                worst = _outside(pts @ m[:3, :3] + m[3, :3], hint, rtol)
+                if worst is not None:
+                    problems.append(
+                        f"{prim.GetPath()} at time {t:g}: blend-shape points lie {worst:.3g} m outside "
+                        f"{root.GetPath()}.extentsHint"
+                    )
     return problems
 
 
