@@ -87,3 +87,10 @@ def test_bad_suffix(tmp_path):
         write_mesh_animation(
             tmp_path / "bad.obj", points_m=np.zeros((3, 3)), face_vertex_counts=None, face_vertex_indices=[[0, 1, 2]]
         )
+
+
+def test_unreadable_old_file_is_replaced(tmp_path):
+    path = tmp_path / "old.usda"
+    path.write_text("this is not USD\n")
+    write_mesh_animation(path, points_m=np.eye(3), face_vertex_counts=None, face_vertex_indices=[[0, 1, 2]])
+    assert_stage_valid(path)

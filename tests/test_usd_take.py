@@ -266,3 +266,14 @@ def test_check_extents_catches_a_small_extents_hint(tmp_path, face, take):
     basis.SetExtentsHint(Vt.Vec3fArray.FromNumpy(box))  # the neutral only: too small for the animation
     problems = usd.check_extents(stage)
     assert problems and all("extentsHint" in p for p in problems)
+
+
+def test_without_vertex_colors_the_skin_colour_is_constant(tmp_path, face, take):
+    from pxr import Usd, UsdGeom
+
+    path = _write(tmp_path, face, take, ".usda", vertex_colors=False)
+    stage = Usd.Stage.Open(str(path))
+    skin = UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Skin"))
+    assert skin.GetDisplayColorPrimvar().GetInterpolation() == "constant"
+    assert skin.GetDisplayColorPrimvar().GetAttr().GetTimeSamples() == []
+    assert len(UsdGeom.PrimvarsAPI(skin).GetPrimvar("wface:activation").GetAttr().GetTimeSamples()) == 8

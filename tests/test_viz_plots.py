@@ -66,3 +66,17 @@ def plt_image(path):
     import matplotlib.image as mpimg
 
     return (np.asarray(mpimg.imread(path))[..., :3] * 255).astype(int)
+
+
+def test_activation_colors_chunked_equals_direct():
+    from wface.viz.muscles import activation_colors
+
+    rng = np.random.default_rng(3)
+    w, a = rng.random((50, 4)), rng.random((7, 4))
+    va, rgb = activation_colors(w, a)
+    np.testing.assert_allclose(va, np.max(w[None] * a[:, None, :], axis=2))
+    for f in range(7):
+        va1, rgb1 = activation_colors(w, a[f])
+        np.testing.assert_allclose(va1, va[f])
+        np.testing.assert_allclose(rgb1, rgb[f])
+    assert np.all((rgb >= 0) & (rgb <= 1))

@@ -127,7 +127,14 @@ def _new_stage(path: Path, *, fps: float, n_frames: int, up_axis: str, root: str
     if not Sdf.Path.IsValidIdentifier(root):
         raise UsdWriteError(f"prim name {root!r} is not a valid USD identifier")
     path.parent.mkdir(parents=True, exist_ok=True)
-    layer = Sdf.Layer.FindOrOpen(str(path)) if path.exists() else None
+    layer = None
+    if path.exists():
+        try:
+            layer = Sdf.Layer.FindOrOpen(str(path))
+        except Exception:  # noqa: BLE001 - an unreadable old file is simply replaced
+            layer = None
+        if layer is None:
+            path.unlink()
     if layer is not None:
         layer.Clear()
         stage = Usd.Stage.Open(layer)
@@ -488,6 +495,7 @@ def write_take(
     basis_weights: np.ndarray | None = None,
     marker_radius_m: float = 0.002,
     muscle_radius_m: float | None = None,
+    vertex_colors: bool = True,
     bone_meshes: dict | None = None,
     name: str = "Face",
     up_axis: str = "Y",
@@ -530,6 +538,8 @@ def write_take(
         basis_weights: (F, B) weights of ``basis`` per frame (required with ``basis``).
         marker_radius_m: marker sphere radius (widths = 2 r).
         muscle_radius_m: falloff radius of the muscle heat map (default: the median tet edge).
+        vertex_colors: write the per-frame ``displayColor`` heat map (12 bytes per vertex per
+            frame; False keeps a constant skin colour and only the 4-byte activation primvar).
         bone_meshes: {name: BoneMesh} to draw under the bones instead of ``model.bone_meshes``
             (``{}``: none, e.g. to keep a file small).
         name: root prim name.
@@ -607,7 +617,10 @@ def write_take(
         influence = skin_muscle_influence(model, skin_nodes, radius_m=muscle_radius_m)
         v_act, rgb = activation_colors(influence, act)
         _write_float_primvar(skin, "wface:activation", v_act, UsdGeom.Tokens.vertex)
-        _set_display_color(skin, rgb, n_points=skin_nodes.size, n_frames=n_frames)
+        if vertex_colors:
+            _set_display_color(skin, rgb, n_points=skin_nodes.size, n_frames=n_frames)
+        else:
+            _set_display_color(skin, SKIN_RGB, n_points=skin_nodes.size, n_frames=n_frames)
     else:
         _set_display_color(skin, SKIN_RGB, n_points=skin_nodes.size, n_frames=n_frames)
 

@@ -104,7 +104,11 @@ def activation_colors(
     if not np.all(np.isfinite(a2)):
         raise ValueError("activations contain NaN/inf")
     a2 = np.clip(a2, 0.0, 1.0)
-    va = np.max(w[None] * a2[:, None, :], axis=2) if w.shape[1] else np.zeros((a2.shape[0], w.shape[0]))
+    va = np.zeros((a2.shape[0], w.shape[0]))
+    if w.shape[1]:
+        chunk = max(1, int(2e7 // max(1, w.size)))  # frames per block: keeps (chunk, v, M) near 160 MB
+        for s in range(0, a2.shape[0], chunk):
+            va[s : s + chunk] = np.max(w[None] * a2[s : s + chunk, None, :], axis=2)
     presence = w.max(axis=1) if w.shape[1] else np.zeros(w.shape[0])
     t = np.divide(va, presence[None], out=np.zeros_like(va), where=presence[None] > 1e-12)
     muscle_rgb = INACTIVE_RGB + t[..., None] * (ACTIVE_RGB - INACTIVE_RGB)
