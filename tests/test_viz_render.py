@@ -137,3 +137,28 @@ def test_render_errors(tmp_path, face, take):
         render.render_expression(face, face.rest_positions_m, tmp_path / "x.png", style="cartoon")
     with pytest.raises(ValueError, match="activations has 2 frames"):
         render.render_take_movie(face, take["node_positions_m"], tmp_path / "x.mp4", activations=np.zeros((2, 3)))
+
+
+@pytest.mark.parametrize("style", ["skin", "muscles"])
+def test_builtin_face_is_framed_whole(tmp_path, style):
+    builtin = pytest.importorskip("wface.builtin")
+    model = builtin.build_face(target_tets=2000)
+    a = np.zeros(model.n_muscles)
+    a[[i for i, n in enumerate(model.muscle_names) if n.startswith("zygomaticus_major")]] = 1.0
+    mk = model.marker_positions_m
+    img = _img(
+        render.render_expression(
+            model,
+            model.rest_positions_m,
+            tmp_path / f"{style}.png",
+            activations=a,
+            captured_markers_m=mk + [0.004, 0.0, 0.0],
+            simulated_markers_m=mk,
+            style=style,
+            panel_size=_SIZE,
+        )
+    )
+    assert _border_is_background(img), "the built-in face touches the image border"
+    assert _count(img, _yellow) > 100 and _count(img, _green) > 20 and _count(img, _red) > 20
+    covered = np.count_nonzero(img.sum(axis=2) < 720) / (img.shape[0] * img.shape[1])
+    assert covered > 0.25, f"the face fills only {covered:.0%} of the picture"
