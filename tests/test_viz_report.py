@@ -44,6 +44,33 @@ def test_report_embeds_images_and_tabulates_numbers(tmp_path):
     assert "zygomatic&lt;L&gt;" in text and "0.93" in text  # names escaped, numbers shown
     assert "n=4, mean 0.6" in text  # per-frame list summarised over finite values
     assert "<svg" in text
+    assert re.search(r'class="card"><div class="v">0.6 mm</div><div class="k">marker RMS', text)
+    _assert_balanced(text)
+
+
+def _assert_balanced(text):
+    from html.parser import HTMLParser
+
+    void = {"meta", "img", "br", "hr", "link", "input"}
+
+    class Checker(HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.stack = []
+
+        def handle_starttag(self, tag, attrs):
+            if tag not in void and tag != "polyline":
+                self.stack.append(tag)
+
+        def handle_endtag(self, tag):
+            if tag == "polyline":
+                return
+            assert self.stack and self.stack[-1] == tag, f"</{tag}> closes <{self.stack[-1:]}>"
+            self.stack.pop()
+
+    c = Checker()
+    c.feed(text)
+    assert c.stack == [], f"unclosed tags: {c.stack}"
 
 
 def test_report_errors(tmp_path):

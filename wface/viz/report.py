@@ -16,7 +16,7 @@ import os
 from datetime import datetime, timezone
 from pathlib import Path
 
-__all__ = ["write_html_report"]
+__all__ = ["HEADLINE", "write_html_report"]
 
 _MIME = {
     ".png": "image/png",
@@ -26,6 +26,17 @@ _MIME = {
     ".svg": "image/svg+xml",
     ".mp4": "video/mp4",
     ".webm": "video/webm",
+}
+
+# report.json keys shown first, as large numbers (DESIGN.md section 9), when present and scalar.
+HEADLINE = {
+    "marker_rms_mm_mean": ("marker RMS", "mm"),
+    "marker_max_mm": ("marker max", "mm"),
+    "activation_rms_error": ("activation RMS error", ""),
+    "jaw_angle_error_deg": ("jaw angle error", "deg"),
+    "seconds_per_frame_median": ("time per frame", "s"),
+    "inverted_elements": ("inverted elements", ""),
+    "frames": ("frames", ""),
 }
 
 _CSS = """
@@ -38,6 +49,9 @@ td,th{border:1px solid #ddd;padding:.28em .6em;text-align:left;vertical-align:to
 th{background:#f4f4f4} td.num{text-align:right;font-variant-numeric:tabular-nums}
 figure{display:inline-block;margin:.6em;vertical-align:top} figcaption{font-size:.85em;color:#555;text-align:center}
 img,video{max-width:100%;border:1px solid #eee}
+.cards{display:flex;flex-wrap:wrap;gap:.8em;margin:.8em 0}
+.card{border:1px solid #ddd;border-radius:6px;padding:.5em .9em;min-width:8em}
+.card .v{font-size:1.5em;font-variant-numeric:tabular-nums} .card .k{color:#666;font-size:.85em}
 """
 
 
@@ -115,8 +129,8 @@ def write_html_report(
 
     Args:
         out_dir: directory (created if needed); usually the one holding report.json.
-        report: the report.json dict (keys as in DESIGN.md section 9). Scalars go into the main
-            table; lists of numbers (per frame) are summarised with a sparkline; dicts of
+        report: the report.json dict (keys as in DESIGN.md section 9). Headline numbers
+            (``HEADLINE``) are shown first as cards; scalars go into the main table; lists of numbers (per frame) are summarised with a sparkline; dicts of
             numbers (e.g. ``muscle_identifiability``) become tables of their own.
         images: caption -> file (PNG/JPEG/GIF/SVG, MP4/WebM), embedded in the given order.
         title: page title.
@@ -150,12 +164,18 @@ def write_html_report(
             )
         else:
             rows.append(f"<tr><th>{html.escape(str(key))}</th>{_value_cell(v)}</tr>")
+    cards = "".join(
+        f'<div class="card"><div class="v">{_fmt(report[key])} {unit}</div><div class="k">{label}</div></div>'
+        for key, (label, unit) in HEADLINE.items()
+        if key in report and _is_number(report[key])
+    )
     figures = "".join(_embed(p, c) for c, p in paths.items())
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     doc = (
         '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
         f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>"
         f'<h1>{html.escape(title)}</h1><p class="meta">generated {stamp}</p>'
+        + (f'<div class="cards">{cards}</div>' if cards else "")
         + (f"<h2>Pictures and plots</h2>{figures}" if figures else "")
         + f"<h2>Numbers</h2><table>{''.join(rows)}</table>"
         + "".join(sub_tables)
