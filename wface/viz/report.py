@@ -130,8 +130,9 @@ def write_html_report(
     Args:
         out_dir: directory (created if needed); usually the one holding report.json.
         report: the report.json dict (keys as in DESIGN.md section 9). Headline numbers
-            (``HEADLINE``) are shown first as cards; scalars go into the main table; lists of numbers (per frame) are summarised with a sparkline; dicts of
-            numbers (e.g. ``muscle_identifiability``) become tables of their own.
+            (``HEADLINE``) are shown first as cards; scalars go into the main table; lists of
+            numbers (per frame) are summarised with a sparkline; dicts of numbers (e.g.
+            ``muscle_identifiability``) become tables of their own.
         images: caption -> file (PNG/JPEG/GIF/SVG, MP4/WebM), embedded in the given order.
         title: page title.
         filename: name of the HTML file.
