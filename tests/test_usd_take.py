@@ -277,3 +277,28 @@ def test_without_vertex_colors_the_skin_colour_is_constant(tmp_path, face, take)
     assert skin.GetDisplayColorPrimvar().GetInterpolation() == "constant"
     assert skin.GetDisplayColorPrimvar().GetAttr().GetTimeSamples() == []
     assert len(UsdGeom.PrimvarsAPI(skin).GetPrimvar("wface:activation").GetAttr().GetTimeSamples()) == 8
+
+
+def test_muscle_names_become_unique_identifiers(tmp_path, face, take):
+    from dataclasses import replace
+
+    from pxr import Usd
+
+    odd = replace(face, muscle_names=["levator-sup (L)", "levator_sup__L_", "3rd muscle"])
+    path = usd.write_take(
+        tmp_path / "odd.usda",
+        model=odd,
+        node_positions_m=take["node_positions_m"],
+        fps=30,
+        activations=take["activations"],
+    )
+    usd.assert_stage_valid(path)
+    stage = Usd.Stage.Open(str(path))
+    prim = stage.GetPrimAtPath("/Face/Muscles")
+    attrs = sorted(a.GetName() for a in prim.GetAttributes() if a.GetName().startswith("wface:activation:"))
+    assert attrs == [
+        "wface:activation:_3rd_muscle",
+        "wface:activation:levator_sup__L_",
+        "wface:activation:levator_sup__L__1",
+    ]
+    assert list(prim.GetAttribute("wface:muscleNames").Get()) == odd.muscle_names

@@ -188,7 +188,8 @@ def _identifier(name: str, taken: set[str]) -> str:
     """A valid, unique USD identifier for ``name`` (adds it to ``taken``)."""
     from pxr import Tf
 
-    base = Tf.MakeValidIdentifier(str(name)) or "_"
+    name = str(name)
+    base = Tf.MakeValidIdentifier("_" + name if name[:1].isdigit() else name) or "_"  # keep a leading digit
     ident, k = base, 1
     while ident in taken:
         ident, k = f"{base}_{k}", k + 1
