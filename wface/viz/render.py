@@ -80,15 +80,48 @@ def _tri_polydata(pv, points, triangles):
     return pv.PolyData(np.asarray(points, dtype=np.float64), faces)
 
 
+def _uniform_laplacian(surf):
+    """Sparse uniform Laplacian L = D^-1 A - I of a triangle surface (pyvista PolyData)."""
+    import scipy.sparse as sp
+
+    tri = np.asarray(surf.faces).reshape(-1, 4)[:, 1:]
+    i = np.concatenate([tri[:, 0], tri[:, 1], tri[:, 2], tri[:, 1], tri[:, 2], tri[:, 0]])
+    j = np.concatenate([tri[:, 1], tri[:, 2], tri[:, 0], tri[:, 0], tri[:, 1], tri[:, 2]])
+    n = surf.n_points
+    adj = sp.csr_matrix((np.ones(i.size), (i, j)), shape=(n, n))
+    adj.data[:] = 1.0  # duplicate edges count once
+    deg = np.asarray(adj.sum(axis=1)).ravel()
+    return sp.diags(1.0 / np.maximum(deg, 1)) @ adj - sp.identity(n)
+
+
+def _taubin(lap, points: np.ndarray, n_iter: int, lam: float = 0.5, mu: float = -0.53) -> np.ndarray:
+    """Taubin's shrink-free smoothing (lambda | mu steps): rounds the blocky faces of tet surfaces."""
+    p = np.asarray(points, dtype=np.float64)
+    for _ in range(n_iter):
+        p = p + lam * (lap @ p)
+        p = p + mu * (lap @ p)
+    return p
+
+
 class _Scene:
     """The actors of one panel, built once and updated per frame (for movies)."""
 
     def __init__(
-        self, pv, plotter, model, *, style: str, marker_radius_m: float, show_bones: bool, muscle_radius_m: float | None
+        self,
+        pv,
+        plotter,
+        model,
+        *,
+        style: str,
+        marker_radius_m: float,
+        show_bones: bool,
+        muscle_radius_m: float | None,
+        muscle_smoothing: int = 4,
     ):
         if style not in ("skin", "muscles"):
             raise ValueError(f"style must be 'skin' or 'muscles', got {style!r}")
         self.pv, self.p, self.model, self.style = pv, plotter, model, style
+        self.muscle_smoothing = muscle_smoothing
         self.r = marker_radius_m
         self.skin_nodes = np.unique(model.skin_triangles)
         remap = np.full(model.n_nodes, -1, dtype=np.int64)
@@ -96,7 +129,7 @@ class _Scene:
         x0 = model.rest_positions_m
         self.skin = _tri_polydata(pv, x0[self.skin_nodes], remap[model.skin_triangles])
         self.influence = skin_muscle_influence(model, self.skin_nodes, radius_m=muscle_radius_m)
-        self.muscles: list[tuple[int, object, np.ndarray]] = []
+        self.muscles: list[tuple[int, object, np.ndarray, object]] = []
         self.bones: list[tuple[object, np.ndarray]] = []
         if style == "skin":
             self.skin["rgb"] = np.tile(SKIN_RGB, (self.skin.n_points, 1))
@@ -113,8 +146,10 @@ class _Scene:
                 grid = pv.UnstructuredGrid({pv.CellType.TETRA: tets.astype(np.int64)}, x0)
                 surf = grid.extract_surface(algorithm="dataset_surface")
                 ids = np.asarray(surf.point_data["vtkOriginalPointIds"])
+                lap = _uniform_laplacian(surf)
+                surf.points = _taubin(lap, x0[ids], muscle_smoothing)
                 self.p.add_mesh(surf, color=INACTIVE_RGB, smooth_shading=True, specular=0.2, name=f"muscle{m}")
-                self.muscles.append((m, surf, ids))
+                self.muscles.append((m, surf, ids, lap))
             if show_bones:
                 for mesh, tri in _cropped_bones(model):
                     bp = _tri_polydata(pv, mesh.vertices_m, tri)
@@ -134,8 +169,8 @@ class _Scene:
                 _, rgb = activation_colors(self.influence, a)
             self.skin["rgb"] = rgb
         else:
-            for m, surf, ids in self.muscles:
-                surf.points = x[ids]
+            for m, surf, ids, lap in self.muscles:
+                surf.points = _taubin(lap, x[ids], self.muscle_smoothing)
                 level = 0.0 if a is None else float(np.clip(a[m], 0, 1))
                 actor = self.p.renderer.actors[f"muscle{m}"]
                 actor.prop.color = tuple(INACTIVE_RGB + level * (ACTIVE_RGB - INACTIVE_RGB))
@@ -221,6 +256,7 @@ def render_panels(
     show_bones: bool = True,
     muscle_radius_m: float | None = None,
     zoom: float = 1.3,
+    muscle_smoothing: int = 4,
 ) -> Path:
     """Render panels side by side (same camera in each) into one PNG.
 
@@ -236,6 +272,8 @@ def render_panels(
         show_bones: draw bone meshes in the "muscles" style.
         muscle_radius_m: falloff of the skin colour around muscles (see ``skin_muscle_influence``).
         zoom: camera zoom after fitting the bounds (1 = fit exactly).
+        muscle_smoothing: Taubin smoothing steps of the muscle surfaces ("muscles" style; 0: the
+            raw faceted tet surfaces; more rounds off thin muscles).
 
     Returns:
         The PNG path.
@@ -259,7 +297,14 @@ def render_panels(
     for i, (pnl, x) in enumerate(zip(panels, xs, strict=True)):
         p.subplot(0, i)
         scene = _Scene(
-            pv, p, model, style=style, marker_radius_m=r, show_bones=show_bones, muscle_radius_m=muscle_radius_m
+            pv,
+            p,
+            model,
+            style=style,
+            marker_radius_m=r,
+            show_bones=show_bones,
+            muscle_radius_m=muscle_radius_m,
+            muscle_smoothing=muscle_smoothing,
         )
         scene.update(x, pnl.activations, pnl.captured_markers_m, pnl.simulated_markers_m)
         if pnl.title:
@@ -320,6 +365,7 @@ def render_take_movie(
     marker_radius_m: float | None = None,
     show_bones: bool = True,
     zoom: float = 1.3,
+    muscle_smoothing: int = 4,
     label: str = "",
     quality: int = 7,
 ) -> Path:
@@ -333,7 +379,7 @@ def render_take_movie(
         activations: (F, M) per-frame activations (colours), or None.
         captured_markers_m / simulated_markers_m: (F, k, 3) per-frame markers (red / green).
         cranium_affines / jaw_affines: (F, 3, 4) bone motion for the "muscles" style's bones.
-        style, view, marker_radius_m, show_bones, zoom: see ``render_panels``.
+        style, view, marker_radius_m, show_bones, zoom, muscle_smoothing: see ``render_panels``.
         window_size: video size in pixels (each rounded down to a multiple of 16).
         label: text shown with the frame number.
         quality: imageio-ffmpeg quality 0-10.
@@ -367,7 +413,16 @@ def render_take_movie(
     bounds = bounds + np.array([-r, r] * 3)
     w, h = (int(window_size[0]) // 16 * 16, int(window_size[1]) // 16 * 16)
     p = _new_plotter(pv, (1, 1), (w, h))
-    scene = _Scene(pv, p, model, style=style, marker_radius_m=r, show_bones=show_bones, muscle_radius_m=None)
+    scene = _Scene(
+        pv,
+        p,
+        model,
+        style=style,
+        marker_radius_m=r,
+        show_bones=show_bones,
+        muscle_radius_m=None,
+        muscle_smoothing=muscle_smoothing,
+    )
     _place_camera(p, bounds, view, zoom)
     p.enable_anti_aliasing("msaa", multi_samples=8)  # ssaa costs ~4x per frame; fxaa is not in OSMesa builds
     p.open_movie(str(out_path), framerate=int(round(fps)), quality=quality)
