@@ -302,3 +302,32 @@ def test_muscle_names_become_unique_identifiers(tmp_path, face, take):
         "wface:activation:levator_sup__L__1",
     ]
     assert list(prim.GetAttribute("wface:muscleNames").Get()) == odd.muscle_names
+
+
+def test_basis_objects_with_their_own_topology(tmp_path, face, take):
+    """Duck typing: e.g. wface.basis.ActuationBasis (neutral_m, shapes_m, names, face_counts, face_indices)."""
+    from types import SimpleNamespace
+
+    skin = np.unique(face.skin_triangles)
+    remap = np.full(face.n_nodes, -1)
+    remap[skin] = np.arange(skin.size)
+    b = take["basis"].restricted(skin)
+    other = SimpleNamespace(
+        neutral_m=b.neutral_m,
+        shapes_m=b.deltas_m,
+        names=b.names,
+        face_counts=np.full(len(face.skin_triangles), 3),
+        face_indices=remap[face.skin_triangles].ravel(),
+    )
+    path = usd.write_blendshape_basis(tmp_path / "b.usdc", basis=other, weights=take["basis_weights"], fps=30)
+    usd.assert_stage_valid(path)
+    np.testing.assert_allclose(
+        usd.blendshape_points(path, "/Face/Mesh", 3), b.synthesize(take["basis_weights"][3]), atol=_F32
+    )
+    with pytest.raises(usd.UsdWriteError, match="needs neutral_m"):
+        usd.write_blendshape_basis(
+            tmp_path / "c.usdc",
+            basis=SimpleNamespace(names=[]),
+            face_vertex_counts=None,
+            face_vertex_indices=[[0, 1, 2]],
+        )

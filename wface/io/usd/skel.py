@@ -56,6 +56,21 @@ class BlendShapeBasis:
         """E0 + sum_i x_i e_i for weights (B,) -> (n, 3) or (F, B) -> (F, n, 3)."""
         return self.neutral_m + np.tensordot(np.asarray(weights, dtype=np.float64), self.deltas_m, axes=(-1, 0))
 
+    @classmethod
+    def coerce(cls, basis) -> BlendShapeBasis:
+        """A ``BlendShapeBasis`` from any object with ``neutral_m``, ``deltas_m`` or ``shapes_m``
+        (e.g. ``wface.basis.ActuationBasis``) and ``names``."""
+        if isinstance(basis, cls):
+            return basis
+        deltas = getattr(basis, "deltas_m", None)
+        if deltas is None:
+            deltas = getattr(basis, "shapes_m", None)
+        if deltas is None or not hasattr(basis, "neutral_m"):
+            raise UsdWriteError(
+                f"cannot use a {type(basis).__name__} as a basis: it needs neutral_m and deltas_m (or shapes_m)"
+            )
+        return cls(basis.neutral_m, deltas, getattr(basis, "names", None))
+
     def restricted(self, vertices: np.ndarray) -> BlendShapeBasis:
         """The basis on a subset of its vertices (e.g. the skin nodes of a volumetric model)."""
         return BlendShapeBasis(self.neutral_m[vertices], self.deltas_m[:, vertices], self.names)
@@ -130,9 +145,9 @@ def _write_blendshapes(
 def write_blendshape_basis(
     path: str | Path,
     *,
-    basis: BlendShapeBasis,
-    face_vertex_counts: np.ndarray | None,
-    face_vertex_indices: np.ndarray,
+    basis,
+    face_vertex_counts: np.ndarray | None = None,
+    face_vertex_indices: np.ndarray | None = None,
     weights: np.ndarray | None = None,
     fps: float = 60.0,
     name: str = "Face",
@@ -147,8 +162,11 @@ def write_blendshape_basis(
 
     Args:
         path: ``.usda`` or ``.usdc`` file.
-        basis: neutral shape, deltas and names.
-        face_vertex_counts / face_vertex_indices: mesh topology (see ``write_mesh_animation``).
+        basis: a ``BlendShapeBasis``, or any object ``BlendShapeBasis.coerce`` takes (e.g.
+            ``wface.basis.ActuationBasis``).
+        face_vertex_counts / face_vertex_indices: mesh topology (see ``write_mesh_animation``);
+            when ``face_vertex_indices`` is None, the basis's own ``face_counts`` /
+            ``face_indices`` are used.
         weights: (F, B) per-frame weights x_i; None writes static zero weights (the neutral).
         fps: frames per second.
         name: root prim name.
@@ -158,6 +176,11 @@ def write_blendshape_basis(
         The path written.
     """
     path = _check_path(path)
+    if face_vertex_indices is None:
+        if getattr(basis, "face_indices", None) is None:
+            raise UsdWriteError("no topology: pass face_vertex_indices (and counts) or a basis with face_indices")
+        face_vertex_counts, face_vertex_indices = basis.face_counts, basis.face_indices
+    basis = BlendShapeBasis.coerce(basis)
     counts, indices = as_polygons(face_vertex_counts, face_vertex_indices, basis.neutral_m.shape[0])
     w = None if weights is None else _check_frames("weights", weights, np.asarray(weights).shape[0], (basis.n_shapes,))
     stage = _new_stage(

@@ -69,7 +69,7 @@ def write_take(
     cranium_affines: np.ndarray | None = None,
     jaw_affines: np.ndarray | None = None,
     activations: np.ndarray | None = None,
-    basis: BlendShapeBasis | None = None,
+    basis=None,
     basis_weights: np.ndarray | None = None,
     marker_radius_m: float = 0.002,
     muscle_radius_m: float | None = None,
@@ -112,7 +112,8 @@ def write_take(
         jaw_affines: (F, 3, 4) per-frame rest-to-world affine of the jaw (world, not relative
             to the cranium: the two Xforms are siblings).
         activations: (F, M) muscle activations (M = model.n_muscles), usually in [0, 1].
-        basis: an actuation basis on the model's nodes (n) or on the compact skin vertices.
+        basis: an actuation basis (``BlendShapeBasis`` or e.g. ``wface.basis.ActuationBasis``) on
+            the model's nodes (n) or on the compact skin vertices.
         basis_weights: (F, B) weights of ``basis`` per frame (required with ``basis``).
         marker_radius_m: marker sphere radius (widths = 2 r).
         muscle_radius_m: falloff radius of the muscle heat map (default: the median tet edge).
@@ -164,6 +165,7 @@ def write_take(
         if arr is not None:
             affines[label] = _check_frames(f"{label.lower()}_affines", arr, n_frames, (3, 4))
     if basis is not None:
+        basis = BlendShapeBasis.coerce(basis)
         if basis_weights is None:
             raise UsdWriteError("basis given without basis_weights (frames, B)")
         bw = _check_frames("basis_weights", basis_weights, n_frames, (basis.n_shapes,))
