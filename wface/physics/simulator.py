@@ -263,6 +263,7 @@ class Simulator:
         tol: float = 1e-6,
         max_iterations: int = 40,
         solver: str | None = None,
+        stiffness: str = "auto",
     ):
         """Quasistatic equilibrium f_U(x, a) = 0 with attached nodes at ``attached_positions``.
 
@@ -275,6 +276,8 @@ class Simulator:
             tol: convergence on the relative residual (see ``Equilibrium``).
             max_iterations: Newton iteration cap.
             solver: override of the simulator's linear solver ("auto" | "cg" | "direct").
+            stiffness: "auto" (exact Hessian when definite, else projected), "projected" or "exact";
+                see ``wface.solvers.newton``.
 
         Returns:
             ``wface.solvers.newton.Equilibrium``.
@@ -290,6 +293,7 @@ class Simulator:
             tol=tol,
             max_iterations=max_iterations,
             solver=solver or self.solver,
+            stiffness=stiffness,
         )
         result.seconds = time.perf_counter() - start
         return result

@@ -18,6 +18,8 @@ import warnings
 from dataclasses import dataclass
 from typing import Callable
 
+import os
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -26,6 +28,7 @@ __all__ = [
     "DirectFactor",
     "FactorPreconditioner",
     "JacobiPreconditioner",
+    "NotPositiveDefiniteError",
     "direct_backend",
     "pcg",
     "resolve_linear_solver",
@@ -76,6 +79,10 @@ def resolve_linear_solver(solver: str, device: str = "cpu") -> str:
     return "direct"
 
 
+class NotPositiveDefiniteError(np.linalg.LinAlgError):
+    """The matrix handed to a Cholesky-type factorisation or to CG is not positive definite."""
+
+
 class DirectFactor:
     """Factorisation of a sparse SPD matrix; ``solve(B)`` for one (N,) or many (N, k) right-hand sides.
 
@@ -90,17 +97,29 @@ class DirectFactor:
             raise RuntimeError("no sparse direct backend installed (pip install pypardiso, or scikit-sparse)")
         self.shape = A.shape
         if self.backend == "cholmod":
-            from sksparse.cholmod import cholesky
+            from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
 
-            self._factor = cholesky(sp.csc_matrix(A, dtype=np.float64))
+            try:
+                self._factor = cholesky(sp.csc_matrix(A, dtype=np.float64))
+            except CholmodNotPositiveDefiniteError as exc:
+                raise NotPositiveDefiniteError(str(exc)) from exc
         elif self.backend == "pardiso":
             import pypardiso
 
+            # pypardiso searches the whole prefix for libmkl_rt on every new solver (~0.5 s);
+            # point it at the library its module-level solver already found.
+            os.environ.setdefault("PYPARDISO_MKL_RT", pypardiso.ps.libmkl._name)
             # Real SPD (mtype 2): PARDISO reads the upper triangle only.
             self._matrix = sp.triu(sp.csr_matrix(A, dtype=np.float64), format="csr")
             self._matrix.sort_indices()
             self._solver = pypardiso.PyPardisoSolver(mtype=2)
-            self._solver.factorize(self._matrix)
+            try:
+                self._solver.factorize(self._matrix)
+            except pypardiso.pardiso_wrapper.PyPardisoError as exc:
+                self.free()
+                if exc.value == -4:  # zero or negative pivot
+                    raise NotPositiveDefiniteError("PARDISO: matrix is not positive definite") from exc
+                raise
         else:
             raise ValueError(f"unknown direct backend {self.backend!r}")
 
@@ -150,12 +169,17 @@ class FactorPreconditioner:
 
 @dataclass
 class CGResult:
-    """Outcome of ``pcg``. ``residual``: ||b - A x|| / ||b|| per column (recursive estimate)."""
+    """Outcome of ``pcg``. ``residual``: ||b - A x|| / ||b|| per column (recursive estimate).
+
+    ``indefinite`` is set when a search direction p had p.A p <= 0 (A not positive definite); the
+    iteration then stops.
+    """
 
     x: np.ndarray
     iterations: int
     residual: np.ndarray
     converged: bool
+    indefinite: bool = False
 
 
 def pcg(
@@ -205,12 +229,16 @@ def pcg(
     rz = np.einsum("ij,ij->j", R, Z)
     it = 0
     rnorm = np.linalg.norm(R, axis=0)
+    indefinite = False
     while it < maxiter:
         active = rnorm > tol
         if not np.any(active):
             break
         AP = A(P)
         pap = np.einsum("ij,ij->j", P, AP)
+        if np.any(active & (pap <= 0)):
+            indefinite = True
+            break
         alpha = np.where(active & (pap > 0), rz / np.where(pap > 0, pap, 1.0), 0.0)
         X += alpha * P
         R -= alpha * AP
@@ -223,4 +251,4 @@ def pcg(
         rz = rz_new
     rel = rnorm / np.where(bnorm > 0, bnorm, 1.0)
     x = X[:, 0] if single else X
-    return CGResult(x=x, iterations=it, residual=rel, converged=bool(np.all(rnorm <= tol)))
+    return CGResult(x=x, iterations=it, residual=rel, converged=bool(np.all(rnorm <= tol)), indefinite=indefinite)

@@ -6,6 +6,12 @@ and backtracks on the total energy (Armijo). When the start configuration's atta
 from their targets, a first "lift" step moves them there and the free nodes by the linearised
 response K_UU dx_U = f_U(x) - K_UC dx_C, which carries bone motion smoothly into the flesh.
 
+Stiffness (``stiffness=``): "projected" uses the Teran et al. 2005 projected-definite K every step;
+"auto" (default) first tries the exact Hessian, which gives quadratic convergence near the
+solution, and falls back to the projected K for that step when the exact K_UU is not positive
+definite (the Cholesky factorisation or CG reports it) or the step is not a descent direction;
+after a fallback the next step uses the projected K directly.
+
 Relative residual (``Equilibrium.residual_rel``):
     ||f_U(x)||_2 / max(||f_U(X_load)||_2, f_floor),
 where X_load is the rest shape with the attached nodes at their targets (the out-of-balance force
@@ -20,7 +26,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from wface.solvers.linear import DirectFactor, JacobiPreconditioner, pcg, resolve_linear_solver
+from wface.solvers.linear import (
+    DirectFactor,
+    JacobiPreconditioner,
+    NotPositiveDefiniteError,
+    pcg,
+    resolve_linear_solver,
+)
 
 __all__ = ["Equilibrium", "newton_quasistatic", "solve_free"]
 
@@ -39,6 +51,7 @@ class Equilibrium:
         inverted_elements: tets with det F <= 0 at x.
         energy: total elastic energy at x, joules.
         cg_iterations: CG iterations over all Newton steps (0 for the direct solver).
+        projected_steps: Newton steps that used the projected stiffness.
         solver: linear engine used ("direct" or "cg").
         history: residual_rel after each iteration (first entry: the start).
         seconds: wall-clock time of the solve.
@@ -53,6 +66,7 @@ class Equilibrium:
     inverted_elements: int
     energy: float
     cg_iterations: int = 0
+    projected_steps: int = 0
     solver: str = "direct"
     history: list = field(default_factory=list)
     seconds: float = 0.0
@@ -61,7 +75,8 @@ class Equilibrium:
 def solve_free(tangent, pattern, rhs: np.ndarray, *, engine: str, rtol: float = 1e-10, x0=None):
     """Solve K_UU X = rhs for (3k,) or (3k, c) right-hand sides over the unknowns of ``pattern``.
 
-    Returns (X, cg_iterations).
+    Returns (X, cg_iterations). Raises ``NotPositiveDefiniteError`` when K_UU is not positive
+    definite (factorisation failure, or p.K p <= 0 in CG).
     """
     if engine == "direct":
         factor = DirectFactor(tangent.assemble(pattern))
@@ -79,6 +94,8 @@ def solve_free(tangent, pattern, rhs: np.ndarray, *, engine: str, rtol: float = 
 
     precond = JacobiPreconditioner(pattern.gather(tangent.diagonal()))
     res = pcg(matvec, rhs, x0=x0, preconditioner=precond, rtol=rtol, maxiter=20 * rhs.shape[0])
+    if res.indefinite:
+        raise NotPositiveDefiniteError("CG met a direction of non-positive curvature")
     return res.x, res.iterations
 
 
@@ -92,6 +109,7 @@ def newton_quasistatic(
     max_iterations: int = 40,
     solver: str = "auto",
     max_line_search: int = 30,
+    stiffness: str = "auto",
 ) -> Equilibrium:
     """Newton-Raphson for f_U(x, a) = 0 (see module docstring). ``sim`` is a ``Simulator``."""
     from wface.physics.simulator import count_inverted
@@ -137,12 +155,33 @@ def newton_quasistatic(
     energy, f = sim.energy_and_forces(x, a)
     residual = float(np.linalg.norm(f[free]))
     history.append(residual / scale)
+    if stiffness not in ("auto", "projected", "exact"):
+        raise ValueError(f"stiffness must be 'auto', 'projected' or 'exact', got {stiffness!r}")
+    try_exact = stiffness != "projected"
+    projected_steps = 0
     while residual / scale > tol and iterations < max_iterations:
-        tan = sim.tangent(x, a)
         rhs = pattern.gather(f)
         eta = float(np.clip(0.1 * residual / scale, 1e-12, 1e-2))
-        dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta)
-        cg_total += its
+        dx = None
+        if try_exact:
+            tan = sim.tangent(x, a, project=False)
+            try:
+                dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta)
+                cg_total += its
+                if not float(rhs @ dx) > 0:
+                    dx = None
+            except NotPositiveDefiniteError:
+                if stiffness == "exact":
+                    raise
+                dx = None
+        if dx is None:
+            tan = sim.tangent(x, a)
+            dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta)
+            cg_total += its
+            projected_steps += 1
+            try_exact = stiffness == "exact"
+        else:
+            try_exact = stiffness != "projected"
         dx = dx.reshape(-1, 3)
         slope = float(rhs @ dx.reshape(-1))  # -dE/dt at t = 0 (> 0 for a descent direction)
         if not slope > 0:  # not a descent direction (should not happen with SPD K): steepest descent
@@ -173,6 +212,7 @@ def newton_quasistatic(
         inverted_elements=count_inverted(model, x),
         energy=energy,
         cg_iterations=cg_total,
+        projected_steps=projected_steps,
         solver=engine,
         history=history,
     )
