@@ -331,3 +331,20 @@ def test_basis_objects_with_their_own_topology(tmp_path, face, take):
             face_vertex_counts=None,
             face_vertex_indices=[[0, 1, 2]],
         )
+
+
+def test_wface_basis_actuation_basis_is_written_as_blend_shapes(tmp_path, face, take):
+    core = pytest.importorskip("wface.basis.core")
+    skin = np.unique(face.skin_triangles)
+    remap = np.full(face.n_nodes, -1)
+    remap[skin] = np.arange(skin.size)
+    b = take["basis"].restricted(skin)
+    ab = core.ActuationBasis(
+        b.neutral_m, b.deltas_m, b.names, np.full(len(face.skin_triangles), 3), remap[face.skin_triangles].ravel()
+    )
+    path = usd.write_blendshape_basis(tmp_path / "ab.usda", basis=ab, weights=take["basis_weights"], fps=30)
+    usd.assert_stage_valid(path)
+    w = take["basis_weights"][4]
+    np.testing.assert_allclose(
+        usd.blendshape_points(path, "/Face/Mesh", 4), ab.neutral_m + np.tensordot(w, ab.shapes_m, 1), atol=_F32
+    )
