@@ -33,6 +33,8 @@ def test_committed_scenes_are_current():
 def test_committed_scenes_are_small_text():
     scenes = sorted((REPO_ROOT / "usd_scenes").glob("*.usda"))
     assert {p.stem for p in scenes} >= {"synthetic_take", "synthetic_basis"}
+    if importlib.util.find_spec("wface.basis") is not None:
+        assert "synthetic_tracked_take" in {p.stem for p in scenes}
     for p in scenes:
         assert p.stat().st_size < 1_000_000, f"{p.name} is over 1 MB"
         assert p.read_text().startswith("#usda 1.0")
@@ -62,3 +64,22 @@ def test_script_runs_headless_with_only(tmp_path):
     assert mod.main(["--out", str(tmp_path), "--only", "synthetic_basis"]) == 0
     assert (tmp_path / "synthetic_basis.usda").exists()
     assert mod.main(["--out", str(tmp_path), "--only", "synthetic_basis", "--check"]) == 0
+
+
+def test_compare_stages_tolerates_round_off_in_layer_metadata(tmp_path):
+    from pxr import Sdf
+
+    src = REPO_ROOT / "usd_scenes" / "synthetic_take.usda"
+    a, b = tmp_path / "a.usda", tmp_path / "b.usda"
+    for path, value in ((a, 0.81930001), (b, 0.8193)):
+        shutil.copy(src, path)
+        layer = Sdf.Layer.FindOrOpen(str(path))
+        data = dict(layer.customLayerData)
+        data["wface"] = {**data["wface"], "marker_rms_mm_mean": value}
+        layer.customLayerData = data
+        layer.Save()
+    assert compare_stages(a, b) == []
+    layer = Sdf.Layer.FindOrOpen(str(b))
+    layer.customLayerData = {**dict(layer.customLayerData), "wface": {"kind": "other"}}
+    layer.Save()
+    assert any("customLayerData" in d for d in compare_stages(a, b))

@@ -214,6 +214,20 @@ def _numeric(v):
     return a
 
 
+def _same_value(a, b, rtol: float, atol: float) -> bool:
+    """Equality with a tolerance for floats, recursing into dicts and lists (layer metadata)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same_value(a[k], b[k], rtol, atol) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same_value(x, y, rtol, atol) for x, y in zip(a, b, strict=True))
+    if isinstance(a, float) or isinstance(b, float):
+        try:
+            return bool(np.isclose(float(a), float(b), rtol=rtol, atol=atol))
+        except (TypeError, ValueError):
+            return False
+    return a == b
+
+
 def compare_stages(a, b, *, rtol: float = 1e-5, atol: float = 1e-7, max_report: int = 20) -> list[str]:
     """Differences in authored content between two stages (e.g. a committed scene and a fresh one).
 
@@ -243,7 +257,7 @@ def compare_stages(a, b, *, rtol: float = 1e-5, atol: float = 1e-7, max_report: 
         ("defaultPrim", lambda s: str(s.GetDefaultPrim().GetPath()) if s.GetDefaultPrim() else None),
         ("customLayerData", lambda s: dict(s.GetRootLayer().customLayerData)),
     ):
-        if get(sa) != get(sb) and note(f"stage {label}: {get(sa)!r} != {get(sb)!r}"):
+        if not _same_value(get(sa), get(sb), rtol, atol) and note(f"stage {label}: {get(sa)!r} != {get(sb)!r}"):
             return out
     prims_a = {str(p.GetPath()): p for p in sa.TraverseAll()}
     prims_b = {str(p.GetPath()): p for p in sb.TraverseAll()}
