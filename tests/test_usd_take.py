@@ -348,3 +348,25 @@ def test_wface_basis_actuation_basis_is_written_as_blend_shapes(tmp_path, face, 
     np.testing.assert_allclose(
         usd.blendshape_points(path, "/Face/Mesh", 4), ab.neutral_m + np.tensordot(w, ab.shapes_m, 1), atol=_F32
     )
+
+
+@pytest.mark.parametrize("suffix", [".usdc", ".usda"])
+def test_read_take_round_trip(tmp_path, face, take, suffix):
+    path = _write(tmp_path, face, take, suffix)
+    got = usd.read_take(path)
+    F = take["node_positions_m"].shape[0]
+    assert got["fps"] == take["fps"] and got["n_frames"] == F
+    ids = got["skin_node_ids"]
+    np.testing.assert_array_equal(ids[got["skin_triangles"]], face.skin_triangles)
+    np.testing.assert_allclose(got["skin_points_m"], take["node_positions_m"][:, ids], atol=_F32)
+    np.testing.assert_allclose(got["activations"], take["activations"], atol=1e-7)
+    assert got["muscle_names"] == face.muscle_names and got["marker_names"] == face.marker_names
+    cap = take["captured_markers_m"]
+    np.testing.assert_array_equal(np.isnan(got["captured_markers_m"]), np.isnan(cap))
+    np.testing.assert_allclose(got["captured_markers_m"], cap, atol=_F32)
+    np.testing.assert_allclose(got["simulated_markers_m"], take["simulated_markers_m"], atol=_F32)
+    np.testing.assert_allclose(got["cranium_affines"], take["cranium_affines"], atol=1e-12)
+    np.testing.assert_allclose(got["jaw_affines"], take["jaw_affines"], atol=1e-12)
+    np.testing.assert_allclose(got["basis_weights"], take["basis_weights"], atol=1e-7)
+    assert got["basis_names"] == take["basis"].names
+    assert got["vertex_activation"].shape == (F, ids.size)

@@ -14,11 +14,13 @@ The path's suffix picks the format: ``.usdc`` (binary crate, the default for ``.
 
 Modules: ``mesh`` (``write_mesh_animation``), ``take`` (``write_take``), ``skel`` (actuation
 bases as UsdSkel blend shapes), ``validate`` (UsdValidation, extents, UsdSkel synthesis, stage
-diffs). Everything public is re-exported here: ``from wface.io.usd import write_take``.
+diffs), ``read`` (``read_take``: a take back into arrays). Everything public is re-exported
+here: ``from wface.io.usd import write_take``.
 """
 
 from wface.io.usd._common import UsdWriteError, affine_to_matrix4d, as_polygons
 from wface.io.usd.mesh import write_mesh_animation
+from wface.io.usd.read import read_take
 from wface.io.usd.skel import BlendShapeBasis, write_blendshape_basis
 from wface.io.usd.take import write_take
 from wface.io.usd.validate import (
@@ -40,6 +42,7 @@ __all__ = [
     "blendshape_points",
     "check_extents",
     "compare_stages",
+    "read_take",
     "validate_stage",
     "write_blendshape_basis",
     "write_mesh_animation",
