@@ -77,7 +77,7 @@ def _unit(where: str, value) -> np.ndarray:
     n = np.linalg.norm(a)
     if n == 0:
         raise ValueError(f"{where} is a zero vector")
-    return a / n
+    return a if abs(n - 1.0) < 1e-14 else a / n  # already unit: keep bits (exact JSON round trip)
 
 
 @dataclass

@@ -169,11 +169,15 @@ class SphincterMuscle:
         v = _vec3(f"{self.name}: vertical", self.vertical)
         if np.linalg.norm(h) == 0:
             raise ValueError(f"{self.name}: horizontal axis is zero")
-        h = h / np.linalg.norm(h)
-        v = v - (v @ h) * h
+        if abs(np.linalg.norm(h) - 1.0) > 1e-14:
+            h = h / np.linalg.norm(h)
+        if abs(v @ h) > 1e-14:
+            v = v - (v @ h) * h
         if np.linalg.norm(v) < 1e-9:
             raise ValueError(f"{self.name}: vertical axis is parallel to the horizontal axis")
-        self.horizontal, self.vertical = h, v / np.linalg.norm(v)
+        if abs(np.linalg.norm(v) - 1.0) > 1e-14:
+            v = v / np.linalg.norm(v)
+        self.horizontal, self.vertical = h, v  # unchanged when already orthonormal (exact JSON round trip)
         s = _vec3(f"{self.name}: semi_axes_m", self.semi_axes_m)
         if np.any(s <= 0):
             raise ValueError(f"{self.name}: semi_axes_m must be > 0, got {s.tolist()}")
