@@ -71,6 +71,7 @@ def pose_mesh(
     Returns:
         The summary (also written to ``out_dir/<stem>.json``).
     """
+    expression_pose(expression, intensity=intensity, extra_action_units=action_units)  # bad names fail first
     if not isinstance(mesh, SurfaceMesh):
         mesh = read_surface(mesh, units=units)
     if rig is None:

@@ -1,0 +1,86 @@
+"""Waters muscles on the real ICT-FaceKit head (skips when ../shared/data is absent)."""
+
+from __future__ import annotations
+
+import json
+from importlib import resources
+
+import numpy as np
+import pytest
+
+from tests.conftest import data_path
+from wface.facs import EXPRESSIONS
+from wface.waters.expressions import expression_pose, pose_from_action_units
+from wface.waters.layout import load_layout
+from wface.waters.rig import WatersRig
+from wface.waters.surface import read_surface
+
+
+@pytest.fixture(scope="module")
+def ict():
+    mesh = read_surface(data_path("ict-facekit", "generic_neutral_mesh.obj"), units="cm")
+    layout = load_layout("ict")
+    return mesh, layout, WatersRig(layout, mesh.vertices_m)
+
+
+def test_ict_mesh_reads_in_metres(ict):
+    mesh, _, _ = ict
+    assert mesh.n_vertices == 26719 and len(mesh.face_vertex_counts) == 26384
+    assert 0.25 < np.ptp(mesh.vertices_m[:, 1]) < 0.4  # a head and neck, about 34 cm tall
+
+
+@pytest.mark.parametrize("name", list(EXPRESSIONS))
+def test_every_preset_deforms_the_ict_head_boundedly(ict, name):
+    mesh, layout, rig = ict
+    pose = expression_pose(name, muscle_names=rig.muscle_names)
+    x = rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg)
+    assert np.all(np.isfinite(x))
+    muscles = np.linalg.norm(rig.muscle_displacement(pose.contractions), axis=1)
+    assert muscles.max() <= layout.max_displacement_m * (1 + 1e-12)
+    total = np.linalg.norm(x - mesh.vertices_m, axis=1)
+    reach = np.linalg.norm(mesh.vertices_m - layout.jaw.pivot_m, axis=1)
+    jaw_bound = 2 * np.sin(np.radians(pose.jaw_open_deg) / 2) * (reach + layout.max_displacement_m)
+    assert np.all(total <= muscles + jaw_bound + 1e-12)
+    assert total[21451:24591].max() == 0.0  # the eyeballs are not skin: muscles leave them alone
+    if name == "neutral":
+        assert total.max() == 0.0
+    else:
+        assert total.max() > 0.003  # visibly moves (> 3 mm)
+
+
+def test_landmark_file_matches_the_layout(ict):
+    mesh, layout, _ = ict
+    ids = json.loads((resources.files("wface") / "data" / "ict_animface_landmarks.json").read_text())
+    assert len(ids) == 41
+    for name, i in ids.items():
+        assert 0 <= i < 9409, f"{name} is not on the ICT face region"
+        np.testing.assert_allclose(layout.landmarks_m[name], mesh.vertices_m[i], atol=1e-5)
+    # left markers sit at +x (the subject's left), right ones mirror them
+    assert mesh.vertices_m[ids["Mouth_Lend"], 0] > 0 > mesh.vertices_m[ids["Mouth_Rend"], 0]
+    np.testing.assert_allclose(
+        mesh.vertices_m[ids["Leye_Outside"]] * [-1, 1, 1], mesh.vertices_m[ids["Reye_Outside"]], atol=1e-6
+    )
+
+
+def _cosine(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a * b).sum() / (np.linalg.norm(a) * np.linalg.norm(b)))
+
+
+@pytest.mark.parametrize(
+    ("au", "shape", "jaw_deg", "min_cos"),
+    [
+        ("AU12L", "mouthSmile_L", None, 0.8),
+        ("AU20L", "mouthStretch_L", None, 0.75),
+        ("AU1L", "browInnerUp_L", None, 0.5),
+        ("AU2L", "browOuterUp_L", None, 0.5),
+        ("AU26", "jawOpen", 15.0, 0.8),
+    ],
+)
+def test_action_units_resemble_the_ict_artist_shapes(ict, au, shape, jaw_deg, min_cos):
+    """Independent check: ICT-FaceKit's artist-made shapes are a reference for single facial actions."""
+    mesh, layout, rig = ict
+    shapes = np.load(data_path("ict-facekit", "ict_expressions.npz"))
+    ref = shapes["deltas"][list(shapes["names"]).index(shape)][:9409].astype(np.float64) * 0.01
+    pose = pose_from_action_units({au: 1.0}, rig.muscle_names)
+    ours = (rig.deform(pose.contractions, jaw_open_deg=jaw_deg or pose.jaw_open_deg) - mesh.vertices_m)[:9409]
+    assert _cosine(ours, ref) > min_cos
