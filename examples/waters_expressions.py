@@ -71,8 +71,13 @@ def main(argv: list[str] | None = None) -> dict:
             pose = interpolate_poses(a, b, k / max(1, args.blend_frames), muscle_names=rig.muscle_names)
             frames.append(rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg))
     write_usd(out / "expressions.usdc", mesh, frames_m=np.stack(frames), fps=24.0)
-    report = {"mesh": source, "vertices": mesh.n_vertices, "muscles": len(rig.muscle_names),
-              "animation_frames": len(frames), "presets": summaries}
+    report = {
+        "mesh": source,
+        "vertices": mesh.n_vertices,
+        "muscles": len(rig.muscle_names),
+        "animation_frames": len(frames),
+        "presets": summaries,
+    }
     (out / "expressions.json").write_text(json.dumps(report, indent=2) + "\n")
     return report
 

@@ -40,8 +40,21 @@ def test_obj_round_trip_and_triangulation(tmp_path):
 
 def test_cli_poses_the_ict_head(tmp_path, capsys):
     mesh = data_path("ict-facekit", "generic_neutral_mesh.obj")
-    rc = main(["waters", "--mesh", str(mesh), "--expression", "happy", "--au", "AU26=0.5", "--size", "160",
-               "--out", str(tmp_path)])
+    rc = main(
+        [
+            "waters",
+            "--mesh",
+            str(mesh),
+            "--expression",
+            "happy",
+            "--au",
+            "AU26=0.5",
+            "--size",
+            "160",
+            "--out",
+            str(tmp_path),
+        ]
+    )
     assert rc == 0
     summary = json.loads((tmp_path / "happy+AU26.json").read_text())
     assert summary["jaw_open_deg"] == pytest.approx(6.0)
@@ -66,8 +79,22 @@ def test_cli_fits_the_layout_to_another_mesh_by_landmarks(tmp_path):
     marks = synthetic_landmarks(load_layout("ict"))
     ids = {k: int(np.argmin(np.linalg.norm(head.vertices_m - p, axis=1))) for k, p in marks.items()}
     (tmp_path / "marks.json").write_text(json.dumps(ids))
-    rc = main(["waters", "--mesh", str(tmp_path / "head.obj"), "--units", "m", "--landmarks", str(tmp_path / "marks.json"),
-               "--expression", "surprise", "--no-render", "--out", str(tmp_path / "o")])
+    rc = main(
+        [
+            "waters",
+            "--mesh",
+            str(tmp_path / "head.obj"),
+            "--units",
+            "m",
+            "--landmarks",
+            str(tmp_path / "marks.json"),
+            "--expression",
+            "surprise",
+            "--no-render",
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
     assert rc == 0
     assert json.loads((tmp_path / "o" / "surprise.json").read_text())["max_displacement_mm"] > 1.0
 
@@ -77,7 +104,9 @@ def test_cli_reports_bad_input_in_one_line(tmp_path, capsys):
     write_obj(tmp_path / "head.obj", head)
     assert main(["waters", "--mesh", str(tmp_path / "head.obj"), "--expression", "bored", "--out", str(tmp_path)]) == 1
     assert main(["waters", "--mesh", str(tmp_path / "nope.obj"), "--out", str(tmp_path)]) == 1
-    assert main(["waters", "--mesh", str(tmp_path / "head.obj"), "--out", str(tmp_path)]) == 1  # not ICT: needs a layout
+    assert (
+        main(["waters", "--mesh", str(tmp_path / "head.obj"), "--out", str(tmp_path)]) == 1
+    )  # not ICT: needs a layout
     err = capsys.readouterr().err
     assert "unknown expression 'bored'" in err and "mesh file not found" in err and "--landmarks" in err
 
@@ -93,9 +122,22 @@ def test_bench_suite_runs_and_says_what_it_timed(monkeypatch):
 
 def test_example_runs_headless(tmp_path):
     r = subprocess.run(
-        [sys.executable, str(REPO_ROOT / "examples" / "waters_expressions.py"), "--presets", "happy", "--size", "200",
-         "--blend-frames", "2", "--out", str(tmp_path)],
-        env=_env(), capture_output=True, text=True, timeout=300,
+        [
+            sys.executable,
+            str(REPO_ROOT / "examples" / "waters_expressions.py"),
+            "--presets",
+            "happy",
+            "--size",
+            "200",
+            "--blend-frames",
+            "2",
+            "--out",
+            str(tmp_path),
+        ],
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert r.returncode == 0, r.stderr[-2000:]
     assert (tmp_path / "happy.png").stat().st_size > 1000

@@ -81,8 +81,11 @@ def test_fit_with_snapping_onto_a_transformed_surface_is_reproduced():
     ins = np.stack([m.insertion_m for m in on_head.muscles if isinstance(m, LinearMuscle)])
     assert np.max(q.closest(ins).distance_m) < 1e-12
     moved = fit_layout(
-        on_head, {k: _xf(v) for k, v in on_head.landmarks_m.items()},
-        target_vertices_m=_xf(head.vertices_m), target_triangles=tri, method="similarity",
+        on_head,
+        {k: _xf(v) for k, v in on_head.landmarks_m.items()},
+        target_vertices_m=_xf(head.vertices_m),
+        target_triangles=tri,
+        method="similarity",
     )
     for m0, m1 in zip(on_head.muscles, moved.muscles, strict=True):
         if isinstance(m0, LinearMuscle):
@@ -93,7 +96,9 @@ def test_fit_with_snapping_onto_a_transformed_surface_is_reproduced():
 def test_fitted_layout_deforms_the_synthetic_head_sensibly():
     base = load_layout("ict")
     head = synthetic_head(80, 160)
-    lay = fit_layout(base, synthetic_landmarks(base), target_vertices_m=head.vertices_m, target_triangles=head.triangles())
+    lay = fit_layout(
+        base, synthetic_landmarks(base), target_vertices_m=head.vertices_m, target_triangles=head.triangles()
+    )
     rig = WatersRig(lay, head.vertices_m)
     pose = expression_pose("happy", muscle_names=rig.muscle_names)
     d = rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg) - head.vertices_m
@@ -141,6 +146,7 @@ def test_presets_and_interpolation():
     with pytest.raises(KeyError, match="unknown expression 'bored'"):
         expression_pose("bored")
     a, b = expression_pose("happy", muscle_names=names), expression_pose("surprise", muscle_names=names)
+
     def nonzero(pose):
         return {k: v for k, v in pose.contractions.items() if v > 0}
 

@@ -21,8 +21,13 @@ _TOL = 1e-12  # float64 round-off on O(1e-2) lengths
 def _muscle(**kw) -> LinearMuscle:
     # The slide's parameters in centimetres -> metres: zone 35 deg, fall-start 7, fall-finish 14, K 0.75.
     base = dict(
-        name="zygomaticus_major_l", bone_m=[0.0, 0.0, 0.0], insertion_m=[0.07, 0.0, 0.0], zone_deg=35.0,
-        fall_start_m=0.07, fall_finish_m=0.14, spring_constant_m=0.0075,
+        name="zygomaticus_major_l",
+        bone_m=[0.0, 0.0, 0.0],
+        insertion_m=[0.07, 0.0, 0.0],
+        zone_deg=35.0,
+        fall_start_m=0.07,
+        fall_finish_m=0.14,
+        spring_constant_m=0.0075,
     )
     base.update(kw)
     return LinearMuscle(**base)
@@ -108,8 +113,12 @@ def test_pull_points_at_bone_and_never_exceeds_k(xyz, c):
 # ------------------------------------------------------------------------------------- sphincter
 def _sphincter(**kw) -> SphincterMuscle:
     base = dict(
-        name="orbicularis_oris_upper", centre_m=[0.0, -0.03, 0.1], horizontal=[1, 0, 0], vertical=[0, 1, 0],
-        semi_axes_m=[0.03, 0.02, 0.02], tension=0.3,
+        name="orbicularis_oris_upper",
+        centre_m=[0.0, -0.03, 0.1],
+        horizontal=[1, 0, 0],
+        vertical=[0, 1, 0],
+        semi_axes_m=[0.03, 0.02, 0.02],
+        tension=0.3,
     )
     base.update(kw)
     return SphincterMuscle(**base)

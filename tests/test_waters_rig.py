@@ -32,16 +32,31 @@ def _grid(n: int = 41, half_m: float = 0.08) -> np.ndarray:
 
 def _layout(**kw) -> MuscleLayout:
     muscles = [
-        LinearMuscle("zygomaticus_major_l", [0.06, 0.03, -0.01], [0.02, -0.03, 0.0], zone_deg=30, spring_constant_m=0.008),
+        LinearMuscle(
+            "zygomaticus_major_l", [0.06, 0.03, -0.01], [0.02, -0.03, 0.0], zone_deg=30, spring_constant_m=0.008
+        ),
         LinearMuscle("risorius_l", [0.07, -0.03, -0.01], [0.02, -0.03, 0.0], zone_deg=20, spring_constant_m=0.008),
-        LinearMuscle("depressor_labii_inferioris_l", [0.02, -0.07, -0.005], [0.01, -0.04, 0.0],
-                     spring_constant_m=0.005, region="lower"),
+        LinearMuscle(
+            "depressor_labii_inferioris_l",
+            [0.02, -0.07, -0.005],
+            [0.01, -0.04, 0.0],
+            spring_constant_m=0.005,
+            region="lower",
+        ),
         LinearMuscle("frontalis_medial_l", [0.015, 0.09, -0.005], [0.015, 0.05, 0.0], spring_constant_m=0.005),
-        SphincterMuscle("orbicularis_oris_upper", [0.0, -0.03, -0.01], [1, 0, 0], [0, 1, 0], [0.03, 0.02, 0.03],
-                        tension=0.3, region="upper"),
+        SphincterMuscle(
+            "orbicularis_oris_upper",
+            [0.0, -0.03, -0.01],
+            [1, 0, 0],
+            [0, 1, 0],
+            [0.03, 0.02, 0.03],
+            tension=0.3,
+            region="upper",
+        ),
     ]
     jaw = JawRegion(
-        pivot_m=[0.0, 0.03, -0.09], axis=[1, 0, 0],
+        pivot_m=[0.0, 0.03, -0.09],
+        axis=[1, 0, 0],
         planes=[JawPlane([0.0, -0.034, 0.0], [0, -1, 0], width_m=0.002, width_per_lateral=0.3)],
     )
     base = dict(name="test", muscles=muscles, jaw=jaw, landmarks_m={"Chin": [0, -0.06, 0.0]})
@@ -177,8 +192,9 @@ def test_jaw_rotates_the_jaw_region_rigidly_about_the_pivot():
     r1 = np.linalg.norm(y[full] - lay.jaw.pivot_m, axis=1)
     np.testing.assert_allclose(r1, r0, rtol=1e-12)
     a, b = (x[full] - lay.jaw.pivot_m)[:, 1:], (y[full] - lay.jaw.pivot_m)[:, 1:]  # across the +x axis
-    ang = np.degrees(np.arccos(np.clip(
-        np.einsum("ij,ij->i", a, b) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1), -1, 1)))
+    ang = np.degrees(
+        np.arccos(np.clip(np.einsum("ij,ij->i", a, b) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1), -1, 1))
+    )
     np.testing.assert_allclose(ang, 12.0, atol=1e-6)
     # opening moves the chin down (positive angle about +x)
     assert np.all(y[full][:, 1] <= x[full][:, 1] + 1e-15)

@@ -22,7 +22,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mesh", required=True, help="surface mesh (OBJ, or any format meshio reads)")
     p.add_argument("--expression", default="neutral", help="expression preset (default: neutral)")
     p.add_argument("--intensity", type=float, default=1.0, help="scale of the preset's action units, 0..1")
-    p.add_argument("--au", action="append", metavar="AU=VALUE", help="extra action unit, e.g. --au AU26=0.5 (repeatable)")
+    p.add_argument(
+        "--au", action="append", metavar="AU=VALUE", help="extra action unit, e.g. --au AU26=0.5 (repeatable)"
+    )
     p.add_argument("--layout", help="muscle layout JSON, or a packaged name: ict (default), builtin")
     p.add_argument("--landmarks", help="JSON {AnimFace marker name: vertex index} on --mesh: fit the layout to it")
     p.add_argument("--units", default="auto", choices=("auto", "m", "cm", "mm"), help="length unit of --mesh")

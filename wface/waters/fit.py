@@ -88,9 +88,7 @@ class LandmarkWarp:
         return np.stack(cols, axis=1)
 
 
-def landmark_warp(
-    src: np.ndarray, dst: np.ndarray, *, method: str = "rbf", smoothing: float = 0.0
-) -> LandmarkWarp:
+def landmark_warp(src: np.ndarray, dst: np.ndarray, *, method: str = "rbf", smoothing: float = 0.0) -> LandmarkWarp:
     """Warp taking landmarks ``src`` (k, 3) to ``dst`` (k, 3).
 
     Args:
@@ -172,9 +170,15 @@ def fit_layout(
             ratio = np.linalg.norm(ins - bone) / np.linalg.norm(m.insertion_m - m.bone_m)
             muscles.append(
                 LinearMuscle(
-                    m.name, bone_m=bone, insertion_m=ins, zone_deg=m.zone_deg,
-                    fall_start_m=m.fall_start_m * ratio, fall_finish_m=m.fall_finish_m * ratio,
-                    spring_constant_m=m.spring_constant_m * ratio, elasticity=m.elasticity, region=m.region,
+                    m.name,
+                    bone_m=bone,
+                    insertion_m=ins,
+                    zone_deg=m.zone_deg,
+                    fall_start_m=m.fall_start_m * ratio,
+                    fall_finish_m=m.fall_finish_m * ratio,
+                    spring_constant_m=m.spring_constant_m * ratio,
+                    elasticity=m.elasticity,
+                    region=m.region,
                 )
             )
         else:
@@ -186,9 +190,14 @@ def fit_layout(
             depth = np.linalg.norm(J @ (m.normal * m.semi_axes_m[2]))
             muscles.append(
                 SphincterMuscle(
-                    m.name, centre_m=centre, horizontal=h, vertical=v,
+                    m.name,
+                    centre_m=centre,
+                    horizontal=h,
+                    vertical=v,
                     semi_axes_m=[np.linalg.norm(h), np.linalg.norm(v), depth],
-                    tension=m.tension, elasticity=m.elasticity, region=m.region,
+                    tension=m.tension,
+                    elasticity=m.elasticity,
+                    region=m.region,
                 )
             )
     jaw = None
@@ -201,8 +210,10 @@ def fit_layout(
             normal = np.linalg.solve(Jq.T, p.normal)  # normals transform by the inverse transpose
             planes.append(
                 JawPlane(
-                    point_m=warp(p.point_m[None])[0], normal=normal,
-                    width_m=p.width_m * float(np.cbrt(abs(np.linalg.det(Jq)))), width_per_lateral=p.width_per_lateral,
+                    point_m=warp(p.point_m[None])[0],
+                    normal=normal,
+                    width_m=p.width_m * float(np.cbrt(abs(np.linalg.det(Jq)))),
+                    width_per_lateral=p.width_per_lateral,
                 )
             )
         jaw = JawRegion(pivot_m=warp(j.pivot_m[None])[0], axis=Jp @ j.axis, planes=planes, max_open_deg=j.max_open_deg)

@@ -250,7 +250,9 @@ def sphincter_radius(points_m: np.ndarray, muscle: SphincterMuscle) -> np.ndarra
     return np.linalg.norm(local, axis=1)
 
 
-def sphincter_muscle_displacement(points_m: np.ndarray, muscle: SphincterMuscle, contraction: float = 1.0) -> np.ndarray:
+def sphincter_muscle_displacement(
+    points_m: np.ndarray, muscle: SphincterMuscle, contraction: float = 1.0
+) -> np.ndarray:
     """Displacement (n, 3) in metres by one sphincter at ``contraction`` in [0, 1].
 
     In-plane pull toward the centre, T R^e P(centre - p), R = cos(rho pi/2) inside the ellipsoid.

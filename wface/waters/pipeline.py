@@ -89,20 +89,27 @@ def pose_mesh(
     out.mkdir(parents=True, exist_ok=True)
     stem = stem or (expression if not action_units else f"{expression}+" + "+".join(sorted(action_units)))
     posed = mesh.with_vertices(x)
-    files = {"obj": str(write_obj(out / f"{stem}.obj", posed)), "usd": str(write_usd(out / f"{stem}{usd_suffix}", posed))}
+    files = {
+        "obj": str(write_obj(out / f"{stem}.obj", posed)),
+        "usd": str(write_usd(out / f"{stem}{usd_suffix}", posed)),
+    }
     disp_mm = np.linalg.norm(x - mesh.vertices_m, axis=1) * 1e3
     if render:
         from wface.waters.render import render_mesh
 
         tri = mesh.triangles()
         centre = np.median(mesh.vertices_m[rig.influenced], axis=0) if rig.influenced.size else None
-        files["png"] = str(
-            render_mesh(out / f"{stem}.png", x, tri, title=stem, size=size, focus_m=centre, zoom=1.6)
-        )
+        files["png"] = str(render_mesh(out / f"{stem}.png", x, tri, title=stem, size=size, focus_m=centre, zoom=1.6))
         files["png_displacement"] = str(
             render_mesh(
-                out / f"{stem}_displacement.png", x, tri, displacement_mm=disp_mm, title=f"{stem}: |d| mm",
-                size=size, focus_m=centre, zoom=1.6,
+                out / f"{stem}_displacement.png",
+                x,
+                tri,
+                displacement_mm=disp_mm,
+                title=f"{stem}: |d| mm",
+                size=size,
+                focus_m=centre,
+                zoom=1.6,
             )
         )
     summary = {

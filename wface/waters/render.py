@@ -51,7 +51,11 @@ def render_mesh(
     mesh = _polydata(vertices_m, triangles, displacement_mm)
     if displacement_mm is not None:
         plotter.add_mesh(
-            mesh, scalars="displacement_mm", cmap="magma", clim=clim_mm, smooth_shading=True,
+            mesh,
+            scalars="displacement_mm",
+            cmap="magma",
+            clim=clim_mm,
+            smooth_shading=True,
             scalar_bar_args={"title": "|d| mm", "n_labels": 3},
         )
     else:

@@ -79,9 +79,7 @@ class WatersRig:
             if muscle_mask.shape != (n,):
                 raise ValueError(f"muscle_mask has shape {muscle_mask.shape}, expected ({n},)")
         self.muscle_mask = muscle_mask
-        self.jaw_weights = (
-            layout.jaw.weights(self.rest_positions_m) if layout.jaw is not None else np.zeros(n)
-        )
+        self.jaw_weights = layout.jaw.weights(self.rest_positions_m) if layout.jaw is not None else np.zeros(n)
         tree = cKDTree(self.rest_positions_m)
         rows, cols, vals = [], [], []
         strongest = np.zeros(n)
@@ -127,9 +125,8 @@ class WatersRig:
             index = {name: i for i, name in enumerate(self.muscle_names)}
             for name, value in contractions.items():
                 if name not in index:
-                    raise KeyError(
-                        f"unknown muscle {name!r} for layout {self.layout.name!r}; it has: {', '.join(self.muscle_names)}"
-                    )
+                    known = ", ".join(self.muscle_names)
+                    raise KeyError(f"unknown muscle {name!r} for layout {self.layout.name!r}; it has: {known}")
                 c[index[name]] = float(value)
         else:
             c = np.asarray(contractions, dtype=np.float64).reshape(-1)
@@ -183,5 +180,9 @@ def direct_displacement(layout: MuscleLayout, points_m: np.ndarray, contractions
     d = np.zeros_like(p)
     for name, c in contractions.items():
         m = layout.muscle(name)
-        d += linear_muscle_displacement(p, m, c) if isinstance(m, LinearMuscle) else sphincter_muscle_displacement(p, m, c)
+        d += (
+            linear_muscle_displacement(p, m, c)
+            if isinstance(m, LinearMuscle)
+            else sphincter_muscle_displacement(p, m, c)
+        )
     return d
