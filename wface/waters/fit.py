@@ -208,12 +208,15 @@ def fit_layout(
         for p in j.planes:
             Jq = warp.jacobian(p.point_m)
             normal = np.linalg.solve(Jq.T, p.normal)  # normals transform by the inverse transpose
+            scale = float(np.cbrt(abs(np.linalg.det(Jq))))
             planes.append(
                 JawPlane(
                     point_m=warp(p.point_m[None])[0],
                     normal=normal,
-                    width_m=p.width_m * float(np.cbrt(abs(np.linalg.det(Jq)))),
+                    width_m=p.width_m * scale,
                     width_per_lateral=p.width_per_lateral,
+                    lateral_start_m=p.lateral_start_m * scale,
+                    curvature_per_m=p.curvature_per_m / scale,
                 )
             )
         jaw = JawRegion(pivot_m=warp(j.pivot_m[None])[0], axis=Jp @ j.axis, planes=planes, max_open_deg=j.max_open_deg)

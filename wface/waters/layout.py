@@ -10,7 +10,8 @@ File format (``"format": "wface.waters.layout"``, ``"version": 1``)::
       "mesh": {"vertex_count": 26719, "muscle_vertices": [[0, 11248]]},   # optional, see below
       "landmarks": {"Chin": [x, y, z], ...},                              # for fitting (model coords)
       "jaw": {"pivot": [x, y, z], "axis": [1, 0, 0], "max_open_deg": 30,
-              "planes": [{"point": [..], "normal": [..], "width": 0.3, "width_per_lateral": 0.4}]},
+              "planes": [{"point": [..], "normal": [..], "width": 0.01, "width_per_lateral": 0.43,
+                          "lateral_start": 0.0, "curvature": 0.04}]},
       "muscles": [
         {"name": "zygomaticus_major_l", "type": "linear", "bone": [..], "insertion": [..],
          "zone_deg": 25, "fall_start": 6.0, "fall_finish": 8.5, "spring_constant": 1.2,
@@ -26,11 +27,13 @@ Lengths are converted to metres on read; in memory everything is SI. ``mesh.musc
 (e.g. not the eyeballs and teeth of the ICT head); it applies only to a mesh with exactly
 ``vertex_count`` vertices. Muscle names must be canonical names from ``wface.facs``.
 
-Jaw region: vertex weight w = prod over planes of smoothstep(s / width(p) + 1/2) where s is the
-signed distance along the plane's normal (which points into the jaw side) and
-width(p) = width + width_per_lateral |(p - pivot) . axis| (a sharp lip line at the midline that
-widens into a soft blend over the cheeks). AU26 rotates x by w times the jaw angle about the
-axis through the pivot (positive = opening).
+Jaw region: vertex weight w = prod over planes of smoothstep(s / width(p) + 1/2) where, with the
+lateral distance l = |(p - pivot) . axis|, s = (p - point) . normal - curvature l^2 is the signed
+distance along the plane's normal (which points into the jaw side; ``curvature`` bends the lip line
+toward the jaw at the mouth corners) and width(p) = width + width_per_lateral max(l - lateral_start, 0)
+(a sharp lip line in the middle that widens into a soft blend over the cheeks). Plane keys:
+"point", "normal", "width", optional "width_per_lateral", "lateral_start", "curvature" (1/units).
+AU26 rotates x by w times the jaw angle about the axis through the pivot (positive = opening).
 """
 
 from __future__ import annotations
@@ -88,6 +91,8 @@ class JawPlane:
     normal: np.ndarray
     width_m: float
     width_per_lateral: float = 0.0
+    lateral_start_m: float = 0.0
+    curvature_per_m: float = 0.0
 
     def __post_init__(self) -> None:
         self.point_m = _v3("jaw plane point", self.point_m)
@@ -96,6 +101,10 @@ class JawPlane:
             raise ValueError(f"jaw plane width must be > 0, got {self.width_m}")
         if not (self.width_per_lateral >= 0 and np.isfinite(self.width_per_lateral)):
             raise ValueError(f"jaw plane width_per_lateral must be >= 0, got {self.width_per_lateral}")
+        if not (self.lateral_start_m >= 0 and np.isfinite(self.lateral_start_m)):
+            raise ValueError(f"jaw plane lateral_start must be >= 0, got {self.lateral_start_m}")
+        if not np.isfinite(self.curvature_per_m):
+            raise ValueError(f"jaw plane curvature must be finite, got {self.curvature_per_m}")
 
 
 @dataclass
@@ -119,8 +128,8 @@ class JawRegion:
         lateral = np.abs((p - self.pivot_m) @ self.axis)
         w = np.ones(len(p))
         for plane in self.planes:
-            s = (p - plane.point_m) @ plane.normal
-            width = plane.width_m + plane.width_per_lateral * lateral
+            s = (p - plane.point_m) @ plane.normal - plane.curvature_per_m * lateral**2
+            width = plane.width_m + plane.width_per_lateral * np.maximum(lateral - plane.lateral_start_m, 0.0)
             t = np.clip(s / width + 0.5, 0.0, 1.0)
             w *= t * t * (3.0 - 2.0 * t)
         return w
@@ -243,6 +252,8 @@ def layout_from_dict(d: dict) -> MuscleLayout:
                     normal=p["normal"],
                     width_m=float(p["width"]) * s,
                     width_per_lateral=float(p.get("width_per_lateral", 0.0)),
+                    lateral_start_m=float(p.get("lateral_start", 0.0)) * s,
+                    curvature_per_m=float(p.get("curvature", 0.0)) / s,
                 )
                 for p in j.get("planes", [])
             ],
@@ -326,6 +337,8 @@ def layout_to_dict(layout: MuscleLayout, *, units: str = "m") -> dict:
                     "normal": _l(p.normal, 1.0),
                     "width": p.width_m * inv,
                     "width_per_lateral": p.width_per_lateral,
+                    "lateral_start": p.lateral_start_m * inv,
+                    "curvature": p.curvature_per_m / inv,
                 }
                 for p in j.planes
             ],

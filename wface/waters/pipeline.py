@@ -99,7 +99,7 @@ def pose_mesh(
 
         tri = mesh.triangles()
         centre = np.median(mesh.vertices_m[rig.influenced], axis=0) if rig.influenced.size else None
-        files["png"] = str(render_mesh(out / f"{stem}.png", x, tri, title=stem, size=size, focus_m=centre, zoom=1.6))
+        files["png"] = str(render_mesh(out / f"{stem}.png", x, tri, title=stem, size=size, focus_m=centre, zoom=2.2))
         files["png_displacement"] = str(
             render_mesh(
                 out / f"{stem}_displacement.png",
