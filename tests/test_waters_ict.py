@@ -68,16 +68,21 @@ def _cosine(a: np.ndarray, b: np.ndarray) -> float:
 
 @pytest.mark.parametrize(
     ("au", "shape", "jaw_deg", "min_cos"),
-    [
-        ("AU12L", "mouthSmile_L", None, 0.8),
-        ("AU20L", "mouthStretch_L", None, 0.75),
-        ("AU1L", "browInnerUp_L", None, 0.5),
-        ("AU2L", "browOuterUp_L", None, 0.5),
-        ("AU26", "jawOpen", 15.0, 0.8),
+    [  # measured 0.92, 0.93, 0.78, 0.90, 0.90, 0.89, 0.92, 0.92, 0.93 (calibrated layout, Nov 2026)
+        ("AU12L", "mouthSmile_L", None, 0.88),
+        ("AU20L", "mouthStretch_L", None, 0.88),
+        ("AU1L", "browInnerUp_L", None, 0.72),
+        ("AU2L", "browOuterUp_L", None, 0.85),
+        ("AU4L", "browDown_L", None, 0.85),
+        ("AU9L", "noseSneer_L", None, 0.85),
+        ("AU15L", "mouthFrown_L", None, 0.88),
+        ("AU17", "mouthShrugLower", None, 0.88),
+        ("AU26", "jawOpen", 15.0, 0.9),
     ],
 )
 def test_action_units_resemble_the_ict_artist_shapes(ict, au, shape, jaw_deg, min_cos):
-    """Independent check: ICT-FaceKit's artist-made shapes are a reference for single facial actions."""
+    """ICT-FaceKit's artist-made shapes show single facial actions; the packaged layout was calibrated against
+    them (wface.waters.calibrate), so this pins that calibration (a regression test, not an independent check)."""
     mesh, layout, rig = ict
     shapes = np.load(data_path("ict-facekit", "ict_expressions.npz"))
     ref = shapes["deltas"][list(shapes["names"]).index(shape)][:9409].astype(np.float64) * 0.01
