@@ -1,0 +1,605 @@
+"""Nonlinear FEM of the face flesh and muscles (Warp device code, float64 and float32).
+
+Linear tetrahedra, F = Ds Dm^-1. Forces of element t on its nodes: H = -V0 P Dm^-T, columns to
+nodes 1..3, node 0 gets minus their sum (Teran et al. 2003, 2005; DESIGN.md section 3).
+
+Flesh (isotropic, on the signed singular values s of F = U diag(s) V^T, det U = det V = +1, the
+smallest singular value carrying the sign of det F; Irving et al. 2004):
+
+    psi(s) = mu10 (J^-2/3 I1 - 3) + mu01 (J^-4/3 I2 - 3) + kappa/2 (ln J)^2,
+    J = s1 s2 s3, I1 = sum s_i^2, I2 = sum_{i<j} s_i^2 s_j^2.
+
+Inversion: singular values are clamped below at c (``clamp``), s^ = max(s, c). So that forces stay
+the exact gradient of an energy (energy line search, finite-difference tests) the energy is
+continued below the clamp by its first-order Taylor expansion in the clamped values
+(Stomakhin et al. 2012):  psi_ext(s) = psi(s^) + sum_i g_i(s^) (s_i - s^_i), which is C1.
+Its gradient is G_j = g_j(s^) + [s_j >= c] sum_i H_ij(s^) (s_i - s^_i), and P = U diag(G) V^T.
+psi is written as a sum of monomials c_k prod s_i^a_ki plus the volumetric term, so its first,
+second and third derivatives are closed form.
+
+Stiffness (Teran et al. 2005; Smith, de Goes & Kim 2019): dP/dF has nine eigen-modes in the
+diagonal frame: the 3x3 block A = d2 psi_ext / ds ds on the diagonal entries, and for each pair
+(i, j) a symmetric mode with eigenvalue (G_i - G_j)/(s_i - s_j) (limit A_ii - A_ij when
+s_i ~ s_j) and a rotational mode with (G_i + G_j)/(s_i + s_j). The projected tangent clamps
+negative eigenvalues (and A's) at zero; the exact tangent keeps them.
+
+Muscle fibre of one (tet, muscle) entry, fibre direction d, q = F d, lam = |q|:
+    T(lam, a) = k (a f_L(lam) + f_P(lam)), k = fraction * strength * sigma_max,
+    P_f = (T/lam) q d^T, energy W = k (a G_L(lam) + G_P(lam)), G = integral of f from 1 to lam.
+    d2W/dq2 = (T/lam) I + (T' - T/lam) q q^T / lam^2 has eigenvalues T/lam (across the fibre) and
+    T' (along it); the projected tangent clamps both at zero (T >= 0 always for a >= 0).
+Force-length f_L and passive f_P are the piecewise curves of DESIGN.md section 3.
+
+All kernels come from ``fem_kernels(dtype)`` (dtype = wp.float64 or wp.float32), built once per
+dtype.
+"""
+
+import functools
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+__all__ = ["fem_kernels"]
+
+
+@functools.cache
+def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both variants identical
+    """Return a namespace of the FEM kernels for scalar ``dtype`` (``wp.float64`` or ``wp.float32``)."""
+    S = dtype
+    vec3 = wp.types.vector(3, S)
+    vec9 = wp.types.vector(9, S)
+    mat33 = wp.types.matrix((3, 3), S)
+    mat99 = wp.types.matrix((9, 9), S)
+    tie_eps = 1.0e-6 if S == wp.float64 else 3.0e-3
+    # Constant expressions are folded here in double precision: inside a kernel, S(2.0 / 3.0)
+    # would be evaluated in float32 first.
+    C25_18, C25_6, C25_3, C50_3, C25_9 = 25.0 / 18.0, 25.0 / 6.0, 25.0 / 3.0, 50.0 / 3.0, 25.0 / 9.0
+    C033 = 0.05 * 6.6
+    M2_3, M4_3 = -2.0 / 3.0, -4.0 / 3.0
+
+    # ------------------------------------------------------------------ fibre curves
+    @wp.func
+    def force_length(x: S):
+        """f_L, df_L/dlam and the integral from 1 of f_L, at lam = 1 + x."""
+        ax = wp.abs(x)
+        sg = S(1.0)
+        if x < S(0.0):
+            sg = S(-1.0)
+        g04 = S(0.4) - S(C25_18) * S(0.064)
+        if ax < S(0.4):
+            return S(1.0) - S(C25_6) * x * x, -S(C25_3) * x, x - S(C25_18) * x * x * x
+        if ax < S(0.6):
+            y = ax - S(0.6)
+            return S(C25_3) * y * y, sg * S(C50_3) * y, sg * (g04 + S(C25_9) * (y * y * y + S(0.008)))
+        return S(0.0), S(0.0), sg * (g04 + S(C25_9) * S(0.008))
+
+    @wp.func
+    def passive_curve(x: S):
+        """f_P, df_P/dlam and the integral from 1 of f_P, at lam = 1 + x (C1, linear beyond 1.4)."""
+        if x <= S(0.0):
+            return S(0.0), S(0.0), S(0.0)
+        xe = wp.min(x, S(0.4))
+        e = wp.exp(S(6.6) * xe)
+        f = S(0.05) * (e - S(6.6) * xe - S(1.0))
+        df = S(C033) * (e - S(1.0))
+        g = S(0.05) * ((e - S(1.0)) / S(6.6) - S(3.3) * xe * xe - xe)
+        if x > S(0.4):
+            y = x - S(0.4)
+            g = g + f * y + S(0.5) * df * y * y
+            f = f + df * y
+        return f, df, g
+
+    # ------------------------------------------------------------------ flesh in singular values
+    @wp.func
+    def flesh_derivatives(sh: vec3, delta: vec3, mu10: S, mu01: S, kappa: S):
+        """psi, gradient, Hessian at s^ (all > 0), and the third derivative contracted with delta."""
+        psi = S(-3.0) * (mu10 + mu01)
+        g = vec3()
+        H = mat33()
+        Tc = mat33()
+        third = S(M2_3)
+        for k in range(6):
+            a = vec3(third, third, third)
+            c = mu10
+            if k < 3:
+                a[k] = a[k] + S(2.0)
+            else:
+                c = mu01
+                a = vec3(S(M4_3), S(M4_3), S(M4_3))
+                p = k - 3  # pairs (0,1), (0,2), (1,2)
+                i0 = 0
+                i1 = 1
+                if p == 1:
+                    i1 = 2
+                if p == 2:
+                    i0 = 1
+                    i1 = 2
+                a[i0] = a[i0] + S(2.0)
+                a[i1] = a[i1] + S(2.0)
+            m = c * wp.pow(sh[0], a[0]) * wp.pow(sh[1], a[1]) * wp.pow(sh[2], a[2])
+            psi = psi + m
+            for i in range(3):
+                g[i] = g[i] + a[i] * m / sh[i]
+                for j in range(3):
+                    dij = S(0.0)
+                    if i == j:
+                        dij = S(1.0)
+                    H[i, j] = H[i, j] + a[i] * (a[j] - dij) * m / (sh[i] * sh[j])
+                    for l in range(3):
+                        dil = S(0.0)
+                        djl = S(0.0)
+                        if i == l:
+                            dil = S(1.0)
+                        if j == l:
+                            djl = S(1.0)
+                        Tc[j, l] = Tc[j, l] + delta[i] * a[i] * (a[j] - dij) * (a[l] - dil - djl) * m / (
+                            sh[i] * sh[j] * sh[l]
+                        )
+        L = wp.log(sh[0]) + wp.log(sh[1]) + wp.log(sh[2])
+        psi = psi + S(0.5) * kappa * L * L
+        for i in range(3):
+            g[i] = g[i] + kappa * L / sh[i]
+            for j in range(3):
+                H[i, j] = H[i, j] + kappa / (sh[i] * sh[j])
+                if i == j:
+                    H[i, j] = H[i, j] - kappa * L / (sh[i] * sh[i])
+                for l in range(3):
+                    t = S(0.0)
+                    if i == l:
+                        t = t - kappa / (sh[i] * sh[j] * sh[l])
+                    if j == l:
+                        t = t - kappa / (sh[i] * sh[j] * sh[l])
+                    if i == j:
+                        t = t - kappa / (sh[i] * sh[i] * sh[l])
+                        if i == l:
+                            t = t + S(2.0) * kappa * L / (sh[i] * sh[i] * sh[i])
+                    Tc[j, l] = Tc[j, l] + delta[i] * t
+        return psi, g, H, Tc
+
+    @wp.func
+    def clamp_values(s: vec3, clamp: S):
+        sh = vec3()
+        delta = vec3()
+        for i in range(3):
+            sh[i] = wp.max(s[i], clamp)
+            delta[i] = s[i] - sh[i]
+        return sh, delta
+
+    @wp.func
+    def flesh_energy_s(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
+        sh, delta = clamp_values(s, clamp)
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa)
+        return psi + wp.dot(g, delta)
+
+    @wp.func
+    def flesh_gradient_s(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
+        """psi_ext and its gradient G in singular values."""
+        sh, delta = clamp_values(s, clamp)
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa)
+        G = g
+        Hd = H * delta
+        for j in range(3):
+            if s[j] >= clamp:
+                G[j] = G[j] + Hd[j]
+        return psi + wp.dot(g, delta), G
+
+    # ------------------------------------------------------------------ element helpers
+    @wp.func
+    def deformation_gradient(x: wp.array(dtype=vec3), tets: wp.array2d(dtype=wp.int32), dm_inv: mat33, t: int):
+        x0 = x[tets[t, 0]]
+        Ds = wp.matrix_from_cols(x[tets[t, 1]] - x0, x[tets[t, 2]] - x0, x[tets[t, 3]] - x0)
+        return Ds * dm_inv
+
+    @wp.func
+    def scatter_stress(
+        P: mat33, dm_inv: mat33, scale: S, tets: wp.array2d(dtype=wp.int32), t: int, out: wp.array(dtype=vec3)
+    ):
+        """out[node] += scale * P r_a (r_a = rows of Dm^-1), node 0 gets minus the sum."""
+        H = scale * (P * wp.transpose(dm_inv))
+        c1 = vec3(H[0, 0], H[1, 0], H[2, 0])
+        c2 = vec3(H[0, 1], H[1, 1], H[2, 1])
+        c3 = vec3(H[0, 2], H[1, 2], H[2, 2])
+        wp.atomic_add(out, tets[t, 1], c1)
+        wp.atomic_add(out, tets[t, 2], c2)
+        wp.atomic_add(out, tets[t, 3], c3)
+        wp.atomic_add(out, tets[t, 0], -(c1 + c2 + c3))
+
+    @wp.func
+    def fibre_tension(lam: S, act: S, k: S):
+        """T, dT/dlam, energy W for one fibre entry (k = fraction * strength * sigma_max)."""
+        fl, dfl, gl = force_length(lam - S(1.0))
+        fp, dfp, gp = passive_curve(lam - S(1.0))
+        return k * (act * fl + fp), k * (act * dfl + dfp), k * (act * gl + gp)
+
+    # ------------------------------------------------------------------ kernels
+    @wp.kernel(module="unique", enable_backward=False)
+    def element_forces(
+        # Model:
+        tets: wp.array2d(dtype=wp.int32),
+        dm_inv: wp.array(dtype=mat33),
+        rest_volume: wp.array(dtype=S),
+        mu10: S,
+        mu01: S,
+        kappa: S,
+        clamp: S,
+        entry_start: wp.array(dtype=wp.int32),
+        entry_muscle: wp.array(dtype=wp.int32),
+        entry_direction: wp.array(dtype=vec3),
+        entry_coef: wp.array(dtype=S),
+        # State in:
+        x: wp.array(dtype=vec3),
+        activation: wp.array(dtype=S),
+        # Out:
+        forces_out: wp.array(dtype=vec3),
+        energy_out: wp.array(dtype=S),
+    ):
+        """Total nodal forces f(x, a) (accumulated) and per-tet energy V0 (psi_ext + sum W)."""
+        t = wp.tid()
+        Dmi = dm_inv[t]
+        F = deformation_gradient(x, tets, Dmi, t)
+        U = mat33()
+        s = vec3()
+        V = mat33()
+        wp.svd3(F, U, s, V)
+        psi, G = flesh_gradient_s(s, mu10, mu01, kappa, clamp)
+        P = U * wp.diag(G) * wp.transpose(V)
+        energy = psi
+        for e in range(entry_start[t], entry_start[t + 1]):
+            d = entry_direction[e]
+            q = F * d
+            lam = wp.length(q)
+            T, dT, W = fibre_tension(lam, activation[entry_muscle[e]], entry_coef[e])
+            energy = energy + W
+            if lam > S(1.0e-12):
+                P = P + (T / lam) * wp.outer(q, d)
+        V0 = rest_volume[t]
+        energy_out[t] = V0 * energy
+        scatter_stress(P, Dmi, -V0, tets, t, forces_out)
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def element_energy(
+        # Model:
+        tets: wp.array2d(dtype=wp.int32),
+        dm_inv: wp.array(dtype=mat33),
+        rest_volume: wp.array(dtype=S),
+        mu10: S,
+        mu01: S,
+        kappa: S,
+        clamp: S,
+        entry_start: wp.array(dtype=wp.int32),
+        entry_muscle: wp.array(dtype=wp.int32),
+        entry_direction: wp.array(dtype=vec3),
+        entry_coef: wp.array(dtype=S),
+        # State in:
+        x: wp.array(dtype=vec3),
+        activation: wp.array(dtype=S),
+        # Out:
+        energy_out: wp.array(dtype=S),
+    ):
+        """Per-tet energy V0 (psi_ext(s) + sum over fibre entries of W)."""
+        t = wp.tid()
+        F = deformation_gradient(x, tets, dm_inv[t], t)
+        U = mat33()
+        s = vec3()
+        V = mat33()
+        wp.svd3(F, U, s, V)
+        energy = flesh_energy_s(s, mu10, mu01, kappa, clamp)
+        for e in range(entry_start[t], entry_start[t + 1]):
+            lam = wp.length(F * entry_direction[e])
+            T, dT, W = fibre_tension(lam, activation[entry_muscle[e]], entry_coef[e])
+            energy = energy + W
+        energy_out[t] = rest_volume[t] * energy
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def muscle_forces(
+        # Model:
+        tets: wp.array2d(dtype=wp.int32),
+        dm_inv: wp.array(dtype=mat33),
+        rest_volume: wp.array(dtype=S),
+        entry_tet: wp.array(dtype=wp.int32),
+        entry_muscle: wp.array(dtype=wp.int32),
+        entry_direction: wp.array(dtype=vec3),
+        entry_coef: wp.array(dtype=S),
+        # State in:
+        x: wp.array(dtype=vec3),
+        # Out:
+        forces_out: wp.array2d(dtype=vec3),
+    ):
+        """f_i(x): active fibre force of each muscle at full activation, (M, n) accumulated."""
+        e = wp.tid()
+        t = entry_tet[e]
+        Dmi = dm_inv[t]
+        F = deformation_gradient(x, tets, Dmi, t)
+        d = entry_direction[e]
+        q = F * d
+        lam = wp.length(q)
+        if lam > S(1.0e-12):
+            fl, dfl, gl = force_length(lam - S(1.0))
+            P = (entry_coef[e] * fl / lam) * wp.outer(q, d)
+            H = -rest_volume[t] * (P * wp.transpose(Dmi))
+            c1 = vec3(H[0, 0], H[1, 0], H[2, 0])
+            c2 = vec3(H[0, 1], H[1, 1], H[2, 1])
+            c3 = vec3(H[0, 2], H[1, 2], H[2, 2])
+            m = entry_muscle[e]
+            wp.atomic_add(forces_out, m, tets[t, 1], c1)
+            wp.atomic_add(forces_out, m, tets[t, 2], c2)
+            wp.atomic_add(forces_out, m, tets[t, 3], c3)
+            wp.atomic_add(forces_out, m, tets[t, 0], -(c1 + c2 + c3))
+
+    @wp.func
+    def vec_outer_mode(U: mat33, V: mat33, i: int, j: int):
+        """vec(u_i v_j^T) as a 9-vector (row-major)."""
+        w = vec9()
+        for r in range(3):
+            for c in range(3):
+                w[3 * r + c] = U[r, i] * V[c, j]
+        return w
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def element_tangent(
+        # Model:
+        tets: wp.array2d(dtype=wp.int32),
+        dm_inv: wp.array(dtype=mat33),
+        rest_volume: wp.array(dtype=S),
+        mu10: S,
+        mu01: S,
+        kappa: S,
+        clamp: S,
+        entry_start: wp.array(dtype=wp.int32),
+        entry_muscle: wp.array(dtype=wp.int32),
+        entry_direction: wp.array(dtype=vec3),
+        entry_coef: wp.array(dtype=S),
+        project: int,
+        # State in:
+        x: wp.array(dtype=vec3),
+        activation: wp.array(dtype=S),
+        # Out:
+        tangent_out: wp.array(dtype=mat99),
+    ):
+        """Per-tet V0 dP/dF as a 9x9 matrix on row-major vec(F); projected to PSD if ``project``."""
+        t = wp.tid()
+        F = deformation_gradient(x, tets, dm_inv[t], t)
+        U = mat33()
+        s = vec3()
+        V = mat33()
+        wp.svd3(F, U, s, V)
+        sh, delta = clamp_values(s, clamp)
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa)
+        G = g
+        Hd = H * delta
+        A = mat33()
+        for i in range(3):
+            if s[i] >= clamp:
+                G[i] = G[i] + Hd[i]
+            for j in range(3):
+                ui = s[i] >= clamp
+                uj = s[j] >= clamp
+                if ui and uj:
+                    A[i, j] = H[i, j] + Tc[i, j]
+                elif ui or uj:
+                    A[i, j] = H[i, j]
+        if project != 0:
+            Q = mat33()
+            lam = vec3()
+            wp.eig3(A, Q, lam)
+            for k in range(3):
+                lam[k] = wp.max(lam[k], S(0.0))
+            A = Q * wp.diag(lam) * wp.transpose(Q)
+        C = mat99()
+        w0 = vec_outer_mode(U, V, 0, 0)
+        w1 = vec_outer_mode(U, V, 1, 1)
+        w2 = vec_outer_mode(U, V, 2, 2)
+        for r in range(9):
+            for c in range(9):
+                C[r, c] = (
+                    A[0, 0] * w0[r] * w0[c]
+                    + A[1, 1] * w1[r] * w1[c]
+                    + A[2, 2] * w2[r] * w2[c]
+                    + A[0, 1] * (w0[r] * w1[c] + w1[r] * w0[c])
+                    + A[0, 2] * (w0[r] * w2[c] + w2[r] * w0[c])
+                    + A[1, 2] * (w1[r] * w2[c] + w2[r] * w1[c])
+                )
+        inv_sqrt2 = S(0.7071067811865476)
+        for p in range(3):
+            i = 0
+            j = 1
+            if p == 1:
+                j = 2
+            if p == 2:
+                i = 1
+                j = 2
+            diff = s[i] - s[j]
+            if wp.abs(diff) > S(tie_eps) * wp.max(wp.abs(s[i]), S(1.0)):
+                lsym = (G[i] - G[j]) / diff
+            else:
+                lsym = A[i, i] - A[i, j]
+            lrot = (G[i] + G[j]) / wp.max(s[i] + s[j], S(tie_eps))
+            if project != 0:
+                lsym = wp.max(lsym, S(0.0))
+                lrot = wp.max(lrot, S(0.0))
+            wij = vec_outer_mode(U, V, i, j)
+            wji = vec_outer_mode(U, V, j, i)
+            qs = inv_sqrt2 * (wij + wji)
+            qr = inv_sqrt2 * (wij - wji)
+            C = C + lsym * wp.outer(qs, qs) + lrot * wp.outer(qr, qr)
+        for e in range(entry_start[t], entry_start[t + 1]):
+            d = entry_direction[e]
+            q = F * d
+            lf = wp.length(q)
+            if lf > S(1.0e-12):
+                T, dT, W = fibre_tension(lf, activation[entry_muscle[e]], entry_coef[e])
+                c1 = T / lf
+                along = dT
+                if project != 0:
+                    c1 = wp.max(c1, S(0.0))
+                    along = wp.max(along, S(0.0))
+                c2 = (along - c1) / (lf * lf)
+                Hq = c1 * wp.identity(n=3, dtype=S) + c2 * wp.outer(q, q)
+                for i in range(3):
+                    for k in range(3):
+                        for j in range(3):
+                            for l in range(3):
+                                C[3 * i + k, 3 * j + l] = C[3 * i + k, 3 * j + l] + Hq[i, j] * d[k] * d[l]
+        tangent_out[t] = rest_volume[t] * C
+
+    @wp.func
+    def node_gradients(Dmi: mat33):
+        """Rows r_1..r_3 of Dm^-1 and r_0 = -(r_1 + r_2 + r_3): dF = sum_a dx_a r_a^T."""
+        r1 = vec3(Dmi[0, 0], Dmi[0, 1], Dmi[0, 2])
+        r2 = vec3(Dmi[1, 0], Dmi[1, 1], Dmi[1, 2])
+        r3 = vec3(Dmi[2, 0], Dmi[2, 1], Dmi[2, 2])
+        return -(r1 + r2 + r3), r1, r2, r3
+
+    @wp.func
+    def pick(r0: vec3, r1: vec3, r2: vec3, r3: vec3, a: int):
+        if a == 0:
+            return r0
+        if a == 1:
+            return r1
+        if a == 2:
+            return r2
+        return r3
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def tangent_matvec(
+        # Model:
+        tets: wp.array2d(dtype=wp.int32),
+        dm_inv: wp.array(dtype=mat33),
+        tangent: wp.array(dtype=mat99),
+        # State in:
+        v: wp.array(dtype=vec3),
+        # Out:
+        out: wp.array(dtype=vec3),
+    ):
+        """out += K v with K = -df/dx (matrix-free, from the per-tet 9x9 tangents)."""
+        t = wp.tid()
+        r0, r1, r2, r3 = node_gradients(dm_inv[t])
+        v0 = v[tets[t, 0]]
+        dF = wp.outer(v[tets[t, 1]] - v0, r1) + wp.outer(v[tets[t, 2]] - v0, r2) + wp.outer(v[tets[t, 3]] - v0, r3)
+        dFv = vec9()
+        for r in range(3):
+            for c in range(3):
+                dFv[3 * r + c] = dF[r, c]
+        dPv = tangent[t] * dFv
+        dP = mat33()
+        for r in range(3):
+            for c in range(3):
+                dP[r, c] = dPv[3 * r + c]
+        c1 = dP * r1
+        c2 = dP * r2
+        c3 = dP * r3
+        wp.atomic_add(out, tets[t, 1], c1)
+        wp.atomic_add(out, tets[t, 2], c2)
+        wp.atomic_add(out, tets[t, 3], c3)
+        wp.atomic_add(out, tets[t, 0], -(c1 + c2 + c3))
+
+    @wp.func
+    def tangent_block(C: mat99, ra: vec3, rb: vec3):
+        """3x3 block (a, b) of the element stiffness: B_ij = sum_kl C[3i+k, 3j+l] ra_k rb_l."""
+        B = mat33()
+        for i in range(3):
+            for j in range(3):
+                acc = S(0.0)
+                for k in range(3):
+                    for l in range(3):
+                        acc = acc + C[3 * i + k, 3 * j + l] * ra[k] * rb[l]
+                B[i, j] = acc
+        return B
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def tangent_assemble(
+        # Model:
+        dm_inv: wp.array(dtype=mat33),
+        tangent: wp.array(dtype=mat99),
+        block_index: wp.array2d(dtype=wp.int32),
+        # Out:
+        blocks_out: wp.array(dtype=mat33),
+    ):
+        """Scatter the 16 3x3 blocks of each element stiffness into BSR values (index -1: skipped)."""
+        t = wp.tid()
+        C = tangent[t]
+        r0, r1, r2, r3 = node_gradients(dm_inv[t])
+        for a in range(4):
+            ra = pick(r0, r1, r2, r3, a)
+            for b in range(4):
+                idx = block_index[t, 4 * a + b]
+                if idx >= 0:
+                    wp.atomic_add(blocks_out, idx, tangent_block(C, ra, pick(r0, r1, r2, r3, b)))
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def tangent_diagonal(
+        # Model:
+        tets: wp.array2d(dtype=wp.int32),
+        dm_inv: wp.array(dtype=mat33),
+        tangent: wp.array(dtype=mat99),
+        # Out:
+        diag_out: wp.array(dtype=vec3),
+    ):
+        """diag(K) per node (Jacobi preconditioner), accumulated."""
+        t = wp.tid()
+        C = tangent[t]
+        r0, r1, r2, r3 = node_gradients(dm_inv[t])
+        for a in range(4):
+            ra = pick(r0, r1, r2, r3, a)
+            B = tangent_block(C, ra, ra)
+            wp.atomic_add(diag_out, tets[t, a], vec3(B[0, 0], B[1, 1], B[2, 2]))
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def singular_values(
+        # In:
+        F: wp.array(dtype=mat33),
+        # Out:
+        U_out: wp.array(dtype=mat33),
+        s_out: wp.array(dtype=vec3),
+        V_out: wp.array(dtype=mat33),
+    ):
+        """wp.svd3 as used by the FEM (tests pin its sign and order convention)."""
+        t = wp.tid()
+        U = mat33()
+        s = vec3()
+        V = mat33()
+        wp.svd3(F[t], U, s, V)
+        U_out[t] = U
+        s_out[t] = s
+        V_out[t] = V
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def fibre_curves(
+        # In:
+        lam: wp.array(dtype=S),
+        # Out:
+        out: wp.array2d(dtype=S),
+    ):
+        """Columns: f_L, f_L', int f_L, f_P, f_P', int f_P at each stretch (integrals from 1)."""
+        i = wp.tid()
+        fl, dfl, gl = force_length(lam[i] - S(1.0))
+        fp, dfp, gp = passive_curve(lam[i] - S(1.0))
+        out[i, 0] = fl
+        out[i, 1] = dfl
+        out[i, 2] = gl
+        out[i, 3] = fp
+        out[i, 4] = dfp
+        out[i, 5] = gp
+
+    class _Kernels:
+        pass
+
+    ns = _Kernels()
+    ns.scalar = S
+    ns.vec3 = vec3
+    ns.mat33 = mat33
+    ns.mat99 = mat99
+    for k in (
+        element_forces,
+        element_energy,
+        muscle_forces,
+        element_tangent,
+        tangent_matvec,
+        tangent_assemble,
+        tangent_diagonal,
+        singular_values,
+        fibre_curves,
+    ):
+        setattr(ns, k.func.__name__, k)
+    return ns

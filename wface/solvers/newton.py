@@ -1,0 +1,218 @@
+"""Quasistatic Newton-Raphson with an energy line search (seed 000, section 4; DESIGN.md section 3).
+
+Unknowns: the free nodes U (not attached to a bone). Attached nodes C are Dirichlet nodes placed
+at their bone positions. Each step solves K_UU dx = f_U(x) with the projected, definite stiffness
+and backtracks on the total energy (Armijo). When the start configuration's attached nodes differ
+from their targets, a first "lift" step moves them there and the free nodes by the linearised
+response K_UU dx_U = f_U(x) - K_UC dx_C, which carries bone motion smoothly into the flesh.
+
+Stiffness (``stiffness=``): "projected" uses the Teran et al. 2005 projected-definite K every step;
+"auto" (default) first tries the exact Hessian, which gives quadratic convergence near the
+solution, and falls back to the projected K for that step when the exact K_UU is not positive
+definite (the Cholesky factorisation or CG reports it) or the step is not a descent direction;
+after a fallback the next step uses the projected K directly.
+
+Relative residual (``Equilibrium.residual_rel``):
+    ||f_U(x)||_2 / max(||f_U(X_load)||_2, f_floor),
+where X_load is the rest shape with the attached nodes at their targets (the out-of-balance force
+that the activations and the bone displacement cause on the undeformed face) and
+f_floor = 1e-3 (mu10 + mu01) V^(2/3) (the force of a 0.1 % strain over the model's cross-section,
+V = rest volume), which only matters when the load vanishes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wface.solvers.linear import (
+    DirectFactor,
+    JacobiPreconditioner,
+    NotPositiveDefiniteError,
+    pcg,
+    resolve_linear_solver,
+)
+
+__all__ = ["Equilibrium", "newton_quasistatic", "solve_free"]
+
+
+@dataclass
+class Equilibrium:
+    """Result of a quasistatic solve.
+
+    Attributes:
+        x: (n, 3) equilibrium positions, metres.
+        converged: residual_rel <= tol was reached.
+        iterations: Newton iterations (linear solves with K), the lift step included.
+        residual_rel: relative force residual at x (module docstring).
+        residual_abs: ||f_U(x)||_2 in newtons.
+        force_scale: the denominator of residual_rel, newtons.
+        inverted_elements: tets with det F <= 0 at x.
+        energy: total elastic energy at x, joules.
+        cg_iterations: CG iterations over all Newton steps (0 for the direct solver).
+        projected_steps: Newton steps that used the projected stiffness.
+        solver: linear engine used ("direct" or "cg").
+        history: residual_rel after each iteration (first entry: the start).
+        seconds: wall-clock time of the solve.
+    """
+
+    x: np.ndarray
+    converged: bool
+    iterations: int
+    residual_rel: float
+    residual_abs: float
+    force_scale: float
+    inverted_elements: int
+    energy: float
+    cg_iterations: int = 0
+    projected_steps: int = 0
+    solver: str = "direct"
+    history: list = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def solve_free(tangent, pattern, rhs: np.ndarray, *, engine: str, rtol: float = 1e-10, x0=None):
+    """Solve K_UU X = rhs for (3k,) or (3k, c) right-hand sides over the unknowns of ``pattern``.
+
+    Returns (X, cg_iterations). Raises ``NotPositiveDefiniteError`` when K_UU is not positive
+    definite (factorisation failure, or p.K p <= 0 in CG).
+    """
+    if engine == "direct":
+        factor = DirectFactor(tangent.assemble(pattern))
+        try:
+            return factor.solve(rhs), 0
+        finally:
+            factor.free()
+    mask = np.zeros((pattern.n_nodes, 3))
+    mask[pattern.dof_nodes] = 1.0
+
+    def matvec(v):
+        if v.ndim == 1:
+            return pattern.gather(tangent.matvec(pattern.scatter(v)))
+        return np.stack([matvec(v[:, j]) for j in range(v.shape[1])], axis=1)
+
+    precond = JacobiPreconditioner(pattern.gather(tangent.diagonal()))
+    res = pcg(matvec, rhs, x0=x0, preconditioner=precond, rtol=rtol, maxiter=20 * rhs.shape[0])
+    if res.indefinite:
+        raise NotPositiveDefiniteError("CG met a direction of non-positive curvature")
+    return res.x, res.iterations
+
+
+def newton_quasistatic(
+    sim,
+    activations: np.ndarray,
+    attached_positions: np.ndarray | None,
+    x0: np.ndarray | None,
+    *,
+    tol: float = 1e-6,
+    max_iterations: int = 40,
+    solver: str = "auto",
+    max_line_search: int = 30,
+    stiffness: str = "auto",
+) -> Equilibrium:
+    """Newton-Raphson for f_U(x, a) = 0 (see module docstring). ``sim`` is a ``Simulator``."""
+    from wface.physics.simulator import count_inverted
+
+    model = sim.model
+    engine = resolve_linear_solver(solver, sim.device)
+    fixed = model.attached_nodes
+    rest = model.rest_positions_m
+    targets = rest[fixed] if attached_positions is None else np.asarray(attached_positions, dtype=np.float64)
+    if targets.shape != (fixed.size, 3):
+        raise ValueError(f"attached_positions has shape {targets.shape}, expected ({fixed.size}, 3)")
+    pattern = sim.pattern("free")
+    free = pattern.dof_nodes
+    a = activations
+
+    x_load = rest.copy()
+    x_load[fixed] = targets
+    mat = model.material
+    floor = 1e-3 * (mat.mu10_pa + mat.mu01_pa) * float(model.rest_volume_m3.sum()) ** (2.0 / 3.0)
+    scale = max(float(np.linalg.norm(sim.forces(x_load, a)[free])), floor)
+
+    x = rest.copy() if x0 is None else np.array(x0, dtype=np.float64)
+    iterations = 0
+    cg_total = 0
+    history: list[float] = []
+
+    dxc = targets - x[fixed]
+    if fixed.size and np.any(dxc != 0.0):
+        # Lift: move the attached nodes to their targets and the free ones by the linear response.
+        tan = sim.tangent(x, a)
+        f = sim.forces(x, a)
+        v = np.zeros_like(x)
+        v[fixed] = dxc
+        coupling = tan.matvec(v)  # K_{., C} dx_C
+        rhs = pattern.gather(f - coupling)
+        history.append(float(np.linalg.norm(rhs)) / scale)
+        dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=1e-6)
+        cg_total += its
+        x[fixed] = targets
+        x[free] += dx.reshape(-1, 3)
+        iterations += 1
+
+    energy, f = sim.energy_and_forces(x, a)
+    residual = float(np.linalg.norm(f[free]))
+    history.append(residual / scale)
+    if stiffness not in ("auto", "projected", "exact"):
+        raise ValueError(f"stiffness must be 'auto', 'projected' or 'exact', got {stiffness!r}")
+    try_exact = stiffness != "projected"
+    projected_steps = 0
+    while residual / scale > tol and iterations < max_iterations:
+        rhs = pattern.gather(f)
+        eta = float(np.clip(0.1 * residual / scale, 1e-12, 1e-2))
+        dx = None
+        if try_exact:
+            tan = sim.tangent(x, a, project=False)
+            try:
+                dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta)
+                cg_total += its
+                if not float(rhs @ dx) > 0:
+                    dx = None
+            except NotPositiveDefiniteError:
+                if stiffness == "exact":
+                    raise
+                dx = None
+        if dx is None:
+            tan = sim.tangent(x, a)
+            dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta)
+            cg_total += its
+            projected_steps += 1
+            try_exact = stiffness == "exact"
+        else:
+            try_exact = stiffness != "projected"
+        dx = dx.reshape(-1, 3)
+        slope = float(rhs @ dx.reshape(-1))  # -dE/dt at t = 0 (> 0 for a descent direction)
+        if not slope > 0:  # not a descent direction (should not happen with SPD K): steepest descent
+            dx = f[free] / max(float(np.abs(tan.diagonal()[free]).max()), 1e-30)
+            slope = float(rhs @ dx.reshape(-1))
+        slack = 64 * np.finfo(float).eps * float(np.abs(sim.element_energies(x, a)).sum())
+        t = 1.0
+        trial = x.copy()
+        for _ in range(max_line_search):
+            trial[free] = x[free] + t * dx
+            e_trial = sim.energy(trial, a)
+            if np.isfinite(e_trial) and e_trial <= energy - 1e-4 * t * slope + slack:
+                break
+            t *= 0.5
+        x = trial
+        iterations += 1
+        energy, f = sim.energy_and_forces(x, a)
+        residual = float(np.linalg.norm(f[free]))
+        history.append(residual / scale)
+
+    return Equilibrium(
+        x=x,
+        converged=bool(residual / scale <= tol),
+        iterations=iterations,
+        residual_rel=residual / scale,
+        residual_abs=residual,
+        force_scale=scale,
+        inverted_elements=count_inverted(model, x),
+        energy=energy,
+        cg_iterations=cg_total,
+        projected_steps=projected_steps,
+        solver=engine,
+        history=history,
+    )
