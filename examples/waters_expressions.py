@@ -6,6 +6,7 @@ sheet OUT/expressions.png and OUT/expressions.usdc: an animation that blends fro
     python examples/waters_expressions.py --out out/waters_expressions
     python examples/waters_expressions.py --presets happy --size 200 --out /tmp/w   # quick
 
+``--face builtin`` poses wface's built-in face instead (the ICT layout fitted to its markers).
 Without ../shared/data (or $WFACE_DATA) it falls back to a synthetic ellipsoid head with the ICT
 layout fitted to it by landmarks, and says so.
 """
@@ -35,6 +36,8 @@ DEFAULT_DATA = Path(os.environ.get("WFACE_DATA", Path(__file__).resolve().parent
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--mesh", default=str(DEFAULT_DATA / "ict-facekit" / "generic_neutral_mesh.obj"))
+    ap.add_argument("--face", choices=("ict", "builtin"), default="ict", help="ICT head (--mesh) or the built-in face")
+    ap.add_argument("--tets", type=int, default=20000, help="resolution of the built-in face")
     ap.add_argument("--presets", nargs="+", default=list(EXPRESSIONS), help="presets to render (default: all)")
     ap.add_argument("--size", type=int, default=600, help="image size in pixels")
     ap.add_argument("--blend-frames", type=int, default=12, help="frames between presets in the USD animation")
@@ -44,7 +47,14 @@ def main(argv: list[str] | None = None) -> dict:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     layout = load_layout("ict")
-    if Path(args.mesh).is_file():
+    rig = None
+    if args.face == "builtin":
+        from wface.builtin import build_face
+        from wface.waters.face_model import face_model_rig
+
+        rig, mesh, _ = face_model_rig(build_face(args.tets))
+        source = f"wface built-in face (~{args.tets} tets), ICT layout fitted by its markers"
+    elif Path(args.mesh).is_file():
         mesh = read_surface(args.mesh, units="cm")
         source = args.mesh
     else:
@@ -54,7 +64,7 @@ def main(argv: list[str] | None = None) -> dict:
         )
         source = "synthetic ellipsoid head (real data absent: " + args.mesh + ")"
         print("note:", source)
-    rig = WatersRig(layout, mesh.vertices_m)
+    rig = rig or WatersRig(layout, mesh.vertices_m)
 
     summaries, pictures = {}, []
     for name in args.presets:

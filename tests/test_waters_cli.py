@@ -144,3 +144,12 @@ def test_example_runs_headless(tmp_path):
     assert (tmp_path / "expressions.usdc").is_file()
     report = json.loads((tmp_path / "expressions.json").read_text())
     assert report["presets"]["happy"]["max_displacement_mm"] > 1.0
+
+
+def test_cli_poses_the_builtin_face(tmp_path):
+    rc = main(
+        ["waters", "--mesh", "builtin", "--tets", "3000", "--expression", "sad", "--no-render", "--out", str(tmp_path)]
+    )
+    assert rc == 0
+    summary = json.loads((tmp_path / "sad.json").read_text())
+    assert summary["layout"].startswith("ict-facekit-on") and summary["max_displacement_mm"] > 1.0

@@ -48,18 +48,18 @@ def test_every_preset_deforms_the_ict_head_boundedly(ict, name):
         assert total.max() > 0.003  # visibly moves (> 3 mm)
 
 
-def test_landmark_file_matches_the_layout(ict):
+def test_layout_landmarks_are_the_animface_markers_on_the_ict_skin(ict):
     mesh, layout, _ = ict
-    ids = json.loads((resources.files("wface") / "data" / "ict_animface_landmarks.json").read_text())
-    assert len(ids) == 41
-    for name, i in ids.items():
-        assert 0 <= i < 9409, f"{name} is not on the ICT face region"
-        np.testing.assert_allclose(layout.landmarks_m[name], mesh.vertices_m[i], atol=1e-5)
-    # left markers sit at +x (the subject's left), right ones mirror them
-    assert mesh.vertices_m[ids["Mouth_Lend"], 0] > 0 > mesh.vertices_m[ids["Mouth_Rend"], 0]
-    np.testing.assert_allclose(
-        mesh.vertices_m[ids["Leye_Outside"]] * [-1, 1, 1], mesh.vertices_m[ids["Reye_Outside"]], atol=1e-6
-    )
+    shared = json.loads((resources.files("wface") / "data" / "ict_animface_landmarks.json").read_text())
+    assert set(layout.landmarks_m) == set(shared)  # the same 41 AnimFace names project-wide
+    face = mesh.vertices_m[:9409]
+    for name, p in layout.landmarks_m.items():
+        assert np.min(np.linalg.norm(face - p, axis=1)) < 1e-5, f"{name} is not a face-region vertex"
+    marks = layout.landmarks_m
+    # anatomical placement: mouth corners at the ICT mouth corners (dlib 48/54), left at +x (subject's left)
+    np.testing.assert_allclose(marks["Mouth_Lend"], mesh.vertices_m[6213], atol=1e-5)
+    np.testing.assert_allclose(marks["Mouth_Rend"], mesh.vertices_m[5708], atol=1e-5)
+    np.testing.assert_allclose(marks["Leye_Outside"] * [-1, 1, 1], marks["Reye_Outside"], atol=1e-6)
 
 
 def _cosine(a: np.ndarray, b: np.ndarray) -> float:

@@ -19,7 +19,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         + ", ".join(ACTION_UNITS)
         + " (append L or R for one side, e.g. AU12L=1).",
     )
-    p.add_argument("--mesh", required=True, help="surface mesh (OBJ, or any format meshio reads)")
+    p.add_argument(
+        "--mesh",
+        required=True,
+        help="surface mesh (OBJ, or any format meshio reads), or 'builtin' for the built-in face's skin "
+        "(the ICT layout fitted to its markers, jaw weights from its bones)",
+    )
+    p.add_argument("--tets", type=int, default=20000, help="resolution of the built-in face (with --mesh builtin)")
     p.add_argument("--expression", default="neutral", help="expression preset (default: neutral)")
     p.add_argument("--intensity", type=float, default=1.0, help="scale of the preset's action units, 0..1")
     p.add_argument(
@@ -39,8 +45,15 @@ def _run(args: argparse.Namespace) -> int:
     from wface.waters.expressions import parse_au_assignments
     from wface.waters.pipeline import pose_mesh
 
+    mesh, rig = args.mesh, None
+    if args.mesh == "builtin":
+        from wface.builtin import build_face
+        from wface.waters.face_model import face_model_rig
+
+        parse_au_assignments(args.au)  # fail on bad names before building the face
+        rig, mesh, _ = face_model_rig(build_face(args.tets))
     summary = pose_mesh(
-        args.mesh,
+        mesh,
         args.out,
         expression=args.expression,
         action_units=parse_au_assignments(args.au),
@@ -51,6 +64,7 @@ def _run(args: argparse.Namespace) -> int:
         render=not args.no_render,
         size=args.size,
         usd_suffix=".usdc" if args.usdc else ".usda",
+        rig=rig,
     )
     print(json.dumps({k: summary[k] for k in ("expression", "jaw_open_deg", "max_displacement_mm", "files")}, indent=2))
     return 0

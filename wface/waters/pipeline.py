@@ -98,18 +98,18 @@ def pose_mesh(
         from wface.waters.render import render_mesh
 
         tri = mesh.triangles()
-        centre = np.median(mesh.vertices_m[rig.influenced], axis=0) if rig.influenced.size else None
-        files["png"] = str(render_mesh(out / f"{stem}.png", x, tri, title=stem, size=size, focus_m=centre, zoom=2.2))
+        box = None  # frame the face: the layout's landmarks, else the muscles' reach
+        marks = np.array(list(rig.layout.landmarks_m.values())).reshape(-1, 3)
+        region = marks if len(marks) >= 4 else mesh.vertices_m[rig.influenced]
+        if len(region):
+            lo, hi = region.min(axis=0), region.max(axis=0)
+            pad = 0.25 * (hi - lo)
+            box = np.ravel(np.column_stack([lo - pad, hi + pad]))
+        view = {"size": size, "bounds_m": box, "zoom": 1.3}
+        files["png"] = str(render_mesh(out / f"{stem}.png", x, tri, title=stem, **view))
         files["png_displacement"] = str(
             render_mesh(
-                out / f"{stem}_displacement.png",
-                x,
-                tri,
-                displacement_mm=disp_mm,
-                title=f"{stem}: |d| mm",
-                size=size,
-                focus_m=centre,
-                zoom=1.6,
+                out / f"{stem}_displacement.png", x, tri, displacement_mm=disp_mm, title=f"{stem}: |d| mm", **view
             )
         )
     summary = {

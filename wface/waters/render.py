@@ -30,6 +30,7 @@ def render_mesh(
     clim_mm: tuple[float, float] | None = None,
     focus_m: np.ndarray | None = None,
     zoom: float = 1.25,
+    bounds_m: np.ndarray | None = None,
 ) -> Path:
     """Render a mesh seen from the front (+z toward the camera, +y up) to a PNG.
 
@@ -43,6 +44,7 @@ def render_mesh(
         clim_mm: colour range for ``displacement_mm``.
         focus_m: (3,) point the camera looks at (default: the mesh centre).
         zoom: camera zoom factor.
+        bounds_m: optional (6,) box (xmin, xmax, ymin, ymax, zmin, zmax) to frame instead of the whole mesh.
     """
     import pyvista as pv
 
@@ -63,6 +65,8 @@ def render_mesh(
     if title:
         plotter.add_text(title, font_size=max(8, size // 40))
     plotter.view_xy()
+    if bounds_m is not None:
+        plotter.reset_camera(bounds=[float(b) for b in bounds_m])
     if focus_m is not None:
         f = np.asarray(focus_m, dtype=np.float64)
         pos = np.asarray(plotter.camera.position)

@@ -57,9 +57,19 @@ class WatersRig:
         rest_positions_m: (n, 3) rest vertex positions of the mesh, metres.
         muscle_mask: optional (n,) bool: vertices the muscles may move. Default: the layout's
             ``mesh.muscle_vertices`` when the vertex count matches, else every vertex.
+        jaw_weights: optional (n,) weights in [0, 1] of jaw following, overriding the layout's jaw
+            planes (e.g. from a volumetric model's bone attachments); the pivot and axis still come
+            from the layout.
     """
 
-    def __init__(self, layout: MuscleLayout, rest_positions_m: np.ndarray, *, muscle_mask: np.ndarray | None = None):
+    def __init__(
+        self,
+        layout: MuscleLayout,
+        rest_positions_m: np.ndarray,
+        *,
+        muscle_mask: np.ndarray | None = None,
+        jaw_weights: np.ndarray | None = None,
+    ):
         from scipy import sparse
         from scipy.spatial import cKDTree
 
