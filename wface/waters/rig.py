@@ -117,8 +117,12 @@ class WatersRig:
         self.basis = sparse.csr_matrix(
             (cat(vals, np.float64), (cat(rows, np.int64), cat(cols, np.int64))), shape=(3 * n, len(layout.muscles))
         )
+        self._jaw_rows = np.flatnonzero(self.jaw_weights > 0)
+        self._jaw_w = self.jaw_weights[self._jaw_rows]
         self.vertex_limit_m = np.minimum(layout.max_displacement_m, layout.overlap_factor * strongest)
         self.influenced = np.flatnonzero(strongest > 0)
+        rows3 = (3 * self.influenced[:, None] + np.arange(3)).ravel()
+        self._basis_rows = self.basis[rows3].tocsr()  # the influenced rows only: a frame touches nothing else
 
     # --------------------------------------------------------------------------------- inputs
     @property
@@ -150,37 +154,56 @@ class WatersRig:
         return c
 
     # ------------------------------------------------------------------------------- deformation
-    def muscle_displacement(self, contractions, *, limit: bool = True) -> np.ndarray:
-        """(n, 3) combined muscle displacement in metres (limited per vertex unless ``limit=False``)."""
-        c = self.contraction_vector(contractions)
-        d = (self.basis @ c).reshape(-1, 3)
-        if limit:
-            size = np.linalg.norm(d, axis=1)
-            over = size > self.vertex_limit_m
+    def _influenced_displacement(self, c: np.ndarray, limit: bool) -> np.ndarray:
+        """(k, 3) displacement of the k influenced vertices (the only ones a muscle moves)."""
+        d = (self._basis_rows @ c).reshape(-1, 3)
+        if limit and len(d):
+            size = np.sqrt(np.einsum("ij,ij->i", d, d))
+            cap = self.vertex_limit_m[self.influenced]
+            over = size > cap
             if np.any(over):
-                d[over] *= (self.vertex_limit_m[over] / size[over])[:, None]
+                d[over] *= (cap[over] / size[over])[:, None]
         return d
 
-    def jaw_displacement(self, positions_m: np.ndarray, jaw_open_deg: float) -> np.ndarray:
-        """(n, 3) displacement that opens the jaw by ``jaw_open_deg`` (weighted rotation about the pivot)."""
+    def muscle_displacement(self, contractions, *, limit: bool = True) -> np.ndarray:
+        """(n, 3) combined muscle displacement in metres (limited per vertex unless ``limit=False``)."""
+        d = np.zeros_like(self.rest_positions_m)
+        d[self.influenced] = self._influenced_displacement(self.contraction_vector(contractions), limit)
+        return d
+
+    def _jaw_matrix(self, jaw_open_deg: float) -> np.ndarray | None:
         angle = float(jaw_open_deg)
         if not np.isfinite(angle):
             raise ValueError(f"jaw angle must be finite, got {jaw_open_deg!r}")
         if angle == 0.0:
-            return np.zeros_like(positions_m)
+            return None
         jaw = self.layout.jaw
         if jaw is None:
             raise ValueError(f"layout {self.layout.name!r} has no jaw region: it cannot open the jaw (AU26/AU27)")
         if not (-10.0 <= angle <= jaw.max_open_deg):
             raise ValueError(f"jaw angle {angle} deg is outside [-10, {jaw.max_open_deg}] (the layout's max_open_deg)")
-        rel = positions_m - jaw.pivot_m
-        rotated = rel @ jaw.rotation(angle).T
-        return self.jaw_weights[:, None] * (rotated - rel)
+        return jaw.rotation(angle) - np.eye(3)
+
+    def jaw_displacement(self, positions_m: np.ndarray, jaw_open_deg: float) -> np.ndarray:
+        """(n, 3) displacement that opens the jaw by ``jaw_open_deg`` (weighted rotation about the pivot)."""
+        out = np.zeros_like(positions_m)
+        m = self._jaw_matrix(jaw_open_deg)
+        if m is not None:
+            rows = self._jaw_rows
+            out[rows] = self._jaw_w[:, None] * ((positions_m[rows] - self.layout.jaw.pivot_m) @ m.T)
+        return out
 
     def deform(self, contractions=None, *, jaw_open_deg: float = 0.0, limit: bool = True) -> np.ndarray:
         """Deformed vertex positions (n, 3) in metres: rest + muscles, then the jaw rotation."""
-        x = self.rest_positions_m + self.muscle_displacement(contractions, limit=limit)
-        return x + self.jaw_displacement(x, jaw_open_deg)
+        c = self.contraction_vector(contractions)
+        m = self._jaw_matrix(jaw_open_deg)
+        x = self.rest_positions_m.copy()
+        if c.any():
+            x[self.influenced] += self._influenced_displacement(c, limit)
+        if m is not None:
+            rows = self._jaw_rows
+            x[rows] += self._jaw_w[:, None] * ((x[rows] - self.layout.jaw.pivot_m) @ m.T)
+        return x
 
 
 def direct_displacement(layout: MuscleLayout, points_m: np.ndarray, contractions: Mapping[str, float]) -> np.ndarray:
