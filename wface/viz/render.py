@@ -128,10 +128,11 @@ class _Scene:
         remap[self.skin_nodes] = np.arange(self.skin_nodes.size)
         x0 = model.rest_positions_m
         self.skin = _tri_polydata(pv, x0[self.skin_nodes], remap[model.skin_triangles])
-        self.influence = skin_muscle_influence(model, self.skin_nodes, radius_m=muscle_radius_m)
-        self.muscles: list[tuple[int, object, np.ndarray, object]] = []
+        self.influence = None
+        self.muscles: list[tuple[int, object, np.ndarray, object, object]] = []
         self.bones: list[tuple[object, np.ndarray]] = []
         if style == "skin":
+            self.influence = skin_muscle_influence(model, self.skin_nodes, radius_m=muscle_radius_m)
             self.skin["rgb"] = np.tile(SKIN_RGB, (self.skin.n_points, 1))
             self.p.add_mesh(
                 self.skin, scalars="rgb", rgb=True, smooth_shading=True, specular=0.1, diffuse=0.8, ambient=0.08
@@ -148,8 +149,8 @@ class _Scene:
                 ids = np.asarray(surf.point_data["vtkOriginalPointIds"])
                 lap = _uniform_laplacian(surf)
                 surf.points = _taubin(lap, x0[ids], muscle_smoothing)
-                self.p.add_mesh(surf, color=INACTIVE_RGB, smooth_shading=True, specular=0.2, name=f"muscle{m}")
-                self.muscles.append((m, surf, ids, lap))
+                actor = self.p.add_mesh(surf, color=INACTIVE_RGB, smooth_shading=True, specular=0.2)
+                self.muscles.append((m, surf, ids, lap, actor))
             if show_bones:
                 for mesh, tri in _cropped_bones(model):
                     bp = _tri_polydata(pv, mesh.vertices_m, tri)
@@ -169,10 +170,9 @@ class _Scene:
                 _, rgb = activation_colors(self.influence, a)
             self.skin["rgb"] = rgb
         else:
-            for m, surf, ids, lap in self.muscles:
+            for m, surf, ids, lap, actor in self.muscles:
                 surf.points = _taubin(lap, x[ids], self.muscle_smoothing)
                 level = 0.0 if a is None else float(np.clip(a[m], 0, 1))
-                actor = self.p.renderer.actors[f"muscle{m}"]
                 actor.prop.color = tuple(INACTIVE_RGB + level * (ACTIVE_RGB - INACTIVE_RGB))
             for bp, mesh in self.bones:
                 aff = None if bone_affines is None else bone_affines.get(mesh.bone)
