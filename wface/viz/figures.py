@@ -38,6 +38,7 @@ def write_take_figures(
     simulated_markers_m: np.ndarray | None = None,
     cranium_affines: np.ndarray | None = None,
     jaw_affines: np.ndarray | None = None,
+    jaw_frame: str = "cranium",
     jaw_angle_deg: np.ndarray | None = None,
     truth_activations: np.ndarray | None = None,
     truth_jaw_angle_deg: np.ndarray | None = None,
@@ -55,6 +56,8 @@ def write_take_figures(
         activations: (F, M) activations (muscle colours, activation plot).
         captured_markers_m / simulated_markers_m: (F, k, 3) markers (red / green; error plot).
         cranium_affines / jaw_affines: (F, 3, 4) bone motion (jaw opening plot, bones in pictures).
+        jaw_frame: "cranium" (default: jaw affines relative to the cranium, as ``wface.controls``)
+            or "world".
         jaw_angle_deg: (F,) jaw opening; default: from the affines about the model's jaw axis u.
         truth_activations / truth_jaw_angle_deg: ground truth, drawn dashed.
         movie: also write ``take.mp4`` (every frame up to ``movie_max_frames``, else evenly
@@ -124,7 +127,9 @@ def write_take_figures(
             rms, out / "marker_error.png", marker_max_mm=mx, fps=fps
         )
     if jaw_angle_deg is None and jaw_affines is not None:
-        jaw_angle_deg = plots.jaw_opening_deg(jaw_affines, cranium_affines, axis=model.jaw_joint.u)
+        jaw_angle_deg = plots.jaw_opening_deg(
+            jaw_affines, model.jaw_joint, cranium_affines=cranium_affines, jaw_frame=jaw_frame
+        )
     if jaw_angle_deg is not None:
         images["Jaw opening"] = plots.plot_jaw_opening(
             jaw_angle_deg, out / "jaw_opening.png", fps=fps, truth_deg=truth_jaw_angle_deg
@@ -146,6 +151,7 @@ def write_take_figures(
             simulated_markers_m=sub(simulated_markers_m),
             cranium_affines=sub(cranium_affines),
             jaw_affines=sub(jaw_affines),
+            jaw_frame=jaw_frame,
             window_size=panel_size,
         )
     return images

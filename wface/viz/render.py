@@ -359,6 +359,7 @@ def render_take_movie(
     simulated_markers_m: np.ndarray | None = None,
     cranium_affines: np.ndarray | None = None,
     jaw_affines: np.ndarray | None = None,
+    jaw_frame: str = "cranium",
     style: str = "skin",
     view=DEFAULT_VIEW,
     window_size: tuple[int, int] = (720, 800),
@@ -379,6 +380,8 @@ def render_take_movie(
         activations: (F, M) per-frame activations (colours), or None.
         captured_markers_m / simulated_markers_m: (F, k, 3) per-frame markers (red / green).
         cranium_affines / jaw_affines: (F, 3, 4) bone motion for the "muscles" style's bones.
+        jaw_frame: "cranium" (default: the jaw affines are relative to the cranium, as
+            ``wface.controls``) or "world".
         style, view, marker_radius_m, show_bones, zoom, muscle_smoothing: see ``render_panels``.
         window_size: video size in pixels (each rounded down to a multiple of 16).
         label: text shown with the frame number.
@@ -394,6 +397,8 @@ def render_take_movie(
     if not np.all(np.isfinite(x)):
         raise ValueError("node_positions_m contains NaN/inf")
     F = x.shape[0]
+    if jaw_frame not in ("cranium", "world"):
+        raise ValueError(f"jaw_frame must be 'cranium' or 'world', got {jaw_frame!r}")
     for name, arr in (
         ("activations", activations),
         ("captured_markers_m", captured_markers_m),
@@ -433,7 +438,11 @@ def render_take_movie(
             if cranium_affines is not None:
                 bone["cranium"] = np.asarray(cranium_affines[f])
             if jaw_affines is not None:
-                bone["jaw"] = np.asarray(jaw_affines[f])
+                j = np.asarray(jaw_affines[f])
+                if jaw_frame == "cranium" and cranium_affines is not None:
+                    c = bone["cranium"]
+                    j = np.hstack([c[:, :3] @ j[:, :3], (c[:, :3] @ j[:, 3] + c[:, 3])[:, None]])
+                bone["jaw"] = j
             scene.update(
                 x[f],
                 None if activations is None else activations[f],
