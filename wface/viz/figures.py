@@ -91,6 +91,24 @@ def write_take_figures(
     def at(arr, f):
         return None if arr is None else np.asarray(arr)[f]
 
+    if jaw_affines is not None and jaw_frame == "world" and cranium_affines is not None:
+        c, j = np.asarray(cranium_affines, float), np.asarray(jaw_affines, float)  # make the jaw relative
+        lin = np.linalg.solve(c[:, :, :3], j[:, :, :3])
+        jaw_rel = np.concatenate([lin, np.linalg.solve(c[:, :, :3], (j[:, :, 3] - c[:, :, 3])[..., None])], axis=2)
+    else:
+        jaw_rel = jaw_affines
+
+    def panel(f: int, title: str) -> render.Panel:
+        return render.Panel(
+            x[f],
+            at(activations, f),
+            at(captured_markers_m, f),
+            at(simulated_markers_m, f),
+            title,
+            at(cranium_affines, f),
+            at(jaw_rel, f),
+        )
+
     images: dict[str, Path] = {}
     f = peak_frame(x, model.rest_positions_m, activations)
     t = f / fps
@@ -104,15 +122,13 @@ def write_take_figures(
         panel_size=panel_size,
     )
     if activations is not None:
-        images[f"Muscles at frame {f}: yellow active, red inactive"] = render.render_expression(
-            model, x[f], out / "muscles.png", activations=activations[f], style="muscles", panel_size=panel_size
+        images[f"Muscles at frame {f}: yellow active, red inactive"] = render.render_panels(
+            model, [panel(f, "")], out / "muscles.png", style="muscles", panel_size=panel_size
         )
     images["First frame and most expressive frame"] = render.render_before_after(
         model,
-        render.Panel(x[0], at(activations, 0), at(captured_markers_m, 0), at(simulated_markers_m, 0), title="frame 0"),
-        render.Panel(
-            x[f], at(activations, f), at(captured_markers_m, f), at(simulated_markers_m, f), title=f"frame {f}"
-        ),
+        panel(0, "frame 0"),
+        panel(f, f"frame {f}"),
         out / "before_after.png",
         panel_size=panel_size,
     )

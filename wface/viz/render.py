@@ -49,6 +49,8 @@ class Panel:
         captured_markers_m: (k, 3) captured markers (red); NaN rows are skipped.
         simulated_markers_m: (k, 3) simulated / tracked markers (green).
         title: text drawn in the panel's upper left corner.
+        cranium_affine: (3, 4) cranium rest-to-world affine (bones in the "muscles" style).
+        jaw_affine: (3, 4) jaw affine, relative to the cranium (``wface.controls``' convention).
     """
 
     node_positions_m: np.ndarray
@@ -56,6 +58,25 @@ class Panel:
     captured_markers_m: np.ndarray | None = None
     simulated_markers_m: np.ndarray | None = None
     title: str = ""
+    cranium_affine: np.ndarray | None = None
+    jaw_affine: np.ndarray | None = None
+
+    def bone_affines(self) -> dict[str, np.ndarray]:
+        """World affines of the bones: {"cranium": C, "jaw": C o J} for those given."""
+        return _bone_world_affines(self.cranium_affine, self.jaw_affine, "cranium")
+
+
+def _bone_world_affines(cranium, jaw, jaw_frame: str) -> dict[str, np.ndarray]:
+    out = {}
+    if cranium is not None:
+        out["cranium"] = np.asarray(cranium, dtype=np.float64).reshape(3, 4)
+    if jaw is not None:
+        j = np.asarray(jaw, dtype=np.float64).reshape(3, 4)
+        if jaw_frame == "cranium" and "cranium" in out:
+            c = out["cranium"]
+            j = np.hstack([c[:, :3] @ j[:, :3], (c[:, :3] @ j[:, 3] + c[:, 3])[:, None]])
+        out["jaw"] = j
+    return out
 
 
 def _pv():
@@ -306,7 +327,9 @@ def render_panels(
             muscle_radius_m=muscle_radius_m,
             muscle_smoothing=muscle_smoothing,
         )
-        scene.update(x, pnl.activations, pnl.captured_markers_m, pnl.simulated_markers_m)
+        scene.update(
+            x, pnl.activations, pnl.captured_markers_m, pnl.simulated_markers_m, bone_affines=pnl.bone_affines()
+        )
         if pnl.title:
             p.add_text(pnl.title, position="upper_left", font_size=14, color="black")
         _place_camera(p, bounds, view, zoom)
@@ -325,11 +348,15 @@ def render_expression(
     captured_markers_m: np.ndarray | None = None,
     simulated_markers_m: np.ndarray | None = None,
     title: str = "",
+    cranium_affine: np.ndarray | None = None,
+    jaw_affine: np.ndarray | None = None,
     **kwargs,
 ) -> Path:
     """One still of the face at ``node_positions_m`` (n, 3): muscles coloured by ``activations`` (M,),
     captured markers (k, 3) red and simulated markers (k, 3) green. Other options: ``render_panels``."""
-    panel = Panel(node_positions_m, activations, captured_markers_m, simulated_markers_m, title)
+    panel = Panel(
+        node_positions_m, activations, captured_markers_m, simulated_markers_m, title, cranium_affine, jaw_affine
+    )
     return render_panels(model, [panel], out_path, **kwargs)
 
 
@@ -434,15 +461,11 @@ def render_take_movie(
     text = None
     try:
         for f in range(F):
-            bone = {}
-            if cranium_affines is not None:
-                bone["cranium"] = np.asarray(cranium_affines[f])
-            if jaw_affines is not None:
-                j = np.asarray(jaw_affines[f])
-                if jaw_frame == "cranium" and cranium_affines is not None:
-                    c = bone["cranium"]
-                    j = np.hstack([c[:, :3] @ j[:, :3], (c[:, :3] @ j[:, 3] + c[:, 3])[:, None]])
-                bone["jaw"] = j
+            bone = _bone_world_affines(
+                None if cranium_affines is None else cranium_affines[f],
+                None if jaw_affines is None else jaw_affines[f],
+                jaw_frame,
+            )
             scene.update(
                 x[f],
                 None if activations is None else activations[f],
