@@ -9,7 +9,8 @@ yellow when fully active, red when inactive. Two styles:
 
 The camera looks at the face from the front with a slight three-quarter turn (``view``: a
 direction from the face towards the camera in model coordinates; +y is up) and is fitted to the
-bounds of everything drawn (over all frames of a movie) so that nothing is clipped.
+points of everything drawn (over all frames of a movie): it comes as close as it can while every
+point stays inside ``fill`` of the picture, so nothing is clipped.
 """
 
 from __future__ import annotations
@@ -235,24 +236,53 @@ def _cropped_bones(model, margin: float = 0.03) -> list[tuple[object, np.ndarray
     return out
 
 
-def _bounds_of(model, arrays, *, bones: bool) -> np.ndarray:
+def _framing_points(model, arrays, *, bones: bool) -> np.ndarray:
+    """(N, 3) finite points the camera must keep in view: given arrays, and cropped bones."""
     pts = [np.asarray(a, dtype=np.float64).reshape(-1, 3) for a in arrays if a is not None]
     pts = np.concatenate([p[np.all(np.isfinite(p), axis=1)] for p in pts])
     if bones:
         for mesh, tri in _cropped_bones(model):
             pts = np.concatenate([pts, np.asarray(mesh.vertices_m)[np.unique(tri)]])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    return np.array([lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]])
+    return pts
 
 
-def _place_camera(plotter, bounds: np.ndarray, view, zoom: float) -> None:
-    centre = np.array([bounds[0] + bounds[1], bounds[2] + bounds[3], bounds[4] + bounds[5]]) / 2
+def _box_corners(points: np.ndarray) -> np.ndarray:
+    """(F*8, 3) corners of the per-frame bounding boxes of (F, n, 3) points (cheap framing of a movie)."""
+    lo, hi = points.min(axis=1), points.max(axis=1)
+    pick = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+    return np.concatenate(
+        [np.where(pick[None, :, k], hi[:, None, k], lo[:, None, k])[..., None] for k in range(3)], axis=2
+    ).reshape(-1, 3)
+
+
+def _place_camera(plotter, points: np.ndarray, view, *, fill: float, pad_m: float, zoom: float = 1.0) -> None:
+    """Look at the points' box centre from direction ``view`` (+y up), as close as possible while
+    every point (grown by ``pad_m``) stays inside ``fill`` of the viewport (perspective projection)."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre = (lo + hi) / 2
     d = np.asarray(view, dtype=np.float64)
     d = d / np.linalg.norm(d)
-    size = float(np.linalg.norm(bounds[1::2] - bounds[0::2]))
-    plotter.camera_position = [tuple(centre + 3 * size * d), tuple(centre), (0.0, 1.0, 0.0)]
-    plotter.reset_camera(bounds=tuple(bounds))
-    plotter.camera.zoom(zoom)
+    up = np.array([0.0, 1.0, 0.0]) - d[1] * d
+    up = up / np.linalg.norm(up)
+    right = np.cross(up, d)
+    w, h = plotter.window_size
+    shape = getattr(plotter, "shape", (1, 1))
+    aspect = (w / shape[1]) / (h / shape[0])
+    t = np.tan(np.radians(plotter.camera.view_angle) / 2) * fill
+    for step in range(3):  # fit the distance; centre the projected points; fit again
+        r = points - centre
+        depth = r @ d
+        px, py = r @ right, r @ up
+        lx, ly = np.abs(px) + pad_m, np.abs(py) + pad_m
+        dist = float(np.max(np.maximum(depth + ly / t, depth + lx / (t * aspect))))
+        if step == 2:
+            break
+        sx, sy = px / (dist - depth), py / (dist - depth)  # tangents of the view angles
+        centre = centre + dist * ((sx.max() + sx.min()) / 2 * right + (sy.max() + sy.min()) / 2 * up)
+    plotter.camera_position = [tuple(centre + dist * d), tuple(centre), tuple(up)]
+    if zoom != 1.0:
+        plotter.camera.zoom(zoom)
+    plotter.renderer.ResetCameraClippingRange()
 
 
 def _new_plotter(pv, shape, window_size):
@@ -276,7 +306,8 @@ def render_panels(
     marker_radius_m: float | None = None,
     show_bones: bool = True,
     muscle_radius_m: float | None = None,
-    zoom: float = 1.3,
+    fill: float = 0.92,
+    zoom: float = 1.0,
     muscle_smoothing: int = 4,
 ) -> Path:
     """Render panels side by side (same camera in each) into one PNG.
@@ -292,7 +323,9 @@ def render_panels(
         marker_radius_m: marker sphere radius; default 1% of the face's bounding-box diagonal.
         show_bones: draw bone meshes in the "muscles" style.
         muscle_radius_m: falloff of the skin colour around muscles (see ``skin_muscle_influence``).
-        zoom: camera zoom after fitting the bounds (1 = fit exactly).
+        fill: fraction of the panel's width or height the framed points may take (the camera
+            comes as close as that allows, perspective included).
+        zoom: extra camera zoom after the fit (1: none; > 1 may clip).
         muscle_smoothing: Taubin smoothing steps of the muscle surfaces ("muscles" style; 0: the
             raw faceted tet surfaces; more rounds off thin muscles).
 
@@ -305,15 +338,14 @@ def render_panels(
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     xs = [_check_nodes(model, pnl.node_positions_m, f"panel {i} node_positions_m") for i, pnl in enumerate(panels)]
-    bounds = _bounds_of(
+    pts = _framing_points(
         model,
         [x[np.unique(model.skin_triangles)] for x in xs]
         + [pnl.captured_markers_m for pnl in panels]
         + [pnl.simulated_markers_m for pnl in panels],
         bones=show_bones and style == "muscles",
     )
-    r = marker_radius_m or 0.01 * float(np.linalg.norm(bounds[1::2] - bounds[0::2]))
-    bounds = bounds + np.array([-r, r] * 3)
+    r = marker_radius_m or 0.01 * float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
     p = _new_plotter(pv, (1, len(panels)), (panel_size[0] * len(panels), panel_size[1]))
     for i, (pnl, x) in enumerate(zip(panels, xs, strict=True)):
         p.subplot(0, i)
@@ -332,7 +364,7 @@ def render_panels(
         )
         if pnl.title:
             p.add_text(pnl.title, position="upper_left", font_size=14, color="black")
-        _place_camera(p, bounds, view, zoom)
+        _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom)
     p.enable_anti_aliasing("ssaa")
     p.screenshot(str(out_path))
     p.close()
@@ -392,7 +424,8 @@ def render_take_movie(
     window_size: tuple[int, int] = (720, 800),
     marker_radius_m: float | None = None,
     show_bones: bool = True,
-    zoom: float = 1.3,
+    fill: float = 0.92,
+    zoom: float = 1.0,
     muscle_smoothing: int = 4,
     label: str = "",
     quality: int = 7,
@@ -409,7 +442,7 @@ def render_take_movie(
         cranium_affines / jaw_affines: (F, 3, 4) bone motion for the "muscles" style's bones.
         jaw_frame: "cranium" (default: the jaw affines are relative to the cranium, as
             ``wface.controls``) or "world".
-        style, view, marker_radius_m, show_bones, zoom, muscle_smoothing: see ``render_panels``.
+        style, view, marker_radius_m, show_bones, fill, zoom, muscle_smoothing: see ``render_panels``.
         window_size: video size in pixels (each rounded down to a multiple of 16).
         label: text shown with the frame number.
         quality: imageio-ffmpeg quality 0-10.
@@ -438,11 +471,12 @@ def render_take_movie(
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     skin_nodes = np.unique(model.skin_triangles)
-    bounds = _bounds_of(
-        model, [x[:, skin_nodes], captured_markers_m, simulated_markers_m], bones=show_bones and style == "muscles"
+    pts = _framing_points(
+        model,
+        [_box_corners(x[:, skin_nodes]), captured_markers_m, simulated_markers_m],
+        bones=show_bones and style == "muscles",
     )
-    r = marker_radius_m or 0.01 * float(np.linalg.norm(bounds[1::2] - bounds[0::2]))
-    bounds = bounds + np.array([-r, r] * 3)
+    r = marker_radius_m or 0.01 * float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
     w, h = (int(window_size[0]) // 16 * 16, int(window_size[1]) // 16 * 16)
     p = _new_plotter(pv, (1, 1), (w, h))
     scene = _Scene(
@@ -455,7 +489,7 @@ def render_take_movie(
         muscle_radius_m=None,
         muscle_smoothing=muscle_smoothing,
     )
-    _place_camera(p, bounds, view, zoom)
+    _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom)
     p.enable_anti_aliasing("msaa", multi_samples=8)  # ssaa costs ~4x per frame; fxaa is not in OSMesa builds
     p.open_movie(str(out_path), framerate=int(round(fps)), quality=quality)
     text = None
