@@ -97,7 +97,7 @@ def synthetic_tracked_take(path: Path) -> Path:
     jaw = []
     for f in range(len(x)):
         rj = rotation_about(jj.u, np.radians(12.0 * x[f, -1]))  # the basis's jaw element: 12 degrees at x = 1
-        jaw.append(np.hstack([rot[f] @ rj, (rot[f] @ (mid - rj @ mid) + trans[f])[:, None]]))
+        jaw.append(np.hstack([rj, (mid - rj @ mid)[:, None]]))  # relative to the cranium
     return write_take(
         path,
         model=model,
