@@ -53,14 +53,19 @@ def test_missing_markers_and_outliers(scene):
     data, _ = corrupt_markers(perf.clean_markers_m, noise_mm=0.3, outliers=0.03, dropout=0.1, seed=5)
     assert np.isnan(data).any()
     recs = track_sequence(model, data, marker_names=model.marker_names, markers=markers)
-    truth_mm = np.sqrt(np.mean([np.sum((r.markers_m - perf.clean_markers_m[i]) ** 2, axis=1) for i, r in enumerate(recs)])) * 1e3
+    truth_mm = (
+        np.sqrt(np.mean([np.sum((r.markers_m - perf.clean_markers_m[i]) ** 2, axis=1) for i, r in enumerate(recs)]))
+        * 1e3
+    )
     assert truth_mm < 0.3  # below the noise: the face is not pulled toward outliers
     assert np.isnan(recs[0].marker_error_m).sum() == np.isnan(data[0, :, 0]).sum()  # missing markers drop out
 
 
 def test_resume_reuses_written_frames(scene, tmp_path):
     model, markers, perf = scene
-    first = track_sequence(model, perf.clean_markers_m[:3], marker_names=model.marker_names, markers=markers, out_dir=tmp_path)
+    first = track_sequence(
+        model, perf.clean_markers_m[:3], marker_names=model.marker_names, markers=markers, out_dir=tmp_path
+    )
     frames = sorted((tmp_path / "frames").glob("frame_*.npz"))
     assert len(frames) == 3
     os.remove(frames[-1])  # an interrupted run: the last frame is missing
@@ -82,7 +87,11 @@ def test_dask_two_workers_match_serial(scene):
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         with distributed.Client(cluster) as client:
             par = track_sequence(
-                model, perf.clean_markers_m, marker_names=model.marker_names, markers=markers, chunk_size=2,
+                model,
+                perf.clean_markers_m,
+                marker_names=model.marker_names,
+                markers=markers,
+                chunk_size=2,
                 executor=client.get_executor(pure=False),
             )
     assert [r.frame for r in par] == [r.frame for r in serial]

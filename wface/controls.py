@@ -212,7 +212,12 @@ def jaw_limits(joint: JawJoint) -> dict:
 
 
 def jaw_from_intuitive(
-    joint: JawJoint, opening_deg: float = 0.0, protrusion_m: float = 0.0, lateral_deg: float = 0.0, *, clamp: bool = True
+    joint: JawJoint,
+    opening_deg: float = 0.0,
+    protrusion_m: float = 0.0,
+    lateral_deg: float = 0.0,
+    *,
+    clamp: bool = True,
 ) -> np.ndarray:
     """12 jaw parameters from opening angle, protrusion and lateral yaw, inside the joint limits.
 

@@ -19,8 +19,6 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import os
-
 import numpy as np
 import scipy.sparse as sp
 
