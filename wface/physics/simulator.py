@@ -13,7 +13,9 @@ dict.
 
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.sparse as sp
@@ -169,6 +171,7 @@ class Simulator:
         self._e = wp.zeros(nt, dtype=k.scalar, device=dev)
         self._a = wp.zeros(max(model.n_muscles, 1), dtype=k.scalar, device=dev)
         self._tangent_wp = None
+        self.parallel_min_tets = 20_000  # CPU: per-tet kernels run on all cores above this size
         self._patterns: dict = {}
         self._block_index: dict = {}
 
@@ -184,6 +187,30 @@ class Simulator:
         self._x.assign(x.astype(self._np_dtype))
         if self.model.n_muscles:
             self._a.assign(self.model.activation_vector(a).astype(self._np_dtype))
+
+    def _launch_per_tet(self, kernel, extra_inputs, out) -> None:
+        """Launch a kernel whose only output is per tet (``out``), over tet ranges in parallel.
+
+        Warp CPU kernels run on one thread (DESIGN.md section 8), but a launch releases the GIL, so
+        on the CPU large meshes are cut into one contiguous tet range per core (inputs and output
+        are sliced views; kernels with scattered atomic outputs never take this path).
+        """
+        wp = self._wp
+        m = self.model.n_tets
+        threads = min(os.cpu_count() or 1, 8)
+        if not self.device.startswith("cpu") or threads < 2 or m < self.parallel_min_tets:
+            wp.launch(kernel, m, inputs=[*self._model_inputs(), *extra_inputs, out], device=self.device)
+            return
+        bounds = np.linspace(0, m, threads + 1).astype(int)
+
+        def run(lo: int, hi: int) -> None:
+            inputs = self._model_inputs()
+            inputs[0], inputs[1], inputs[2] = self._tets[lo:hi], self._dm_inv[lo:hi], self._volume[lo:hi]
+            inputs[7] = self._entry_start[lo : hi + 1]  # entries stay global: offsets index them
+            wp.launch(kernel, hi - lo, inputs=[*inputs, *extra_inputs, out[lo:hi]], device=self.device)
+
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(lambda r: run(*r), zip(bounds[:-1], bounds[1:], strict=True)))
 
     def _model_inputs(self):
         return [
@@ -201,9 +228,7 @@ class Simulator:
     def energy(self, x: np.ndarray | None = None, activations=None) -> float:
         """Total elastic energy (J) at positions x (n, 3) with activations (dict, (M,) array or None)."""
         self._set_state(x, activations)
-        self._wp.launch(
-            self._k.element_energy, self.model.n_tets, inputs=[*self._model_inputs(), self._x, self._a, self._e]
-        )
+        self._launch_per_tet(self._k.element_energy, [self._x, self._a], self._e)
         return float(self._e.numpy().astype(np.float64).sum())
 
     def energy_and_forces(self, x: np.ndarray | None = None, activations=None) -> tuple[float, np.ndarray]:
@@ -256,11 +281,7 @@ class Simulator:
         wp = self._wp
         self._set_state(x, activations)
         tangent = wp.empty(self.model.n_tets, dtype=self._k.mat99, device=self.device)
-        wp.launch(
-            self._k.element_tangent,
-            self.model.n_tets,
-            inputs=[*self._model_inputs(), int(bool(project)), self._x, self._a, tangent],
-        )
+        self._launch_per_tet(self._k.element_tangent, [int(bool(project)), self._x, self._a], tangent)
         return Tangent(self, tangent, project)
 
     def stiffness_matvec(self, x: np.ndarray | None, activations, v: np.ndarray, *, project: bool = True) -> np.ndarray:
