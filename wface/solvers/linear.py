@@ -19,6 +19,8 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import os
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -105,6 +107,9 @@ class DirectFactor:
         elif self.backend == "pardiso":
             import pypardiso
 
+            # pypardiso searches the whole prefix for libmkl_rt on every new solver (~0.5 s);
+            # point it at the library its module-level solver already found.
+            os.environ.setdefault("PYPARDISO_MKL_RT", pypardiso.ps.libmkl._name)
             # Real SPD (mtype 2): PARDISO reads the upper triangle only.
             self._matrix = sp.triu(sp.csr_matrix(A, dtype=np.float64), format="csr")
             self._matrix.sort_indices()

@@ -1,0 +1,105 @@
+"""The active-set bounded least-squares solver against scipy.optimize.lsq_linear."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import lsq_linear
+
+from wface.basis.bvls import bounded_lstsq
+
+# Optimal costs agree to round-off relative to |b|^2 (both are exact active-set / interior
+# solutions of the same convex QP); minimisers agree only when A has full column rank.
+_COST_RTOL = 1e-9
+_X_ATOL = 1e-7
+
+
+def _problem(seed, m, n, rank, upper_inf):
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(m, rank)) @ rng.normal(size=(rank, n))
+    if rng.random() < 0.3:
+        a[:, rng.integers(n)] = 0.0  # an element no marker sees
+    b = rng.normal(size=m) * rng.uniform(0.1, 10)
+    upper = np.inf if upper_inf else 1.0
+    return a, b, upper
+
+
+def _scipy_cost(a, b, upper):
+    """Best of scipy's two methods (its BVLS can stop early on rank-deficient A)."""
+    best = None
+    for method in ("bvls", "trf"):
+        ref = lsq_linear(a, b, bounds=(0.0, upper), method=method, tol=1e-15, lsq_solver="exact", max_iter=10_000)
+        cost = 0.5 * float(np.sum((a @ ref.x - b) ** 2))
+        if best is None or cost < best[0]:
+            best = (cost, ref.x)
+    return best
+
+
+def _assert_kkt(a, b, x, lower, upper):
+    g = a.T @ (a @ x - b)
+    tol = 1e-9 * np.linalg.norm(a) * (np.linalg.norm(b) + 1.0)
+    at_lo, at_hi = x <= lower + 1e-12, x >= upper - 1e-12
+    free = ~at_lo & ~at_hi
+    assert np.all(np.abs(g[free]) <= tol)
+    assert np.all(g[at_lo & ~at_hi] >= -tol) and np.all(g[at_hi & ~at_lo] <= tol)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    m=st.integers(1, 40),
+    n=st.integers(1, 25),
+    rank_frac=st.floats(0.2, 1.0),
+    upper_inf=st.booleans(),
+)
+def test_matches_scipy(seed, m, n, rank_frac, upper_inf):
+    rank = max(1, int(round(rank_frac * min(m, n))))
+    a, b, upper = _problem(seed, m, n, rank, upper_inf)
+    res = bounded_lstsq(a, b, 0.0, upper)
+    assert res.converged
+    assert np.all(res.x >= 0) and np.all(res.x <= upper)
+    _assert_kkt(a, b, res.x, 0.0, upper)
+    cost_ref, x_ref = _scipy_cost(a, b, upper)
+    if np.abs(x_ref).max() > 1e6:
+        # With x >= 0 only and a null-space direction of A inside the cone, scipy runs off to
+        # |x| ~ 1e15 and "beats" the optimum by round-off in A x; the KKT check above decides.
+        assert upper_inf
+        return
+    assert abs(res.cost - cost_ref) <= _COST_RTOL * (b @ b + 1.0)
+    if rank == n and m >= n and np.linalg.matrix_rank(a) == n:
+        np.testing.assert_allclose(res.x, x_ref, atol=_X_ATOL * (1 + np.abs(x_ref).max()))
+
+
+def test_kkt_conditions_rank_deficient():
+    a, b, _ = _problem(3, 30, 20, 6, True)
+    res = bounded_lstsq(a, b, 0.0, 1.0)
+    assert res.converged
+    _assert_kkt(a, b, res.x, 0.0, 1.0)
+
+
+def test_warm_start_same_answer_fewer_iterations():
+    rng = np.random.default_rng(7)
+    a = rng.normal(size=(123, 57))
+    x_true = np.clip(rng.normal(0.3, 0.4, size=57), 0, 1)
+    b1 = a @ x_true + 0.01 * rng.normal(size=123)
+    b2 = b1 + 0.001 * rng.normal(size=123)
+    cold1 = bounded_lstsq(a, b1, 0.0, 1.0)
+    cold2 = bounded_lstsq(a, b2, 0.0, 1.0)
+    warm2 = bounded_lstsq(a, b2, 0.0, 1.0, x0=cold1.x, state0=cold1.state)
+    np.testing.assert_allclose(warm2.x, cold2.x, atol=1e-10)
+    assert warm2.iterations < cold2.iterations
+
+
+def test_general_box_and_errors():
+    rng = np.random.default_rng(1)
+    a, b = rng.normal(size=(10, 4)), rng.normal(size=10)
+    lo, hi = np.array([-1.0, 0.2, -np.pi, 0.0]), np.array([1.0, 0.3, 0.0, np.inf])
+    res = bounded_lstsq(a, b, lo, hi)
+    ref = lsq_linear(a, b, bounds=(lo, hi), method="bvls", tol=1e-14)
+    np.testing.assert_allclose(res.x, ref.x, atol=1e-9)
+    with pytest.raises(ValueError, match="b has"):
+        bounded_lstsq(a, b[:3])
+    with pytest.raises(ValueError, match="below its lower"):
+        bounded_lstsq(a, b, 1.0, 0.0)

@@ -1,0 +1,123 @@
+"""Motion-capture readers and writers: round trips, units, gaps, bad files, real AnimFace data."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.conftest import data_path
+from wface.io.mocap import MocapTake, read_c3d, read_csv, read_mocap, read_trc, write_mocap
+
+_ROUND = 1e-9  # metres; text formats store repr(float), C3D stores float32 (see below)
+
+
+def _take(frames=7, markers=4, gap=True, seed=0) -> MocapTake:
+    rng = np.random.default_rng(seed)
+    p = rng.normal(scale=0.05, size=(frames, markers, 3))
+    if gap:
+        p[2, 1] = np.nan
+        p[5, 3] = np.nan
+    return MocapTake(p, [f"M{i}" for i in range(markers)], 60.0, "mem")
+
+
+@pytest.mark.parametrize("suffix", [".c3d", ".trc", ".csv"])
+@pytest.mark.parametrize("units", ["mm", "cm", "m"])
+def test_round_trip(tmp_path, suffix, units):
+    take = _take()
+    path = tmp_path / f"t{suffix}"
+    write_mocap(take, path, units=units)
+    back = read_mocap(path)
+    assert back.marker_names == take.marker_names
+    assert back.rate_hz == pytest.approx(60.0)
+    assert np.array_equal(np.isnan(back.positions_m), np.isnan(take.positions_m))
+    # C3D stores float32 in the file's units: relative error ~6e-8 of the value.
+    tol = 1e-7 * 0.2 if suffix == ".c3d" else _ROUND
+    np.testing.assert_allclose(back.positions_m, take.positions_m, atol=tol, rtol=0)
+
+
+def test_csv_units_and_rate_from_time(tmp_path):
+    path = tmp_path / "a.csv"
+    path.write_text("time_s,A_x,A_y,A_z\n0.0,1,2,3\n0.01,4,,6\n0.02,7,8,9\n")
+    take = read_csv(path, units="cm")
+    assert take.rate_hz == pytest.approx(100.0)
+    np.testing.assert_allclose(take.positions_m[0, 0], [0.01, 0.02, 0.03])
+    assert np.isnan(take.positions_m[1, 0]).all()  # a gap in any coordinate voids the point
+
+
+def test_frames_slice():
+    take = _take(frames=10)
+    sub = take.frames(2, 9, 3)
+    assert sub.n_frames == 3 and sub.first_frame == 2 and sub.rate_hz == pytest.approx(20.0)
+    np.testing.assert_array_equal(sub.positions_m, take.positions_m[2:9:3])
+    np.testing.assert_allclose(sub.times_s, [2 / 60, 5 / 60, 8 / 60], rtol=1e-12)
+    with pytest.raises(ValueError, match="empty"):
+        take.frames(20, 30)
+
+
+def test_bad_files(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.c3d"):
+        read_mocap(tmp_path / "nope.c3d")
+    bad = tmp_path / "bad.c3d"
+    bad.write_bytes(b"\x02P" + b"\x00" * 30)
+    with pytest.raises(ValueError, match="bad.c3d"):
+        read_c3d(bad)
+    # Truncated C3D: the first half of a valid file.
+    good = tmp_path / "good.c3d"
+    write_mocap(_take(frames=50, markers=6), good)
+    trunc = tmp_path / "trunc.c3d"
+    trunc.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    with pytest.raises(ValueError, match="trunc.c3d"):
+        read_c3d(trunc)
+    cols = tmp_path / "cols.csv"
+    cols.write_text("time_s,A_x,A_y\n0,1,2\n")
+    with pytest.raises(ValueError, match="cols.csv.*multiple of 3"):
+        read_csv(cols)
+    ragged = tmp_path / "ragged.csv"
+    ragged.write_text("# rate_hz: 60\nA_x,A_y,A_z\n1,2,3\n1,2\n")
+    with pytest.raises(ValueError, match="ragged.csv: CSV row 3"):
+        read_csv(ragged)
+    nomark = tmp_path / "nomark.csv"
+    nomark.write_text("frame,time_s\n0,0\n")
+    with pytest.raises(ValueError, match="no marker columns"):
+        read_csv(nomark)
+    trc = tmp_path / "t.trc"
+    write_mocap(_take(frames=8), trc)
+    text = trc.read_text().splitlines()
+    (tmp_path / "short.trc").write_text("\n".join(text[:-2]) + "\n")
+    with pytest.raises(ValueError, match="short.trc.*truncated"):
+        read_trc(tmp_path / "short.trc")
+    units = tmp_path / "u.csv"
+    units.write_text("# units: furlong\n# rate_hz: 60\nA_x,A_y,A_z\n1,2,3\n")
+    with pytest.raises(ValueError, match="u.csv: unknown length units 'furlong'"):
+        read_csv(units)
+    with pytest.raises(ValueError, match="unknown motion-capture format"):
+        read_mocap(tmp_path / "x.bvh")
+
+
+def test_c3d_invalid_points_become_nan(tmp_path):
+    import ezc3d
+
+    take = _take(gap=False)
+    path = tmp_path / "r.c3d"
+    write_mocap(take, path)
+    c = ezc3d.c3d(str(path))
+    pts = c["data"]["points"]
+    res = c["data"]["meta_points"]["residuals"]
+    res[0, 0, 3] = -1.0  # residual < 0: invalid
+    pts[:3, 2, 4] = 0.0  # exact zeros: invalid
+    c["data"]["points"] = pts
+    c["data"]["meta_points"]["residuals"] = res
+    c.write(str(path))
+    back = read_c3d(path)
+    assert np.isnan(back.positions_m[3, 0]).all() and np.isnan(back.positions_m[4, 2]).all()
+    assert np.isfinite(back.positions_m).all(axis=2).sum() == take.n_frames * take.n_markers - 2
+
+
+def test_animface_jaw_take():
+    take = read_c3d(data_path("animface", "JawMoCap.c3d"))
+    assert take.positions_m.shape == (1590, 41, 3)
+    assert take.rate_hz == 60.0 and "Rcheek_up" in take.marker_names and "Mouth_Lend" in take.marker_names
+    assert np.isfinite(take.positions_m).all()
+    # millimetres -> metres: a human face spans roughly 0.1-0.2 m.
+    span = np.ptp(take.positions_m[0], axis=0)
+    assert 0.08 < span.max() < 0.3

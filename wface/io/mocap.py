@@ -1,0 +1,403 @@
+"""Optical motion capture: read and write C3D, TRC and CSV marker takes.
+
+Everything is held in metres: each reader converts from the file's declared units (mm, cm, dm,
+m). Gaps are NaN. In C3D a point is invalid when its residual is negative or all three
+coordinates are exactly zero (the usual "not seen" convention of capture systems).
+
+CSV layout (written and read here): optional comment lines ``# key: value`` (``units``,
+``rate_hz``), then a header ``frame,time_s,<marker>_x,<marker>_y,<marker>_z,...`` and one row per
+frame; an empty cell is a gap. ``frame`` and ``time_s`` columns are optional on read.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "MocapTake",
+    "UNITS_TO_M",
+    "read_c3d",
+    "read_csv",
+    "read_mocap",
+    "read_trc",
+    "write_c3d",
+    "write_csv",
+    "write_mocap",
+    "write_trc",
+]
+
+#: Length unit name -> metres.
+UNITS_TO_M: dict[str, float] = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0}
+
+
+def _unit_scale(units: str, path: Path | str) -> float:
+    key = str(units).strip().lower()
+    if key not in UNITS_TO_M:
+        raise ValueError(f"{path}: unknown length units {units!r} (known: {', '.join(UNITS_TO_M)})")
+    return UNITS_TO_M[key]
+
+
+@dataclass
+class MocapTake:
+    """A marker take.
+
+    Attributes:
+        positions_m: (frames, markers, 3) float64 positions in metres; NaN = gap.
+        marker_names: marker labels, one per marker.
+        rate_hz: frame rate in Hz.
+        source: file it was read from ("" when built in memory).
+        first_frame: index of the first frame in the original file (kept by slicing).
+        meta: free-form facts from the file (e.g. its units).
+        start_time_s: time of the first frame (default first_frame / rate_hz).
+    """
+
+    positions_m: np.ndarray
+    marker_names: list[str]
+    rate_hz: float
+    source: str = ""
+    first_frame: int = 0
+    meta: dict = field(default_factory=dict)
+    start_time_s: float | None = None
+
+    def __post_init__(self):
+        p = np.asarray(self.positions_m, dtype=np.float64)
+        if p.ndim != 3 or p.shape[2] != 3:
+            raise ValueError(f"{self.source or 'MocapTake'}: positions must be (frames, markers, 3), got {p.shape}")
+        if p.shape[1] != len(self.marker_names):
+            raise ValueError(
+                f"{self.source or 'MocapTake'}: {p.shape[1]} marker columns but {len(self.marker_names)} names"
+            )
+        if len(set(self.marker_names)) != len(self.marker_names):
+            raise ValueError(f"{self.source or 'MocapTake'}: duplicate marker names")
+        if not (self.rate_hz > 0 and math.isfinite(self.rate_hz)):
+            raise ValueError(f"{self.source or 'MocapTake'}: frame rate must be positive, got {self.rate_hz}")
+        p = p.copy()
+        p[~np.isfinite(p).all(axis=2)] = np.nan  # a gap in any coordinate voids the point
+        self.positions_m = p
+        if self.start_time_s is None:
+            self.start_time_s = self.first_frame / self.rate_hz
+        self.marker_names = [str(n) for n in self.marker_names]
+
+    @property
+    def n_frames(self) -> int:
+        return self.positions_m.shape[0]
+
+    @property
+    def n_markers(self) -> int:
+        return self.positions_m.shape[1]
+
+    @property
+    def times_s(self) -> np.ndarray:
+        """(frames,) time of each frame in seconds."""
+        return self.start_time_s + np.arange(self.n_frames) / self.rate_hz
+
+    def marker_index(self, name: str) -> int:
+        try:
+            return self.marker_names.index(name)
+        except ValueError:
+            raise KeyError(f"{self.source or 'take'}: no marker named {name!r}") from None
+
+    def frames(self, start: int | None = None, stop: int | None = None, step: int = 1) -> MocapTake:
+        """Frame slice ``[start:stop:step]`` (Python slice rules); the rate divides by ``step``."""
+        if step < 1:
+            raise ValueError(f"frames(): step must be >= 1, got {step}")
+        sl = slice(start, stop, step)
+        first = range(self.n_frames)[sl]
+        if len(first) == 0:
+            raise ValueError(f"{self.source or 'take'}: frame slice [{start}:{stop}:{step}] is empty")
+        return MocapTake(
+            self.positions_m[sl].copy(),
+            list(self.marker_names),
+            self.rate_hz / step,
+            self.source,
+            self.first_frame + first[0],
+            dict(self.meta),
+            float(self.times_s[first[0]]),
+        )
+
+    def select(self, names: list[str]) -> MocapTake:
+        """The take restricted to (and reordered as) ``names``."""
+        idx = [self.marker_index(n) for n in names]
+        return MocapTake(
+            self.positions_m[:, idx], list(names), self.rate_hz, self.source, self.first_frame, dict(self.meta),
+            self.start_time_s,
+        )
+
+
+# ---------------------------------------------------------------------------------------- C3D
+
+
+def _check_file(path: Path) -> None:
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such motion-capture file")
+    if path.is_dir():
+        raise ValueError(f"{path}: is a directory, expected a motion-capture file")
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path}: file is empty")
+
+
+def read_c3d(path: str | Path) -> MocapTake:
+    """Read the 3-D points of a C3D file (ezc3d).
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        ValueError: unreadable / truncated file, no points, unknown units.
+    """
+    try:
+        import ezc3d
+    except ImportError as exc:  # pragma: no cover
+        raise ImportError("reading C3D needs ezc3d: pip install 'wface[mocap]'") from exc
+    path = Path(path)
+    _check_file(path)
+    try:
+        c = ezc3d.c3d(str(path))
+    except Exception as exc:  # ezc3d raises RuntimeError / IOError with terse messages
+        raise ValueError(f"{path}: not a readable C3D file ({exc})") from exc
+    params = c["parameters"]["POINT"]
+    names = [str(n).strip() for n in params["LABELS"]["value"]]
+    pts = np.asarray(c["data"]["points"], dtype=np.float64)  # (4, markers, frames)
+    if pts.ndim != 3 or pts.shape[1] == 0 or len(names) == 0:
+        raise ValueError(f"{path}: C3D file holds no 3-D points (markers)")
+    if pts.shape[2] == 0:
+        raise ValueError(f"{path}: C3D file holds no frames")
+    _check_c3d_size(c, path)
+    names = names[: pts.shape[1]]
+    if len(names) < pts.shape[1]:
+        names += [f"marker_{i}" for i in range(len(names), pts.shape[1])]
+    units = params["UNITS"]["value"][0] if params.get("UNITS", {}).get("value") else "mm"
+    scale = _unit_scale(units, path)
+    rate = float(params["RATE"]["value"][0])
+    xyz = pts[:3].transpose(2, 1, 0).copy()
+    invalid = np.all(xyz == 0.0, axis=2) | ~np.isfinite(xyz).all(axis=2)
+    res = c["data"]["meta_points"].get("residuals") if "meta_points" in c["data"] else None
+    if res is not None and np.size(res):
+        invalid |= np.asarray(res, dtype=np.float64)[0].T < 0
+    xyz[invalid] = np.nan
+    return MocapTake(xyz * scale, names, rate, str(path), int(c["header"]["points"]["first_frame"]), {"units": units})
+
+
+def _check_c3d_size(c, path: Path) -> None:
+    """Raise when the file holds fewer frames than its raw header declares.
+
+    ezc3d reads a truncated file without complaint (and rewrites its frame counts to what it
+    found), so the declared first/last frame are read from the 512-byte header here.
+    """
+    import struct
+
+    with path.open("rb") as fh:
+        head = fh.read(512)
+        if len(head) < 12:
+            raise ValueError(f"{path}: C3D header is truncated")
+        fh.seek(max(head[0] - 1, 0) * 512 + 3)
+        proc = fh.read(1)
+    endian = ">" if proc and proc[0] == 86 else "<"  # 84 Intel, 85 DEC (little-endian ints), 86 MIPS
+    first, last = struct.unpack(endian + "HH", head[6:10])
+    if last == 0xFFFF:  # long files keep the count in parameters only
+        return
+    declared = last - first + 1
+    got = c["data"]["points"].shape[2]
+    if got < declared:
+        raise ValueError(f"{path}: C3D file is truncated ({got} of {declared} declared frames present)")
+
+
+def write_c3d(take: MocapTake, path: str | Path, *, units: str = "mm") -> None:
+    """Write a take as C3D (gaps as residual -1 and zero coordinates)."""
+    import ezc3d
+
+    scale = _unit_scale(units, path)
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [float(take.rate_hz)]
+    c["parameters"]["POINT"]["LABELS"]["value"] = list(take.marker_names)
+    c["parameters"]["POINT"]["UNITS"]["value"] = [units]
+    xyz = take.positions_m / scale
+    gap = ~np.isfinite(xyz).all(axis=2)
+    pts = np.ones((4, take.n_markers, take.n_frames))
+    pts[:3] = np.where(gap[..., None], 0.0, xyz).transpose(2, 1, 0)
+    c["data"]["points"] = pts
+    res = np.where(gap, -1.0, 0.0).T[None]
+    c["data"]["meta_points"]["residuals"] = res
+    c["data"]["meta_points"]["camera_masks"] = np.zeros((7, take.n_markers, take.n_frames), dtype=bool)
+    c.write(str(path))
+
+
+# ---------------------------------------------------------------------------------------- TRC
+
+
+def read_trc(path: str | Path) -> MocapTake:
+    """Read a TRC (OpenSim / Motion Analysis track row column) marker file."""
+    path = Path(path)
+    _check_file(path)
+    lines = path.read_text(errors="replace").splitlines()
+    if len(lines) < 5 or not lines[0].startswith("PathFileType"):
+        raise ValueError(f"{path}: not a TRC file (first line should start with 'PathFileType', need 5 header lines)")
+    keys = lines[1].split("\t")
+    vals = lines[2].split("\t")
+    if len(vals) < len(keys):
+        raise ValueError(f"{path}: TRC header line 3 has {len(vals)} values for {len(keys)} keys")
+    header = {k.strip(): v.strip() for k, v in zip(keys, vals)}
+    try:
+        rate = float(header["DataRate"])
+        n_markers = int(header["NumMarkers"])
+        n_frames = int(header["NumFrames"])
+        units = header["Units"]
+    except (KeyError, ValueError) as exc:
+        raise ValueError(f"{path}: TRC header lacks or mangles DataRate/NumFrames/NumMarkers/Units ({exc})") from exc
+    if n_markers <= 0:
+        raise ValueError(f"{path}: TRC file declares no markers")
+    scale = _unit_scale(units, path)
+    name_cells = lines[3].split("\t")[2:]
+    names = [n.strip() for n in name_cells if n.strip()]
+    if len(names) != n_markers:
+        raise ValueError(f"{path}: TRC header names {len(names)} markers but NumMarkers is {n_markers}")
+    rows = [ln for ln in lines[5:] if ln.strip()]
+    if len(rows) != n_frames:
+        raise ValueError(f"{path}: TRC file has {len(rows)} data rows but NumFrames is {n_frames} (truncated?)")
+    data = np.full((n_frames, n_markers * 3), np.nan)
+    for i, row in enumerate(rows):
+        cells = row.split("\t")[2:]
+        if len(cells) > n_markers * 3 or len(cells) < n_markers * 3 - 2:
+            # trailing empty cells may be stripped; anything else is a broken row
+            if len(cells) > n_markers * 3 and not any(c.strip() for c in cells[n_markers * 3 :]):
+                cells = cells[: n_markers * 3]
+            else:
+                raise ValueError(f"{path}: TRC data row {i + 1} has {len(cells)} coordinate columns, expected {n_markers * 3}")
+        for j, cell in enumerate(cells):
+            cell = cell.strip()
+            if cell:
+                try:
+                    data[i, j] = float(cell)
+                except ValueError:
+                    raise ValueError(f"{path}: TRC data row {i + 1}, column {j + 3}: not a number: {cell!r}") from None
+    return MocapTake(data.reshape(n_frames, n_markers, 3) * scale, names, rate, str(path), 0, {"units": units})
+
+
+def write_trc(take: MocapTake, path: str | Path, *, units: str = "mm") -> None:
+    """Write a take as TRC (tab separated; gaps as empty cells)."""
+    path = Path(path)
+    scale = _unit_scale(units, path)
+    f, k = take.n_frames, take.n_markers
+    out = [
+        f"PathFileType\t4\t(X/Y/Z)\t{path.name}",
+        "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
+        f"{take.rate_hz:g}\t{take.rate_hz:g}\t{f}\t{k}\t{units}\t{take.rate_hz:g}\t{take.first_frame + 1}\t{f}",
+        "Frame#\tTime\t" + "\t".join(f"{n}\t\t" for n in take.marker_names).rstrip("\t"),
+        "\t\t" + "\t".join(f"X{i + 1}\tY{i + 1}\tZ{i + 1}" for i in range(k)),
+        "",
+    ]
+    xyz = take.positions_m / scale
+    for i in range(f):
+        cells = ["" if not np.isfinite(v) else repr(float(v)) for v in xyz[i].ravel()]
+        out.append(f"{take.first_frame + i + 1}\t{take.times_s[i]:.6f}\t" + "\t".join(cells))
+    path.write_text("\n".join(out) + "\n")
+
+
+# ---------------------------------------------------------------------------------------- CSV
+
+
+def read_csv(path: str | Path, *, units: str | None = None, rate_hz: float | None = None) -> MocapTake:
+    """Read the CSV layout described in the module docstring.
+
+    Args:
+        path: file.
+        units: length units when the file has no ``# units:`` line (default mm).
+        rate_hz: frame rate when the file has no ``# rate_hz:`` line and no ``time_s`` column.
+    """
+    path = Path(path)
+    _check_file(path)
+    meta: dict[str, str] = {}
+    with path.open(newline="") as fh:
+        lines = fh.read().splitlines()
+    body = []
+    for ln in lines:
+        if ln.startswith("#"):
+            if ":" in ln:
+                k, v = ln[1:].split(":", 1)
+                meta[k.strip().lower()] = v.strip()
+        elif ln.strip():
+            body.append(ln)
+    if not body:
+        raise ValueError(f"{path}: CSV has no header row")
+    rows = list(csv.reader(body))
+    header = [h.strip() for h in rows[0]]
+    skip = [i for i, h in enumerate(header) if h.lower() in ("frame", "time_s", "time")]
+    coords = [i for i in range(len(header)) if i not in skip]
+    if not coords:
+        raise ValueError(f"{path}: CSV has no marker columns (expected <name>_x,<name>_y,<name>_z)")
+    if len(coords) % 3:
+        raise ValueError(f"{path}: CSV has {len(coords)} coordinate columns, not a multiple of 3")
+    names = []
+    for a in range(0, len(coords), 3):
+        trip = [header[coords[a + j]] for j in range(3)]
+        base = [t[:-2] for t in trip]
+        if [t[-2:].lower() for t in trip] != ["_x", "_y", "_z"] or len(set(base)) != 1:
+            raise ValueError(f"{path}: CSV columns {trip} are not <name>_x,<name>_y,<name>_z")
+        names.append(base[0])
+    data = np.full((len(rows) - 1, len(coords)), np.nan)
+    if len(rows) < 2:
+        raise ValueError(f"{path}: CSV has a header but no frames")
+    for i, row in enumerate(rows[1:]):
+        if len(row) != len(header):
+            raise ValueError(f"{path}: CSV row {i + 2} has {len(row)} columns, header has {len(header)}")
+        for j, c in enumerate(coords):
+            cell = row[c].strip()
+            if cell and cell.lower() != "nan":
+                try:
+                    data[i, j] = float(cell)
+                except ValueError:
+                    raise ValueError(f"{path}: CSV row {i + 2}, column {header[c]!r}: not a number: {cell!r}") from None
+    unit = meta.get("units", units or "mm")
+    scale = _unit_scale(unit, path)
+    rate = meta.get("rate_hz")
+    if rate is not None:
+        rate = float(rate)
+    elif rate_hz is not None:
+        rate = float(rate_hz)
+    else:
+        tcol = [i for i in skip if header[i].lower() in ("time_s", "time")]
+        if not tcol or len(rows) < 3:
+            raise ValueError(f"{path}: CSV gives no frame rate (no '# rate_hz:' line, no time_s column); pass rate_hz")
+        t = np.array([float(r[tcol[0]]) for r in rows[1:]])
+        rate = 1.0 / float(np.median(np.diff(t)))
+    return MocapTake(data.reshape(len(rows) - 1, len(names), 3) * scale, names, rate, str(path), 0, {"units": unit})
+
+
+def write_csv(take: MocapTake, path: str | Path, *, units: str = "mm") -> None:
+    """Write a take in the CSV layout of this module."""
+    scale = _unit_scale(units, path)
+    xyz = take.positions_m / scale
+    with Path(path).open("w", newline="") as fh:
+        fh.write(f"# units: {units}\n# rate_hz: {take.rate_hz:.17g}\n")
+        w = csv.writer(fh)
+        w.writerow(["frame", "time_s"] + [f"{n}_{a}" for n in take.marker_names for a in "xyz"])
+        for i in range(take.n_frames):
+            vals = ["" if not np.isfinite(v) else repr(float(v)) for v in xyz[i].ravel()]
+            w.writerow([take.first_frame + i, f"{take.times_s[i]:.6f}"] + vals)
+
+
+# ------------------------------------------------------------------------------------ dispatch
+
+_READERS = {".c3d": read_c3d, ".trc": read_trc, ".csv": read_csv}
+_WRITERS = {".c3d": write_c3d, ".trc": write_trc, ".csv": write_csv}
+
+
+def read_mocap(path: str | Path) -> MocapTake:
+    """Read a C3D, TRC or CSV take, chosen by the file suffix."""
+    path = Path(path)
+    reader = _READERS.get(path.suffix.lower())
+    if reader is None:
+        raise ValueError(f"{path}: unknown motion-capture format {path.suffix!r} (use .c3d, .trc or .csv)")
+    return reader(path)
+
+
+def write_mocap(take: MocapTake, path: str | Path, *, units: str = "mm") -> None:
+    """Write a take as C3D, TRC or CSV, chosen by the file suffix."""
+    path = Path(path)
+    writer = _WRITERS.get(path.suffix.lower())
+    if writer is None:
+        raise ValueError(f"{path}: unknown motion-capture format {path.suffix!r} (use .c3d, .trc or .csv)")
+    writer(take, path, units=units)
