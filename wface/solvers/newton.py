@@ -98,17 +98,18 @@ def solve_free(
 ):
     """Solve K_UU X = rhs for (3k,) or (3k, c) right-hand sides over the unknowns of ``pattern``.
 
-    With ``engine="direct"`` and a ``state`` dict, the factor is kept in ``state["factor"]`` and
-    the next call first tries CG preconditioned by that (older) factor, for at most
-    ``reuse_iterations`` iterations, before factoring anew (DESIGN.md section 8: refactor only
-    when the old factor stops being a good preconditioner). ``state["factorizations"]`` counts.
+    With ``engine="direct"`` and a ``state`` dict, the factor is kept in ``state["factor"]``; the
+    next factorisation of the same sparsity reuses its analysis (numeric refactor only). With
+    ``state["precondition"]`` set, the next call first tries CG preconditioned by that older
+    factor, for at most ``reuse_iterations`` iterations, before factoring anew (DESIGN.md
+    section 8). ``state["factorizations"]`` counts the factorisations.
 
     Returns (X, cg_iterations). Raises ``NotPositiveDefiniteError`` when K_UU is not positive
     definite (factorisation failure, or p.K p <= 0 in CG).
     """
     if engine == "direct":
         old = state.get("factor") if state is not None else None
-        if old is not None:
+        if old is not None and state.get("precondition", False):
             res = pcg(
                 _free_matvec(tangent, pattern),
                 rhs,
@@ -118,12 +119,14 @@ def solve_free(
             )
             if res.converged and not res.indefinite:
                 return res.x, res.iterations
-        factor = DirectFactor(tangent.assemble(pattern))
         if state is None:
+            factor = DirectFactor(tangent.assemble(pattern))
             try:
                 return factor.solve(rhs), 0
             finally:
                 factor.free()
+        state["factor"] = None
+        factor = DirectFactor(tangent.assemble(pattern), reuse=old)  # keeps PARDISO's analysis
         if old is not None:
             old.free()
         state["factor"] = factor
@@ -178,7 +181,7 @@ def newton_quasistatic(
     x = rest.copy() if x0 is None else np.array(x0, dtype=np.float64)
     iterations = 0
     cg_total = 0
-    linear_state: dict = {} if reuse_factor else None
+    linear_state: dict = {"precondition": bool(reuse_factor)}
     history: list[float] = []
 
     dxc = targets - x[fixed]
@@ -246,11 +249,9 @@ def newton_quasistatic(
         residual = float(np.linalg.norm(f[free]))
         history.append(residual / scale)
 
-    factorizations = 0
-    if linear_state:
-        factorizations = linear_state.get("factorizations", 0)
-        if linear_state.get("factor") is not None:
-            linear_state["factor"].free()
+    factorizations = linear_state.get("factorizations", 0)
+    if linear_state.get("factor") is not None:
+        linear_state["factor"].free()
     return Equilibrium(
         x=x,
         converged=bool(residual / scale <= tol),
