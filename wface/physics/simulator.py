@@ -54,16 +54,16 @@ class Tangent:
         s = self._sim
         s._v.assign(np.asarray(v, dtype=s._np_dtype).reshape(-1, 3))
         s._out.zero_()
-        s._wp.launch(
-            s._k.tangent_matvec, s.model.n_tets, inputs=[s._tets, s._dm_inv, self.element_tangents, s._v, s._out]
-        )
+        inputs = [s._tets, s._dm_inv, self.element_tangents, s._v, s._out]
+        s._launch_tets(s._k.tangent_matvec, inputs, sliced=(0, 1, 2), scattered=(4,))
         return s._out.numpy().astype(np.float64)
 
     def diagonal(self) -> np.ndarray:
         """diag(K) as (n, 3)."""
         s = self._sim
         s._out.zero_()
-        s._wp.launch(s._k.tangent_diagonal, s.model.n_tets, inputs=[s._tets, s._dm_inv, self.element_tangents, s._out])
+        inputs = [s._tets, s._dm_inv, self.element_tangents, s._out]
+        s._launch_tets(s._k.tangent_diagonal, inputs, sliced=(0, 1, 2), scattered=(3,))
         return s._out.numpy().astype(np.float64)
 
     def assemble(self, pattern: BlockPattern | None = None) -> sp.csr_matrix:
@@ -73,7 +73,8 @@ class Tangent:
         pattern = pattern or s.pattern(None)
         block_index = s._block_index_array(pattern)
         blocks = wp.zeros(pattern.n_blocks, dtype=s._k.mat33, device=s.device)
-        wp.launch(s._k.tangent_assemble, s.model.n_tets, inputs=[s._dm_inv, self.element_tangents, block_index, blocks])
+        inputs = [s._dm_inv, self.element_tangents, block_index, blocks]
+        s._launch_tets(s._k.tangent_assemble, inputs, sliced=(0, 1, 2), scattered=(3,))
         return pattern.to_csr(blocks.numpy().astype(np.float64))
 
 
@@ -188,29 +189,57 @@ class Simulator:
         if self.model.n_muscles:
             self._a.assign(self.model.activation_vector(a).astype(self._np_dtype))
 
-    def _launch_per_tet(self, kernel, extra_inputs, out) -> None:
-        """Launch a kernel whose only output is per tet (``out``), over tet ranges in parallel.
+    def _launch_tets(
+        self,
+        kernel,
+        inputs: list,
+        *,
+        sliced: tuple[int, ...],
+        offsets: tuple[int, ...] = (),
+        scattered: tuple[int, ...] = (),
+    ) -> None:
+        """Launch a per-tet kernel, on the CPU over tet ranges on all cores.
 
-        Warp CPU kernels run on one thread (DESIGN.md section 8), but a launch releases the GIL, so
-        on the CPU large meshes are cut into one contiguous tet range per core (inputs and output
-        are sliced views; kernels with scattered atomic outputs never take this path).
+        Warp CPU kernels run on one thread (DESIGN.md section 8) but a launch releases the GIL, so
+        large meshes are cut into one contiguous tet range per core. ``sliced``: indices of inputs
+        indexed by tet (sliced [lo:hi], per-tet outputs included); ``offsets``: per-tet offset
+        arrays (sliced [lo:hi+1]); ``scattered``: outputs accumulated with atomics at nodes or
+        blocks: each extra thread gets a zeroed private copy, added to the original afterwards
+        (CPU atomics are plain +=, never shared between threads).
         """
         wp = self._wp
         m = self.model.n_tets
         threads = min(os.cpu_count() or 1, 8)
         if not self.device.startswith("cpu") or threads < 2 or m < self.parallel_min_tets:
-            wp.launch(kernel, m, inputs=[*self._model_inputs(), *extra_inputs, out], device=self.device)
+            wp.launch(kernel, m, inputs=inputs, device=self.device)
             return
         bounds = np.linspace(0, m, threads + 1).astype(int)
+        private = [{i: (inputs[i] if k == 0 else wp.zeros_like(inputs[i])) for i in scattered} for k in range(threads)]
 
-        def run(lo: int, hi: int) -> None:
-            inputs = self._model_inputs()
-            inputs[0], inputs[1], inputs[2] = self._tets[lo:hi], self._dm_inv[lo:hi], self._volume[lo:hi]
-            inputs[7] = self._entry_start[lo : hi + 1]  # entries stay global: offsets index them
-            wp.launch(kernel, hi - lo, inputs=[*inputs, *extra_inputs, out[lo:hi]], device=self.device)
+        def run(k: int) -> None:
+            lo, hi = int(bounds[k]), int(bounds[k + 1])
+            args = list(inputs)
+            for i in sliced:
+                args[i] = inputs[i][lo:hi]
+            for i in offsets:
+                args[i] = inputs[i][lo : hi + 1]
+            for i in scattered:
+                args[i] = private[k][i]
+            wp.launch(kernel, hi - lo, inputs=args, device=self.device)
 
         with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(lambda r: run(*r), zip(bounds[:-1], bounds[1:], strict=True)))
+            list(pool.map(run, range(threads)))
+        for i in scattered:
+            total = inputs[i].numpy()
+            for k in range(1, threads):
+                total += private[k][i].numpy()
+
+    def _launch_per_tet(self, kernel, extra_inputs, *outputs, scattered: tuple[int, ...] = ()) -> None:
+        """``_launch_tets`` for kernels whose inputs start with ``_model_inputs()``."""
+        inputs = [*self._model_inputs(), *extra_inputs, *outputs]
+        n_model = len(self._model_inputs())
+        per_tet_outputs = tuple(i for i in range(n_model + len(extra_inputs), len(inputs)) if i not in scattered)
+        self._launch_tets(kernel, inputs, sliced=(0, 1, 2, *per_tet_outputs), offsets=(7,), scattered=scattered)
 
     def _model_inputs(self):
         return [
@@ -235,11 +264,8 @@ class Simulator:
         """(E, f) with f = -dE/dx of shape (n, 3), in one pass."""
         self._set_state(x, activations)
         self._f.zero_()
-        self._wp.launch(
-            self._k.element_forces,
-            self.model.n_tets,
-            inputs=[*self._model_inputs(), self._x, self._a, self._f, self._e],
-        )
+        n_in = len(self._model_inputs()) + 2
+        self._launch_per_tet(self._k.element_forces, [self._x, self._a], self._f, self._e, scattered=(n_in,))
         return float(self._e.numpy().astype(np.float64).sum()), self._f.numpy().astype(np.float64)
 
     def forces(self, x: np.ndarray | None = None, activations=None) -> np.ndarray:
