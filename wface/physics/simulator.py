@@ -272,6 +272,10 @@ class Simulator:
         """Nodal forces f(x, a) = f0(x) + sum_i a_i f_i(x), (n, 3) newtons."""
         return self.energy_and_forces(x, activations)[1]
 
+    def last_element_energies(self) -> np.ndarray:
+        """(m,) per-tet energies of the latest ``energy`` / ``energy_and_forces`` call."""
+        return self._e.numpy().astype(np.float64)
+
     def element_energies(self, x: np.ndarray | None = None, activations=None) -> np.ndarray:
         """(m,) energy of each tet (J)."""
         self.energy(x, activations)

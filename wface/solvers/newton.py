@@ -208,6 +208,7 @@ def newton_quasistatic(
         iterations += 1
 
     energy, f = sim.energy_and_forces(x, a)
+    energy_abs = float(np.abs(sim.last_element_energies()).sum())
     residual = float(np.linalg.norm(f[free]))
     history.append(residual / scale)
     if stiffness not in ("auto", "projected", "exact"):
@@ -219,7 +220,7 @@ def newton_quasistatic(
         rhs = pattern.gather(f)
         eta = float(np.clip(0.1 * residual / scale, 1e-12, 1e-2))
         dx = None
-        attempted = stiffness != "projected" and not skip_exact and residual / scale < exact_below
+        attempted = stiffness == "exact" or (stiffness == "auto" and not skip_exact and residual / scale < exact_below)
         if attempted:
             tan = sim.tangent(x, a, project=False)
             try:
@@ -243,7 +244,7 @@ def newton_quasistatic(
         if not slope > 0:  # not a descent direction (should not happen with SPD K): steepest descent
             dx = f[free] / max(float(np.abs(tan.diagonal()[free]).max()), 1e-30)
             slope = float(rhs @ dx.reshape(-1))
-        slack = 64 * np.finfo(sim._np_dtype).eps * float(np.abs(sim.element_energies(x, a)).sum())
+        slack = 64 * np.finfo(sim._np_dtype).eps * energy_abs  # round-off of the energy sum
         t = 1.0
         trial = x.copy()
         for _ in range(max_line_search):
@@ -255,6 +256,7 @@ def newton_quasistatic(
         x = trial
         iterations += 1
         energy, f = sim.energy_and_forces(x, a)
+        energy_abs = float(np.abs(sim.last_element_energies()).sum())
         residual = float(np.linalg.norm(f[free]))
         history.append(residual / scale)
 
