@@ -372,3 +372,16 @@ def test_parallel_cpu_launch_over_tet_ranges_matches_serial(box_sim):
     np.testing.assert_array_equal(parallel[1], serial[1])
     for p, s in zip(parallel[2:], serial[2:], strict=True):
         np.testing.assert_allclose(p, s, rtol=0, atol=1e-13 * np.abs(s).max())
+
+
+def test_force_length_scale_exaggerates_the_active_curve_only():
+    model = box_model((3, 2, 2), muscles=2)
+    X = model.rest_positions_m
+    x = X + 0.002 * np.random.default_rng(12).normal(size=X.shape)
+    plain, doubled = Simulator(model), Simulator(model, force_length_scale=2.0)
+    tol = 1e-12 * np.abs(plain.forces(x, [1.0, 1.0])).max()
+    np.testing.assert_allclose(doubled.forces(x, [0.5, 0.25]), plain.forces(x, [1.0, 0.5]), rtol=0, atol=tol)
+    np.testing.assert_allclose(doubled.forces(x, None), plain.forces(x, None), rtol=0, atol=tol)  # passive as is
+    np.testing.assert_allclose(doubled.muscle_forces(x), 2.0 * plain.muscle_forces(x), rtol=0, atol=tol)
+    with pytest.raises(ValueError):
+        doubled.forces(x, [1.5, 0.0])  # activations themselves stay in [0, 1]

@@ -131,9 +131,20 @@ class Simulator:
         precision: "float64" (default; use it for Newton and derivative checks) or "float32".
         solver: linear solver of the Newton steps: "auto" (direct on the CPU when installed, else
             CG), "cg" or "direct" (see ``wface.solvers.linear``).
+        force_length_scale: exaggeration beyond physical limits (seed 000, section 9): scales the
+            whole active force-length curve, T = k (s a f_L + f_P), so activations stay in [0, 1].
+            Also a mutable attribute.
     """
 
-    def __init__(self, model: FaceModel, *, device: str = "cpu", precision: str = "float64", solver: str = "auto"):
+    def __init__(
+        self,
+        model: FaceModel,
+        *,
+        device: str = "cpu",
+        precision: str = "float64",
+        solver: str = "auto",
+        force_length_scale: float = 1.0,
+    ):
         init_warp()
         import warp as wp
 
@@ -172,6 +183,9 @@ class Simulator:
         self._e = wp.zeros(nt, dtype=k.scalar, device=dev)
         self._a = wp.zeros(max(model.n_muscles, 1), dtype=k.scalar, device=dev)
         self._tangent_wp = None
+        if not (np.isfinite(force_length_scale) and force_length_scale >= 0):
+            raise ValueError(f"force_length_scale must be finite and >= 0, got {force_length_scale}")
+        self.force_length_scale = float(force_length_scale)
         self.parallel_min_tets = 20_000  # CPU: per-tet kernels run on all cores above this size
         self._patterns: dict = {}
         self._block_index: dict = {}
@@ -187,7 +201,9 @@ class Simulator:
             raise ValueError(f"positions have shape {x.shape}, expected ({self.model.n_nodes}, 3)")
         self._x.assign(x.astype(self._np_dtype))
         if self.model.n_muscles:
-            self._a.assign(self.model.activation_vector(a).astype(self._np_dtype))
+            # activations are checked in [0, 1]; the kernels see s a (T is linear in a, see __init__)
+            a = self.model.activation_vector(a) * self.force_length_scale
+            self._a.assign(a.astype(self._np_dtype))
 
     def _launch_tets(
         self,
@@ -282,7 +298,8 @@ class Simulator:
         return self._e.numpy().astype(np.float64)
 
     def muscle_forces(self, x: np.ndarray | None = None) -> np.ndarray:
-        """f_i(x): active force of each muscle at full activation, (M, n, 3) newtons, one launch."""
+        """f_i(x): active force of each muscle at full activation, (M, n, 3) newtons, one launch
+        (times ``force_length_scale``)."""
         wp = self._wp
         self._set_state(x, None)
         M, n = self.model.n_muscles, self.model.n_nodes
@@ -303,7 +320,7 @@ class Simulator:
                     out,
                 ],
             )
-        return out.numpy().astype(np.float64)[:M]
+        return out.numpy().astype(np.float64)[:M] * self.force_length_scale
 
     # ------------------------------------------------------------------ stiffness
     def tangent(self, x: np.ndarray | None = None, activations=None, *, project: bool = True) -> Tangent:
