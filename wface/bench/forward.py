@@ -170,8 +170,8 @@ def run(args) -> dict:
 
     from wface.warp_runtime import init_warp, resolve_device
 
+    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # before init: no banner on stdout (--json)
     init_warp()
-    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
     device = resolve_device(getattr(args, "device", "auto"))
     sizes = getattr(args, "tets", None) or list(DEFAULT_TETS)
     repeat = int(getattr(args, "repeat", 3) or 3)
