@@ -376,6 +376,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         V = mat33()
         wp.svd3(F, U, s, V)
         psi, G, A = flesh_response(s, mu10, mu01, kappa, clamp)
+        A_exact = A
         if project != 0:
             Q = mat33()
             lam = vec3()
@@ -410,7 +411,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
             if wp.abs(diff) > S(tie_eps) * wp.max(wp.abs(s[i]), S(1.0)):
                 lsym = (G[i] - G[j]) / diff
             else:
-                lsym = A[i, i] - A[i, j]
+                lsym = A_exact[i, i] - A_exact[i, j]  # limit of (G_i - G_j)/(s_i - s_j)
             lrot = (G[i] + G[j]) / wp.max(s[i] + s[j], S(tie_eps))
             if project != 0:
                 lsym = wp.max(lsym, S(0.0))
