@@ -15,6 +15,7 @@ __all__ = ["main", "build_parser"]
 COMMAND_MODULES = [
     "wface.commands.model",
     "wface.commands.bench",
+    "wface.commands.basis",
 ]
 
 _EPILOG = """\

@@ -19,7 +19,13 @@ import numpy as np
 from wface.basis.analysis import Analysis, FaceSplit, MarkerBasis, analyze
 from wface.basis.core import ActuationBasis
 
-__all__ = ["RefinementResult", "interpolate_to_mesh", "model_marker_shapes", "refine_marker_basis"]
+__all__ = [
+    "RefinementResult",
+    "interpolate_to_mesh",
+    "model_marker_shapes",
+    "refine_marker_basis",
+    "select_regularization",
+]
 
 
 @dataclass
@@ -212,3 +218,37 @@ def interpolate_to_mesh(
     shapes[:, vertices, :] += field_.reshape(len(vertices), 3, nb).transpose(2, 0, 1)
     return ActuationBasis(basis.neutral_m, shapes, list(basis.names), basis.face_counts, basis.face_indices,
                           basis.skin_vertices, basis.source + " (refined)")  # fmt: skip
+
+
+def select_regularization(
+    basis: MarkerBasis,
+    displacements_m: Sequence[np.ndarray],
+    candidates: Sequence[float] = (0.03, 0.3, 3.0),
+    *,
+    upper: float | None = 1.0,
+    split: FaceSplit | None = None,
+    max_iterations: int = 8,
+    frame_step: int = 3,
+) -> tuple[float, dict[float, float]]:
+    """Pick the ridge weight by leave-one-take-out validation inside the training takes.
+
+    Each candidate refines on all training takes but one (every ``frame_step``-th frame, at most
+    ``max_iterations`` steps) and is scored by the analysis error on the left-out take; the
+    candidate with the lowest mean validation RMS wins. Needs at least two takes.
+
+    Returns:
+        (chosen lambda, {lambda: mean validation RMS in metres}).
+    """
+    takes = [np.asarray(t)[::frame_step] for t in displacements_m]
+    if len(takes) < 2:
+        raise ValueError("select_regularization: needs at least two training takes")
+    scores = {}
+    for lam in candidates:
+        errs = []
+        for k in range(len(takes)):
+            train = [t for i, t in enumerate(takes) if i != k]
+            res = refine_marker_basis(basis, train, upper=upper, split=split, max_iterations=max_iterations,
+                                      regularization=lam)  # fmt: skip
+            errs.append(analyze(res.basis, takes[k], upper=upper, split=split).total_rms_m)
+        scores[float(lam)] = float(np.mean(errs))
+    return min(scores, key=scores.get), scores
