@@ -246,7 +246,10 @@ def _read_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                 parts = line.split()
                 if len(parts) < 4:
                     raise ValueError(f"{path}:{ln}: vertex line needs 3 coordinates")
-                verts.append([float(p) for p in parts[1:4]])
+                try:
+                    verts.append([float(p) for p in parts[1:4]])
+                except ValueError:
+                    raise ValueError(f"{path}:{ln}: vertex coordinates are not numbers: {line.strip()!r}") from None
             elif line.startswith("f "):
                 ids = [int(p.split("/")[0]) for p in line.split()[1:]]
                 ids = [i - 1 if i > 0 else len(verts) + i for i in ids]
