@@ -25,6 +25,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import cho_solve as _cho_solve
+from scipy.linalg import cholesky as _cholesky
 
 __all__ = ["BoundedLSQResult", "bounded_lstsq", "bounded_qp"]
 
@@ -60,20 +62,20 @@ def _free_step_gram(q: np.ndarray, rhs: np.ndarray, free: np.ndarray, rcond: flo
     p = np.zeros(q.shape[0])
     if not free.any():
         return p
-    qf = q[np.ix_(free, free)]
-    rf = rhs[free]
+    idx = np.flatnonzero(free)
+    qf = q[idx[:, None], idx]
+    rf = rhs[idx]
     try:
-        chol = np.linalg.cholesky(qf)
+        chol = _cholesky(qf, lower=True, check_finite=False)
         dg = np.diag(chol)
         if dg.min() ** 2 > rcond * dg.max() ** 2:
-            y = np.linalg.solve(chol, rf)
-            p[free] = np.linalg.solve(chol.T, y)
+            p[idx] = _cho_solve((chol, True), rf, check_finite=False)
             return p
     except np.linalg.LinAlgError:
         pass
     w, v = np.linalg.eigh(qf)
     keep = w > rcond * max(w.max(), 0.0)
-    p[free] = v[:, keep] @ ((v[:, keep].T @ rf) / w[keep])
+    p[idx] = v[:, keep] @ ((v[:, keep].T @ rf) / w[keep])
     return p
 
 

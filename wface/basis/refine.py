@@ -104,10 +104,11 @@ def model_marker_shapes(
 
 def _solve_change(x: np.ndarray, r: np.ndarray, lam: float) -> np.ndarray:
     if lam > 0:
-        nb = x.shape[1]
-        a = np.vstack([x, np.sqrt(lam) * np.eye(nb)])
-        r = np.vstack([r, np.zeros((nb, r.shape[1]))])
-        return np.linalg.lstsq(a, r, rcond=None)[0]
+        from scipy.linalg import cho_factor, cho_solve
+
+        # (X^T X + lambda I) delta = X^T r: SPD, well conditioned for lambda > 0.
+        gram = x.T @ x + lam * np.eye(x.shape[1])
+        return cho_solve(cho_factor(gram), x.T @ r)
     return np.linalg.lstsq(x, r, rcond=1e-10)[0]
 
 
