@@ -18,7 +18,7 @@ def _random_similarity(rng) -> Similarity:
     return Similarity(float(rng.uniform(0.3, 3.0)), Rotation.random(random_state=rng).as_matrix(), rng.normal(size=3))
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=50, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), k=st.integers(3, 40))
 def test_umeyama_recovers_exact_transform(seed, k):
     rng = np.random.default_rng(seed)

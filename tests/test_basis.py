@@ -36,7 +36,9 @@ def _grid_basis(n_side=12, n_elements=5, seed=0) -> ActuationBasis:
         c = rng.uniform(-0.04, 0.04, size=2)
         w = np.exp(-np.sum((v[:, :2] - c) ** 2, axis=1) / (2 * 0.02**2))
         shapes.append(w[:, None] * rng.normal(scale=0.005, size=3))
-    return ActuationBasis(v, np.array(shapes), [f"m{i}_L" for i in range(n_elements)], np.full(len(quads), 4), quads.ravel())
+    return ActuationBasis(
+        v, np.array(shapes), [f"m{i}_L" for i in range(n_elements)], np.full(len(quads), 4), quads.ravel()
+    )
 
 
 def test_polygons_to_triangles_and_synthesis():
@@ -61,6 +63,7 @@ def test_save_load_round_trip_and_builders(tmp_path):
     np.testing.assert_array_equal(c.triangles, b.triangles)
     d = ActuationBasis.from_displacements(b.neutral_m, b.shapes_m, b.names, triangles=b.triangles)
     np.testing.assert_array_equal(d.triangles, b.triangles)
+
     # OBJ set in centimetres: neutral plus one file per element
     def write_obj(path, verts):
         with open(path, "w") as fh:

@@ -8,7 +8,15 @@ import numpy as np
 import pytest
 
 from tests.conftest import data_path
-from wface.basis import MarkerLayout, analyze, interpolate_to_mesh, load_basis, prepare_capture, refine_marker_basis, retarget
+from wface.basis import (
+    MarkerLayout,
+    analyze,
+    interpolate_to_mesh,
+    load_basis,
+    prepare_capture,
+    refine_marker_basis,
+    retarget,
+)
 from wface.basis.landmarks import load_ict_animface_landmarks
 
 TAKES = ("JawMoCap.c3d", "CheeksMoCap.c3d", "EyebrowsMoCap.c3d", "NoseMoCap.c3d")
@@ -64,7 +72,9 @@ def test_refinement_generalises_to_held_out_take(ict, takes, layout):
     train = [disp[n][::12] for n in TAKES if n != test]
     res = refine_marker_basis(mb, train, regularization=1.0, max_iterations=4, rel_tol=1e-4)
     assert res.errors_m[-1] < 0.7 * res.errors_m[0]
-    assert all(b <= a * (1 + 1e-9) for a, b in zip(res.errors_m, res.errors_m[1:]))  # fixed point descends
+    assert all(
+        b <= a * (1 + 1e-9) for a, b in zip(res.errors_m, res.errors_m[1:], strict=False)
+    )  # fixed point descends
     held = disp[test][::6]
     before = analyze(mb, held).total_rms_m
     after = analyze(res.basis, held).total_rms_m

@@ -175,6 +175,7 @@ def analyze(
     split = FaceSplit([(gm, ge[observable[ge]]) for gm, ge in split.groups])
     group_mats = [basis.shapes_m[np.ix_(gm, np.arange(3), ge)].reshape(len(gm) * 3, len(ge)) for gm, ge in split.groups]
     group_gram = [a.T @ a for a in group_mats]
+
     # Cold starts begin at the clipped ridge solution (Q + mu I)^-1 c, mu = 0.1 mean(diag Q): fewer
     # active-set changes than all-at-zero or the clipped (often wild) unconstrained solution.
     def ridge_inverse(q):
@@ -212,5 +213,5 @@ def analyze(
     err = np.linalg.norm(d - fitted, axis=2)
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nanmean(err**2, axis=1))
-    unobs = [n for n, o in zip(basis.element_names, observable) if not o]
+    unobs = [n for n, o in zip(basis.element_names, observable, strict=False) if not o]
     return Analysis(x, fitted, err, rms, iters, list(basis.element_names), list(basis.marker_names), unobs)

@@ -265,5 +265,3 @@ def _active_set(step, grad, lo, hi, x0, state0, max_iter, gtol):
             released[j] = True
         state[released] = 0
     return x, state, it, converged
-
-

@@ -111,8 +111,8 @@ def write_analysis(out_dir: str | Path, result: TakeAnalysis, *, extra: dict | N
         "alignment_scale": float(cap.transform.scale),
         "head_motion_residual_mm_mean": float(np.nanmean(cap.head_rms_m) * 1e3),
         "active_set_iterations_mean": float(an.iterations.mean()),
-        "contraction_mean": {n: float(v) for n, v in zip(an.element_names, x.mean(axis=0))},
-        "contraction_max": {n: float(v) for n, v in zip(an.element_names, x.max(axis=0))},
+        "contraction_mean": {n: float(v) for n, v in zip(an.element_names, x.mean(axis=0), strict=False)},
+        "contraction_max": {n: float(v) for n, v in zip(an.element_names, x.max(axis=0), strict=False)},
         "unobservable_elements": an.unobservable,
     }
     if extra:

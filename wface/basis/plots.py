@@ -11,7 +11,9 @@ from wface.basis.analysis import Analysis
 __all__ = ["plot_analysis"]
 
 
-def plot_analysis(analysis: Analysis, path: str | Path, *, rate_hz: float = 60.0, top: int = 8, title: str = "") -> Path:
+def plot_analysis(
+    analysis: Analysis, path: str | Path, *, rate_hz: float = 60.0, top: int = 8, title: str = ""
+) -> Path:
     """Write a PNG: the ``top`` most used elements' contractions, all contractions as an image,
     and the per-frame RMS marker error (mm).
 

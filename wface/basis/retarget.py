@@ -19,7 +19,6 @@ from wface.basis.core import ActuationBasis
 __all__ = ["ElementMatch", "RetargetResult", "match_elements", "retarget"]
 
 
-
 def _key(name: str) -> str:
     s = re.sub(r"([a-z0-9])([A-Z])", r"\1_\2", name).lower()
     s = s.replace("-", "_").replace(" ", "_")

@@ -28,12 +28,18 @@ def _real():
     from wface.io.mocap import read_c3d
 
     d = _data_dir()
-    ict, jaw, cheeks = d / "ict-facekit/ict_expressions.npz", d / "animface/JawMoCap.c3d", d / "animface/CheeksMoCap.c3d"
+    ict, jaw, cheeks = (
+        d / "ict-facekit/ict_expressions.npz",
+        d / "animface/JawMoCap.c3d",
+        d / "animface/CheeksMoCap.c3d",
+    )
     if not (ict.exists() and jaw.exists() and cheeks.exists()):
         return None
     basis = load_basis(ict)
     take = read_c3d(jaw)
-    layout = MarkerLayout.from_frame(basis, take.marker_names, take.positions_m[0], landmarks=load_ict_animface_landmarks())
+    layout = MarkerLayout.from_frame(
+        basis, take.marker_names, take.positions_m[0], landmarks=load_ict_animface_landmarks()
+    )
     mb = layout.marker_basis(basis)
     return mb, prepare_capture(take, layout).displacements_m, prepare_capture(read_c3d(cheeks), layout).displacements_m
 

@@ -42,7 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         q.add_argument("--frames", help="frame slice START:STOP[:STEP] of every take (default all)")
         q.add_argument("--no-progress", action="store_true", help="no progress bars")
 
-    a = bsub.add_parser("analyze", help="contractions per frame of one take", formatter_class=argparse.RawDescriptionHelpFormatter,
+    raw = argparse.RawDescriptionHelpFormatter
+    a = bsub.add_parser("analyze", help="contractions per frame of one take", formatter_class=raw,
                         description="Align a take to the basis neutral, remove head motion, and solve the bounded "
                         "least squares per frame. Writes contractions.npz/.csv, marker_error_mm.csv, report.json, "
                         "analysis.png.")  # fmt: skip
@@ -53,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     a.add_argument("--json", action="store_true", help="print report.json (without per-frame lists) to stdout")
     a.set_defaults(func=_analyze)
 
-    r = bsub.add_parser("refine", help="refine a basis on training takes", formatter_class=argparse.RawDescriptionHelpFormatter,
+    r = bsub.add_parser("refine", help="refine a basis on training takes", formatter_class=raw,
                         description="Fixed-point refinement (analysis <-> per-marker least squares) until the "
                         "training error saturates, then RBF interpolation to the whole mesh. Writes the refined "
                         "basis (.npz) and PATH.report.json with the error of every iteration.")  # fmt: skip
@@ -161,5 +162,5 @@ def _info(args) -> int:
     mags = [float(abs(s).max()) * 1e3 for s in b.shapes_m]
     print(json.dumps({"source": b.source, "vertices": b.n_vertices, "elements": b.n_elements,
                       "polygons": len(b.face_counts), "names": b.names,
-                      "max_displacement_mm": dict(zip(b.names, mags))}, indent=2))  # fmt: skip
+                      "max_displacement_mm": dict(zip(b.names, mags, strict=False))}, indent=2))  # fmt: skip
     return 0
