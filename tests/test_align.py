@@ -144,3 +144,22 @@ def test_animface_first_frames_fit_ict_landmarks():
         assert np.sqrt(np.mean(resid_mm**2)) < 4.0, name
         assert resid_mm.max() < 8.0, name
         assert 0.9 < tf.scale < 1.1
+
+
+def test_landmark_file_is_reproducible_from_its_derivation():
+    """wface/data/ict_animface_landmarks.json is what derive_landmarks gives on JawMoCap frame 0."""
+    import json
+
+    from wface.basis import load_basis
+    from wface.basis.landmarks import ANIMFACE_DLIB_SEEDS, derive_landmarks, load_ict_animface_landmarks
+    from wface.io.mocap import read_c3d
+
+    ict_dir = data_path("ict-facekit", "vertex_indices.json").parent
+    basis = load_basis(ict_dir / "ict_expressions.npz")
+    dlib = json.loads((ict_dir / "vertex_indices.json").read_text())["idx_to_landmark_verts"]
+    take = read_c3d(data_path("animface", "JawMoCap.c3d"))
+    tris = basis.triangles[(basis.triangles < 9409).all(axis=1)]  # ICT face region
+    seeds = {k: dlib[v] for k, v in ANIMFACE_DLIB_SEEDS.items()}
+    derived, dist = derive_landmarks(take.marker_names, take.positions_m[0], basis.neutral_m, tris, seeds)
+    assert derived == load_ict_animface_landmarks()
+    assert np.sqrt(np.mean(dist**2)) < 0.003  # ~2.4 mm: marker stand-off plus face-shape differences
