@@ -211,7 +211,9 @@ def analyze(
             warm[g] = (res.x, res.state)
     fitted = basis.predict(x)
     err = np.linalg.norm(d - fitted, axis=2)
-    with np.errstate(invalid="ignore"):
-        rms = np.sqrt(np.nanmean(err**2, axis=1))
+    sq = np.where(np.isfinite(err), err**2, 0.0)
+    count = np.isfinite(err).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.where(count > 0, np.sqrt(sq.sum(axis=1) / np.maximum(count, 1)), np.nan)
     unobs = [n for n, o in zip(basis.element_names, observable, strict=False) if not o]
     return Analysis(x, fitted, err, rms, iters, list(basis.element_names), list(basis.marker_names), unobs)

@@ -102,7 +102,7 @@ def write_analysis(out_dir: str | Path, result: TakeAnalysis, *, extra: dict | N
         "elements": len(an.element_names),
         "source": cap.source,
         "rate_hz": cap.rate_hz,
-        "marker_rms_mm": [float(v) for v in an.marker_rms_mm],
+        "marker_rms_mm": [float(v) if np.isfinite(v) else None for v in an.marker_rms_mm],
         "marker_rms_mm_mean": float(np.nanmean(an.marker_rms_mm)),
         "marker_rms_mm_total": an.total_rms_m * 1e3,
         "marker_max_mm": float(np.nanmax(an.error_m) * 1e3),
