@@ -105,6 +105,10 @@ def test_analysis_recovers_contractions_with_gaps_and_split():
     an_gap = analyze(mb, d_gap, warm_start=False)
     np.testing.assert_allclose(an_gap.contractions, x_true, atol=1e-8)
     assert np.isnan(an_gap.error_m[5, :3]).all()
+    d_gap[7] = np.nan  # a frame with no markers at all: no contractions, NaN error, no crash
+    an_gap = analyze(mb, d_gap)
+    assert np.isnan(an_gap.marker_rms_m[7]) and np.all(an_gap.contractions[7] == 0)
+    np.testing.assert_allclose(an_gap.contractions[8:], x_true[8:], atol=1e-8)
     # Above the box: clipped at 1, or followed with exaggeration (x >= 0)
     big = mb.predict(np.full((1, 6), 1.5))
     assert analyze(mb, big).contractions.max() <= 1.0
