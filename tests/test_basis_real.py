@@ -112,11 +112,12 @@ def test_cli_analyze_and_refine(tmp_path):
     assert x.shape == (90, 57)
     refined = tmp_path / "refined.npz"
     rc = main(["basis", "refine", "--basis", str(ict_path), "--train", str(anim / "JawMoCap.c3d"),
-               str(anim / "CheeksMoCap.c3d"), "--out", str(refined), "--frames", "0:600:20", "--regularization", "1",
+               str(anim / "CheeksMoCap.c3d"), "--out", str(refined), "--frames", "0:600:20", "--regularization", "auto",
                "--max-iterations", "2", "--no-progress"])  # fmt: skip
     assert rc == 0
     rep = json.loads(refined.with_name("refined.npz.report.json").read_text())
     assert rep["error_rms_mm_per_iteration"][-1] < rep["error_rms_mm_per_iteration"][0]
+    assert rep["regularization"] in (0.03, 0.3, 3.0) and len(rep["regularization_scores_mm"]) == 3
     assert load_basis(refined).n_elements == 57
     rc = main(["basis", "analyze", "--basis", str(refined), "--mocap", str(anim / "NoseMoCap.c3d"), "--out",
                str(tmp_path / "an2"), "--frames", "0:60", "--no-progress", "--no-plot", "--split"])  # fmt: skip
