@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import REPO_ROOT, data_path
 
-from tests.conftest import REPO_ROOT, data_path
 from wface.cli import main
 from wface.waters.surface import SurfaceMesh, read_surface, write_obj
 from wface.waters.synthetic import synthetic_head

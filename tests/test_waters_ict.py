@@ -7,8 +7,8 @@ from importlib import resources
 
 import numpy as np
 import pytest
+from conftest import data_path
 
-from tests.conftest import data_path
 from wface.facs import EXPRESSIONS
 from wface.waters.expressions import expression_pose, pose_from_action_units
 from wface.waters.layout import load_layout
