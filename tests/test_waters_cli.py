@@ -153,3 +153,32 @@ def test_cli_poses_the_builtin_face(tmp_path):
     assert rc == 0
     summary = json.loads((tmp_path / "sad.json").read_text())
     assert summary["layout"].startswith("ict-facekit-on") and summary["max_displacement_mm"] > 1.0
+
+
+def test_cli_blends_between_presets(tmp_path):
+    rc = main(
+        [
+            "waters",
+            "--mesh",
+            "builtin",
+            "--tets",
+            "3000",
+            "--expression",
+            "neutral",
+            "--blend-to",
+            "surprise",
+            "--frames",
+            "4",
+            "--no-render",
+            "--out",
+            str(tmp_path),
+        ]
+    )
+    assert rc == 0
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(tmp_path / "neutral_to_surprise.usdc"))
+    attr = UsdGeom.Mesh(stage.GetPrimAtPath("/WatersFace/Mesh")).GetPointsAttr()
+    first, last = np.asarray(attr.Get(0)), np.asarray(attr.Get(3))
+    assert np.max(np.linalg.norm(last - first, axis=1)) > 0.005  # the jaw opens by 12 degrees
+    assert main(["waters", "--mesh", "builtin", "--blend-to", "nope", "--out", str(tmp_path)]) == 1
