@@ -92,20 +92,24 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
 
     # ------------------------------------------------------------------ flesh in singular values
     @wp.func
-    def flesh_derivatives(sh: vec3, delta: vec3, mu10: S, mu01: S, kappa: S):
-        """psi, gradient, Hessian at s^ (all > 0), and the third derivative contracted with delta."""
+    def flesh_derivatives(sh: vec3, delta: vec3, mu10: S, mu01: S, kappa: S, order: int):
+        """psi, gradient, Hessian (order >= 2) at s^ (all > 0), and the third derivative contracted
+        with delta (order >= 3); higher-order outputs are zero when not requested."""
         psi = S(-3.0) * (mu10 + mu01)
         g = vec3()
         H = mat33()
         Tc = mat33()
-        third = S(M2_3)
+        inv = vec3(S(1.0) / sh[0], S(1.0) / sh[1], S(1.0) / sh[2])
+        L = wp.log(sh[0]) + wp.log(sh[1]) + wp.log(sh[2])
+        j23 = wp.exp(S(M2_3) * L)  # J^(-2/3)
         for k in range(6):
-            a = vec3(third, third, third)
-            c = mu10
+            # monomial m = c prod s_i^a_i: mu10 J^-2/3 s_k^2 (k < 3), mu01 J^-4/3 s_i^2 s_j^2 (pairs)
+            a = vec3(S(M2_3), S(M2_3), S(M2_3))
+            m = S(0.0)
             if k < 3:
                 a[k] = a[k] + S(2.0)
+                m = mu10 * j23 * sh[k] * sh[k]
             else:
-                c = mu01
                 a = vec3(S(M4_3), S(M4_3), S(M4_3))
                 p = k - 3  # pairs (0,1), (0,2), (1,2)
                 i0 = 0
@@ -117,44 +121,48 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
                     i1 = 2
                 a[i0] = a[i0] + S(2.0)
                 a[i1] = a[i1] + S(2.0)
-            m = c * wp.pow(sh[0], a[0]) * wp.pow(sh[1], a[1]) * wp.pow(sh[2], a[2])
+                m = mu01 * j23 * j23 * sh[i0] * sh[i0] * sh[i1] * sh[i1]
             psi = psi + m
             for i in range(3):
-                g[i] = g[i] + a[i] * m / sh[i]
-                for j in range(3):
-                    dij = S(0.0)
-                    if i == j:
-                        dij = S(1.0)
-                    H[i, j] = H[i, j] + a[i] * (a[j] - dij) * m / (sh[i] * sh[j])
-                    for l in range(3):
-                        dil = S(0.0)
-                        djl = S(0.0)
-                        if i == l:
-                            dil = S(1.0)
-                        if j == l:
-                            djl = S(1.0)
-                        Tc[j, l] = Tc[j, l] + delta[i] * a[i] * (a[j] - dij) * (a[l] - dil - djl) * m / (
-                            sh[i] * sh[j] * sh[l]
-                        )
-        L = wp.log(sh[0]) + wp.log(sh[1]) + wp.log(sh[2])
+                g[i] = g[i] + a[i] * m * inv[i]
+            if order >= 2:
+                for i in range(3):
+                    for j in range(3):
+                        dij = S(0.0)
+                        if i == j:
+                            dij = S(1.0)
+                        hij = a[i] * (a[j] - dij) * m * inv[i] * inv[j]
+                        H[i, j] = H[i, j] + hij
+                        if order >= 3:
+                            for l in range(3):
+                                dil = S(0.0)
+                                djl = S(0.0)
+                                if i == l:
+                                    dil = S(1.0)
+                                if j == l:
+                                    djl = S(1.0)
+                                Tc[j, l] = Tc[j, l] + delta[i] * hij * (a[l] - dil - djl) * inv[l]
         psi = psi + S(0.5) * kappa * L * L
         for i in range(3):
-            g[i] = g[i] + kappa * L / sh[i]
-            for j in range(3):
-                H[i, j] = H[i, j] + kappa / (sh[i] * sh[j])
-                if i == j:
-                    H[i, j] = H[i, j] - kappa * L / (sh[i] * sh[i])
-                for l in range(3):
-                    t = S(0.0)
-                    if i == l:
-                        t = t - kappa / (sh[i] * sh[j] * sh[l])
-                    if j == l:
-                        t = t - kappa / (sh[i] * sh[j] * sh[l])
+            g[i] = g[i] + kappa * L * inv[i]
+        if order >= 2:
+            for i in range(3):
+                for j in range(3):
+                    H[i, j] = H[i, j] + kappa * inv[i] * inv[j]
                     if i == j:
-                        t = t - kappa / (sh[i] * sh[i] * sh[l])
-                        if i == l:
-                            t = t + S(2.0) * kappa * L / (sh[i] * sh[i] * sh[i])
-                    Tc[j, l] = Tc[j, l] + delta[i] * t
+                        H[i, j] = H[i, j] - kappa * L * inv[i] * inv[i]
+                    if order >= 3:
+                        for l in range(3):
+                            t = S(0.0)
+                            if i == l:
+                                t = t - kappa * inv[i] * inv[j] * inv[l]
+                            if j == l:
+                                t = t - kappa * inv[i] * inv[j] * inv[l]
+                            if i == j:
+                                t = t - kappa * inv[i] * inv[i] * inv[l]
+                                if i == l:
+                                    t = t + S(2.0) * kappa * L * inv[i] * inv[i] * inv[i]
+                            Tc[j, l] = Tc[j, l] + delta[i] * t
         return psi, g, H, Tc
 
     @wp.func
@@ -169,14 +177,17 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
     @wp.func
     def flesh_energy_s(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
         sh, delta = clamp_values(s, clamp)
-        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa)
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa, 1)
         return psi + wp.dot(g, delta)
 
     @wp.func
     def flesh_gradient_s(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
         """psi_ext and its gradient G in singular values."""
         sh, delta = clamp_values(s, clamp)
-        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa)
+        order = 1
+        if delta[0] != S(0.0) or delta[1] != S(0.0) or delta[2] != S(0.0):
+            order = 2
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa, order)
         G = g
         Hd = H * delta
         for j in range(3):
@@ -364,21 +375,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         s = vec3()
         V = mat33()
         wp.svd3(F, U, s, V)
-        sh, delta = clamp_values(s, clamp)
-        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa)
-        G = g
-        Hd = H * delta
-        A = mat33()
-        for i in range(3):
-            if s[i] >= clamp:
-                G[i] = G[i] + Hd[i]
-            for j in range(3):
-                ui = s[i] >= clamp
-                uj = s[j] >= clamp
-                if ui and uj:
-                    A[i, j] = H[i, j] + Tc[i, j]
-                elif ui or uj:
-                    A[i, j] = H[i, j]
+        psi, G, A = flesh_response(s, mu10, mu01, kappa, clamp)
         if project != 0:
             Q = mat33()
             lam = vec3()
@@ -470,9 +467,9 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         # State in:
         v: wp.array(dtype=vec3),
         # Out:
-        out: wp.array(dtype=vec3),
+        kv_out: wp.array(dtype=vec3),
     ):
-        """out += K v with K = -df/dx (matrix-free, from the per-tet 9x9 tangents)."""
+        """kv_out += K v with K = -df/dx (matrix-free, from the per-tet 9x9 tangents)."""
         t = wp.tid()
         r0, r1, r2, r3 = node_gradients(dm_inv[t])
         v0 = v[tets[t, 0]]
@@ -489,10 +486,10 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         c1 = dP * r1
         c2 = dP * r2
         c3 = dP * r3
-        wp.atomic_add(out, tets[t, 1], c1)
-        wp.atomic_add(out, tets[t, 2], c2)
-        wp.atomic_add(out, tets[t, 3], c3)
-        wp.atomic_add(out, tets[t, 0], -(c1 + c2 + c3))
+        wp.atomic_add(kv_out, tets[t, 1], c1)
+        wp.atomic_add(kv_out, tets[t, 2], c2)
+        wp.atomic_add(kv_out, tets[t, 3], c3)
+        wp.atomic_add(kv_out, tets[t, 0], -(c1 + c2 + c3))
 
     @wp.func
     def tangent_block(C: mat99, ra: vec3, rb: vec3):
@@ -564,23 +561,96 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         s_out[t] = s
         V_out[t] = V
 
+    @wp.func
+    def flesh_response(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
+        """psi_ext, its gradient G and Hessian A in the signed singular values s."""
+        sh, delta = clamp_values(s, clamp)
+        order = 2
+        if delta[0] != S(0.0) or delta[1] != S(0.0) or delta[2] != S(0.0):
+            order = 3
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa, order)
+        G = g
+        Hd = H * delta
+        A = mat33()
+        for i in range(3):
+            if s[i] >= clamp:
+                G[i] = G[i] + Hd[i]
+            for j in range(3):
+                ui = s[i] >= clamp
+                uj = s[j] >= clamp
+                if ui and uj:
+                    A[i, j] = H[i, j] + Tc[i, j]
+                elif ui or uj:
+                    A[i, j] = H[i, j]
+        return psi + wp.dot(g, delta), G, A
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def flesh_in_singular_values(
+        # In:
+        s: wp.array(dtype=vec3),
+        mu10: S,
+        mu01: S,
+        kappa: S,
+        clamp: S,
+        # Out:
+        psi_out: wp.array(dtype=S),
+        grad_out: wp.array(dtype=vec3),
+        hess_out: wp.array(dtype=mat33),
+    ):
+        """The flesh energy density psi_ext(s), its gradient and Hessian (tests, plots)."""
+        i = wp.tid()
+        psi, G, A = flesh_response(s[i], mu10, mu01, kappa, clamp)
+        psi_out[i] = psi
+        grad_out[i] = G
+        hess_out[i] = A
+
     @wp.kernel(module="unique", enable_backward=False)
     def fibre_curves(
         # In:
         lam: wp.array(dtype=S),
         # Out:
-        out: wp.array2d(dtype=S),
+        curves_out: wp.array2d(dtype=S),
     ):
         """Columns: f_L, f_L', int f_L, f_P, f_P', int f_P at each stretch (integrals from 1)."""
         i = wp.tid()
         fl, dfl, gl = force_length(lam[i] - S(1.0))
         fp, dfp, gp = passive_curve(lam[i] - S(1.0))
-        out[i, 0] = fl
-        out[i, 1] = dfl
-        out[i, 2] = gl
-        out[i, 3] = fp
-        out[i, 4] = dfp
-        out[i, 5] = gp
+        curves_out[i, 0] = fl
+        curves_out[i, 1] = dfl
+        curves_out[i, 2] = gl
+        curves_out[i, 3] = fp
+        curves_out[i, 4] = dfp
+        curves_out[i, 5] = gp
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def masked_axpby(
+        # In:
+        ax: wp.array(dtype=vec3),
+        y: wp.array(dtype=vec3),
+        mask: wp.array(dtype=S),
+        alpha: S,
+        beta: S,
+        # Out:
+        z_out: wp.array(dtype=vec3),
+    ):
+        """z = alpha mask * ax + beta y (mask = 1 on unknown nodes, 0 on Dirichlet nodes)."""
+        i = wp.tid()
+        z_out[i] = (alpha * mask[i]) * ax[i] + beta * y[i]
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def diagonal_axpby(
+        # In:
+        inv_diag: wp.array(dtype=vec3),
+        x: wp.array(dtype=vec3),
+        y: wp.array(dtype=vec3),
+        alpha: S,
+        beta: S,
+        # Out:
+        z_out: wp.array(dtype=vec3),
+    ):
+        """z = alpha diag(inv_diag) x + beta y (Jacobi preconditioner)."""
+        i = wp.tid()
+        z_out[i] = alpha * wp.cw_mul(inv_diag[i], x[i]) + beta * y[i]
 
     class _Kernels:
         pass
@@ -600,6 +670,9 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         tangent_diagonal,
         singular_values,
         fibre_curves,
+        flesh_in_singular_values,
+        masked_axpby,
+        diagonal_axpby,
     ):
         setattr(ns, k.func.__name__, k)
     return ns

@@ -7,7 +7,7 @@ import pytest
 
 pytest.importorskip("pxr")
 
-from wface.io.usd import UsdWriteError, write_mesh_animation  # noqa: E402
+from wface.io.usd import UsdWriteError, assert_stage_valid, write_mesh_animation  # noqa: E402
 
 
 def _sheet(frames: int = 3):
@@ -22,8 +22,10 @@ def test_animated_mesh_round_trip(tmp_path, suffix):
     from pxr import Usd, UsdGeom
 
     pts, tri = _sheet()
-    out = write_mesh_animation(tmp_path / f"m{suffix}", points_m=pts, face_vertex_counts=None,
-                               face_vertex_indices=tri, fps=30.0)
+    out = write_mesh_animation(
+        tmp_path / f"m{suffix}", points_m=pts, face_vertex_counts=None, face_vertex_indices=tri, fps=30.0
+    )
+    assert_stage_valid(out)  # every registered UsdValidation validator + the extent check
     stage = Usd.Stage.Open(str(out))
     assert stage.GetRootLayer().GetFileFormat().formatId == ("usda" if suffix == ".usda" else "usdc")
     assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0
@@ -48,8 +50,15 @@ def test_static_mesh_polygons_and_overwrite(tmp_path):
     quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.0]])
     path = tmp_path / "q.usda"
     write_mesh_animation(path, points_m=quad * 2, face_vertex_counts=[4], face_vertex_indices=[0, 1, 2, 3])
-    write_mesh_animation(path, points_m=quad, face_vertex_counts=[4], face_vertex_indices=[0, 1, 2, 3],
-                         name="Quad", colors=(1.0, 0.0, 0.0))  # rewriting the same file replaces it
+    write_mesh_animation(
+        path,
+        points_m=quad,
+        face_vertex_counts=[4],
+        face_vertex_indices=[0, 1, 2, 3],
+        name="Quad",
+        colors=(1.0, 0.0, 0.0),
+    )  # rewriting the same file replaces it
+    assert_stage_valid(path)
     stage = Usd.Stage.Open(str(path))
     assert not stage.GetPrimAtPath("/Face")
     mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Quad/Mesh"))
@@ -75,5 +84,13 @@ def test_errors_name_the_problem(tmp_path, kwargs, match):
 
 def test_bad_suffix(tmp_path):
     with pytest.raises(UsdWriteError, match="suffix|end in"):
-        write_mesh_animation(tmp_path / "bad.obj", points_m=np.zeros((3, 3)), face_vertex_counts=None,
-                             face_vertex_indices=[[0, 1, 2]])
+        write_mesh_animation(
+            tmp_path / "bad.obj", points_m=np.zeros((3, 3)), face_vertex_counts=None, face_vertex_indices=[[0, 1, 2]]
+        )
+
+
+def test_unreadable_old_file_is_replaced(tmp_path):
+    path = tmp_path / "old.usda"
+    path.write_text("this is not USD\n")
+    write_mesh_animation(path, points_m=np.eye(3), face_vertex_counts=None, face_vertex_indices=[[0, 1, 2]])
+    assert_stage_valid(path)

@@ -59,6 +59,13 @@ def parse_activations(items: list[str]) -> dict[str, float]:
     return out
 
 
+def _quiet_warp() -> None:
+    """Keep Warp's per-module load messages off stdout (Warp 1.19 logs them at INFO level)."""
+    import warp as wp
+
+    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
+
+
 def _run(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -66,6 +73,7 @@ def _run(args: argparse.Namespace) -> int:
     from wface.physics import Simulator
     from wface.physics.bones import attached_positions, jaw_opening_affine
 
+    _quiet_warp()
     start = time.perf_counter()
     model = load_model(args.model)
     activations = model.activation_vector(parse_activations(args.activation))  # clear KeyError / ValueError
@@ -100,6 +108,7 @@ def _run(args: argparse.Namespace) -> int:
         "inverted_elements": eq.inverted_elements,
         "energy_j": eq.energy,
         "cg_iterations": eq.cg_iterations,
+        "factorizations": eq.factorizations,
         "solve_seconds": eq.seconds,
         "seconds": time.perf_counter() - start,
     }

@@ -33,7 +33,9 @@ def apply_affine(affine: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.asarray(points, dtype=np.float64) @ A[:, :3].T + A[:, 3]
 
 
-def attached_positions(model: FaceModel, cranium: np.ndarray | None = None, jaw: np.ndarray | None = None) -> np.ndarray:
+def attached_positions(
+    model: FaceModel, cranium: np.ndarray | None = None, jaw: np.ndarray | None = None
+) -> np.ndarray:
     """Positions (a, 3) of ``model.attached_nodes`` for the given bone affines.
 
     Args:

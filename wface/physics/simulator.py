@@ -22,7 +22,7 @@ from wface.model import FaceModel
 from wface.physics.pattern import BlockPattern
 from wface.warp_runtime import init_warp, resolve_device
 
-__all__ = ["Simulator", "Tangent", "count_inverted"]
+__all__ = ["Simulator", "StiffnessSolver", "Tangent", "count_inverted"]
 
 PRECISIONS = ("float64", "float32")
 
@@ -73,6 +73,50 @@ class Tangent:
         blocks = wp.zeros(pattern.n_blocks, dtype=s._k.mat33, device=s.device)
         wp.launch(s._k.tangent_assemble, s.model.n_tets, inputs=[s._dm_inv, self.element_tangents, block_index, blocks])
         return pattern.to_csr(blocks.numpy().astype(np.float64))
+
+
+class StiffnessSolver:
+    """K_UU X = B for many right-hand sides at one configuration (the Jacobian solves, DESIGN.md
+    section 4): factored once with the direct backend, or Jacobi-preconditioned CG per column.
+
+    Right-hand sides live on the unknowns of ``pattern`` (``pattern.gather`` / ``pattern.scatter``
+    convert from / to nodal (n, 3) arrays); ``solve_nodal`` does that for you.
+    """
+
+    def __init__(self, tangent: Tangent, pattern: BlockPattern, engine: str):
+        self.tangent = tangent
+        self.pattern = pattern
+        self.engine = engine
+        self.cg_iterations = 0
+        self._factor = None
+        if engine == "direct":
+            from wface.solvers.linear import DirectFactor
+
+            self._factor = DirectFactor(tangent.assemble(pattern))
+
+    def solve(self, B: np.ndarray, *, rtol: float = 1e-10) -> np.ndarray:
+        """X = K_UU^-1 B for B of shape (3k,) or (3k, c)."""
+        if self._factor is not None:
+            return self._factor.solve(B)
+        from wface.solvers.newton import solve_free
+
+        X, its = solve_free(self.tangent, self.pattern, np.asarray(B, dtype=np.float64), engine="cg", rtol=rtol)
+        self.cg_iterations += its
+        return X
+
+    def solve_nodal(self, F: np.ndarray, *, rtol: float = 1e-10) -> np.ndarray:
+        """Nodal right-hand sides (n, 3) or (c, n, 3) -> nodal solutions, zero on Dirichlet nodes."""
+        F = np.asarray(F, dtype=np.float64)
+        if F.ndim == 2:
+            return self.pattern.scatter(self.solve(self.pattern.gather(F), rtol=rtol))
+        B = np.stack([self.pattern.gather(f) for f in F], axis=1)
+        return self.pattern.scatter(self.solve(B, rtol=rtol))
+
+    def free(self) -> None:
+        """Release the factorisation now."""
+        if self._factor is not None:
+            self._factor.free()
+            self._factor = None
 
 
 class Simulator:
@@ -234,6 +278,25 @@ class Simulator:
         """
         return self.tangent(x, activations, project=project).assemble(self.pattern(nodes))
 
+    def stiffness_solver(
+        self,
+        x: np.ndarray | None = None,
+        activations=None,
+        *,
+        project: bool = True,
+        nodes: str | np.ndarray = "free",
+        solver: str | None = None,
+    ) -> StiffnessSolver:
+        """A ``StiffnessSolver`` for K_UU at (x, a) over the unknown ``nodes`` (default: free nodes).
+
+        Example (activation Jacobian, seed 000 eq. 5): ``dX = sim.stiffness_solver(x, a)
+        .solve_nodal(sim.muscle_forces(x))`` gives dX_U/da_i for every muscle i, shape (M, n, 3).
+        """
+        from wface.solvers.linear import resolve_linear_solver
+
+        engine = resolve_linear_solver(solver, self.device) if solver else self.linear_solver
+        return StiffnessSolver(self.tangent(x, activations, project=project), self.pattern(nodes), engine)
+
     def pattern(self, nodes: str | np.ndarray | None = "all") -> BlockPattern:
         """Block sparsity pattern (cached) over "all" nodes, the "free" nodes, or given node ids."""
         if nodes is None or (isinstance(nodes, str) and nodes == "all"):
@@ -264,6 +327,7 @@ class Simulator:
         max_iterations: int = 40,
         solver: str | None = None,
         stiffness: str = "auto",
+        reuse_factor: bool = False,
     ):
         """Quasistatic equilibrium f_U(x, a) = 0 with attached nodes at ``attached_positions``.
 
@@ -278,6 +342,9 @@ class Simulator:
             solver: override of the simulator's linear solver ("auto" | "cg" | "direct").
             stiffness: "auto" (exact Hessian when definite, else projected), "projected" or "exact";
                 see ``wface.solvers.newton``.
+            reuse_factor: with the direct solver, precondition CG with the previous step's factor
+                and refactor only when that CG does not converge within a few iterations (off by
+                default: on the 2-core CPU at 20K-100K tets a fresh factorisation was as fast).
 
         Returns:
             ``wface.solvers.newton.Equilibrium``.
@@ -292,8 +359,9 @@ class Simulator:
             x0,
             tol=tol,
             max_iterations=max_iterations,
-            solver=solver or self.solver,
+            solver=solver or self.linear_solver,
             stiffness=stiffness,
+            reuse_factor=reuse_factor,
         )
         result.seconds = time.perf_counter() - start
         return result

@@ -13,10 +13,11 @@
 
 from __future__ import annotations
 
+import os
 import platform
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import os
 
@@ -113,6 +114,8 @@ class DirectFactor:
             self._matrix = sp.triu(sp.csr_matrix(A, dtype=np.float64), format="csr")
             self._matrix.sort_indices()
             self._solver = pypardiso.PyPardisoSolver(mtype=2)
+            # pypardiso searches sys.prefix for MKL on every construction (~1 s): remember the library.
+            os.environ.setdefault("PYPARDISO_MKL_RT", self._solver.libmkl._name)
             try:
                 self._solver.factorize(self._matrix)
             except pypardiso.pardiso_wrapper.PyPardisoError as exc:

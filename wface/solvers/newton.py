@@ -28,6 +28,7 @@ import numpy as np
 
 from wface.solvers.linear import (
     DirectFactor,
+    FactorPreconditioner,
     JacobiPreconditioner,
     NotPositiveDefiniteError,
     pcg,
@@ -52,6 +53,8 @@ class Equilibrium:
         energy: total elastic energy at x, joules.
         cg_iterations: CG iterations over all Newton steps (0 for the direct solver).
         projected_steps: Newton steps that used the projected stiffness.
+        factorizations: sparse factorisations done (direct solver; later steps first try CG
+            preconditioned by the previous factor).
         solver: linear engine used ("direct" or "cg").
         history: residual_rel after each iteration (first entry: the start).
         seconds: wall-clock time of the solve.
@@ -67,33 +70,73 @@ class Equilibrium:
     energy: float
     cg_iterations: int = 0
     projected_steps: int = 0
+    factorizations: int = 0
     solver: str = "direct"
     history: list = field(default_factory=list)
     seconds: float = 0.0
 
 
-def solve_free(tangent, pattern, rhs: np.ndarray, *, engine: str, rtol: float = 1e-10, x0=None):
-    """Solve K_UU X = rhs for (3k,) or (3k, c) right-hand sides over the unknowns of ``pattern``.
-
-    Returns (X, cg_iterations). Raises ``NotPositiveDefiniteError`` when K_UU is not positive
-    definite (factorisation failure, or p.K p <= 0 in CG).
-    """
-    if engine == "direct":
-        factor = DirectFactor(tangent.assemble(pattern))
-        try:
-            return factor.solve(rhs), 0
-        finally:
-            factor.free()
-    mask = np.zeros((pattern.n_nodes, 3))
-    mask[pattern.dof_nodes] = 1.0
-
+def _free_matvec(tangent, pattern):
     def matvec(v):
         if v.ndim == 1:
             return pattern.gather(tangent.matvec(pattern.scatter(v)))
         return np.stack([matvec(v[:, j]) for j in range(v.shape[1])], axis=1)
 
+    return matvec
+
+
+def solve_free(
+    tangent,
+    pattern,
+    rhs: np.ndarray,
+    *,
+    engine: str,
+    rtol: float = 1e-10,
+    x0=None,
+    state: dict | None = None,
+    reuse_iterations: int = 12,
+):
+    """Solve K_UU X = rhs for (3k,) or (3k, c) right-hand sides over the unknowns of ``pattern``.
+
+    With ``engine="direct"`` and a ``state`` dict, the factor is kept in ``state["factor"]`` and
+    the next call first tries CG preconditioned by that (older) factor, for at most
+    ``reuse_iterations`` iterations, before factoring anew (DESIGN.md section 8: refactor only
+    when the old factor stops being a good preconditioner). ``state["factorizations"]`` counts.
+
+    Returns (X, cg_iterations). Raises ``NotPositiveDefiniteError`` when K_UU is not positive
+    definite (factorisation failure, or p.K p <= 0 in CG).
+    """
+    if engine == "direct":
+        old = state.get("factor") if state is not None else None
+        if old is not None:
+            res = pcg(
+                _free_matvec(tangent, pattern),
+                rhs,
+                preconditioner=FactorPreconditioner(old),
+                rtol=rtol,
+                maxiter=reuse_iterations,
+            )
+            if res.converged and not res.indefinite:
+                return res.x, res.iterations
+        factor = DirectFactor(tangent.assemble(pattern))
+        if state is None:
+            try:
+                return factor.solve(rhs), 0
+            finally:
+                factor.free()
+        if old is not None:
+            old.free()
+        state["factor"] = factor
+        state["factorizations"] = state.get("factorizations", 0) + 1
+        return factor.solve(rhs), 0
+    if str(tangent._sim.device).startswith("cuda"):
+        from wface.solvers.warp_cg import warp_pcg
+
+        X, its = warp_pcg(tangent, pattern, rhs, rtol=rtol)
+        return X, its
+
     precond = JacobiPreconditioner(pattern.gather(tangent.diagonal()))
-    res = pcg(matvec, rhs, x0=x0, preconditioner=precond, rtol=rtol, maxiter=20 * rhs.shape[0])
+    res = pcg(_free_matvec(tangent, pattern), rhs, x0=x0, preconditioner=precond, rtol=rtol, maxiter=20 * rhs.shape[0])
     if res.indefinite:
         raise NotPositiveDefiniteError("CG met a direction of non-positive curvature")
     return res.x, res.iterations
@@ -110,6 +153,7 @@ def newton_quasistatic(
     solver: str = "auto",
     max_line_search: int = 30,
     stiffness: str = "auto",
+    reuse_factor: bool = False,
 ) -> Equilibrium:
     """Newton-Raphson for f_U(x, a) = 0 (see module docstring). ``sim`` is a ``Simulator``."""
     from wface.physics.simulator import count_inverted
@@ -134,6 +178,7 @@ def newton_quasistatic(
     x = rest.copy() if x0 is None else np.array(x0, dtype=np.float64)
     iterations = 0
     cg_total = 0
+    linear_state: dict = {} if reuse_factor else None
     history: list[float] = []
 
     dxc = targets - x[fixed]
@@ -146,7 +191,7 @@ def newton_quasistatic(
         coupling = tan.matvec(v)  # K_{., C} dx_C
         rhs = pattern.gather(f - coupling)
         history.append(float(np.linalg.norm(rhs)) / scale)
-        dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=1e-6)
+        dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=1e-6, state=linear_state)
         cg_total += its
         x[fixed] = targets
         x[free] += dx.reshape(-1, 3)
@@ -157,16 +202,17 @@ def newton_quasistatic(
     history.append(residual / scale)
     if stiffness not in ("auto", "projected", "exact"):
         raise ValueError(f"stiffness must be 'auto', 'projected' or 'exact', got {stiffness!r}")
-    try_exact = stiffness != "projected"
+    skip_exact = False  # after a failed exact attempt, the next step goes straight to the projected K
     projected_steps = 0
     while residual / scale > tol and iterations < max_iterations:
         rhs = pattern.gather(f)
         eta = float(np.clip(0.1 * residual / scale, 1e-12, 1e-2))
         dx = None
-        if try_exact:
+        attempted = stiffness != "projected" and not skip_exact
+        if attempted:
             tan = sim.tangent(x, a, project=False)
             try:
-                dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta)
+                dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta, state=linear_state)
                 cg_total += its
                 if not float(rhs @ dx) > 0:
                     dx = None
@@ -174,20 +220,18 @@ def newton_quasistatic(
                 if stiffness == "exact":
                     raise
                 dx = None
+        skip_exact = attempted and dx is None
         if dx is None:
             tan = sim.tangent(x, a)
-            dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta)
+            dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta, state=linear_state)
             cg_total += its
             projected_steps += 1
-            try_exact = stiffness == "exact"
-        else:
-            try_exact = stiffness != "projected"
         dx = dx.reshape(-1, 3)
         slope = float(rhs @ dx.reshape(-1))  # -dE/dt at t = 0 (> 0 for a descent direction)
         if not slope > 0:  # not a descent direction (should not happen with SPD K): steepest descent
             dx = f[free] / max(float(np.abs(tan.diagonal()[free]).max()), 1e-30)
             slope = float(rhs @ dx.reshape(-1))
-        slack = 64 * np.finfo(float).eps * float(np.abs(sim.element_energies(x, a)).sum())
+        slack = 64 * np.finfo(sim._np_dtype).eps * float(np.abs(sim.element_energies(x, a)).sum())
         t = 1.0
         trial = x.copy()
         for _ in range(max_line_search):
@@ -202,6 +246,11 @@ def newton_quasistatic(
         residual = float(np.linalg.norm(f[free]))
         history.append(residual / scale)
 
+    factorizations = 0
+    if linear_state:
+        factorizations = linear_state.get("factorizations", 0)
+        if linear_state.get("factor") is not None:
+            linear_state["factor"].free()
     return Equilibrium(
         x=x,
         converged=bool(residual / scale <= tol),
@@ -213,6 +262,7 @@ def newton_quasistatic(
         energy=energy,
         cg_iterations=cg_total,
         projected_steps=projected_steps,
+        factorizations=factorizations,
         solver=engine,
         history=history,
     )

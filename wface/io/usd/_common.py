@@ -1,14 +1,4 @@
-"""USD output for DCC tools (Blender, Houdini, usdview): meshes, takes, bases, validation.
-
-Stages are written with usd-core (``pxr``), imported inside the functions that need it. Every
-stage says its units and axes in its metadata: ``metersPerUnit = 1`` (positions are metres, as
-everywhere in wface), ``upAxis`` (``"Y"`` by default, matching the model's +y up),
-``timeCodesPerSecond`` = the capture rate, and start/end time codes covering the frames. Frame
-``f`` of an animation is written at time code ``f`` (0-based).
-
-The path's suffix picks the format: ``.usdc`` (binary crate, the default for ``.usd`` too) or
-``.usda`` (text, diff-able).
-"""
+"""Shared pieces of the USD writers: errors, checks, Vt conversions, stage creation, meshes."""
 
 from __future__ import annotations
 
@@ -16,11 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = [
-    "UsdWriteError",
-    "as_polygons",
-    "write_mesh_animation",
-]
+__all__ = ["UsdWriteError", "affine_to_matrix4d", "as_polygons"]
 
 
 class UsdWriteError(ValueError):
@@ -71,9 +57,13 @@ def as_polygons(
             raise UsdWriteError(f"face_vertex_counts must be >= 3 (found {int(counts.min())})")
     idx = idx.astype(np.int64).reshape(-1)
     if int(counts.sum()) != idx.size:
-        raise UsdWriteError(f"face_vertex_counts sum to {int(counts.sum())} but there are {idx.size} face vertex indices")
+        raise UsdWriteError(
+            f"face_vertex_counts sum to {int(counts.sum())} but there are {idx.size} face vertex indices"
+        )
     if idx.size and (idx.min() < 0 or idx.max() >= n_points):
-        raise UsdWriteError(f"face_vertex_indices reference points outside [0, {n_points}) (range {idx.min()}..{idx.max()})")
+        raise UsdWriteError(
+            f"face_vertex_indices reference points outside [0, {n_points}) (range {idx.min()}..{idx.max()})"
+        )
     return counts, idx.astype(np.int32)
 
 
@@ -99,9 +89,9 @@ def _vt_float(a: np.ndarray):
     return Vt.FloatArray.FromNumpy(np.ascontiguousarray(a, dtype=np.float32))
 
 
-def _new_stage(path: Path, *, fps: float, n_frames: int, up_axis: str, root: str):
-    """Create a stage (replacing any file there) with wface's metadata and a root Xform."""
-    from pxr import Sdf, Usd, UsdGeom
+def _new_stage(path: Path, *, fps: float, n_frames: int, up_axis: str, root: str, root_type: str = "Xform"):
+    """Create a stage (replacing any file there) with wface's metadata and a root prim (the default prim)."""
+    from pxr import Sdf, Usd, UsdGeom, UsdSkel
 
     if not (np.isfinite(fps) and fps > 0):
         raise UsdWriteError(f"fps must be a positive number, got {fps}")
@@ -110,7 +100,14 @@ def _new_stage(path: Path, *, fps: float, n_frames: int, up_axis: str, root: str
     if not Sdf.Path.IsValidIdentifier(root):
         raise UsdWriteError(f"prim name {root!r} is not a valid USD identifier")
     path.parent.mkdir(parents=True, exist_ok=True)
-    layer = Sdf.Layer.FindOrOpen(str(path)) if path.exists() else None
+    layer = None
+    if path.exists():
+        try:
+            layer = Sdf.Layer.FindOrOpen(str(path))
+        except Exception:  # noqa: BLE001 - an unreadable old file is simply replaced
+            layer = None
+        if layer is None:
+            path.unlink()
     if layer is not None:
         layer.Clear()
         stage = Usd.Stage.Open(layer)
@@ -122,14 +119,17 @@ def _new_stage(path: Path, *, fps: float, n_frames: int, up_axis: str, root: str
     stage.SetFramesPerSecond(float(fps))
     stage.SetStartTimeCode(0.0)
     stage.SetEndTimeCode(float(max(n_frames - 1, 0)))
-    root_prim = UsdGeom.Xform.Define(stage, f"/{root}").GetPrim()
-    stage.SetDefaultPrim(root_prim)
+    schema = UsdSkel.Root if root_type == "SkelRoot" else UsdGeom.Xform
+    root_xf = schema.Define(stage, f"/{root}")
+    if up_axis == "Z":  # data stay +y up; the root turns them so that world +z is up (front: -y)
+        UsdGeom.Xformable(root_xf.GetPrim()).AddRotateXOp().Set(90.0)
+    stage.SetDefaultPrim(root_xf.GetPrim())
     return stage
 
 
 def _write_mesh(stage, prim_path: str, points: np.ndarray, counts, indices, colors=None):
     """Author a UsdGeom.Mesh: topology once; points and extent static (n,3) or per frame (F,n,3)."""
-    from pxr import Sdf, UsdGeom
+    from pxr import UsdGeom
 
     mesh = UsdGeom.Mesh.Define(stage, prim_path)
     mesh.CreateFaceVertexCountsAttr(_vt_int(counts))
@@ -145,8 +145,9 @@ def _write_mesh(stage, prim_path: str, points: np.ndarray, counts, indices, colo
             pts_attr.Set(_vt_vec3f(p), float(f))
             ext_attr.Set(_vt_vec3f(_extent(p)), float(f))
     if colors is not None:
-        _set_display_color(mesh, colors, n_points=points.shape[-2], n_frames=points.shape[0] if points.ndim == 3 else None)
-    del Sdf
+        _set_display_color(
+            mesh, colors, n_points=points.shape[-2], n_frames=points.shape[0] if points.ndim == 3 else None
+        )
     return mesh
 
 
@@ -182,46 +183,62 @@ def _as_points(points_m, label: str = "points_m") -> np.ndarray:
     return p
 
 
-def write_mesh_animation(
-    path: str | Path,
-    *,
-    points_m: np.ndarray,
-    face_vertex_counts: np.ndarray | None,
-    face_vertex_indices: np.ndarray,
-    fps: float = 60.0,
-    name: str = "Face",
-    up_axis: str = "Y",
-    colors: np.ndarray | None = None,
-) -> Path:
-    """Write one polygon mesh, static or animated, to a new USD stage.
+# ---------------------------------------------------------------------- names and small writers
+def _identifier(name: str, taken: set[str]) -> str:
+    """A valid, unique USD identifier for ``name`` (adds it to ``taken``)."""
+    from pxr import Tf
 
-    The stage's default prim is ``/<name>`` (an Xform) with the mesh at ``/<name>/Mesh``.
-    Topology is written once; points and extent are time-sampled when ``points_m`` is 3-D
-    (frame ``f`` at time code ``f``).
+    name = str(name)
+    base = Tf.MakeValidIdentifier("_" + name if name[:1].isdigit() else name) or "_"  # keep a leading digit
+    ident, k = base, 1
+    while ident in taken:
+        ident, k = f"{base}_{k}", k + 1
+    taken.add(ident)
+    return ident
 
-    Args:
-        path: output file; ``.usda`` writes text, ``.usdc`` / ``.usd`` binary crate.
-        points_m: (n, 3) static or (F, n, 3) per-frame vertex positions in metres.
-        face_vertex_counts: (p,) vertices per face, or None when ``face_vertex_indices`` holds
-            triangles (t, 3).
-        face_vertex_indices: flat USD face vertex indices, or (t, 3) triangles.
-        fps: frames per second (the stage's timeCodesPerSecond).
-        name: name of the root prim (a valid USD identifier).
-        up_axis: "Y" (default, wface's convention) or "Z". Only metadata: points are not rotated.
-        colors: optional displayColor: (3,) constant, (n, 3) per vertex or (F, n, 3) per vertex
-            and frame; linear RGB in [0, 1].
 
-    Returns:
-        The path written.
+def affine_to_matrix4d(affine: np.ndarray):
+    """A 3x4 affine ``[A | t]`` (x' = A x + t, column vectors) as USD's row-vector Gf.Matrix4d."""
+    from pxr import Gf
 
-    Raises:
-        UsdWriteError: wrong shapes, NaN/inf, out-of-range indices or a bad suffix.
-    """
-    path = _check_path(path)
-    p = _as_points(points_m)
-    counts, indices = as_polygons(face_vertex_counts, face_vertex_indices, p.shape[-2])
-    n_frames = p.shape[0] if p.ndim == 3 else 1
-    stage = _new_stage(path, fps=fps, n_frames=n_frames, up_axis=up_axis, root=name)
-    _write_mesh(stage, f"/{name}/Mesh", p, counts, indices, colors=colors)
-    stage.GetRootLayer().Save()
-    return path
+    a = np.asarray(affine, dtype=np.float64)
+    m = np.eye(4)
+    m[:3, :3] = a[:, :3].T
+    m[3, :3] = a[:, 3]
+    return Gf.Matrix4d(m.tolist())
+
+
+def _check_frames(name: str, a, n_frames: int, tail: tuple, *, allow_nan: bool = False) -> np.ndarray:
+    arr = np.asarray(a, dtype=np.float64)
+    want = (n_frames, *tail)
+    ok = arr.ndim == len(want) and all(w is None or s == w for s, w in zip(arr.shape, want, strict=False))
+    if not ok:
+        shown = ", ".join("k" if w is None else str(w) for w in want)
+        raise UsdWriteError(f"{name} must have shape ({shown}) (frames first, like node_positions_m); got {arr.shape}")
+    if allow_nan:
+        if np.any(np.isinf(arr)):
+            raise UsdWriteError(f"{name} contains inf (use NaN for a missing value)")
+    else:
+        _check_finite(name, arr)
+    return arr
+
+
+def _write_float_primvar(gprim, name: str, values: np.ndarray, interpolation: str) -> None:
+    from pxr import Sdf, UsdGeom
+
+    pv = UsdGeom.PrimvarsAPI(gprim.GetPrim()).CreatePrimvar(name, Sdf.ValueTypeNames.FloatArray, interpolation)
+    if values.ndim == 1:
+        pv.Set(_vt_float(values))
+    else:
+        for f, v in enumerate(values):
+            pv.Set(_vt_float(v), float(f))
+
+
+def _json_safe(v):
+    import json
+
+    if isinstance(v, (bool, int, float, str)):
+        return v
+    if isinstance(v, np.generic):
+        return v.item()
+    return json.dumps(v, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
