@@ -182,3 +182,17 @@ def test_cli_blends_between_presets(tmp_path):
     first, last = np.asarray(attr.Get(0)), np.asarray(attr.Get(3))
     assert np.max(np.linalg.norm(last - first, axis=1)) > 0.005  # the jaw opens by 12 degrees
     assert main(["waters", "--mesh", "builtin", "--blend-to", "nope", "--out", str(tmp_path)]) == 1
+
+
+def test_bench_json_on_stdout_is_clean(tmp_path):
+    r = subprocess.run(
+        [sys.executable, "-m", "wface", "bench", "--suite", "waters", "--json", "--repeat", "1", "--device", "cpu"],
+        env=dict(_env(), WFACE_DATA=str(tmp_path)),
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=REPO_ROOT,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout)
+    assert out["suite"] == "waters" and out["warp_direct_frames_per_second"] > 0

@@ -30,6 +30,9 @@ class WarpWaters:
 
         from wface.warp_runtime import resolve_device
 
+        # keep Warp's start-up banner and module-load messages off stdout (JSON output goes there)
+        wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
+        wp.config.quiet = True
         self.layout = layout
         self.device = resolve_device(device)
         m = layout.muscles
