@@ -50,11 +50,12 @@ def test_layout_fitted_to_the_builtin_face(face, rig):
 
 def test_packaged_builtin_layout_matches_a_fresh_fit():
     packaged = load_layout("builtin")
-    fresh = builtin_face_layout()  # if this fails after a layout change: save_layout(builtin_face_layout(), ...)
+    fresh = builtin_face_layout()
+    hint = "stale wface/data/waters_builtin.json: regenerate with save_layout(builtin_face_layout(), path)"
     for a, b in zip(packaged.muscles, fresh.muscles, strict=True):
         ref = a.bone_m if isinstance(a, LinearMuscle) else a.centre_m
         new = b.bone_m if isinstance(b, LinearMuscle) else b.centre_m
-        np.testing.assert_allclose(ref, new, atol=1e-6, err_msg=a.name)
+        np.testing.assert_allclose(ref, new, atol=1e-6, err_msg=f"{a.name}: {hint}")
 
 
 @pytest.mark.parametrize("name", list(EXPRESSIONS))
