@@ -39,6 +39,10 @@ JAW_JOINT = JawJoint(
 )
 
 _W_ARC_M, _H_M, _T_MEAN_M = 0.23, Y_TOP - Y_BOTTOM, 0.011
+# The procedural muscles are tubes of 4-12 mm radius, thinner than real facial muscles, so each
+# carries a strength multiplier of sigma_max: at 5, full zygomaticus major moves the mouth corner
+# ~9 mm (up, back and outward), the excursion of a broad smile.
+MUSCLE_STRENGTH = 5.0
 
 
 def _resolution(target_tets: int) -> tuple[int, int, int]:
@@ -165,6 +169,7 @@ def build_face(target_tets: int = 20_000, *, progress: bool = False, material: M
         fibre_muscle=f_mus,
         fibre_fraction=f_frac,
         fibre_direction=f_dir,
+        muscle_strength=np.full(len(names), MUSCLE_STRENGTH),
         attached_nodes=attached,
         attached_bone=attached_bone,
         jaw_joint=JAW_JOINT,

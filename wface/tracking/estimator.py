@@ -5,11 +5,15 @@ Objective: phi(c) = sum_k w_k |m_k(X(c)) - t_k|^2 over the markers present in th
 m_k the embedded marker (barycentric point of its skin triangle plus its rest offset along the
 normal) and w_k robust weights. One Gauss-Newton step:
   1. linearise m(c + dc) ~ m(c) + J dc with J = W dX/dc (``FaceRig.jacobian``);
-  2. for rho rising geometrically (x1.05) from rho0 phi up to 1e6 phi, solve the small system
-     (2 J^T W J + rho H_p + 2 lam I_a) dc = -(2 J^T W r + rho g_p + 2 lam (a - a_prev)),
-     stopping at the first rho whose step keeps the penalties phi_p(c + dc) under ``penalty_tol``.
-     The activation bounds are enforced exactly inside this small solve (a bounded least squares,
-     since the activation penalty is flat at the bound); rigidity and the jaw joint stay penalties;
+  2. for rho rising geometrically (x1.05 grid, searched by bisection) from rho0 phi up to 1e6 phi,
+     solve the small system (2 J^T W J + rho H_p + 2 lam I_a) dc = -(2 J^T W r + rho g_p + 2 lam (a - a_prev)),
+     and take the first rho whose bone step is rigid to first order (|sym(M^T dM)| <= 0.05 |dM|).
+     The activation bounds and the jaw-joint equalities are kept exactly inside this small solve
+     (bounded least squares in the null space of the equalities): their quadratic penalties are
+     flat at the bound, so a linearised penalty model cannot stop a step from crossing it.
+     Every trial point is retracted onto valid controls (``retract``: rotations by polar
+     decomposition, the jaw onto its joint's 3 degrees of freedom within the limits), so the
+     penalties phi_p stay ~0 along the search;
   3. golden-section search of phi + rho phi_p along dc (tau in [0, 1]), each evaluation a
      quasistatic solve warm-started from the linearised prediction Y + tau dY/dc dc.
 Outliers: weights w_k = min(1, delta / |r_k|) (Huber, iteratively reweighted), delta =
@@ -37,15 +41,16 @@ class TrackOptions:
     """Settings of the per-frame estimation (defaults follow seed 000)."""
 
     gn_steps_first: int = 4  # Gauss-Newton steps on the first frame of a chunk
-    gn_steps: int = 1  # on later frames (warm-started)
+    gn_steps: int = 3  # at most, on later frames (warm-started; stops early, usually after 1-2)
     rho0: float = 1e-3  # first penalty weight, relative to phi
     rho_growth: float = 1.05
     rho_max: float = 1e6  # relative to phi
-    penalty_tol: float = 1e-6  # acceptable phi_p after a step: violations of ~1e-3 (activation, rigidity, 1 mm at the joint)
+    rigid_step_tol: float = 0.05  # accepted first-order non-rigidity of a bone step: |sym(M^T dM)| / |dM|
     line_search_evals: int = 5  # quasistatic solves in the golden-section search
     robust_mm: float | None = 3.0  # Huber threshold on marker residuals (mm); None: plain least squares
     temporal_weight: float = 0.0  # lam: pull of activations toward the previous frame (m^2 per unit^2)
-    min_improvement: float = 1e-4  # stop GN when phi drops by less than this fraction
+    extrapolate: bool = True  # start each frame from a constant-velocity prediction of the controls
+    min_improvement: float = 0.05  # stop GN when the objective drops by less than this fraction
 
 
 @dataclass
@@ -191,11 +196,11 @@ class FrameEstimator:
                 return steps_at[k]
 
             lo_k, hi_k = 0, K
-            if self._penalty(c + step_at(0))[0] <= opt.penalty_tol:
+            if self._step_violation(c, step_at(0)) <= opt.rigid_step_tol:
                 hi_k = 0
             while hi_k - lo_k > 1:
                 mid = (lo_k + hi_k) // 2
-                if self._penalty(c + step_at(mid))[0] <= opt.penalty_tol:
+                if self._step_violation(c, step_at(mid)) <= opt.rigid_step_tol:
                     hi_k = mid
                 else:
                     lo_k = mid
@@ -210,7 +215,7 @@ class FrameEstimator:
 
             def evaluate(tau: float):
                 if tau not in cache:
-                    ct = c + tau * dc
+                    ct = self.retract(c + tau * dc)
                     y_guess = state.y_m + tau * (Jy @ self._dc_y(dc)).reshape(-1, 3)
                     st = rig.equilibrium(ct, y_guess)
                     mt = self.markers.positions(st.x_m)
@@ -235,8 +240,8 @@ class FrameEstimator:
             gn_done += 1
             if cache[tau_best][0] >= total0:
                 break  # no descent along dc: keep c
-            c = c + tau_best * dc
             _, state, m = cache[tau_best]
+            c = state.controls
             w = self._weights(np.where(present[:, None], m - target, 0.0))
             if total0 - cache[tau_best][0] < opt.min_improvement * total0:
                 break
@@ -260,45 +265,74 @@ class FrameEstimator:
         )
 
     def _bounded_step(self, H: np.ndarray, g: np.ndarray, c: np.ndarray) -> np.ndarray:
-        """argmin 1/2 dc^T H dc + g^T dc subject to the linear constraints of the controls.
+        """argmin 1/2 dc^T H dc + g^T dc with 0 <= a + da <= 1 and the jaw-joint equalities kept.
 
-        Activation bounds 0 <= a <= 1 and the jaw joint psi1..psi6 are linear in c, and their
-        quadratic penalties are flat at a bound (no curvature at a = 0 or at psi4 = 0), so a
-        linearised penalty model cannot stop a step from crossing them. The small quadratic model
-        is therefore minimised under these linear constraints exactly (SLSQP on M + 24 unknowns);
-        rigidity stays a penalty (it is not linear).
+        The activation penalty is flat at its bound (no curvature at a = 0), so a linearised
+        penalty model cannot stop a step from crossing it: the box is enforced exactly instead.
+        The joint equalities psi1..psi3 are linear in the jaw parameters: the step lives in their
+        null space (dc = T z, T = blockdiag(I, N_jaw)), which leaves the activation box a box, and
+        the reduced problem is a bounded least squares on the Cholesky factor (BVLS).
         """
-        from scipy.optimize import minimize
+        from scipy.optimize import lsq_linear
 
-        from wface.controls import _joint_rows
+        T = self._step_basis
+        Hz = T.T @ (0.5 * (H + H.T)) @ T
+        gz = T.T @ g
+        p = len(gz)
+        Hz += 1e-10 * max(np.trace(Hz) / p, 1e-30) * np.eye(p)  # damping for unobservable directions
+        R = np.linalg.cholesky(Hz).T  # Hz = R^T R
+        rhs = -np.linalg.solve(R.T, gz)
+        lo = np.full(p, -np.inf)
+        hi = np.full(p, np.inf)
+        a = np.clip(c[: self.M], 0.0, 1.0)
+        lo[: self.M], hi[: self.M] = -a, 1.0 - a
+        z = lsq_linear(R, rhs, bounds=(lo, hi), method="bvls").x
+        return T @ z
+
+    @property
+    def _step_basis(self) -> np.ndarray:
+        if not hasattr(self, "_T"):
+            from scipy.linalg import null_space
+
+            from wface.controls import _joint_rows
+
+            A, _, lo, hi = _joint_rows(self.rig.model.jaw_joint)
+            N = null_space(A[lo == hi])  # (12, 9)
+            p = self.M + 24
+            T = np.zeros((p, self.M + 12 + N.shape[1]))
+            T[: self.M + 12, : self.M + 12] = np.eye(self.M + 12)
+            T[self.M + 12 :, self.M + 12 :] = N
+            self._T = T
+        return self._T
+
+    def _step_violation(self, c: np.ndarray, dc: np.ndarray) -> float:
+        """First-order rigidity violation of a step, |M^T dM + dM^T M|_F / |dM|_F, worst bone."""
+        worst = 0.0
+        for s0 in (self.M, self.M + 12):
+            Mb, dM = c[s0 : s0 + 9].reshape(3, 3), dc[s0 : s0 + 9].reshape(3, 3)
+            norm = np.linalg.norm(dM)
+            if norm > 1e-12:
+                worst = max(worst, np.linalg.norm(Mb.T @ dM + dM.T @ Mb) / norm)
+        return worst
+
+    def retract(self, c: np.ndarray) -> np.ndarray:
+        """Project controls onto valid ones: activations into [0, 1], the cranium onto the nearest
+        rotation (polar decomposition), the jaw onto a rigid pose inside the joint limits."""
+        from wface.controls import jaw_from_intuitive, jaw_to_intuitive, params_from_affine
 
         M = self.M
-        p = len(g)
-        a = c[:M]
-        A, cc, lo, hi = _joint_rows(self.rig.model.jaw_joint)
-        jaw = slice(M + 12, M + 24)
-        psi0 = A @ c[jaw] + cc
-        Ajaw = np.zeros((len(A), p))
-        Ajaw[:, jaw] = A
-        eq = lo == hi
-        cons = [
-            {"type": "eq", "fun": lambda d: Ajaw[eq] @ d + psi0[eq], "jac": lambda d: Ajaw[eq]},
-            {"type": "ineq", "fun": lambda d: Ajaw[~eq] @ d + psi0[~eq] - lo[~eq], "jac": lambda d: Ajaw[~eq]},
-            {"type": "ineq", "fun": lambda d: hi[~eq] - Ajaw[~eq] @ d - psi0[~eq], "jac": lambda d: -Ajaw[~eq]},
-        ]
-        bounds = [(-ai, 1.0 - ai) for ai in np.clip(a, 0.0, 1.0)] + [(None, None)] * (p - M)
-        Hs = 0.5 * (H + H.T)
-        x0 = np.zeros(p)
-        res = minimize(
-            lambda d: 0.5 * d @ Hs @ d + g @ d,
-            x0,
-            jac=lambda d: Hs @ d + g,
-            bounds=bounds,
-            constraints=cons,
-            method="SLSQP",
-            options={"maxiter": 200, "ftol": 1e-14},
-        )
-        return res.x
+        out = np.array(c, dtype=np.float64)
+        out[:M] = np.clip(out[:M], 0.0, 1.0)
+        for s0 in (M, M + 12):
+            U, _, Vt = np.linalg.svd(out[s0 : s0 + 9].reshape(3, 3))
+            R = U @ Vt
+            if np.linalg.det(R) < 0:
+                R = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
+            out[s0 : s0 + 12] = params_from_affine(R, out[s0 + 9 : s0 + 12])
+        joint = self.rig.model.jaw_joint
+        pose = jaw_to_intuitive(joint, out[M + 12 :])
+        out[M + 12 :] = jaw_from_intuitive(joint, pose["opening_deg"], pose["protrusion_m"], pose["lateral_deg"])
+        return out
 
     def _dc_y(self, dc: np.ndarray) -> np.ndarray:
         """The part of dc that Y (cranium frame) depends on: activations and jaw parameters."""

@@ -122,19 +122,23 @@ def _track_chunk(model, embedding, targets, frames, marker_names, options, rig_k
     est = FrameEstimator(rig, markers, options)
     out = []
     done = load_frame_records(out_dir, frames) if (out_dir is not None and resume) else {}
-    c, y, a_prev = None, None, None
+    c, y, a_prev, c_older = None, None, None, None
     for j, f in enumerate(tqdm(frames, desc="tracking", disable=not progress, unit="frame")):
         if f in done:
             rec = done[f]
-            c, y, a_prev = rec.controls, rec.y_m, rec.controls[: rig.n_muscles]
+            c_older, c, y, a_prev = c, rec.controls, rec.y_m, rec.controls[: rig.n_muscles]
             out.append(rec)
             continue
         first = c is None
+        c_last = c
         if first:
             c = initial_controls(rig, markers, targets[j], marker_names)
+        elif c_older is not None and options.extrapolate:
+            c = est.retract(2.0 * c - c_older)  # constant-velocity prediction of the controls
         res = est.estimate(
             int(f), targets[j], c, y, steps=options.gn_steps_first if first else options.gn_steps, a_prev=a_prev
         )
+        c_older = c_last
         c, y, a_prev = res.controls, res.state.y_m, res.controls[: rig.n_muscles]
         stats = {
             "gauss_newton_steps": res.gauss_newton_steps,
