@@ -196,3 +196,36 @@ def test_bench_json_on_stdout_is_clean(tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     out = json.loads(r.stdout)
     assert out["suite"] == "waters" and out["warp_direct_frames_per_second"] > 0
+
+
+def test_cli_with_a_layout_file(tmp_path):
+    from wface.waters.fit import fit_layout
+    from wface.waters.layout import load_layout, save_layout
+    from wface.waters.synthetic import synthetic_landmarks
+
+    head = synthetic_head(30, 60)
+    write_obj(tmp_path / "head.obj", head)
+    base = load_layout("ict")
+    lay = fit_layout(
+        base, synthetic_landmarks(base), target_vertices_m=head.vertices_m, target_triangles=head.triangles()
+    )
+    save_layout(lay, tmp_path / "layout.json", units="mm")
+    rc = main(
+        [
+            "waters",
+            "--mesh",
+            str(tmp_path / "head.obj"),
+            "--units",
+            "m",
+            "--layout",
+            str(tmp_path / "layout.json"),
+            "--expression",
+            "happy",
+            "--no-render",
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
+    assert rc == 0
+    summary = json.loads((tmp_path / "o" / "happy.json").read_text())
+    assert summary["muscles"] == len(lay.muscles) and summary["max_displacement_mm"] > 1.0
