@@ -69,3 +69,8 @@ def test_every_preset_deforms_the_builtin_skin(rig, face, name):
     np.testing.assert_array_equal(d[attached & (r.jaw_weights == 0)], 0.0)  # bone-fixed border stays
     assert d.max() < 0.05
     assert (d.max() == 0.0) == (name == "neutral")
+
+
+def test_builtin_rig_uses_the_harmonic_jaw_weights(face, rig):
+    r, _, nodes = rig
+    np.testing.assert_array_equal(r.jaw_weights, harmonic_jaw_weights(face)[nodes])

@@ -48,3 +48,15 @@ def test_warp_kernel_on_moved_points_matches_a_fresh_rig(head_rig):
     np.testing.assert_allclose(got, fresh.muscle_displacement(c), atol=1e-12)
     with pytest.raises(ValueError, match="contraction"):
         WarpWaters(lay, device="cpu").muscle_displacement(moved, np.full(len(lay.muscles), 2.0))
+
+
+def test_warp_kernel_without_a_jaw_matches_the_rig(head_rig):
+    from dataclasses import replace
+
+    from wface.waters.warp_backend import WarpWaters
+
+    lay, head, _ = head_rig
+    no_jaw = replace(lay, jaw=None)
+    c = np.full(len(lay.muscles), 0.5)
+    got = WarpWaters(no_jaw, device="cpu").muscle_displacement(head.vertices_m, c)
+    np.testing.assert_allclose(got, WatersRig(no_jaw, head.vertices_m).muscle_displacement(c), atol=1e-12)

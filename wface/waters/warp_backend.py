@@ -81,7 +81,10 @@ class WarpWaters:
             raise ValueError(f"points must be finite with shape (n, 3), got {p.shape}")
         n = len(p)
         c = self._contractions(contractions)
+        regions = self._model["region"]
         if jaw_weights is None:
+            if self.layout.jaw is None:  # no jaw: no upper/lower split (as in WatersRig)
+                regions = wp.zeros(len(self.layout.muscles), dtype=wp.int32, device=self.device)
             jaw_weights = self.layout.jaw.weights(p) if self.layout.jaw is not None else np.zeros(n)
         mov = np.ones(n, np.int32) if movable is None else np.asarray(movable, dtype=bool).astype(np.int32)
         if np.shape(jaw_weights) != (n,) or mov.shape != (n,):
@@ -93,7 +96,7 @@ class WarpWaters:
             dim=n,
             inputs=[
                 md["kind"],
-                md["region"],
+                regions,
                 md["origin"],
                 md["axis"],
                 md["vertical"],
