@@ -95,7 +95,9 @@ def test_fixed_and_atlas_lists_hold_node_numbers(raw, data_dir, name):
 
 def test_jaw_attached_nodes_lie_on_the_jaw(model):
     jaw_nodes = model.nodes_of_bone("jaw")
-    assert len(jaw_nodes) == 329
+    first_added = model.metadata["added_nodes"]["first_id"]
+    assert first_added == 8720 and np.count_nonzero(jaw_nodes < first_added) == 329
+    assert len(jaw_nodes) == 329 + model.metadata["added_nodes"]["attached_to_jaw"]
     bones = [model.bone_meshes["jaw"], model.bone_meshes["lower_teeth"]]
     p = model.rest_positions_m[jaw_nodes]
     d = np.min([SurfaceQuery(b.vertices_m, b.triangles).closest(p).distance_m for b in bones], axis=0)
@@ -312,3 +314,35 @@ def test_example_summary_and_render(model, tmp_path):
     pytest.importorskip("pyvista")
     png = ex.render(model, tmp_path / "badin.png", window_size=(400, 200))
     assert png.stat().st_size > 1000
+
+
+def test_skin_is_a_connected_surface_without_holes_from_the_split(model):
+    """Split boundary quads (with a face-centre node) stay in their surface group."""
+    x = model.rest_positions_m
+    added = model.metadata["added_nodes"]["first_id"]
+    assert np.any(model.skin_triangles >= added)  # split skin quads are skin
+    # every skin edge is shared by two skin triangles, except along the rim of the skin
+    e = np.sort(model.skin_triangles[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2), axis=1)
+    _, cnt = np.unique(e, axis=0, return_counts=True)
+    assert cnt.max() == 2
+    assert np.count_nonzero(cnt == 1) < 0.1 * len(cnt)  # the rim is short compared with the surface
+    assert x[np.unique(model.skin_triangles), 2].max() > x[:, 2].max() - 1e-9  # the nose tip is skin
+
+
+# ---------------------------------------------------------------------------- readers (no data needed)
+def test_readers_on_small_files(tmp_path):
+    from wface.importers.ansys import read_obj
+
+    (tmp_path / "a.node").write_text("       1    0.5   -1.0E-03  2.0\n    1204-0.3651439041000E-05  78.8  -67.8\n")
+    num, xyz = read_ansys_nodes(tmp_path / "a.node")
+    assert num.tolist() == [1, 1204]
+    assert np.allclose(xyz, [[0.5, -1e-3, 2.0], [-0.3651439041e-5, 78.8, -67.8]])
+    (tmp_path / "a.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1 4//1\n")
+    v, t = read_obj(tmp_path / "a.obj")
+    assert v.shape == (4, 3) and t.tolist() == [[0, 1, 2], [0, 2, 3]]
+    (tmp_path / "m.mac").write_text(
+        "nb_muscles = 2\nNB_FIBERS(1)=1 ! one\nNB_FIBERS(2)=1\nNB_NODES_FIBER(1,1)= 2\nNB_NODES_FIBER(2,1)= 3\n"
+        "FIBER(1,1,1)= 11\nFIBER(1,1,2)= 12\n!FIBER(2,1,1)= 99\nFIBER(2,1,1)= 21\nFIBER(2,1,2)= 22\n"
+        "FIBER(2,1,3)= 23\nFIBER(2,1,4)= 24\n"
+    )
+    assert read_apdl_fibres(tmp_path / "m.mac") == {1: [[11, 12]], 2: [[21, 22, 23]]}

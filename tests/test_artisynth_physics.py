@@ -63,9 +63,22 @@ def test_ris_pulls_the_corners_sideways(setup):
 
 def test_lls_raises_the_upper_lip(setup):
     d, _ = _solve(setup, "LLS")
-    # the upper lip under the insertion (lateral to the midline) goes up
-    assert d["Mouth_UpL"][1] > 0.3 and d["Mouth_UpR"][1] > 0.3
+    # the upper lip under the insertion (lateral to the midline) goes up, about 3 mm
+    assert d["Mouth_UpL"][1] > 1.5 and d["Mouth_UpR"][1] > 1.5
     assert d["Mouth_UpL"][1] > abs(d["Mouth_DownL"][1])  # more than the lower lip moves
+
+
+def test_zyg_pulls_the_corners_up_and_out(setup):
+    d, _ = _solve(setup, "ZYG")
+    # smile: corners up about 4 mm and out about 3 mm
+    assert d["Mouth_Lend"][1] > 2.0 and d["Mouth_Rend"][1] > 2.0
+    assert d["Mouth_Lend"][0] > 1.0 and d["Mouth_Rend"][0] < -1.0
+
+
+def test_dao_pulls_the_corners_down(setup):
+    d, _ = _solve(setup, "DAO")
+    # corners down about 3.8 mm
+    assert d["Mouth_Lend"][1] < -2.0 and d["Mouth_Rend"][1] < -2.0
 
 
 def test_ment_raises_chin_and_lower_lip(setup):

@@ -13,7 +13,7 @@ import sys
 __all__ = ["main", "build_parser"]
 
 COMMAND_MODULES = [
-    "wface.commands.demo",
+    "wface.commands.track",
     "wface.commands.model",
     "wface.commands.bench",
     "wface.commands.simulate",

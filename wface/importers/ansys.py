@@ -243,7 +243,8 @@ def hexes_to_tets(
     steiner_below_deg: float = 10.0,
     split_below_deg: float = 3.0,
     max_rounds: int = 4,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return_sources: bool = False,
+):
     """Split (possibly degenerate) 8-node hexahedra into positively oriented, conforming tetrahedra.
 
     The boundary of every cell is triangulated by the smallest-id diagonal rule, which neighbours
@@ -261,10 +262,12 @@ def hexes_to_tets(
         steiner_below_deg: cells whose best vertex cone has a smaller dihedral angle may get a new node.
         split_below_deg: cells whose best cone stays below this get their faces split.
         max_rounds: rounds of face splitting.
+        return_sources: also return, per added node, the original node ids it stands for (a face
+            centre: the quad's 4 nodes; a cell node: the cell's nodes).
 
     Returns:
         (tets (k, 4) int32, parent (k,) int32 element of each tet, new_points (s, 3) added nodes,
-        which get ids n, n + 1, ... in this order).
+        which get ids n, n + 1, ... in this order[, sources: list of s tuples]).
     """
     hexes = np.asarray(hexes, dtype=np.int64)
     x = np.asarray(x, dtype=np.float64)
@@ -342,4 +345,8 @@ def hexes_to_tets(
     parent = np.repeat(np.arange(m), [len(t) for t in cell_tets])
     new = [*face_points, *(cell_point[e][None] for e in centre_cells)]
     new = np.vstack(new) if new else np.zeros((0, 3))
+    if return_sources:
+        by_id = sorted(split, key=split.get)
+        sources = [tuple(q) for q in by_id] + [tuple(np.unique(hexes[e]).tolist()) for e in centre_cells]
+        return tets.astype(np.int32), parent.astype(np.int32), new, sources
     return tets.astype(np.int32), parent.astype(np.int32), new

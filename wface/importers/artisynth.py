@@ -307,7 +307,9 @@ def import_artisynth(
 
     hexes = by_number(read_ansys_elements(directory / f"{MESH_PREFIX}.elem"), "element file")
     n_wedges = int(sum(len(set(h.tolist())) < 8 for h in hexes))
-    tets, parent, steiner_points = hexes_to_tets(hexes, x, steiner_below_deg=steiner_below_deg)
+    tets, parent, steiner_points, steiner_sources = hexes_to_tets(
+        hexes, x, steiner_below_deg=steiner_below_deg, return_sources=True
+    )
     x = np.vstack([x, steiner_points])
     quality = quality_report(x, tets)
     _log(
@@ -321,7 +323,11 @@ def import_artisynth(
     # ---- surfaces (atlas lists hold node numbers)
     external = by_number(read_ansys_nodes(directory / "atlas_external.node")[0], "atlas_external.node")
     internal = by_number(read_ansys_nodes(directory / "atlas_internal.node")[0], "atlas_internal.node")
-    groups = _classify_boundary(boundary_faces(tets), external, internal)
+    # an added face-centre node belongs to a surface list when its four corners do
+    quad_centres = [(n + k, src) for k, src in enumerate(steiner_sources) if len(src) == 4]
+    external = np.concatenate([external, [i for i, src in quad_centres if np.isin(src, external).all()]])
+    internal = np.concatenate([internal, [i for i, src in quad_centres if np.isin(src, internal).all()]])
+    groups = _classify_boundary(boundary_faces(tets), external.astype(np.int64), internal.astype(np.int64))
 
     # ---- bones
     bone_meshes = {}
@@ -338,6 +344,15 @@ def import_artisynth(
     jaw_nodes = np.unique(jaw_pos)
     overlap = np.intersect1d(fixed, jaw_nodes)
     cranium_nodes = np.setdiff1d(fixed, jaw_nodes)  # a node on both lists follows the jaw
+    # an added face-centre node whose four corners all follow one bone follows it too
+    added_on = {0: [], 1: []}
+    for k, src in enumerate(steiner_sources):
+        if len(src) == 4:
+            for bone, nodes in ((0, cranium_nodes), (1, jaw_nodes)):
+                if np.isin(src, nodes).all():
+                    added_on[bone].append(n + k)
+    cranium_nodes = np.concatenate([cranium_nodes, added_on[0]]).astype(np.int64)
+    jaw_nodes = np.concatenate([jaw_nodes, added_on[1]]).astype(np.int64)
     attached = np.concatenate([cranium_nodes, jaw_nodes])
     attached_bone = np.concatenate([np.zeros(len(cranium_nodes)), np.ones(len(jaw_nodes))]).astype(np.int8)
     order = np.argsort(attached, kind="stable")
@@ -403,7 +418,10 @@ def import_artisynth(
     canonical = {}
     for name in muscle_names:
         badin, _, side = name.partition("_")
-        canonical[name] = [b if b.startswith("orbicularis_oris") else f"{b}_{side}" for b in CANONICAL_MUSCLES[badin]]
+        sides = [side] if side else ["l", "r"]  # a midline muscle stands for both sides
+        canonical[name] = sorted(
+            {b if b.startswith("orbicularis_oris") else f"{b}_{s}" for b in CANONICAL_MUSCLES[badin] for s in sides}
+        )
     metadata = {
         "source": "ArtiSynth Models, Badin face (artisynth_models src/artisynth/models/face/geometry)",
         "citation": CITATION,
@@ -415,7 +433,7 @@ def import_artisynth(
             "rotation_source_to_model": BADIN_TO_WFACE.tolist(),
             "translation_m": [0.0, 0.0, 0.0],
         },
-        "node_numbers": "model node i is ANSYS node number i + 1 (the node file numbers 1..n in order)"
+        "node_numbers": f"model node i < {n} is ANSYS node number i + 1 (the node file numbers 1..{n} in order)"
         if np.array_equal(numbers, np.arange(1, n + 1))
         else "see importer",
         "node_list_indexing": {
@@ -425,6 +443,14 @@ def import_artisynth(
             JAW_NODE_FILE: "0-based positions in the node file",
         },
         "nodes_on_both_fixed_and_jaw_lists": int(overlap.size),
+        "added_nodes": {
+            "first_id": int(n),
+            "count": int(len(steiner_points)),
+            "what": "face-centre and cell nodes of the hex split (twisted or flat cells); face centres whose "
+            "corners all follow a bone are attached to it",
+            "attached_to_cranium": len(added_on[0]),
+            "attached_to_jaw": len(added_on[1]),
+        },
         "hex_split": "quad faces cut through their smallest node id, cells coned from their smallest node "
         "(Dompierre et al. 1999); conforming",
         "hexes": int(len(hexes)),

@@ -3,7 +3,8 @@ golden-section line search (seed 000, sections 5 and 9; DESIGN.md section 5).
 
 Objective: phi(c) = sum_k w_k |m_k(X(c)) - t_k|^2 over the markers present in the frame, with
 m_k the embedded marker (barycentric point of its skin triangle plus its rest offset along the
-normal) and w_k robust weights. One Gauss-Newton step:
+normal) and w_k robust weights, plus two optional regularisers, both off by default: temporal smoothness
+lam |a - a_prev|^2 and a prior mu |a|^2 toward the rest face. One Gauss-Newton step:
   1. linearise m(c + dc) ~ m(c) + J dc with J = W dX/dc (``FaceRig.jacobian``);
   2. for rho rising geometrically (x1.05 grid, searched by bisection) from rho0 phi up to 1e6 phi,
      solve the small system (2 J^T W J + rho H_p + 2 lam I_a) dc = -(2 J^T W r + rho g_p + 2 lam (a - a_prev)),
@@ -16,8 +17,8 @@ normal) and w_k robust weights. One Gauss-Newton step:
      penalties phi_p stay ~0 along the search;
   3. golden-section search of phi + rho phi_p along dc (tau in [0, 1]), each evaluation a
      quasistatic solve warm-started from the linearised prediction Y + tau dY/dc dc.
-Outliers: weights w_k = min(1, delta / |r_k|) (Huber, iteratively reweighted), delta =
-``robust_mm``; None turns it off. Temporal regularisation lam (default 0) is switchable.
+Outliers: iteratively reweighted Tukey biweights on the marker residuals (``_weights``), whose
+cut-off shrinks to ``robust_mm`` as the fit improves; None turns robust weighting off. Temporal regularisation lam (default 0) is switchable.
 """
 
 from __future__ import annotations
@@ -47,8 +48,9 @@ class TrackOptions:
     rho_max: float = 1e6  # relative to phi
     rigid_step_tol: float = 0.05  # accepted first-order non-rigidity of a bone step: |sym(M^T dM)| / |dM|
     line_search_evals: int = 5  # quasistatic solves in the golden-section search
-    robust_mm: float | None = 3.0  # Huber threshold on marker residuals (mm); None: plain least squares
+    robust_mm: float | None = 3.0  # Tukey cut-off on marker residuals (mm) once the fit is close; None: plain least squares
     temporal_weight: float = 0.0  # lam: pull of activations toward the previous frame (m^2 per unit^2)
+    activation_prior: float = 0.0  # mu: pull of activations toward zero (m^2 per unit^2), a small prior
     extrapolate: bool = True  # start each frame from a constant-velocity prediction of the controls
     min_improvement: float = 0.05  # stop GN when the objective drops by less than this fraction
 
@@ -114,11 +116,17 @@ class FrameEstimator:
         return pa.value + pb.value, g, H
 
     def _weights(self, residual: np.ndarray) -> np.ndarray:
+        """Tukey biweight w = (1 - (e/c)^2)^2 for e < c, 0 beyond, with
+        c = max(robust_mm, 4.685 * 1.4826 * median e): wide while the fit is coarse (a cold start),
+        shrinking to ``robust_mm`` so that outliers get no weight once the face fits."""
         delta = self.options.robust_mm
         if delta is None:
             return np.ones(len(residual))
         e = np.linalg.norm(residual, axis=1) * 1e3
-        return np.minimum(1.0, delta / np.maximum(e, 1e-12))
+        present = e > 0
+        med = np.median(e[present]) if present.any() else 0.0
+        c = max(delta, 4.685 * 1.4826 * med)
+        return np.where(e < c, (1.0 - (e / c) ** 2) ** 2, 0.0)
 
     def _phi(self, m: np.ndarray, target: np.ndarray, present: np.ndarray, w: np.ndarray) -> float:
         r = (m - target)[present]
@@ -182,6 +190,9 @@ class FrameEstimator:
             if opt.temporal_weight > 0 and a_prev is not None:
                 A[: self.M, : self.M] += 2.0 * opt.temporal_weight * np.eye(self.M)
                 g[: self.M] += 2.0 * opt.temporal_weight * (c[: self.M] - a_prev)
+            if opt.activation_prior > 0:
+                A[: self.M, : self.M] += 2.0 * opt.activation_prior * np.eye(self.M)
+                g[: self.M] += 2.0 * opt.activation_prior * c[: self.M]
             pen, gp, Hp = self._penalty(c)
             scale = max(phi, 1e-12)
             # The smallest rho on the grid rho0 phi * growth^k (k = 0..K) whose step satisfies the
@@ -210,7 +221,7 @@ class FrameEstimator:
 
             # Golden-section search on tau in [0, 1] with warm starts from the linear prediction.
             t = time.perf_counter()
-            total0 = phi + rho * pen
+            total0 = phi + rho * pen + self._reg(c, a_prev)
             cache: dict[float, tuple] = {}
 
             def evaluate(tau: float):
@@ -219,7 +230,7 @@ class FrameEstimator:
                     y_guess = state.y_m + tau * (Jy @ self._dc_y(dc)).reshape(-1, 3)
                     st = rig.equilibrium(ct, y_guess)
                     mt = self.markers.positions(st.x_m)
-                    cache[tau] = (self._phi(mt, target, present, w) + rho * self._penalty(ct)[0], st, mt)
+                    cache[tau] = (self._phi(mt, target, present, w) + rho * self._penalty(ct)[0] + self._reg(ct, a_prev), st, mt)
                 return cache[tau][0]
 
             lo, hi = 0.0, 1.0
@@ -304,6 +315,14 @@ class FrameEstimator:
             T[self.M + 12 :, self.M + 12 :] = N
             self._T = T
         return self._T
+
+    def _reg(self, c: np.ndarray, a_prev: np.ndarray | None) -> float:
+        """Value of the optional regularisers (temporal smoothness, prior toward rest)."""
+        a = c[: self.M]
+        out = self.options.activation_prior * float(a @ a)
+        if self.options.temporal_weight > 0 and a_prev is not None:
+            out += self.options.temporal_weight * float(np.sum((a - a_prev) ** 2))
+        return out
 
     def _step_violation(self, c: np.ndarray, dc: np.ndarray) -> float:
         """First-order rigidity violation of a step, |M^T dM + dM^T M|_F / |dM|_F, worst bone."""

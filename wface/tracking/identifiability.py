@@ -12,15 +12,40 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["OBSERVABLE_MM", "muscle_identifiability_mm"]
+__all__ = ["OBSERVABLE_MM", "muscle_identifiability_mm", "rig_identifiability_mm"]
 
 OBSERVABLE_MM = 1.0
 
 
-def muscle_identifiability_mm(J: np.ndarray, n_muscles: int, *, ridge: float = 1e-12) -> np.ndarray:
-    """(M,) identifiability s_i in millimetres per unit activation (module docstring)."""
+def muscle_identifiability_mm(
+    J: np.ndarray, n_muscles: int, *, bone_hessian: np.ndarray | None = None, ridge: float = 1e-12
+) -> np.ndarray:
+    """(M,) identifiability s_i in millimetres per unit activation (module docstring).
+
+    Args:
+        J: (3k, M + 24) marker Jacobian.
+        n_muscles: M.
+        bone_hessian: (24, 24) Hessian of the bone penalties (rigidity, jaw joint). It is added
+            with a large weight so that the bones compensate only with rigid, joint-valid
+            motions, as they do in tracking (an affine cranium could otherwise mimic a muscle).
+    """
     JtJ = J.T @ J
     p = JtJ.shape[0]
-    JtJ = JtJ + ridge * max(np.trace(JtJ) / p, 1e-30) * np.eye(p)
+    scale = max(np.trace(JtJ) / p, 1e-30)
+    if bone_hessian is not None:
+        JtJ = JtJ.copy()
+        JtJ[n_muscles:, n_muscles:] += 1e4 * scale * bone_hessian / max(np.abs(bone_hessian).max(), 1e-30)
+    JtJ = JtJ + ridge * scale * np.eye(p)
     inv_diag = np.diag(np.linalg.pinv(JtJ, hermitian=True))[:n_muscles]
     return 1e3 / np.sqrt(np.maximum(inv_diag, 1e-300))
+
+
+def rig_identifiability_mm(rig, markers, controls: np.ndarray | None = None) -> np.ndarray:
+    """Identifiability of every muscle of a ``FaceRig`` with a ``MarkerMap`` at ``controls`` (default rest)."""
+    from wface.controls import bone_penalty
+
+    c = rig.rest_controls() if controls is None else np.asarray(controls, dtype=np.float64)
+    state = rig.equilibrium(c)
+    J = markers.jacobian(rig.jacobian(state, markers.nodes))
+    H = bone_penalty(rig.model.jaw_joint, c[rig.n_muscles :]).hessian
+    return muscle_identifiability_mm(J, rig.n_muscles, bone_hessian=H)
