@@ -90,19 +90,18 @@ def test_take_content(tmp_path, face, take):
     assert any(len(cap.GetIdsAttr().Get(f)) < take["captured_markers_m"].shape[1] for f in range(F))
     assert list(sim.GetPrim().GetAttribute("wface:markerNames").Get()) == face.marker_names
 
-    # Bones: the world transform at each frame maps rest bone vertices like the affine does.
+    # Bones: the jaw Xform sits under the cranium's (its affines are relative, as wface.controls);
+    # the composed world transform of each bone moves its attached nodes where the take has them.
     cache = UsdGeom.XformCache()
-    for label, bone_mesh, aff in (
-        ("Cranium", "skull", take["cranium_affines"]),
-        ("Jaw", "mandible", take["jaw_affines"]),
-    ):
-        prim = stage.GetPrimAtPath(f"/Face/Bones/{label}/{bone_mesh}")
-        rest = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(), dtype=np.float64)
-        for f in (0, F - 1):
+    x = take["node_positions_m"]
+    for bone, mesh_path in (("cranium", "/Face/Bones/Cranium/skull"), ("jaw", "/Face/Bones/Cranium/Jaw/mandible")):
+        prim = stage.GetPrimAtPath(mesh_path)
+        assert prim, mesh_path
+        nodes = face.nodes_of_bone(bone)
+        for f in (0, F // 2, F - 1):
             cache.SetTime(Usd.TimeCode(f))
             m = np.asarray(cache.GetLocalToWorldTransform(prim))
-            world = rest @ m[:3, :3] + m[3, :3]
-            np.testing.assert_allclose(world, rest @ aff[f][:, :3].T + aff[f][:, 3], atol=1e-12)
+            np.testing.assert_allclose(face.rest_positions_m[nodes] @ m[:3, :3] + m[3, :3], x[f, nodes], atol=1e-12)
 
     # Muscles: one time-sampled float per muscle, plus the array.
     prim = stage.GetPrimAtPath("/Face/Muscles")
@@ -370,3 +369,26 @@ def test_read_take_round_trip(tmp_path, face, take, suffix):
     np.testing.assert_allclose(got["basis_weights"], take["basis_weights"], atol=1e-7)
     assert got["basis_names"] == take["basis"].names
     assert got["vertex_activation"].shape == (F, ids.size)
+    assert got["jaw_frame"] == "cranium"
+
+
+def test_jaw_in_world_frame_is_a_sibling(tmp_path, face, take):
+    from pxr import Usd, UsdGeom
+
+    c, j = take["cranium_affines"], take["jaw_affines"]
+    world = np.concatenate([c[:, :, :3] @ j[:, :, :3], (c[:, :, :3] @ j[:, :, 3:] + c[:, :, 3:])], axis=2)
+    path = _write(tmp_path, face, take, ".usda", jaw_affines=world, jaw_frame="world")
+    usd.assert_stage_valid(path)
+    stage = Usd.Stage.Open(str(path))
+    prim = stage.GetPrimAtPath("/Face/Bones/Jaw/mandible")
+    assert prim and not stage.GetPrimAtPath("/Face/Bones/Cranium/Jaw")
+    nodes = face.nodes_of_bone("jaw")
+    m = np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode(4)))
+    np.testing.assert_allclose(
+        face.rest_positions_m[nodes] @ m[:3, :3] + m[3, :3], take["node_positions_m"][4, nodes], atol=1e-12
+    )
+    got = usd.read_take(path)
+    assert got["jaw_frame"] == "world"
+    np.testing.assert_allclose(got["jaw_affines"], world, atol=1e-12)
+    with pytest.raises(usd.UsdWriteError, match="jaw_frame"):
+        _write(tmp_path, face, take, ".usda", jaw_frame="skull")

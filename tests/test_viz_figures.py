@@ -7,10 +7,24 @@ import re
 import numpy as np
 import pytest
 
-pytest.importorskip("pyvista")
+pv = pytest.importorskip("pyvista")
 pytest.importorskip("matplotlib")
 
 from wface.viz.figures import peak_frame, write_take_figures  # noqa: E402
+
+
+def _can_render_off_screen() -> bool:
+    try:
+        plotter = pv.Plotter(off_screen=True, window_size=(32, 32))
+        plotter.add_mesh(pv.Sphere())
+        plotter.screenshot(return_img=True)
+        plotter.close()
+        return True
+    except Exception:  # noqa: BLE001 - no OpenGL context (no EGL / OSMesa / display)
+        return False
+
+
+pytestmark = pytest.mark.skipif(not _can_render_off_screen(), reason="VTK cannot render off-screen here")
 from wface.viz.report import write_html_report  # noqa: E402
 from wface.viz.synthetic import synthetic_face, synthetic_take  # noqa: E402
 

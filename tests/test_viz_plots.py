@@ -35,10 +35,33 @@ def test_jaw_opening_recovers_angles_under_head_motion():
         Rj = Rh @ rotation_about(u, np.radians(a))
         cran.append(np.hstack([Rh, np.full((3, 1), 0.01 * k)]))
         jaw.append(np.hstack([Rj, np.zeros((3, 1))]))
-    got = plots.jaw_opening_deg(np.array(jaw), np.array(cran), axis=u)
+    got = plots.jaw_opening_deg(np.array(jaw), cranium_affines=np.array(cran), jaw_frame="world")
     np.testing.assert_allclose(got, angles, atol=1e-10)
     with pytest.raises(ValueError, match="differ in shape"):
-        plots.jaw_opening_deg(np.array(jaw), np.array(cran)[:2])
+        plots.jaw_opening_deg(np.array(jaw), cranium_affines=np.array(cran)[:2], jaw_frame="world")
+    with pytest.raises(ValueError, match="needs cranium_affines"):
+        plots.jaw_opening_deg(np.array(jaw), jaw_frame="world")
+
+
+def test_jaw_opening_matches_the_intuitive_jaw_controls():
+    controls = pytest.importorskip("wface.controls")
+    from wface.model import JawJoint
+
+    joint = JawJoint(
+        u=(1.0, 0.0, 0.0),
+        v=(0.0, -0.6, 0.8),
+        midpoint_m=(0.0, -0.02, 0.0),
+        condyle_distance_m=0.1,
+        track_length_m=0.012,
+        max_opening_sine=0.6,
+    )
+    openings = [0.0, 7.5, 20.0, 30.0]
+    jaw = []
+    for k, a in enumerate(openings):
+        p = controls.jaw_from_intuitive(joint, opening_deg=a, protrusion_m=0.002 * k, lateral_deg=0.0)
+        M, t = controls.affine_from_params(p)
+        jaw.append(np.hstack([M, t[:, None]]))
+    np.testing.assert_allclose(plots.jaw_opening_deg(np.array(jaw), joint), openings, atol=1e-9)
 
 
 @pytest.mark.parametrize("n_muscles", [3, 20])

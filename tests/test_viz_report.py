@@ -32,6 +32,7 @@ def test_report_embeds_images_and_tabulates_numbers(tmp_path):
         "marker_rms_mm_mean": 0.6,
         "muscle_identifiability": {"zygomatic<L>": 0.93, "frontalis": 0.12},
         "solver": {"name": "gn", "steps": 3},
+        "nested": {"a": {"b": 1}},
     }
     out = write_html_report(tmp_path / "out", report, {"activations": a, "marker error": "../b.png"})
     text = out.read_text()
@@ -42,6 +43,8 @@ def test_report_embeds_images_and_tabulates_numbers(tmp_path):
     for key in report:
         assert key in text
     assert "zygomatic&lt;L&gt;" in text and "0.93" in text  # names escaped, numbers shown
+    assert "<h2>solver</h2>" in text and "<td>gn</td>" in text  # a dict of scalars: its own table
+    assert "<code>{&quot;a&quot;: {&quot;b&quot;: 1}}</code>" in text  # deeper: JSON
     assert "n=4, mean 0.6" in text  # per-frame list summarised over finite values
     assert "<svg" in text
     assert re.search(r'class="card"><div class="v">0.6 mm</div><div class="k">marker RMS', text)

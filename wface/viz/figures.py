@@ -38,6 +38,7 @@ def write_take_figures(
     simulated_markers_m: np.ndarray | None = None,
     cranium_affines: np.ndarray | None = None,
     jaw_affines: np.ndarray | None = None,
+    jaw_frame: str = "cranium",
     jaw_angle_deg: np.ndarray | None = None,
     truth_activations: np.ndarray | None = None,
     truth_jaw_angle_deg: np.ndarray | None = None,
@@ -55,6 +56,8 @@ def write_take_figures(
         activations: (F, M) activations (muscle colours, activation plot).
         captured_markers_m / simulated_markers_m: (F, k, 3) markers (red / green; error plot).
         cranium_affines / jaw_affines: (F, 3, 4) bone motion (jaw opening plot, bones in pictures).
+        jaw_frame: "cranium" (default: jaw affines relative to the cranium, as ``wface.controls``)
+            or "world".
         jaw_angle_deg: (F,) jaw opening; default: from the affines about the model's jaw axis u.
         truth_activations / truth_jaw_angle_deg: ground truth, drawn dashed.
         movie: also write ``take.mp4`` (every frame up to ``movie_max_frames``, else evenly
@@ -88,6 +91,24 @@ def write_take_figures(
     def at(arr, f):
         return None if arr is None else np.asarray(arr)[f]
 
+    if jaw_affines is not None and jaw_frame == "world" and cranium_affines is not None:
+        c, j = np.asarray(cranium_affines, float), np.asarray(jaw_affines, float)  # make the jaw relative
+        lin = np.linalg.solve(c[:, :, :3], j[:, :, :3])
+        jaw_rel = np.concatenate([lin, np.linalg.solve(c[:, :, :3], (j[:, :, 3] - c[:, :, 3])[..., None])], axis=2)
+    else:
+        jaw_rel = jaw_affines
+
+    def panel(f: int, title: str) -> render.Panel:
+        return render.Panel(
+            x[f],
+            at(activations, f),
+            at(captured_markers_m, f),
+            at(simulated_markers_m, f),
+            title,
+            at(cranium_affines, f),
+            at(jaw_rel, f),
+        )
+
     images: dict[str, Path] = {}
     f = peak_frame(x, model.rest_positions_m, activations)
     t = f / fps
@@ -101,15 +122,13 @@ def write_take_figures(
         panel_size=panel_size,
     )
     if activations is not None:
-        images[f"Muscles at frame {f}: yellow active, red inactive"] = render.render_expression(
-            model, x[f], out / "muscles.png", activations=activations[f], style="muscles", panel_size=panel_size
+        images[f"Muscles at frame {f}: yellow active, red inactive"] = render.render_panels(
+            model, [panel(f, "")], out / "muscles.png", style="muscles", panel_size=panel_size
         )
     images["First frame and most expressive frame"] = render.render_before_after(
         model,
-        render.Panel(x[0], at(activations, 0), at(captured_markers_m, 0), at(simulated_markers_m, 0), title="frame 0"),
-        render.Panel(
-            x[f], at(activations, f), at(captured_markers_m, f), at(simulated_markers_m, f), title=f"frame {f}"
-        ),
+        panel(0, "frame 0"),
+        panel(f, f"frame {f}"),
         out / "before_after.png",
         panel_size=panel_size,
     )
@@ -124,7 +143,9 @@ def write_take_figures(
             rms, out / "marker_error.png", marker_max_mm=mx, fps=fps
         )
     if jaw_angle_deg is None and jaw_affines is not None:
-        jaw_angle_deg = plots.jaw_opening_deg(jaw_affines, cranium_affines, axis=model.jaw_joint.u)
+        jaw_angle_deg = plots.jaw_opening_deg(
+            jaw_affines, model.jaw_joint, cranium_affines=cranium_affines, jaw_frame=jaw_frame
+        )
     if jaw_angle_deg is not None:
         images["Jaw opening"] = plots.plot_jaw_opening(
             jaw_angle_deg, out / "jaw_opening.png", fps=fps, truth_deg=truth_jaw_angle_deg
@@ -146,6 +167,7 @@ def write_take_figures(
             simulated_markers_m=sub(simulated_markers_m),
             cranium_affines=sub(cranium_affines),
             jaw_affines=sub(jaw_affines),
+            jaw_frame=jaw_frame,
             window_size=panel_size,
         )
     return images

@@ -63,29 +63,42 @@ def marker_errors_mm(captured_m: np.ndarray, simulated_m: np.ndarray) -> tuple[n
 
 
 def jaw_opening_deg(
-    jaw_affines: np.ndarray, cranium_affines: np.ndarray | None = None, *, axis=(1.0, 0.0, 0.0)
+    jaw_affines: np.ndarray,
+    joint=None,
+    *,
+    cranium_affines: np.ndarray | None = None,
+    jaw_frame: str = "cranium",
 ) -> np.ndarray:
-    """Jaw opening angle (degrees) per frame from bone affines (F, 3, 4).
+    """Jaw opening angle (degrees) per frame from jaw affines (F, 3, 4), as ``wface.controls``.
 
-    The jaw's rotation relative to the cranium, R = R_c^T R_j, is measured about ``axis`` (the
-    model's condyle axis u; positive = rotation by the right-hand rule about u).
+    With the jaw's linear part M relative to the cranium, opening = asin(-(w . M v)) with the
+    joint's track direction v and w = v x u (``jaw_to_intuitive``): a rotation by alpha about u
+    (chin down) gives alpha, whatever the protrusion.
+
+    Args:
+        jaw_affines: (F, 3, 4) jaw affines.
+        joint: a ``JawJoint`` (u, v); default u = +x, v = +z.
+        cranium_affines: (F, 3, 4) cranium affines; needed when ``jaw_frame`` is "world".
+        jaw_frame: "cranium" (default; the jaw affines are relative to the cranium, as the 24 bone
+            parameters) or "world" (they map rest to world; the cranium's part is divided out).
     """
     j = np.asarray(jaw_affines, dtype=np.float64)
     if j.ndim != 3 or j.shape[1:] != (3, 4):
         raise ValueError(f"jaw_affines must have shape (frames, 3, 4); got {j.shape}")
-    R = j[:, :, :3]
-    if cranium_affines is not None:
+    M = j[:, :, :3]
+    if jaw_frame == "world":
+        if cranium_affines is None:
+            raise ValueError("jaw_frame='world' needs cranium_affines to take the head motion out")
         c = np.asarray(cranium_affines, dtype=np.float64)
         if c.shape != j.shape:
             raise ValueError(f"cranium_affines {c.shape} and jaw_affines {j.shape} differ in shape")
-        R = np.einsum("fji,fjk->fik", c[:, :, :3], R)
-    u = np.asarray(axis, dtype=np.float64)
-    u = u / np.linalg.norm(u)
-    # Rotation about u: sin from the skew part projected on u, cos from the trace restricted to u's plane.
-    skew = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1) / 2
-    sin = skew @ u
-    cos = (np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0
-    return np.degrees(np.arctan2(sin, cos))
+        M = np.linalg.solve(c[:, :, :3], M)
+    elif jaw_frame != "cranium":
+        raise ValueError(f"jaw_frame must be 'cranium' or 'world', got {jaw_frame!r}")
+    u = np.asarray((1.0, 0.0, 0.0) if joint is None else joint.u, dtype=np.float64)
+    v = np.asarray((0.0, 0.0, 1.0) if joint is None else joint.v, dtype=np.float64)
+    w = np.cross(v, u)
+    return np.degrees(np.arcsin(np.clip(-np.einsum("i,fij,j->f", w, M, v), -1.0, 1.0)))
 
 
 def plot_activations(

@@ -9,7 +9,8 @@ yellow when fully active, red when inactive. Two styles:
 
 The camera looks at the face from the front with a slight three-quarter turn (``view``: a
 direction from the face towards the camera in model coordinates; +y is up) and is fitted to the
-bounds of everything drawn (over all frames of a movie) so that nothing is clipped.
+points of everything drawn (over all frames of a movie): it comes as close as it can while every
+point stays inside ``fill`` of the picture, so nothing is clipped.
 """
 
 from __future__ import annotations
@@ -49,6 +50,8 @@ class Panel:
         captured_markers_m: (k, 3) captured markers (red); NaN rows are skipped.
         simulated_markers_m: (k, 3) simulated / tracked markers (green).
         title: text drawn in the panel's upper left corner.
+        cranium_affine: (3, 4) cranium rest-to-world affine (bones in the "muscles" style).
+        jaw_affine: (3, 4) jaw affine, relative to the cranium (``wface.controls``' convention).
     """
 
     node_positions_m: np.ndarray
@@ -56,6 +59,25 @@ class Panel:
     captured_markers_m: np.ndarray | None = None
     simulated_markers_m: np.ndarray | None = None
     title: str = ""
+    cranium_affine: np.ndarray | None = None
+    jaw_affine: np.ndarray | None = None
+
+    def bone_affines(self) -> dict[str, np.ndarray]:
+        """World affines of the bones: {"cranium": C, "jaw": C o J} for those given."""
+        return _bone_world_affines(self.cranium_affine, self.jaw_affine, "cranium")
+
+
+def _bone_world_affines(cranium, jaw, jaw_frame: str) -> dict[str, np.ndarray]:
+    out = {}
+    if cranium is not None:
+        out["cranium"] = np.asarray(cranium, dtype=np.float64).reshape(3, 4)
+    if jaw is not None:
+        j = np.asarray(jaw, dtype=np.float64).reshape(3, 4)
+        if jaw_frame == "cranium" and "cranium" in out:
+            c = out["cranium"]
+            j = np.hstack([c[:, :3] @ j[:, :3], (c[:, :3] @ j[:, 3] + c[:, 3])[:, None]])
+        out["jaw"] = j
+    return out
 
 
 def _pv():
@@ -128,10 +150,11 @@ class _Scene:
         remap[self.skin_nodes] = np.arange(self.skin_nodes.size)
         x0 = model.rest_positions_m
         self.skin = _tri_polydata(pv, x0[self.skin_nodes], remap[model.skin_triangles])
-        self.influence = skin_muscle_influence(model, self.skin_nodes, radius_m=muscle_radius_m)
-        self.muscles: list[tuple[int, object, np.ndarray, object]] = []
+        self.influence = None
+        self.muscles: list[tuple[int, object, np.ndarray, object, object]] = []
         self.bones: list[tuple[object, np.ndarray]] = []
         if style == "skin":
+            self.influence = skin_muscle_influence(model, self.skin_nodes, radius_m=muscle_radius_m)
             self.skin["rgb"] = np.tile(SKIN_RGB, (self.skin.n_points, 1))
             self.p.add_mesh(
                 self.skin, scalars="rgb", rgb=True, smooth_shading=True, specular=0.1, diffuse=0.8, ambient=0.08
@@ -148,8 +171,8 @@ class _Scene:
                 ids = np.asarray(surf.point_data["vtkOriginalPointIds"])
                 lap = _uniform_laplacian(surf)
                 surf.points = _taubin(lap, x0[ids], muscle_smoothing)
-                self.p.add_mesh(surf, color=INACTIVE_RGB, smooth_shading=True, specular=0.2, name=f"muscle{m}")
-                self.muscles.append((m, surf, ids, lap))
+                actor = self.p.add_mesh(surf, color=INACTIVE_RGB, smooth_shading=True, specular=0.2)
+                self.muscles.append((m, surf, ids, lap, actor))
             if show_bones:
                 for mesh, tri in _cropped_bones(model):
                     bp = _tri_polydata(pv, mesh.vertices_m, tri)
@@ -169,10 +192,9 @@ class _Scene:
                 _, rgb = activation_colors(self.influence, a)
             self.skin["rgb"] = rgb
         else:
-            for m, surf, ids, lap in self.muscles:
+            for m, surf, ids, lap, actor in self.muscles:
                 surf.points = _taubin(lap, x[ids], self.muscle_smoothing)
                 level = 0.0 if a is None else float(np.clip(a[m], 0, 1))
-                actor = self.p.renderer.actors[f"muscle{m}"]
                 actor.prop.color = tuple(INACTIVE_RGB + level * (ACTIVE_RGB - INACTIVE_RGB))
             for bp, mesh in self.bones:
                 aff = None if bone_affines is None else bone_affines.get(mesh.bone)
@@ -214,24 +236,53 @@ def _cropped_bones(model, margin: float = 0.03) -> list[tuple[object, np.ndarray
     return out
 
 
-def _bounds_of(model, arrays, *, bones: bool) -> np.ndarray:
+def _framing_points(model, arrays, *, bones: bool) -> np.ndarray:
+    """(N, 3) finite points the camera must keep in view: given arrays, and cropped bones."""
     pts = [np.asarray(a, dtype=np.float64).reshape(-1, 3) for a in arrays if a is not None]
     pts = np.concatenate([p[np.all(np.isfinite(p), axis=1)] for p in pts])
     if bones:
         for mesh, tri in _cropped_bones(model):
             pts = np.concatenate([pts, np.asarray(mesh.vertices_m)[np.unique(tri)]])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    return np.array([lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]])
+    return pts
 
 
-def _place_camera(plotter, bounds: np.ndarray, view, zoom: float) -> None:
-    centre = np.array([bounds[0] + bounds[1], bounds[2] + bounds[3], bounds[4] + bounds[5]]) / 2
+def _box_corners(points: np.ndarray) -> np.ndarray:
+    """(F*8, 3) corners of the per-frame bounding boxes of (F, n, 3) points (cheap framing of a movie)."""
+    lo, hi = points.min(axis=1), points.max(axis=1)
+    pick = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+    return np.concatenate(
+        [np.where(pick[None, :, k], hi[:, None, k], lo[:, None, k])[..., None] for k in range(3)], axis=2
+    ).reshape(-1, 3)
+
+
+def _place_camera(plotter, points: np.ndarray, view, *, fill: float, pad_m: float, zoom: float = 1.0) -> None:
+    """Look at the points' box centre from direction ``view`` (+y up), as close as possible while
+    every point (grown by ``pad_m``) stays inside ``fill`` of the viewport (perspective projection)."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre = (lo + hi) / 2
     d = np.asarray(view, dtype=np.float64)
     d = d / np.linalg.norm(d)
-    size = float(np.linalg.norm(bounds[1::2] - bounds[0::2]))
-    plotter.camera_position = [tuple(centre + 3 * size * d), tuple(centre), (0.0, 1.0, 0.0)]
-    plotter.reset_camera(bounds=tuple(bounds))
-    plotter.camera.zoom(zoom)
+    up = np.array([0.0, 1.0, 0.0]) - d[1] * d
+    up = up / np.linalg.norm(up)
+    right = np.cross(up, d)
+    w, h = plotter.window_size
+    shape = getattr(plotter, "shape", (1, 1))
+    aspect = (w / shape[1]) / (h / shape[0])
+    t = np.tan(np.radians(plotter.camera.view_angle) / 2) * fill
+    for step in range(3):  # fit the distance; centre the projected points; fit again
+        r = points - centre
+        depth = r @ d
+        px, py = r @ right, r @ up
+        lx, ly = np.abs(px) + pad_m, np.abs(py) + pad_m
+        dist = float(np.max(np.maximum(depth + ly / t, depth + lx / (t * aspect))))
+        if step == 2:
+            break
+        sx, sy = px / (dist - depth), py / (dist - depth)  # tangents of the view angles
+        centre = centre + dist * ((sx.max() + sx.min()) / 2 * right + (sy.max() + sy.min()) / 2 * up)
+    plotter.camera_position = [tuple(centre + dist * d), tuple(centre), tuple(up)]
+    if zoom != 1.0:
+        plotter.camera.zoom(zoom)
+    plotter.renderer.ResetCameraClippingRange()
 
 
 def _new_plotter(pv, shape, window_size):
@@ -255,7 +306,8 @@ def render_panels(
     marker_radius_m: float | None = None,
     show_bones: bool = True,
     muscle_radius_m: float | None = None,
-    zoom: float = 1.3,
+    fill: float = 0.92,
+    zoom: float = 1.0,
     muscle_smoothing: int = 4,
 ) -> Path:
     """Render panels side by side (same camera in each) into one PNG.
@@ -271,7 +323,9 @@ def render_panels(
         marker_radius_m: marker sphere radius; default 1% of the face's bounding-box diagonal.
         show_bones: draw bone meshes in the "muscles" style.
         muscle_radius_m: falloff of the skin colour around muscles (see ``skin_muscle_influence``).
-        zoom: camera zoom after fitting the bounds (1 = fit exactly).
+        fill: fraction of the panel's width or height the framed points may take (the camera
+            comes as close as that allows, perspective included).
+        zoom: extra camera zoom after the fit (1: none; > 1 may clip).
         muscle_smoothing: Taubin smoothing steps of the muscle surfaces ("muscles" style; 0: the
             raw faceted tet surfaces; more rounds off thin muscles).
 
@@ -284,15 +338,14 @@ def render_panels(
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     xs = [_check_nodes(model, pnl.node_positions_m, f"panel {i} node_positions_m") for i, pnl in enumerate(panels)]
-    bounds = _bounds_of(
+    pts = _framing_points(
         model,
         [x[np.unique(model.skin_triangles)] for x in xs]
         + [pnl.captured_markers_m for pnl in panels]
         + [pnl.simulated_markers_m for pnl in panels],
         bones=show_bones and style == "muscles",
     )
-    r = marker_radius_m or 0.01 * float(np.linalg.norm(bounds[1::2] - bounds[0::2]))
-    bounds = bounds + np.array([-r, r] * 3)
+    r = marker_radius_m or 0.01 * float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
     p = _new_plotter(pv, (1, len(panels)), (panel_size[0] * len(panels), panel_size[1]))
     for i, (pnl, x) in enumerate(zip(panels, xs, strict=True)):
         p.subplot(0, i)
@@ -306,10 +359,12 @@ def render_panels(
             muscle_radius_m=muscle_radius_m,
             muscle_smoothing=muscle_smoothing,
         )
-        scene.update(x, pnl.activations, pnl.captured_markers_m, pnl.simulated_markers_m)
+        scene.update(
+            x, pnl.activations, pnl.captured_markers_m, pnl.simulated_markers_m, bone_affines=pnl.bone_affines()
+        )
         if pnl.title:
             p.add_text(pnl.title, position="upper_left", font_size=14, color="black")
-        _place_camera(p, bounds, view, zoom)
+        _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom)
     p.enable_anti_aliasing("ssaa")
     p.screenshot(str(out_path))
     p.close()
@@ -325,11 +380,15 @@ def render_expression(
     captured_markers_m: np.ndarray | None = None,
     simulated_markers_m: np.ndarray | None = None,
     title: str = "",
+    cranium_affine: np.ndarray | None = None,
+    jaw_affine: np.ndarray | None = None,
     **kwargs,
 ) -> Path:
     """One still of the face at ``node_positions_m`` (n, 3): muscles coloured by ``activations`` (M,),
     captured markers (k, 3) red and simulated markers (k, 3) green. Other options: ``render_panels``."""
-    panel = Panel(node_positions_m, activations, captured_markers_m, simulated_markers_m, title)
+    panel = Panel(
+        node_positions_m, activations, captured_markers_m, simulated_markers_m, title, cranium_affine, jaw_affine
+    )
     return render_panels(model, [panel], out_path, **kwargs)
 
 
@@ -359,12 +418,14 @@ def render_take_movie(
     simulated_markers_m: np.ndarray | None = None,
     cranium_affines: np.ndarray | None = None,
     jaw_affines: np.ndarray | None = None,
+    jaw_frame: str = "cranium",
     style: str = "skin",
     view=DEFAULT_VIEW,
     window_size: tuple[int, int] = (720, 800),
     marker_radius_m: float | None = None,
     show_bones: bool = True,
-    zoom: float = 1.3,
+    fill: float = 0.92,
+    zoom: float = 1.0,
     muscle_smoothing: int = 4,
     label: str = "",
     quality: int = 7,
@@ -379,7 +440,9 @@ def render_take_movie(
         activations: (F, M) per-frame activations (colours), or None.
         captured_markers_m / simulated_markers_m: (F, k, 3) per-frame markers (red / green).
         cranium_affines / jaw_affines: (F, 3, 4) bone motion for the "muscles" style's bones.
-        style, view, marker_radius_m, show_bones, zoom, muscle_smoothing: see ``render_panels``.
+        jaw_frame: "cranium" (default: the jaw affines are relative to the cranium, as
+            ``wface.controls``) or "world".
+        style, view, marker_radius_m, show_bones, fill, zoom, muscle_smoothing: see ``render_panels``.
         window_size: video size in pixels (each rounded down to a multiple of 16).
         label: text shown with the frame number.
         quality: imageio-ffmpeg quality 0-10.
@@ -394,6 +457,8 @@ def render_take_movie(
     if not np.all(np.isfinite(x)):
         raise ValueError("node_positions_m contains NaN/inf")
     F = x.shape[0]
+    if jaw_frame not in ("cranium", "world"):
+        raise ValueError(f"jaw_frame must be 'cranium' or 'world', got {jaw_frame!r}")
     for name, arr in (
         ("activations", activations),
         ("captured_markers_m", captured_markers_m),
@@ -406,11 +471,12 @@ def render_take_movie(
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     skin_nodes = np.unique(model.skin_triangles)
-    bounds = _bounds_of(
-        model, [x[:, skin_nodes], captured_markers_m, simulated_markers_m], bones=show_bones and style == "muscles"
+    pts = _framing_points(
+        model,
+        [_box_corners(x[:, skin_nodes]), captured_markers_m, simulated_markers_m],
+        bones=show_bones and style == "muscles",
     )
-    r = marker_radius_m or 0.01 * float(np.linalg.norm(bounds[1::2] - bounds[0::2]))
-    bounds = bounds + np.array([-r, r] * 3)
+    r = marker_radius_m or 0.01 * float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
     w, h = (int(window_size[0]) // 16 * 16, int(window_size[1]) // 16 * 16)
     p = _new_plotter(pv, (1, 1), (w, h))
     scene = _Scene(
@@ -423,17 +489,17 @@ def render_take_movie(
         muscle_radius_m=None,
         muscle_smoothing=muscle_smoothing,
     )
-    _place_camera(p, bounds, view, zoom)
+    _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom)
     p.enable_anti_aliasing("msaa", multi_samples=8)  # ssaa costs ~4x per frame; fxaa is not in OSMesa builds
     p.open_movie(str(out_path), framerate=int(round(fps)), quality=quality)
     text = None
     try:
         for f in range(F):
-            bone = {}
-            if cranium_affines is not None:
-                bone["cranium"] = np.asarray(cranium_affines[f])
-            if jaw_affines is not None:
-                bone["jaw"] = np.asarray(jaw_affines[f])
+            bone = _bone_world_affines(
+                None if cranium_affines is None else cranium_affines[f],
+                None if jaw_affines is None else jaw_affines[f],
+                jaw_frame,
+            )
             scene.update(
                 x[f],
                 None if activations is None else activations[f],

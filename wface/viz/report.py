@@ -2,8 +2,8 @@
 
 Images (PNG, JPEG, GIF, SVG) and movies (MP4, WebM) are embedded as base64 data URIs, so the one
 ``report.html`` file can be mailed or attached to a ticket. Per-frame lists are summarised
-(count, mean, min, max) and drawn as a small inline sparkline; per-muscle dicts become their
-own table.
+(count, mean, min, max) and drawn as a small inline sparkline; dicts of scalars (per muscle,
+status blocks) become their own tables.
 """
 
 from __future__ import annotations
@@ -131,8 +131,9 @@ def write_html_report(
         out_dir: directory (created if needed); usually the one holding report.json.
         report: the report.json dict (keys as in DESIGN.md section 9). Headline numbers
             (``HEADLINE``) are shown first as cards; scalars go into the main table; lists of
-            numbers (per frame) are summarised with a sparkline; dicts of numbers (e.g.
-            ``muscle_identifiability``) become tables of their own.
+            numbers (per frame) are summarised with a sparkline; dicts of scalars (e.g.
+            ``muscle_identifiability``, a status block) become tables of their own; anything
+            deeper is shown as JSON.
         images: caption -> file (PNG/JPEG/GIF/SVG, MP4/WebM), embedded in the given order.
         title: page title.
         filename: name of the HTML file.
@@ -158,7 +159,7 @@ def write_html_report(
 
     rows, sub_tables = [], []
     for key, v in report.items():
-        if isinstance(v, dict) and v and all(_is_number(x) or x is None for x in v.values()):
+        if isinstance(v, dict) and v and all(isinstance(x, (int, float, str, bool)) or x is None for x in v.values()):
             body = "".join(f"<tr><td>{html.escape(str(k))}</td>{_value_cell(x)}</tr>" for k, x in v.items())
             sub_tables.append(
                 f"<h2>{html.escape(str(key))}</h2><table><tr><th>name</th><th>value</th></tr>{body}</table>"

@@ -178,7 +178,8 @@ def synthetic_take(model, *, n_frames: int = 24, fps: float = 24.0, seed: int = 
 
     Returns:
         dict with ``node_positions_m`` (F, n, 3), ``activations`` (F, M), ``jaw_angle_deg`` (F,),
-        ``cranium_affines`` / ``jaw_affines`` (F, 3, 4), ``simulated_markers_m`` (F, k, 3),
+        ``cranium_affines`` (F, 3, 4) rest to world, ``jaw_affines`` (F, 3, 4) relative to the
+        cranium (as ``wface.controls``' bone parameters), ``simulated_markers_m`` (F, k, 3),
         ``captured_markers_m`` (F, k, 3; noise ~0.5 mm, marker 0 missing in some frames),
         ``basis`` (a ``wface.io.usd.BlendShapeBasis``: muscles + jaw opening) and its
         ``basis_weights`` (F, B), and ``fps``.
@@ -216,8 +217,7 @@ def synthetic_take(model, *, n_frames: int = 24, fps: float = 24.0, seed: int = 
         th = np.array([0.004 * np.sin(2 * np.pi * s[f]), 0.0, 0.0])
         frames.append(xf @ Rh.T + th)
         cran.append(np.hstack([Rh, th[:, None]]))
-        Rjw = Rh @ Rj
-        jaw.append(np.hstack([Rjw, (Rh @ (mid - Rj @ mid) + th)[:, None]]))
+        jaw.append(np.hstack([Rj, (mid - Rj @ mid)[:, None]]))  # relative to the cranium (wface.controls)
     x = np.asarray(frames)
     nodes = np.asarray(model.metadata.get("marker_nodes", []), dtype=np.int64)
     sim = x[:, nodes]

@@ -50,7 +50,8 @@ def read_take(path: str | Path, *, name: str | None = None) -> dict:
         compact skin numbering, ``skin_points_m`` (F, v, 3), and when present:
         ``activations`` (F, M) with ``muscle_names``, ``vertex_activation`` (F, v),
         ``captured_markers_m`` / ``simulated_markers_m`` (F, k, 3; NaN = missing) with
-        ``marker_names``, ``cranium_affines`` / ``jaw_affines`` (F, 3, 4), ``basis_weights``
+        ``marker_names``, ``cranium_affines`` / ``jaw_affines`` (F, 3, 4; the jaw's local
+        transform, relative to the cranium when ``jaw_frame`` is "cranium"), ``basis_weights``
         (F, B) with ``basis_names``, and ``metadata`` (the layer's customLayerData["wface"]).
     """
     from pxr import Usd, UsdGeom, UsdSkel
@@ -94,10 +95,12 @@ def read_take(path: str | Path, *, name: str | None = None) -> dict:
         if prim:
             out[key], out["marker_names"] = _markers(prim, n_frames)
 
-    for label, key in (("Cranium", "cranium_affines"), ("Jaw", "jaw_affines")):
-        prim = stage.GetPrimAtPath(rp.AppendPath(f"Bones/{label}"))
+    for sub, key in (("Cranium", "cranium_affines"), ("Cranium/Jaw", "jaw_affines"), ("Jaw", "jaw_affines")):
+        prim = stage.GetPrimAtPath(rp.AppendPath(f"Bones/{sub}"))
         if not prim:
             continue
+        if sub.endswith("Jaw"):
+            out["jaw_frame"] = "cranium" if sub == "Cranium/Jaw" else "world"
         ops = UsdGeom.Xformable(prim).GetOrderedXformOps()
         if not ops:
             continue

@@ -68,6 +68,7 @@ def write_take(
     marker_names: list[str] | None = None,
     cranium_affines: np.ndarray | None = None,
     jaw_affines: np.ndarray | None = None,
+    jaw_frame: str = "cranium",
     activations: np.ndarray | None = None,
     basis=None,
     basis_weights: np.ndarray | None = None,
@@ -92,8 +93,10 @@ def write_take(
     - ``Markers/Captured`` and ``Markers/Simulated`` (Points, red and green, one width per point,
       ``ids`` = marker indices; NaN captured positions, i.e. missing markers, are left out of
       that frame). Marker names in the uniform attribute ``wface:markerNames``.
-    - ``Bones/Cranium`` and ``Bones/Jaw`` (Xforms with one time-sampled transform op from the
-      per-frame affines) holding the model's ``bone_meshes`` at rest position.
+    - ``Bones/Cranium`` and ``Bones/Cranium/Jaw`` (Xforms with one time-sampled transform op
+      from the per-frame affines; the jaw's op is relative to the cranium, as the 24 bone
+      parameters of ``wface.controls``) holding the model's ``bone_meshes`` at rest position.
+      With ``jaw_frame="world"`` the jaw Xform is ``Bones/Jaw``, a sibling of the cranium.
     - ``Muscles`` (Scope): per muscle a time-sampled float ``wface:activation:<muscle>`` (the name
       made a valid identifier; the original names in ``wface:muscleNames``), and all of them as
       a float[] ``wface:activations``.
@@ -109,8 +112,10 @@ def write_take(
         marker_names: k names; default ``model.marker_names`` when it has k entries, else m<i>.
         cranium_affines: (F, 3, 4) per-frame rest-to-world affine [A | t] of the cranium
             (x_world = A x_rest + t).
-        jaw_affines: (F, 3, 4) per-frame rest-to-world affine of the jaw (world, not relative
-            to the cranium: the two Xforms are siblings).
+        jaw_affines: (F, 3, 4) per-frame jaw affine [M | t]; by default in the cranium's frame
+            (``wface.controls``: jaw nodes at Mc (Mm X + tm) + tc, b[12:24] -> Mm, tm).
+        jaw_frame: "cranium" (default; ``jaw_affines`` relative to the cranium) or "world"
+            (``jaw_affines`` map rest to world directly).
         activations: (F, M) muscle activations (M = model.n_muscles), usually in [0, 1].
         basis: an actuation basis (``BlendShapeBasis`` or e.g. ``wface.basis.ActuationBasis``) on
             the model's nodes (n) or on the compact skin vertices.
@@ -179,6 +184,8 @@ def write_take(
             )
     elif basis_weights is not None:
         raise UsdWriteError("basis_weights given without a basis")
+    if jaw_frame not in ("cranium", "world"):
+        raise UsdWriteError(f"jaw_frame must be 'cranium' or 'world', got {jaw_frame!r}")
     if not (np.isfinite(marker_radius_m) and marker_radius_m > 0):
         raise UsdWriteError(f"marker_radius_m must be positive, got {marker_radius_m}")
 
@@ -220,23 +227,29 @@ def write_take(
     bone_groups: dict[str, list[tuple[str, object]]] = {"Cranium": [], "Jaw": []}
     for mesh_name, mesh in (model.bone_meshes if bone_meshes is None else bone_meshes).items():
         bone_groups["Jaw" if mesh.bone == "jaw" else "Cranium"].append((mesh_name, mesh))
-    if any(bone_groups.values()) or affines:
+    has_jaw = bool(bone_groups["Jaw"]) or "Jaw" in affines
+    has_cranium = bool(bone_groups["Cranium"]) or "Cranium" in affines or (has_jaw and jaw_frame == "cranium")
+    bone_paths = {
+        "Cranium": f"{root}/Bones/Cranium",
+        "Jaw": f"{root}/Bones/Cranium/Jaw" if jaw_frame == "cranium" else f"{root}/Bones/Jaw",
+    }
+    if has_cranium or has_jaw:
         UsdGeom.Scope.Define(stage, f"{root}/Bones")
     bone_rgb = np.array([0.93, 0.91, 0.84])
-    for label, meshes in bone_groups.items():
-        if not meshes and label not in affines:
+    for label, present in (("Cranium", has_cranium), ("Jaw", has_jaw)):
+        if not present:
             continue
-        xf = UsdGeom.Xform.Define(stage, f"{root}/Bones/{label}")
+        xf = UsdGeom.Xform.Define(stage, bone_paths[label])
         if label in affines:
             op = xf.AddTransformOp()
             for f, a in enumerate(affines[label]):
                 op.Set(affine_to_matrix4d(a), float(f))
-        taken: set[str] = set()
-        for mesh_name, mesh in meshes:
+        taken: set[str] = {"Jaw"} if label == "Cranium" else set()  # the jaw Xform may live under the cranium
+        for mesh_name, mesh in bone_groups[label]:
             ident = _identifier(mesh_name, taken)
             v = _as_points(mesh.vertices_m, f"bone mesh {mesh_name!r} vertices_m")
             c, i = as_polygons(None, np.asarray(mesh.triangles).reshape(-1, 3), v.shape[0])
-            _write_mesh(stage, f"{root}/Bones/{label}/{ident}", v, c, i, colors=bone_rgb)
+            _write_mesh(stage, f"{bone_paths[label]}/{ident}", v, c, i, colors=bone_rgb)
 
     if act is not None:
         muscles = UsdGeom.Scope.Define(stage, f"{root}/Muscles").GetPrim()
