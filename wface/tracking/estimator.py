@@ -16,7 +16,12 @@ lam |a - a_prev|^2 and a prior mu |a|^2 toward the rest face. One Gauss-Newton s
      decomposition, the jaw onto its joint's 3 degrees of freedom within the limits), so the
      penalties phi_p stay ~0 along the search;
   3. golden-section search of phi + rho phi_p along dc (tau in [0, 1]), each evaluation a
-     quasistatic solve warm-started from the linearised prediction Y + tau dY/dc dc.
+     quasistatic solve warm-started from the linearised prediction Y + tau dY/dc dc. When the full
+     step tau = 1 already achieves ``accept_full_step`` (80 %) of the reduction the Gauss-Newton
+     model predicts, it is taken without the search (one solve instead of five); set None to
+     always search, as the paper does.
+Steps stop when the objective falls by less than ``min_improvement`` or the RMS marker residual
+changes by less than ``tol_mm``.
 Outliers: iteratively reweighted Tukey biweights on the marker residuals (``_weights``), whose
 cut-off shrinks to ``robust_mm`` as the fit improves; None turns robust weighting off.
 """
@@ -49,6 +54,9 @@ class TrackOptions:
     rho_max: float = 1e6  # relative to phi
     rigid_step_tol: float = 0.05  # accepted first-order non-rigidity of a bone step: |sym(M^T dM)| / |dM|
     line_search_evals: int = 5  # quasistatic solves in the golden-section search
+    accept_full_step: float | None = 0.8  # take tau = 1 without the search when it achieves this share of
+    # the reduction the Gauss-Newton model predicts (None: always run the golden-section search)
+    tol_mm: float = 1e-3  # stop when a step changes the RMS marker residual by less than this (mm)
     robust_mm: float | None = (
         3.0  # Tukey cut-off on marker residuals (mm) once the fit is close; None: plain least squares
     )
@@ -206,7 +214,14 @@ class FrameEstimator:
             trial = functools.partial(
                 self._trial, c=c, dc=dc, state=state, Jy=Jy, target=target, present=present, w=w, rho=rho, a_prev=a_prev
             )
-            cache = self._golden_section(trial)
+            cache = None
+            if opt.accept_full_step is not None:
+                predicted = total0 - (float(np.sum(wr * (r + Jp @ dc) ** 2)) + rho * pen + self._reg(c + dc, a_prev))
+                full = trial(1.0)
+                if predicted > 0 and total0 - full[0] >= opt.accept_full_step * predicted:
+                    cache = {1.0: full}  # the model predicted well: the Gauss-Newton point is taken
+            if cache is None:
+                cache = self._golden_section(trial)
             tau_best = min(cache, key=lambda k: cache[k][0])
             timings["quasistatic_s"] += time.perf_counter() - t
             gn_done += 1
@@ -215,7 +230,9 @@ class FrameEstimator:
             _, state, m = cache[tau_best]
             c = state.controls
             w = self._weights(np.where(present[:, None], m - target, 0.0))
-            if total0 - cache[tau_best][0] < opt.min_improvement * total0:
+            n_present = max(int(present.sum()), 1)
+            rms_change_mm = abs(np.sqrt(total0 / n_present) - np.sqrt(max(cache[tau_best][0], 0.0) / n_present)) * 1e3
+            if total0 - cache[tau_best][0] < opt.min_improvement * total0 or rms_change_mm < opt.tol_mm:
                 break
 
         err = np.linalg.norm(m - target, axis=1)
