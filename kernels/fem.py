@@ -51,6 +51,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
     vec9 = wp.types.vector(9, S)
     mat33 = wp.types.matrix((3, 3), S)
     mat99 = wp.types.matrix((9, 9), S)
+    vec45 = wp.types.vector(45, S)  # a symmetric 9x9 matrix, upper triangle row by row
     tie_eps = 1.0e-6 if S == wp.float64 else 3.0e-3
     # Constant expressions are folded here in double precision: inside a kernel, S(2.0 / 3.0)
     # would be evaluated in float32 first.
@@ -366,9 +367,10 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         x: wp.array(dtype=vec3),
         activation: wp.array(dtype=S),
         # Out:
-        tangent_out: wp.array(dtype=mat99),
+        tangent_out: wp.array(dtype=vec45),
     ):
-        """Per-tet V0 dP/dF as a 9x9 matrix on row-major vec(F); projected to PSD if ``project``."""
+        """Per-tet V0 dP/dF (symmetric 9x9 on row-major vec(F), stored packed: upper triangle row
+        by row); projected to PSD if ``project``."""
         t = wp.tid()
         F = deformation_gradient(x, tets, dm_inv[t], t)
         U = mat33()
@@ -439,7 +441,22 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
                         for j in range(3):
                             for l in range(3):
                                 C[3 * i + k, 3 * j + l] = C[3 * i + k, 3 * j + l] + Hq[i, j] * d[k] * d[l]
-        tangent_out[t] = rest_volume[t] * C
+        V0 = rest_volume[t]
+        packed = vec45()
+        k = int(0)
+        for r in range(9):
+            for c in range(9):
+                if c >= r:
+                    packed[k] = V0 * C[r, c]
+                    k = k + 1
+        tangent_out[t] = packed
+
+    @wp.func
+    def packed_entry(Cp: vec45, r: int, c: int):
+        """Entry (r, c) of a symmetric 9x9 matrix stored as its packed upper triangle."""
+        i = wp.min(r, c)
+        j = wp.max(r, c)
+        return Cp[i * 9 - (i * (i - 1)) / 2 + (j - i)]
 
     @wp.func
     def node_gradients(Dmi: mat33):
@@ -464,7 +481,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         # Model:
         tets: wp.array2d(dtype=wp.int32),
         dm_inv: wp.array(dtype=mat33),
-        tangent: wp.array(dtype=mat99),
+        tangent: wp.array(dtype=vec45),
         # State in:
         v: wp.array(dtype=vec3),
         # Out:
@@ -479,11 +496,13 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         for r in range(3):
             for c in range(3):
                 dFv[3 * r + c] = dF[r, c]
-        dPv = tangent[t] * dFv
+        Cp = tangent[t]
         dP = mat33()
-        for r in range(3):
-            for c in range(3):
-                dP[r, c] = dPv[3 * r + c]
+        for r in range(9):
+            acc = S(0.0)
+            for c in range(9):
+                acc = acc + packed_entry(Cp, r, c) * dFv[c]
+            dP[r / 3, r % 3] = acc
         c1 = dP * r1
         c2 = dP * r2
         c3 = dP * r3
@@ -493,7 +512,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         wp.atomic_add(kv_out, tets[t, 0], -(c1 + c2 + c3))
 
     @wp.func
-    def tangent_block(C: mat99, ra: vec3, rb: vec3):
+    def tangent_block(C: vec45, ra: vec3, rb: vec3):
         """3x3 block (a, b) of the element stiffness: B_ij = sum_kl C[3i+k, 3j+l] ra_k rb_l."""
         B = mat33()
         for i in range(3):
@@ -501,7 +520,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
                 acc = S(0.0)
                 for k in range(3):
                     for l in range(3):
-                        acc = acc + C[3 * i + k, 3 * j + l] * ra[k] * rb[l]
+                        acc = acc + packed_entry(C, 3 * i + k, 3 * j + l) * ra[k] * rb[l]
                 B[i, j] = acc
         return B
 
@@ -509,7 +528,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
     def tangent_assemble(
         # Model:
         dm_inv: wp.array(dtype=mat33),
-        tangent: wp.array(dtype=mat99),
+        tangent: wp.array(dtype=vec45),
         block_index: wp.array2d(dtype=wp.int32),
         # Out:
         blocks_out: wp.array(dtype=mat33),
@@ -530,7 +549,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         # Model:
         tets: wp.array2d(dtype=wp.int32),
         dm_inv: wp.array(dtype=mat33),
-        tangent: wp.array(dtype=mat99),
+        tangent: wp.array(dtype=vec45),
         # Out:
         diag_out: wp.array(dtype=vec3),
     ):
@@ -661,6 +680,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
     ns.vec3 = vec3
     ns.mat33 = mat33
     ns.mat99 = mat99
+    ns.vec45 = vec45
     for k in (
         element_forces,
         element_energy,
