@@ -378,28 +378,19 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         V = mat33()
         wp.svd3(F, U, s, V)
         psi, G, A = flesh_response(s, mu10, mu01, kappa, clamp)
-        A_exact = A
-        if project != 0:
-            Q = mat33()
-            lam = vec3()
-            wp.eig3(A, Q, lam)
-            for k in range(3):
-                lam[k] = wp.max(lam[k], S(0.0))
-            A = Q * wp.diag(lam) * wp.transpose(Q)
-        C = mat99()
+        # Nine eigen-modes of dP/dF (rows of Wm, orthonormal in vec(F)) and their eigenvalues.
+        Q = mat33()
+        lam = vec3()
+        wp.eig3(A, Q, lam)
+        Wm = mat99()
+        ev = vec9()
         w0 = vec_outer_mode(U, V, 0, 0)
         w1 = vec_outer_mode(U, V, 1, 1)
         w2 = vec_outer_mode(U, V, 2, 2)
-        for r in range(9):
-            for c in range(9):
-                C[r, c] = (
-                    A[0, 0] * w0[r] * w0[c]
-                    + A[1, 1] * w1[r] * w1[c]
-                    + A[2, 2] * w2[r] * w2[c]
-                    + A[0, 1] * (w0[r] * w1[c] + w1[r] * w0[c])
-                    + A[0, 2] * (w0[r] * w2[c] + w2[r] * w0[c])
-                    + A[1, 2] * (w1[r] * w2[c] + w2[r] * w1[c])
-                )
+        for k in range(3):
+            ev[k] = lam[k]
+            for r in range(9):
+                Wm[k, r] = Q[0, k] * w0[r] + Q[1, k] * w1[r] + Q[2, k] * w2[r]
         inv_sqrt2 = S(0.7071067811865476)
         for p in range(3):
             i = 0
@@ -411,18 +402,26 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
                 j = 2
             diff = s[i] - s[j]
             if wp.abs(diff) > S(tie_eps) * wp.max(wp.abs(s[i]), S(1.0)):
-                lsym = (G[i] - G[j]) / diff
+                ev[3 + p] = (G[i] - G[j]) / diff
             else:
-                lsym = A_exact[i, i] - A_exact[i, j]  # limit of (G_i - G_j)/(s_i - s_j)
-            lrot = (G[i] + G[j]) / wp.max(s[i] + s[j], S(tie_eps))
-            if project != 0:
-                lsym = wp.max(lsym, S(0.0))
-                lrot = wp.max(lrot, S(0.0))
+                ev[3 + p] = A[i, i] - A[i, j]  # limit of (G_i - G_j)/(s_i - s_j)
+            ev[6 + p] = (G[i] + G[j]) / wp.max(s[i] + s[j], S(tie_eps))
             wij = vec_outer_mode(U, V, i, j)
             wji = vec_outer_mode(U, V, j, i)
-            qs = inv_sqrt2 * (wij + wji)
-            qr = inv_sqrt2 * (wij - wji)
-            C = C + lsym * wp.outer(qs, qs) + lrot * wp.outer(qr, qr)
+            for r in range(9):
+                Wm[3 + p, r] = inv_sqrt2 * (wij[r] + wji[r])
+                Wm[6 + p, r] = inv_sqrt2 * (wij[r] - wji[r])
+        if project != 0:
+            for m in range(9):
+                ev[m] = wp.max(ev[m], S(0.0))
+        C = mat99()
+        for r in range(9):
+            for c in range(9):
+                if c >= r:
+                    acc = S(0.0)
+                    for m in range(9):
+                        acc = acc + ev[m] * Wm[m, r] * Wm[m, c]
+                    C[r, c] = acc
         for e in range(entry_start[t], entry_start[t + 1]):
             d = entry_direction[e]
             q = F * d
@@ -443,12 +442,12 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
                                 C[3 * i + k, 3 * j + l] = C[3 * i + k, 3 * j + l] + Hq[i, j] * d[k] * d[l]
         V0 = rest_volume[t]
         packed = vec45()
-        k = int(0)
+        slot = int(0)
         for r in range(9):
             for c in range(9):
                 if c >= r:
-                    packed[k] = V0 * C[r, c]
-                    k = k + 1
+                    packed[slot] = V0 * C[r, c]
+                    slot = slot + 1
         tangent_out[t] = packed
 
     @wp.func
