@@ -37,7 +37,8 @@ def count_inverted(model: FaceModel, x: np.ndarray) -> int:
 
 
 class Tangent:
-    """The stiffness K = -df/dx at one configuration, held as per-tet 9x9 tangents V0 dP/dF.
+    """The stiffness K = -df/dx at one configuration, held as per-tet 9x9 tangents V0 dP/dF
+    (symmetric, stored packed: 45 values per tet).
 
     ``matvec`` is matrix-free (one Warp launch over tets), ``assemble`` builds a scipy CSR matrix
     over the unknowns of a ``BlockPattern`` (a Warp kernel scatters element blocks into BSR values),
@@ -46,7 +47,7 @@ class Tangent:
 
     def __init__(self, sim: Simulator, tangent_wp, projected: bool):
         self._sim = sim
-        self.element_tangents = tangent_wp  # wp.array of (9, 9) matrices, one per tet
+        self.element_tangents = tangent_wp  # wp.array of packed symmetric 9x9 (45 values), one per tet
         self.projected = projected
 
     def matvec(self, v: np.ndarray) -> np.ndarray:
@@ -327,7 +328,7 @@ class Simulator:
         """Stiffness K = -df/dx at (x, a): projected to PSD (default) or the exact Hessian of E."""
         wp = self._wp
         self._set_state(x, activations)
-        tangent = wp.empty(self.model.n_tets, dtype=self._k.mat99, device=self.device)
+        tangent = wp.empty(self.model.n_tets, dtype=self._k.vec45, device=self.device)
         self._launch_per_tet(self._k.element_tangent, [int(bool(project)), self._x, self._a], tangent)
         return Tangent(self, tangent, project)
 
