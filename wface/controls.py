@@ -227,9 +227,6 @@ def jaw_from_intuitive(
     forward along the tracks by ``protrusion_m`` on average (each condyle stays within [0, d]).
     With ``clamp`` the numbers are clipped into the joint's range; without it, out-of-range values raise.
     """
-    u, v = np.asarray(joint.u, float), np.asarray(joint.v, float)
-    w = np.cross(v, u)
-    m = np.asarray(joint.midpoint_m, float)
     half, d = 0.5 * joint.condyle_distance_m, joint.track_length_m
     alpha, beta, p = np.radians(opening_deg), np.radians(lateral_deg), float(protrusion_m)
     a_max = np.arcsin(joint.max_opening_sine)
