@@ -177,3 +177,18 @@ def test_retarget_matches_names_and_reports_unmatched():
     np.testing.assert_allclose(r.positions_m[0], tgt.synthesize(r.contractions[0]))
     with pytest.raises(ValueError, match="no element names in common"):
         retarget(x[:, :1], ["zzz"], tgt)
+
+
+def test_refinement_support_keeps_elements_local():
+    """With a support fraction, an element's shape changes only where it already acts."""
+    b = _grid_basis(n_elements=4, seed=5)
+    mb = _marker_basis(b, k=30, seed=6)
+    rng = np.random.default_rng(2)
+    x = rng.uniform(0, 1, size=(80, 4))
+    d = mb.predict(x) + rng.normal(scale=2e-3, size=(80, 30, 3))  # noise everywhere, also far away
+    res = refine_marker_basis(mb, [d], max_iterations=3, support_fraction=0.2)
+    mag = np.linalg.norm(mb.shapes_m, axis=1)
+    outside = mag < 0.2 * mag.max(axis=0, keepdims=True)
+    assert outside.any()
+    np.testing.assert_array_equal(np.linalg.norm(res.basis.shapes_m - mb.shapes_m, axis=1)[outside], 0.0)
+    assert res.errors_m[-1] < res.errors_m[0]

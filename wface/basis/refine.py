@@ -57,6 +57,7 @@ def model_marker_shapes(
     *,
     split: FaceSplit | None = None,
     regularization: float = 0.0,
+    support: np.ndarray | None = None,
 ) -> np.ndarray:
     """Modelling step: least-squares marker shapes given contractions.
 
@@ -68,6 +69,8 @@ def model_marker_shapes(
         split: disjoint marker/element groups: a marker's shape only has its group's elements.
         regularization: lambda, relative to the mean diagonal of X^T X (0: plain least squares,
             minimum-norm change from the prior where X is rank deficient).
+        support: (k, B) bool, which marker/element shapes may change (default all); the others
+            keep the prior, so an element cannot start moving markers it never moved.
 
     Returns:
         (k, 3, B) refined shapes.
@@ -89,7 +92,15 @@ def model_marker_shapes(
         pred = np.einsum("kcb,fb->fkc", prior, xg)
         resid = d[:, gm] - pred  # (F, kg, 3)
         same_rows = present[:, gm].all()
-        if same_rows:
+        if support is not None:
+            for jj, j in enumerate(gm):
+                rows = present[:, j]
+                cols = np.flatnonzero(support[j, ge])
+                if not rows.any() or len(cols) == 0:
+                    continue
+                delta = _solve_change(xg[rows][:, cols], resid[rows, jj], lam)  # (|cols|, 3)
+                out[j, :, ge[cols]] = (prior[jj][:, cols] + delta.T).T
+        elif same_rows:
             delta = _solve_change(xg, resid.reshape(len(xg), -1), lam)  # (bg, kg*3)
             out[np.ix_(gm, np.arange(3), ge)] = prior + delta.reshape(len(ge), len(gm), 3).transpose(1, 2, 0)
         else:
@@ -121,6 +132,7 @@ def refine_marker_basis(
     max_iterations: int = 30,
     rel_tol: float = 1e-3,
     regularization: float = 0.0,
+    support_fraction: float | None = None,
     progress: bool = False,
 ) -> RefinementResult:
     """Fixed-point refinement of the marker shapes over training takes.
@@ -133,6 +145,9 @@ def refine_marker_basis(
         max_iterations: cap on modelling steps.
         rel_tol: stop when the error falls by less than this fraction in one iteration.
         regularization: see :func:`model_marker_shapes`.
+        support_fraction: if given, element i may only change its shape at markers it moves by
+            at least this fraction of its largest marker displacement in the initial basis
+            (locality: refinement reshapes an element where it acts, never adds far motion).
         progress: tqdm progress bars.
 
     Returns:
@@ -150,6 +165,10 @@ def refine_marker_basis(
         from tqdm.auto import tqdm
 
         steps = tqdm(steps, desc="refinement", unit="iter")
+    support = None
+    if support_fraction is not None:
+        mag = np.linalg.norm(basis.shapes_m, axis=1)  # (k, B)
+        support = mag >= support_fraction * np.maximum(mag.max(axis=0, keepdims=True), 1e-300)
     it = 0
     for it in steps:
         analyses = [analyze(current, t, upper=upper, split=split) for t in takes]
@@ -163,7 +182,9 @@ def refine_marker_basis(
             break
         if it == max_iterations:
             break
-        shapes = model_marker_shapes(x, all_d, current.shapes_m, split=split, regularization=regularization)
+        shapes = model_marker_shapes(
+            x, all_d, current.shapes_m, split=split, regularization=regularization, support=support
+        )
         current = current.with_shapes(shapes)
     return RefinementResult(best[1], errors, best[2], it)
 
@@ -230,6 +251,7 @@ def select_regularization(
     split: FaceSplit | None = None,
     max_iterations: int = 8,
     frame_step: int = 3,
+    support_fraction: float | None = None,
 ) -> tuple[float, dict[float, float]]:
     """Pick the ridge weight by leave-one-take-out validation inside the training takes.
 
@@ -249,7 +271,7 @@ def select_regularization(
         for k in range(len(takes)):
             train = [t for i, t in enumerate(takes) if i != k]
             res = refine_marker_basis(basis, train, upper=upper, split=split, max_iterations=max_iterations,
-                                      regularization=lam)  # fmt: skip
+                                      regularization=lam, support_fraction=support_fraction)  # fmt: skip
             errs.append(analyze(res.basis, takes[k], upper=upper, split=split).total_rms_m)
         scores[float(lam)] = float(np.mean(errs))
     return min(scores, key=scores.get), scores
