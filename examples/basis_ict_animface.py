@@ -76,8 +76,15 @@ def main(argv: list[str] | None = None) -> dict:
             lam, scores = select_regularization(
                 mb, [disp[n] for n in train], split=split, support_fraction=args.support
             )
-        res = refine_marker_basis(mb, [disp[n] for n in train], regularization=lam, split=split, support_fraction=args.support, max_iterations=args.max_iterations,
-                                  rel_tol=args.rel_tol)  # fmt: skip
+        res = refine_marker_basis(
+            mb,
+            [disp[n] for n in train],
+            regularization=lam,
+            split=split,
+            support_fraction=args.support,
+            max_iterations=args.max_iterations,
+            rel_tol=args.rel_tol,
+        )
         before = analyze(mb, disp[test], split=split)
         after = analyze(res.basis, disp[test], split=split)
         mesh = interpolate_to_mesh(basis, layout.surface_m, res.basis.shapes_m - mb.shapes_m)
