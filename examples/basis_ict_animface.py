@@ -71,10 +71,15 @@ def main(argv: list[str] | None = None) -> dict:
         split = default_face_split(mb.marker_names, mb.element_names) if args.split else None
         disp = {n: prepare_capture(takes[n], layout).displacements_m for n in TAKES}
         if args.no_select:
-            lam, scores = args.regularization, {}
+            lam, n_it, scores = args.regularization, args.max_iterations, {}
         else:
-            lam, scores = select_regularization(
-                mb, [disp[n] for n in train], split=split, support_fraction=args.support
+            lam, n_it, scores = select_regularization(
+                mb,
+                [disp[n] for n in train],
+                split=split,
+                support_fraction=args.support,
+                choose_iterations=True,
+                max_iterations=args.max_iterations,
             )
         res = refine_marker_basis(
             mb,
@@ -82,8 +87,8 @@ def main(argv: list[str] | None = None) -> dict:
             regularization=lam,
             split=split,
             support_fraction=args.support,
-            max_iterations=args.max_iterations,
-            rel_tol=args.rel_tol,
+            max_iterations=n_it,
+            rel_tol=args.rel_tol if args.no_select else 0.0,
         )
         before = analyze(mb, disp[test], split=split)
         after = analyze(res.basis, disp[test], split=split)
@@ -95,6 +100,7 @@ def main(argv: list[str] | None = None) -> dict:
             "frames_test": int(disp[test].shape[0]),
             "frames_train": int(sum(disp[n].shape[0] for n in train)),
             "regularization": lam,
+            "iterations_chosen": n_it,
             "regularization_validation_rms_mm": {str(k): v * 1e3 for k, v in scores.items()},
             "train_rms_mm_per_iteration": res.errors_mm,
             "test_rms_mm_before": before.total_rms_m * 1e3,
