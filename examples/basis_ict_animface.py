@@ -2,7 +2,9 @@
 
 For each AnimFace take held out in turn: align the markers to the ICT neutral (built-in
 landmarks + projection), analyse it with the ICT basis, refine the basis on the other three takes
-(ridge weight chosen by leave-one-take-out validation inside the training takes only), and
+(ridge weight towards the ICT shapes and number of iterations chosen by leave-one-take-out
+validation inside the three training takes only; ``--no-select --regularization L`` fixes
+the weight instead and iterates until the training error saturates), and
 measure the held-out marker RMS error before and after refinement, both with the refined marker
 shapes and with the refined whole-mesh basis (after RBF carry-over). Writes OUT/folds.json and
 a plot per fold.
