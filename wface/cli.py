@@ -13,9 +13,12 @@ import sys
 __all__ = ["main", "build_parser"]
 
 COMMAND_MODULES = [
+    "wface.commands.track",
     "wface.commands.model",
     "wface.commands.bench",
+    "wface.commands.simulate",
     "wface.commands.basis",
+    "wface.commands.waters",
 ]
 
 _EPILOG = """\
@@ -24,6 +27,7 @@ examples:
   wface model build --tets 20000 --out face.npz
   wface model info face.npz --json
   wface bench --suite forward --tets 20000 --json
+  wface waters --mesh head.obj --expression happy --au AU26=0.3 --out waters_out
 
 Run `wface COMMAND --help` for the options of each command.
 """

@@ -83,7 +83,9 @@ class JawJoint:
         if not (np.all(np.isfinite(u)) and np.all(np.isfinite(v)) and np.all(np.isfinite(self.midpoint_m))):
             raise ModelError("jaw joint: non-finite axis or midpoint")
         if abs(np.linalg.norm(u) - 1) > 1e-9 or abs(np.linalg.norm(v) - 1) > 1e-9:
-            raise ModelError(f"jaw joint: u and v must be unit vectors (|u|={np.linalg.norm(u)}, |v|={np.linalg.norm(v)})")
+            raise ModelError(
+                f"jaw joint: u and v must be unit vectors (|u|={np.linalg.norm(u)}, |v|={np.linalg.norm(v)})"
+            )
         if abs(u @ v) > 1e-9:
             raise ModelError(f"jaw joint: u and v must be orthogonal (u.v = {u @ v:.3g})")
         if not (self.condyle_distance_m > 0 and self.track_length_m >= 0 and 0 < self.max_opening_sine <= 1):
@@ -220,7 +222,9 @@ class FaceModel:
     def muscle_volume_m3(self) -> np.ndarray:
         """(M,) volume of each muscle: sum of fraction x tet volume."""
         return np.bincount(
-            self.fibre_muscle, weights=self.fibre_fraction * self.rest_volume_m3[self.fibre_tet], minlength=self.n_muscles
+            self.fibre_muscle,
+            weights=self.fibre_fraction * self.rest_volume_m3[self.fibre_tet],
+            minlength=self.n_muscles,
         )
 
     # ------------------------------------------------------------------ validation

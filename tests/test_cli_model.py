@@ -1,0 +1,51 @@
+"""`wface model build/info` and the built-in face example."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from wface.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_build_and_info_json(tmp_path, capsys):
+    out = tmp_path / "face.npz"
+    assert (
+        main(["model", "build", "--tets", "3000", "--out", str(out), "--quiet", "--vtu", str(tmp_path / "f.vtu")]) == 0
+    )
+    assert out.exists() and (tmp_path / "f.vtu").exists()
+    capsys.readouterr()
+    assert main(["model", "info", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    for key in ("nodes", "tets", "muscles", "markers", "attached_nodes", "min_dihedral_deg", "min_volume_m3", "bbox_m"):
+        assert key in info
+    assert set(info["attached_nodes"]) == {"cranium", "jaw"}
+    assert info["min_dihedral_deg"] > 5 and len(info["muscles"]) >= 26 and len(info["markers"]) >= 40
+
+
+def test_info_on_missing_file_is_one_line_error(tmp_path, capsys):
+    assert main(["model", "info", str(tmp_path / "nope.npz")]) == 1
+    err = capsys.readouterr().err
+    assert "not found" in err and "Traceback" not in err
+
+
+def test_help_teaches(capsys):
+    try:
+        main(["model", "build", "--help"])
+    except SystemExit:
+        pass
+    assert "--tets" in capsys.readouterr().out
+
+
+def test_builtin_face_example_renders(tmp_path):
+    sys.path.insert(0, str(REPO / "examples"))
+    try:
+        import builtin_face
+    finally:
+        sys.path.pop(0)
+    png = tmp_path / "face.png"
+    assert builtin_face.main(["--tets", "2000", "--out", str(png), "--width", "400"]) == 0
+    assert png.stat().st_size > 10_000

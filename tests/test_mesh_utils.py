@@ -1,0 +1,110 @@
+"""Mesh utilities: exact closest points, boundary faces, quality metrics, meshio round trips."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from wface.mesh.closest import SurfaceQuery, closest_point_on_triangles
+from wface.mesh.quality import dihedral_angles_deg, quality_report, volume_ratio_quality
+from wface.mesh.surface import boundary_faces, triangle_normals
+from wface.mesh.tetio import read_tet_mesh, write_tet_mesh
+
+REGULAR = np.array([[1, 1, 1], [-1, 1, -1], [1, -1, -1], [-1, -1, 1]], dtype=float)  # positively oriented
+
+
+def _box(n=3):
+    """Kuhn-split unit cube grid, positively oriented."""
+    from wface.builtin.grid import build_grid
+
+    g = build_grid(np.linspace(0.5, 1.5, n + 1), np.linspace(0, 1, n + 1), n, theta_mouth=0.0, y_mouth=-1.0)
+    x = np.stack([g.theta, g.y, g.w], axis=1)
+    t = g.tets.copy()
+    p = x[t]
+    neg = np.einsum("ij,ij->i", p[:, 1] - p[:, 0], np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0])) < 0
+    t[neg] = t[neg][:, [0, 2, 1, 3]]
+    return x, t
+
+
+def _sphere(n=40):
+    import pyvista as pv
+
+    s = pv.Sphere(theta_resolution=n, phi_resolution=n).triangulate()
+    return np.asarray(s.points, float), np.asarray(s.faces).reshape(-1, 4)[:, 1:]
+
+
+_SPHERE = _sphere()
+_QUERY = SurfaceQuery(*_SPHERE)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-1.5, 1.5), min_size=3, max_size=3))
+def test_closest_point_matches_brute_force(p):
+    v, t = _SPHERE
+    p = np.asarray(p)[None]
+    hit = _QUERY.closest(p)
+    w = closest_point_on_triangles(np.repeat(p, len(t), 0), v[t[:, 0]], v[t[:, 1]], v[t[:, 2]])
+    d = np.linalg.norm(np.einsum("kj,kjd->kd", w, v[t]) - p, axis=1)
+    assert hit.distance_m[0] == pytest.approx(d.min(), abs=1e-12)
+    assert np.allclose(hit.barycentric.sum(axis=1), 1.0) and hit.barycentric.min() >= -1e-12
+
+
+def test_closest_point_regions():
+    a, b, c = np.array([[0.0, 0, 0]]), np.array([[1.0, 0, 0]]), np.array([[0.0, 1, 0]])
+    cases = {
+        (-1, -1, 0): (1, 0, 0),
+        (2, -0.1, 0): (0, 1, 0),
+        (0.5, -1, 3): (0.5, 0.5, 0),
+        (0.2, 0.2, 1): (0.6, 0.2, 0.2),
+    }
+    for p, w in cases.items():
+        got = closest_point_on_triangles(np.array([p], float), a, b, c)[0]
+        assert np.allclose(got, w), (p, got)
+
+
+def test_closest_rejects_nan():
+    with pytest.raises(ValueError, match="NaN"):
+        _QUERY.closest(np.array([[np.nan, 0, 0]]))
+
+
+def test_boundary_faces_of_a_box_are_outward():
+    x, t = _box(3)
+    f = boundary_faces(t)
+    assert len(f) == 6 * 9 * 2
+    centre = x.mean(axis=0)
+    n = triangle_normals(x, f)
+    assert np.all(np.einsum("ij,ij->i", n, x[f].mean(axis=1) - centre) > 0)
+
+
+def test_quality_of_regular_and_box_tets():
+    assert volume_ratio_quality(REGULAR, np.array([[0, 1, 2, 3]]))[0] == pytest.approx(1.0, abs=1e-12)
+    assert dihedral_angles_deg(REGULAR, np.array([[0, 1, 2, 3]])) == pytest.approx(np.degrees(np.arccos(1 / 3)))
+    x, t = _box(2)
+    q = quality_report(x, t)
+    assert q.inverted == 0
+    assert q.min_dihedral_deg == pytest.approx(45.0) and q.max_dihedral_deg == pytest.approx(90.0)  # Kuhn tets
+
+
+@pytest.mark.parametrize("suffix", [".vtu", ".msh"])
+def test_meshio_round_trip(tmp_path, suffix):
+    x, t = _box(2)
+    cell = {"muscle_id": [np.arange(len(t), dtype=np.int32)]}
+    path = write_tet_mesh(tmp_path / f"box{suffix}", x, t, cell_data=cell)
+    x2, t2, _ = read_tet_mesh(path)
+    assert np.allclose(x2, x) and np.array_equal(np.sort(t2, axis=1), np.sort(t, axis=1))
+
+
+def test_read_reorients_and_reports(tmp_path):
+    x, t = _box(1)
+    path = write_tet_mesh(tmp_path / "flip.vtu", x, t[:, [0, 2, 1, 3]])
+    x2, t2, _ = read_tet_mesh(path)
+    assert quality_report(x2, t2).inverted == 0
+    with pytest.raises(FileNotFoundError):
+        read_tet_mesh(tmp_path / "missing.vtu")
+    import meshio
+
+    meshio.write(tmp_path / "tri.vtu", meshio.Mesh(x, [("triangle", t[:, :3])]))
+    with pytest.raises(ValueError, match="no tetrahedra"):
+        read_tet_mesh(tmp_path / "tri.vtu")

@@ -1,0 +1,71 @@
+"""``wface simulate``: outputs, summary keys, and one-line errors for bad activations."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from wface.cli import main
+from wface.model import save_model
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    from wface.builtin import build_face
+
+    path = tmp_path_factory.mktemp("model") / "face.npz"
+    save_model(build_face(3000), path)
+    return path
+
+
+def test_simulate_writes_equilibrium_and_summary(model_path, tmp_path, capsys):
+    out = tmp_path / "run"
+    rc = main(
+        [
+            "simulate",
+            "--model",
+            str(model_path),
+            "--activation",
+            "zygomaticus_major_l=0.8",
+            "--activation",
+            "risorius_l=0.2",
+            "--jaw-open",
+            "6",
+            "--out",
+            str(out),
+            "--json",
+        ]
+    )
+    assert rc == 0
+    printed = json.loads(capsys.readouterr().out)
+    summary = json.loads((out / "summary.json").read_text())
+    assert printed == summary
+    for key in ("newton_iterations", "residual_rel", "max_displacement_mm", "inverted_elements", "seconds"):
+        assert key in summary
+    assert summary["converged"] and summary["residual_rel"] <= 1e-6 and summary["inverted_elements"] == 0
+    assert summary["activations"] == {"zygomaticus_major_l": 0.8, "risorius_l": 0.2}
+    with np.load(out / "equilibrium.npz") as eq:
+        x, X = eq["positions_m"], eq["rest_positions_m"]
+    assert x.shape == X.shape and np.all(np.isfinite(x))
+    moved_mm = np.linalg.norm(x - X, axis=1).max() * 1e3
+    assert moved_mm == pytest.approx(summary["max_displacement_mm"]) and moved_mm > 1.0  # 6 deg of jaw
+
+
+@pytest.mark.parametrize(
+    "item, message",
+    [("no_such_muscle=0.5", "unknown muscle 'no_such_muscle'"), ("procerus=1.5", "must lie in [0, 1]")],
+)
+def test_bad_activation_is_a_one_line_error(model_path, tmp_path, capsys, item, message):
+    rc = main(["simulate", "--model", str(model_path), "--activation", item, "--out", str(tmp_path / "x")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 1 and message in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "x").exists()
+
+
+def test_malformed_activation_and_missing_model(tmp_path, capsys, model_path):
+    assert main(["simulate", "--model", str(model_path), "--activation", "procerus", "--out", str(tmp_path)]) == 1
+    assert "NAME=VALUE" in capsys.readouterr().err
+    assert main(["simulate", "--model", str(tmp_path / "none.npz"), "--out", str(tmp_path)]) == 1
+    assert "not found" in capsys.readouterr().err

@@ -1,0 +1,89 @@
+"""`wface demo` and `wface track` end to end on tiny inputs; the real AnimFace jaw take when present."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tests.conftest import data_path
+from wface.cli import main
+
+REPORT_KEYS = (
+    "frames markers tets nodes device solver marker_rms_mm marker_rms_mm_mean marker_max_mm seconds_per_frame "
+    "seconds_per_frame_median gauss_newton_steps quasistatic_solves linear_solves cg_iterations "
+    "activation_bound_violation_max inverted_elements muscle_identifiability"
+).split()
+TRUTH_KEYS = ("activation_rms_error", "activation_rms_error_all", "truth_marker_rms_mm", "jaw_angle_error_deg")
+
+
+@pytest.mark.slow
+def test_demo_writes_everything(tmp_path):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--tets", "2000", "--frames", "3", "--no-movie"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    for key in (*REPORT_KEYS, *TRUTH_KEYS):
+        assert key in report, key
+    assert report["frames"] == 3 and len(report["marker_rms_mm"]) == 3
+    assert report["truth_marker_rms_mm"] < 1.0 and report["inverted_elements"] == 0
+    for name in ("controls.npz", "controls.csv", "animation.usdc", "report.html", "activations.png"):
+        assert (out / name).exists(), name
+    assert len(list((out / "frames").glob("frame_*.npz"))) == 3
+    header = (out / "controls.csv").read_text().splitlines()[0]
+    assert header.startswith("frame,") and "jaw_opening_deg" in header
+
+
+def test_track_a_csv_file(tmp_path):
+    from wface.builtin import build_face
+    from wface.io.mocap import MocapTake, write_mocap
+    from wface.rig import FaceRig
+    from wface.tracking.sequence import embed_model_markers
+    from wface.tracking.synthetic import synthesize_performance
+
+    model = build_face(2000)
+    perf = synthesize_performance(FaceRig(model), embed_model_markers(model), frames=3, seed=4)
+    # Frame 0 is the neutral face (the alignment embeds markers at the first frame of the range).
+    rest = embed_model_markers(model).positions(model.rest_positions_m)[None]
+    take = MocapTake(np.concatenate([rest, perf.clean_markers_m]), list(model.marker_names), 30.0)
+    write_mocap(take, tmp_path / "take.csv")
+    out = tmp_path / "run"
+    assert (
+        main(
+            [
+                "track",
+                "--mocap",
+                str(tmp_path / "take.csv"),
+                "--tets",
+                "2000",
+                "--out",
+                str(out),
+                "--frames",
+                "0:3",
+                "--no-pictures",
+            ]
+        )
+        == 0
+    )
+    report = json.loads((out / "report.json").read_text())
+    assert report["frames"] == 3 and report["marker_rms_mm_mean"] < 0.1
+    assert sorted(p.name for p in (out / "frames").glob("*.npz"))[-1] == "frame_000002.npz"
+
+
+def test_track_reports_bad_input(tmp_path, capsys):
+    assert main(["track", "--mocap", str(tmp_path / "missing.c3d"), "--out", str(tmp_path / "o")]) == 1
+    assert "missing.c3d" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_real_jaw_capture_on_the_builtin_face(tmp_path):
+    path = data_path("animface", "JawMoCap.c3d")
+    out = tmp_path / "jaw"
+    assert (
+        main(["track", "--mocap", str(path), "--tets", "2000", "--out", str(out), "--frames", "0:4", "--no-pictures"])
+        == 0
+    )
+    report = json.loads((out / "report.json").read_text())
+    assert report["markers"] == 41 and report["frames"] == 4
+    assert report["marker_rms_mm_mean"] < 6.0  # a different person's face: shape mismatch remains
+    assert np.all(np.isfinite(report["jaw_opening_deg"])) and report["inverted_elements"] == 0

@@ -1,0 +1,125 @@
+"""Tracking recovers known activations and bones from synthetic markers; missing markers, outliers,
+chunked parallel runs (a real 2-worker Dask cluster) and resumed runs."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from wface.builtin import build_face
+from wface.rig import FaceRig
+from wface.tracking.estimator import TrackOptions
+from wface.tracking.identifiability import muscle_identifiability_mm
+from wface.tracking.sequence import embed_model_markers, track_sequence
+from wface.tracking.synthetic import corrupt_markers, synthesize_performance
+
+
+@pytest.fixture(scope="module")
+def scene():
+    model = build_face(2000)
+    rig = FaceRig(model, tol=1e-6)
+    markers = embed_model_markers(model)
+    perf = synthesize_performance(rig, markers, frames=4, seed=3, max_jaw_deg=10.0)
+    return model, markers, perf
+
+
+def _activation_rms(model, recs, perf):
+    A = np.array([r.controls[: model.n_muscles] for r in recs])
+    return float(np.sqrt(np.mean((A - perf.activations[: len(recs)]) ** 2)))
+
+
+def test_recovers_known_activations_from_clean_markers(scene):
+    model, markers, perf = scene
+    recs = track_sequence(model, perf.clean_markers_m, marker_names=model.marker_names, markers=markers)
+    assert _activation_rms(model, recs, perf) < 5e-3  # GN stops once a step gains < 5 %: not to round-off
+    err_mm = np.array([r.marker_error_m for r in recs]) * 1e3
+    assert np.sqrt(np.mean(err_mm**2)) < 0.05 and np.nanmax(err_mm) < 0.1  # issue 5: RMS < 0.1 mm on clean data
+    from wface.controls import jaw_to_intuitive
+
+    M = model.n_muscles
+    jaw = [jaw_to_intuitive(model.jaw_joint, r.controls[M + 12 :])["opening_deg"] for r in recs]
+    assert np.allclose(jaw, perf.jaw_opening_deg, atol=0.05)
+    for r in recs:  # bounds hold and bones stay rigid
+        a = r.controls[:M]
+        assert a.min() >= 0 and a.max() <= 1
+        Mc = r.controls[M : M + 9].reshape(3, 3)
+        assert np.abs(Mc.T @ Mc - np.eye(3)).max() < 1e-9
+
+
+def test_missing_markers_and_outliers(scene):
+    model, markers, perf = scene
+    data, _ = corrupt_markers(perf.clean_markers_m, noise_mm=0.3, outliers=0.03, dropout=0.1, seed=5)
+    assert np.isnan(data).any()
+    recs = track_sequence(model, data, marker_names=model.marker_names, markers=markers)
+    truth_mm = (
+        np.sqrt(np.mean([np.sum((r.markers_m - perf.clean_markers_m[i]) ** 2, axis=1) for i, r in enumerate(recs)]))
+        * 1e3
+    )
+    assert truth_mm < 0.3  # below the noise: the face is not pulled toward outliers
+    assert np.isnan(recs[0].marker_error_m).sum() == np.isnan(data[0, :, 0]).sum()  # missing markers drop out
+
+
+def test_resume_reuses_written_frames(scene, tmp_path):
+    model, markers, perf = scene
+    first = track_sequence(
+        model, perf.clean_markers_m[:3], marker_names=model.marker_names, markers=markers, out_dir=tmp_path
+    )
+    frames = sorted((tmp_path / "frames").glob("frame_*.npz"))
+    assert len(frames) == 3
+    os.remove(frames[-1])  # an interrupted run: the last frame is missing
+    stamp = frames[0].stat().st_mtime_ns
+    again = track_sequence(
+        model, perf.clean_markers_m[:3], marker_names=model.marker_names, markers=markers, out_dir=tmp_path, resume=True
+    )
+    assert frames[0].stat().st_mtime_ns == stamp  # not recomputed
+    assert len(list((tmp_path / "frames").glob("frame_*.npz"))) == 3
+    for a, b in zip(first, again, strict=True):
+        assert np.allclose(a.controls, b.controls, atol=1e-9)
+
+
+@pytest.mark.slow
+def test_dask_two_workers_match_serial(scene):
+    distributed = pytest.importorskip("distributed")
+    model, markers, perf = scene
+    serial = track_sequence(model, perf.clean_markers_m, marker_names=model.marker_names, markers=markers, chunk_size=2)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        with distributed.Client(cluster) as client:
+            par = track_sequence(
+                model,
+                perf.clean_markers_m,
+                marker_names=model.marker_names,
+                markers=markers,
+                chunk_size=2,
+                executor=client.get_executor(pure=False),
+            )
+    assert [r.frame for r in par] == [r.frame for r in serial]
+    for a, b in zip(serial, par, strict=True):
+        assert np.allclose(a.controls, b.controls, atol=1e-8)
+
+
+def test_identifiability_flags_invisible_muscles(scene):
+    model, markers, _ = scene
+    from wface.controls import IDENTITY_BONES, bone_penalty
+
+    rig = FaceRig(model)
+    J = markers.jacobian(rig.jacobian(rig.equilibrium(rig.rest_controls()), markers.nodes))
+    H = bone_penalty(model.jaw_joint, IDENTITY_BONES).hessian
+    s = muscle_identifiability_mm(J, model.n_muscles, bone_hessian=H)
+    assert np.all(s > 0)
+    # With only the forehead markers, mouth muscles become invisible.
+    keep = [i for i, n in enumerate(model.marker_names) if n.startswith(("ForeHead", "Leyebrow", "Reyebrow"))]
+    rows = np.concatenate([[3 * i, 3 * i + 1, 3 * i + 2] for i in keep])
+    s2 = muscle_identifiability_mm(J[rows], model.n_muscles, bone_hessian=H)
+    assert s2[model.muscle_index("mentalis_l")] < 0.15 * s[model.muscle_index("mentalis_l")]
+    assert s2[model.muscle_index("frontalis_medial_l")] > 0.3 * s[model.muscle_index("frontalis_medial_l")]
+
+
+def test_bad_input_is_named(scene):
+    model, markers, perf = scene
+    with pytest.raises(ValueError, match="shape"):
+        track_sequence(model, perf.clean_markers_m[0], marker_names=model.marker_names, markers=markers)
+    empty = np.full_like(perf.clean_markers_m[:1], np.nan)
+    with pytest.raises(ValueError, match="markers present"):
+        track_sequence(model, empty, marker_names=model.marker_names, markers=markers, options=TrackOptions())

@@ -1,0 +1,84 @@
+"""The HTML report is self-contained: numbers in tables, every image embedded byte for byte."""
+
+from __future__ import annotations
+
+import base64
+import re
+
+import numpy as np
+import pytest
+
+from wface.viz.report import write_html_report
+
+
+def _png(path, seed=0):
+    mpl = pytest.importorskip("matplotlib")
+    mpl.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(2, 2))
+    ax.plot(np.random.default_rng(seed).random(10))
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def test_report_embeds_images_and_tabulates_numbers(tmp_path):
+    a, b = _png(tmp_path / "a.png"), _png(tmp_path / "b.png", 1)
+    report = {
+        "frames": 40,
+        "device": "cpu",
+        "marker_rms_mm": [0.5, 0.7, float("nan"), 0.6],
+        "marker_rms_mm_mean": 0.6,
+        "muscle_identifiability": {"zygomatic<L>": 0.93, "frontalis": 0.12},
+        "solver": {"name": "gn", "steps": 3},
+        "nested": {"a": {"b": 1}},
+    }
+    out = write_html_report(tmp_path / "out", report, {"activations": a, "marker error": "../b.png"})
+    text = out.read_text()
+    assert out.name == "report.html"
+    uris = re.findall(r'src="data:image/png;base64,([^"]+)"', text)
+    assert [base64.b64decode(u) for u in uris] == [a.read_bytes(), b.read_bytes()]
+    assert not re.search(r'src="(?!data:)', text)  # nothing fetched from elsewhere
+    for key in report:
+        assert key in text
+    assert "zygomatic&lt;L&gt;" in text and "0.93" in text  # names escaped, numbers shown
+    assert "<h2>solver</h2>" in text and "<td>gn</td>" in text  # a dict of scalars: its own table
+    assert "<code>{&quot;a&quot;: {&quot;b&quot;: 1}}</code>" in text  # deeper: JSON
+    assert "n=4, mean 0.6" in text  # per-frame list summarised over finite values
+    assert "<svg" in text
+    assert re.search(r'class="card"><div class="v">0.6 mm</div><div class="k">marker RMS', text)
+    _assert_balanced(text)
+
+
+def _assert_balanced(text):
+    from html.parser import HTMLParser
+
+    void = {"meta", "img", "br", "hr", "link", "input"}
+
+    class Checker(HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.stack = []
+
+        def handle_starttag(self, tag, attrs):
+            if tag not in void and tag != "polyline":
+                self.stack.append(tag)
+
+        def handle_endtag(self, tag):
+            if tag == "polyline":
+                return
+            assert self.stack and self.stack[-1] == tag, f"</{tag}> closes <{self.stack[-1:]}>"
+            self.stack.pop()
+
+    c = Checker()
+    c.feed(text)
+    assert c.stack == [], f"unclosed tags: {c.stack}"
+
+
+def test_report_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="'missing'"):
+        write_html_report(tmp_path, {}, {"missing": tmp_path / "nope.png"})
+    (tmp_path / "x.bmp").write_bytes(b"BM")
+    with pytest.raises(ValueError, match="cannot embed x.bmp"):
+        write_html_report(tmp_path, {}, {"bmp": tmp_path / "x.bmp"})

@@ -1,0 +1,231 @@
+"""``wface waters``, the bench suite and the example, run headless with tiny options."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from argparse import Namespace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import REPO_ROOT, data_path
+
+from wface.cli import main
+from wface.waters.surface import SurfaceMesh, read_surface, write_obj
+from wface.waters.synthetic import synthetic_head
+
+
+def _env() -> dict:
+    env = dict(os.environ, PYVISTA_OFF_SCREEN="true")
+    env["PYTHONPATH"] = str(REPO_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def test_obj_round_trip_and_triangulation(tmp_path):
+    head = synthetic_head(8, 12)
+    write_obj(tmp_path / "h.obj", head)
+    again = read_surface(tmp_path / "h.obj", units="m")
+    np.testing.assert_allclose(again.vertices_m, head.vertices_m, atol=1e-9)
+    np.testing.assert_array_equal(again.face_vertex_indices, head.face_vertex_indices)
+    tri = head.triangles()
+    assert len(tri) == int((head.face_vertex_counts - 2).sum())
+    quad = SurfaceMesh(np.eye(4, 3), [4], [0, 1, 2, 3])
+    np.testing.assert_array_equal(quad.triangles(), [[0, 1, 2], [0, 2, 3]])
+    with pytest.raises(FileNotFoundError, match="mesh file not found"):
+        read_surface(tmp_path / "nope.obj")
+
+
+def test_cli_poses_the_ict_head(tmp_path, capsys):
+    mesh = data_path("ict-facekit", "generic_neutral_mesh.obj")
+    rc = main(
+        [
+            "waters",
+            "--mesh",
+            str(mesh),
+            "--expression",
+            "happy",
+            "--au",
+            "AU26=0.5",
+            "--size",
+            "160",
+            "--out",
+            str(tmp_path),
+        ]
+    )
+    assert rc == 0
+    summary = json.loads((tmp_path / "happy+AU26.json").read_text())
+    assert summary["jaw_open_deg"] == pytest.approx(6.0)
+    assert summary["contractions"]["zygomaticus_major_l"] == 1.0
+    posed = read_surface(tmp_path / "happy+AU26.obj", units="m")
+    assert posed.n_vertices == 26719 and 3.0 < summary["max_displacement_mm"] < 60.0
+    for key in ("png", "png_displacement", "usd"):
+        assert Path(summary["files"][key]).stat().st_size > 1000
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(summary["files"]["usd"])
+    pts = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath("/WatersFace/Mesh")).GetPointsAttr().Get())
+    np.testing.assert_allclose(pts, posed.vertices_m, atol=1e-6)
+
+
+def test_cli_fits_the_layout_to_another_mesh_by_landmarks(tmp_path):
+    from wface.waters.layout import load_layout
+    from wface.waters.synthetic import synthetic_landmarks
+
+    head = synthetic_head(40, 80)
+    write_obj(tmp_path / "head.obj", head)
+    marks = synthetic_landmarks(load_layout("ict"))
+    ids = {k: int(np.argmin(np.linalg.norm(head.vertices_m - p, axis=1))) for k, p in marks.items()}
+    (tmp_path / "marks.json").write_text(json.dumps(ids))
+    rc = main(
+        [
+            "waters",
+            "--mesh",
+            str(tmp_path / "head.obj"),
+            "--units",
+            "m",
+            "--landmarks",
+            str(tmp_path / "marks.json"),
+            "--expression",
+            "surprise",
+            "--no-render",
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
+    assert rc == 0
+    assert json.loads((tmp_path / "o" / "surprise.json").read_text())["max_displacement_mm"] > 1.0
+
+
+def test_cli_reports_bad_input_in_one_line(tmp_path, capsys):
+    head = synthetic_head(10, 20)
+    write_obj(tmp_path / "head.obj", head)
+    assert main(["waters", "--mesh", str(tmp_path / "head.obj"), "--expression", "bored", "--out", str(tmp_path)]) == 1
+    assert main(["waters", "--mesh", str(tmp_path / "nope.obj"), "--out", str(tmp_path)]) == 1
+    assert (
+        main(["waters", "--mesh", str(tmp_path / "head.obj"), "--out", str(tmp_path)]) == 1
+    )  # not ICT: needs a layout
+    err = capsys.readouterr().err
+    assert "unknown expression 'bored'" in err and "mesh file not found" in err and "--landmarks" in err
+
+
+def test_bench_suite_runs_and_says_what_it_timed(monkeypatch):
+    from wface.bench import waters
+
+    monkeypatch.setenv("WFACE_DATA", "/nonexistent")  # force the synthetic fallback: fast and data-free
+    out = waters.run(Namespace(repeat=1))
+    assert out["frames_per_second"] > 0 and out["muscles"] >= 20
+    assert "synthetic" in out["mesh"] and "absent" in out["note"]
+
+
+def test_example_runs_headless(tmp_path):
+    r = subprocess.run(
+        [
+            sys.executable,
+            str(REPO_ROOT / "examples" / "waters_expressions.py"),
+            "--presets",
+            "happy",
+            "--size",
+            "200",
+            "--blend-frames",
+            "2",
+            "--out",
+            str(tmp_path),
+        ],
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (tmp_path / "happy.png").stat().st_size > 1000
+    assert (tmp_path / "expressions.usdc").is_file()
+    report = json.loads((tmp_path / "expressions.json").read_text())
+    assert report["presets"]["happy"]["max_displacement_mm"] > 1.0
+
+
+def test_cli_poses_the_builtin_face(tmp_path):
+    rc = main(
+        ["waters", "--mesh", "builtin", "--tets", "3000", "--expression", "sad", "--no-render", "--out", str(tmp_path)]
+    )
+    assert rc == 0
+    summary = json.loads((tmp_path / "sad.json").read_text())
+    assert summary["layout"].startswith("ict-facekit-on") and summary["max_displacement_mm"] > 1.0
+
+
+def test_cli_blends_between_presets(tmp_path):
+    rc = main(
+        [
+            "waters",
+            "--mesh",
+            "builtin",
+            "--tets",
+            "3000",
+            "--expression",
+            "neutral",
+            "--blend-to",
+            "surprise",
+            "--frames",
+            "4",
+            "--no-render",
+            "--out",
+            str(tmp_path),
+        ]
+    )
+    assert rc == 0
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(tmp_path / "neutral_to_surprise.usdc"))
+    attr = UsdGeom.Mesh(stage.GetPrimAtPath("/WatersFace/Mesh")).GetPointsAttr()
+    first, last = np.asarray(attr.Get(0)), np.asarray(attr.Get(3))
+    assert np.max(np.linalg.norm(last - first, axis=1)) > 0.005  # the jaw opens by 12 degrees
+    assert main(["waters", "--mesh", "builtin", "--blend-to", "nope", "--out", str(tmp_path)]) == 1
+
+
+def test_bench_json_on_stdout_is_clean(tmp_path):
+    r = subprocess.run(
+        [sys.executable, "-m", "wface", "bench", "--suite", "waters", "--json", "--repeat", "1", "--device", "cpu"],
+        env=dict(_env(), WFACE_DATA=str(tmp_path)),
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=REPO_ROOT,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout)
+    assert out["suite"] == "waters" and out["warp_direct_frames_per_second"] > 0
+
+
+def test_cli_with_a_layout_file(tmp_path):
+    from wface.waters.fit import fit_layout
+    from wface.waters.layout import load_layout, save_layout
+    from wface.waters.synthetic import synthetic_landmarks
+
+    head = synthetic_head(30, 60)
+    write_obj(tmp_path / "head.obj", head)
+    base = load_layout("ict")
+    lay = fit_layout(
+        base, synthetic_landmarks(base), target_vertices_m=head.vertices_m, target_triangles=head.triangles()
+    )
+    save_layout(lay, tmp_path / "layout.json", units="mm")
+    rc = main(
+        [
+            "waters",
+            "--mesh",
+            str(tmp_path / "head.obj"),
+            "--units",
+            "m",
+            "--layout",
+            str(tmp_path / "layout.json"),
+            "--expression",
+            "happy",
+            "--no-render",
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
+    assert rc == 0
+    summary = json.loads((tmp_path / "o" / "happy.json").read_text())
+    assert summary["muscles"] == len(lay.muscles) and summary["max_displacement_mm"] > 1.0

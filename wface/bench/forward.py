@@ -1,0 +1,179 @@
+"""``wface bench --suite forward``: the physics operator and the quasistatic solver on the built-in face.
+
+Per mesh size (``--tets``, default 20K / 100K / 400K), median wall-clock seconds over ``--repeat``:
+force kernel (one launch on one thread, float64 and float32) and the ``energy_and_forces`` call,
+tangent (``Simulator.tangent``), matrix-free K.v (one launch, and ``Tangent.matvec`` which on the
+CPU splits tets over all cores and includes the host copies), assembly into CSR, scipy CSR matvec
+of the same K (``kv_over_csr_matvec`` = ``Tangent.matvec`` time / CSR matvec time), sparse direct
+factor and solves (1 and 44 right-hand sides), Jacobi-PCG on the matrix-free K.v, and one full
+quasistatic solve (``quasistatic_seconds``: zygomaticus_major_l = 0.6, orbicularis_oris_lower = 0.3,
+jaw opened 5 degrees, from rest).
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+import numpy as np
+
+__all__ = ["run", "DEFAULT_TETS"]
+
+DEFAULT_TETS = (20_000, 100_000, 400_000)
+
+
+def _median_time(fn, repeat: int, sync) -> float:
+    times = []
+    for _ in range(max(1, repeat)):
+        sync()
+        t0 = time.perf_counter()
+        fn()
+        sync()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_maxiter: int = 3000) -> dict:
+    """Timings for one mesh size (see module docstring)."""
+    import warp as wp
+
+    from wface.builtin import build_face
+    from wface.physics import Simulator
+    from wface.physics.bones import attached_positions, jaw_opening_affine
+    from wface.solvers.linear import DirectFactor, JacobiPreconditioner, direct_backend, pcg
+
+    out: dict = {}
+    t0 = time.perf_counter()
+    model = build_face(target_tets)
+    out["build_seconds"] = time.perf_counter() - t0
+    out.update(tets=model.n_tets, nodes=model.n_nodes, muscles=model.n_muscles, fibre_entries=int(model.fibre_tet.size))
+    sim = Simulator(model, device=device)
+    out["device"] = sim.device
+
+    def sync():
+        wp.synchronize_device(sim.device)
+
+    X = model.rest_positions_m
+    rng = np.random.default_rng(0)
+    x = X + 2e-4 * rng.normal(size=X.shape)  # a deformed state (0.2 mm noise)
+    a = model.activation_vector({"zygomaticus_major_l": 0.6, "orbicularis_oris_lower": 0.3})
+    sim.energy_and_forces(x, a)  # compile / load kernels
+    sim._set_state(x, a)
+
+    def forces():
+        sim._f.zero_()
+        wp.launch(sim._k.element_forces, model.n_tets, inputs=[*sim._model_inputs(), sim._x, sim._a, sim._f, sim._e])
+
+    out["forces_kernel_seconds"] = _median_time(forces, repeat, sync)  # one launch, one CPU thread
+    out["forces_ns_per_tet"] = 1e9 * out["forces_kernel_seconds"] / model.n_tets
+    out["forces_seconds"] = _median_time(lambda: sim.energy_and_forces(x, a), repeat, sync)  # API call
+    sim32 = Simulator(model, device=device, precision="float32")
+    sim32.energy_and_forces(x, a)
+    sim32._set_state(x, a)
+
+    def forces32():
+        sim32._f.zero_()
+        wp.launch(
+            sim32._k.element_forces,
+            model.n_tets,
+            inputs=[*sim32._model_inputs(), sim32._x, sim32._a, sim32._f, sim32._e],
+        )
+
+    out["forces_float32_seconds"] = _median_time(forces32, repeat, sync)
+
+    tangent_holder = {}
+    tangent_holder["t"] = sim.tangent(x, a)
+
+    def tangent():
+        tangent_holder["t"] = sim.tangent(x, a)
+
+    out["tangent_seconds"] = _median_time(tangent, repeat, sync)  # Simulator.tangent, all cores
+    out["tangent_ns_per_tet"] = 1e9 * out["tangent_seconds"] / model.n_tets
+    tan = tangent_holder["t"]
+    v = rng.normal(size=X.shape)
+    tan.matvec(v)
+    sim._v.assign(v)
+
+    def kv():
+        sim._out.zero_()
+        wp.launch(
+            sim._k.tangent_matvec, model.n_tets, inputs=[sim._tets, sim._dm_inv, tan.element_tangents, sim._v, sim._out]
+        )
+
+    out["kv_kernel_seconds"] = _median_time(kv, repeat, sync)  # one launch, one CPU thread
+    out["kv_seconds"] = _median_time(lambda: tan.matvec(v), max(repeat, 5), sync)  # Tangent.matvec, all cores
+    t0 = time.perf_counter()
+    pattern_all = sim.pattern("all")
+    out["pattern_seconds"] = time.perf_counter() - t0
+    holder = {}
+
+    def assemble():
+        holder["K"] = tan.assemble(pattern_all)
+
+    out["assemble_csr_seconds"] = _median_time(assemble, repeat, sync)
+    K = holder["K"]
+    out["nnz"] = int(K.nnz)
+    vf = v.ravel().copy()
+    out["csr_matvec_seconds"] = _median_time(lambda: K @ vf, max(repeat, 5), lambda: None)
+    out["kv_over_csr_matvec"] = out["kv_seconds"] / out["csr_matvec_seconds"]
+    np.testing.assert_allclose(tan.matvec(v).ravel(), K @ vf, atol=1e-8 * np.abs(K @ vf).max())
+
+    pattern = sim.pattern("free")
+    Kf = tan.assemble(pattern)
+    b = pattern.gather(sim.forces(x, a))
+    backend = direct_backend()
+    out["direct_backend"] = backend
+    if backend is not None:
+        t0 = time.perf_counter()
+        factor = DirectFactor(Kf)
+        out["direct_factor_seconds"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        factor.solve(b)
+        out["direct_solve_seconds"] = time.perf_counter() - t0
+        B = rng.normal(size=(Kf.shape[0], 44))
+        t0 = time.perf_counter()
+        factor.solve(B)
+        out["direct_solve_44_seconds"] = time.perf_counter() - t0
+        factor.free()
+        del factor
+
+    diag = pattern.gather(tan.diagonal())
+
+    def matvec(u):
+        return pattern.gather(tan.matvec(pattern.scatter(u)))
+
+    t0 = time.perf_counter()
+    res = pcg(matvec, b, preconditioner=JacobiPreconditioner(diag), rtol=1e-6, maxiter=cg_maxiter)
+    out["cg_seconds"] = time.perf_counter() - t0
+    out["cg_iterations"] = res.iterations
+    out["cg_rtol"] = 1e-6
+    out["cg_converged"] = res.converged
+    out["cg_seconds_per_iteration"] = out["cg_seconds"] / max(res.iterations, 1)
+
+    targets = attached_positions(model, jaw=jaw_opening_affine(model, 5.0))
+    eq = sim.solve(a, targets)
+    out["quasistatic_seconds"] = eq.seconds
+    out["quasistatic_newton_iterations"] = eq.iterations
+    out["quasistatic_projected_steps"] = eq.projected_steps
+    out["quasistatic_factorizations"] = eq.factorizations
+    out["quasistatic_cg_iterations"] = eq.cg_iterations
+    out["quasistatic_residual_rel"] = eq.residual_rel
+    out["quasistatic_converged"] = eq.converged
+    out["quasistatic_solver"] = eq.solver
+    out["inverted_elements"] = eq.inverted_elements
+    return out
+
+
+def run(args) -> dict:
+    """Entry point of ``wface bench --suite forward``: {"sizes": [...per size...]}."""
+    import warp as wp
+
+    from wface.warp_runtime import init_warp, resolve_device
+
+    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # before init: no banner on stdout (--json)
+    init_warp()
+    device = resolve_device(getattr(args, "device", "auto"))
+    sizes = getattr(args, "tets", None) or list(DEFAULT_TETS)
+    repeat = int(getattr(args, "repeat", 3) or 3)
+    results = [bench_size(int(n), device=device, repeat=repeat) for n in sizes]
+    return {"device": device, "sizes": results}

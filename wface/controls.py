@@ -1,0 +1,264 @@
+"""Controls of the face, c = (a, b): muscle activations and bone kinematics (seed 000, sections 5-7).
+
+b holds 24 numbers: the cranium affine (Mc, tc) and the jaw affine (Mm, tm) *relative to the
+cranium*. Parameter order: b[0:9] = Mc row-major, b[9:12] = tc, b[12:21] = Mm row-major,
+b[21:24] = tm. The face is simulated in the cranium frame (cranium nodes at rest, jaw nodes at
+Mm X + tm); world positions are X = Mc Y + tc. For a rigid Mc this is exact (the flesh energy is
+rotation invariant), and it makes a pure cranium motion move every node rigidly.
+
+Penalties phi_p (all with analytic gradient and Hessian):
+- activation bounds: sum_i (min{0, a_i, 1 - a_i})^2;
+- rigidity: ||M^T M - I||_F^2 for Mc and Mm (Hessian projected to PSD);
+- jaw joint (DESIGN.md section 4): psi1 = w.Mm u = 0; psi2 = w.(Mm m + tm - m) = 0;
+  psi3 = u.(Mm m + tm - m) = 0; psi4 = v.[Mm (m - l/2 u) + tm - m] in [0, d];
+  psi5 = v.[Mm (m + l/2 u) + tm - m] in [0, d]; psi6 = w.Mm v in [-s, 0]; squared, one-sided for ranges.
+  Each psi is linear in (Mm, tm), so its Hessian is constant.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wface.model import BONES, FaceModel, JawJoint
+
+__all__ = [
+    "N_BONE_PARAMS",
+    "IDENTITY_BONES",
+    "Penalty",
+    "activation_penalty",
+    "attached_positions",
+    "attached_positions_jacobian",
+    "affine_from_params",
+    "jaw_from_intuitive",
+    "jaw_to_intuitive",
+    "jaw_joint_penalty",
+    "params_from_affine",
+    "rigidity_penalty",
+    "bone_penalty",
+]
+
+N_BONE_PARAMS = 24
+IDENTITY_BONES = np.concatenate([np.eye(3).ravel(), np.zeros(3), np.eye(3).ravel(), np.zeros(3)])
+
+
+def affine_from_params(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(M (3,3), t (3,)) from 12 parameters (M row-major, then t)."""
+    p = np.asarray(p, dtype=np.float64)
+    return p[:9].reshape(3, 3), p[9:12]
+
+
+def params_from_affine(M: np.ndarray, t: np.ndarray) -> np.ndarray:
+    return np.concatenate([np.asarray(M, float).ravel(), np.asarray(t, float)])
+
+
+# ---------------------------------------------------------------------- constrained nodes X_C(b)
+def attached_positions(model: FaceModel, b: np.ndarray, *, frame: str = "cranium") -> np.ndarray:
+    """Positions (a, 3) of ``model.attached_nodes`` for bone parameters b (24,).
+
+    Args:
+        frame: "cranium" (cranium nodes at rest, jaw nodes at Mm X + tm: what the simulator solves)
+            or "world" (everything mapped by Mc, tc).
+    """
+    b = _check_b(b)
+    X = model.rest_positions_m[model.attached_nodes]
+    jaw = model.attached_bone == BONES.index("jaw")
+    Mm, tm = affine_from_params(b[12:])
+    Y = X.copy()
+    Y[jaw] = X[jaw] @ Mm.T + tm
+    if frame == "cranium":
+        return Y
+    Mc, tc = affine_from_params(b[:12])
+    return Y @ Mc.T + tc
+
+
+def attached_positions_jacobian(model: FaceModel) -> np.ndarray:
+    """d X_C / d b_jaw in the cranium frame: (a, 3, 12); constant (X_C is affine in the jaw parameters)."""
+    X = model.rest_positions_m[model.attached_nodes]
+    jaw = model.attached_bone == BONES.index("jaw")
+    J = np.zeros((len(X), 3, 12))
+    for r in range(3):
+        J[jaw, r, 3 * r : 3 * r + 3] = X[jaw]  # d(M X)_r / dM_rc = X_c
+        J[jaw, r, 9 + r] = 1.0
+    return J
+
+
+def _check_b(b) -> np.ndarray:
+    b = np.asarray(b, dtype=np.float64).reshape(-1)
+    if b.shape != (N_BONE_PARAMS,):
+        raise ValueError(f"bone parameters must have {N_BONE_PARAMS} entries, got {b.shape}")
+    if not np.all(np.isfinite(b)):
+        raise ValueError("bone parameters contain NaN or inf")
+    return b
+
+
+# ---------------------------------------------------------------------- penalties
+@dataclass
+class Penalty:
+    """A penalty value with its gradient (p,) and PSD Hessian (p, p) over some parameters."""
+
+    value: float
+    gradient: np.ndarray
+    hessian: np.ndarray
+
+
+def activation_penalty(a: np.ndarray) -> Penalty:
+    """sum_i (min{0, a_i, 1 - a_i})^2 with gradient and (diagonal) Hessian."""
+    a = np.asarray(a, dtype=np.float64)
+    low, high = np.minimum(a, 0.0), np.minimum(1.0 - a, 0.0)
+    g = 2.0 * low - 2.0 * high
+    h = 2.0 * ((a < 0) | (a > 1)).astype(float)
+    return Penalty(float(np.sum(low**2 + high**2)), g, np.diag(h))
+
+
+def rigidity_penalty(M: np.ndarray, *, project: bool = True) -> Penalty:
+    """||M^T M - I||_F^2 over the 9 entries of M (row-major), Hessian projected to PSD by default."""
+    M = np.asarray(M, dtype=np.float64).reshape(3, 3)
+    E = M.T @ M - np.eye(3)
+    g = 4.0 * M @ E
+    # Hessian: d/dM_kl of g_ij = 4 [delta_ik E_lj + (M^T... )]: built from the directional derivative.
+    H = np.zeros((9, 9))
+    for col in range(9):
+        dM = np.zeros(9)
+        dM[col] = 1.0
+        dM = dM.reshape(3, 3)
+        dE = dM.T @ M + M.T @ dM
+        H[:, col] = (4.0 * (dM @ E + M @ dE)).ravel()
+    H = 0.5 * (H + H.T)
+    if project:
+        w, V = np.linalg.eigh(H)
+        H = (V * np.maximum(w, 0.0)) @ V.T
+    return Penalty(float(np.sum(E**2)), g.ravel(), H)
+
+
+def _joint_rows(joint: JawJoint) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """psi = A p + c for the jaw parameters p = (Mm row-major, tm); bounds lo <= psi <= hi."""
+    u, v = np.asarray(joint.u, float), np.asarray(joint.v, float)
+    w = np.cross(v, u)
+    m = np.asarray(joint.midpoint_m, float)
+    half = 0.5 * joint.condyle_distance_m
+    d, s = joint.track_length_m, joint.max_opening_sine
+
+    def row_M(a, x):  # a . (Mm x) = sum_rc a_r M_rc x_c
+        return np.concatenate([np.outer(a, x).ravel(), np.zeros(3)])
+
+    def row_t(a):
+        return np.concatenate([np.zeros(9), a])
+
+    A = np.stack(
+        [
+            row_M(w, u),
+            row_M(w, m) + row_t(w),
+            row_M(u, m) + row_t(u),
+            row_M(v, m - half * u) + row_t(v),
+            row_M(v, m + half * u) + row_t(v),
+            row_M(w, v),
+        ]
+    )
+    c = np.array([0.0, -w @ m, -u @ m, -v @ m, -v @ m, 0.0])
+    lo = np.array([0.0, 0.0, 0.0, 0.0, 0.0, -s])
+    hi = np.array([0.0, 0.0, 0.0, d, d, 0.0])
+    return A, c, lo, hi
+
+
+def jaw_joint_values(joint: JawJoint, jaw_params: np.ndarray) -> np.ndarray:
+    """psi1..psi6 for the 12 jaw parameters."""
+    A, c, _, _ = _joint_rows(joint)
+    return A @ np.asarray(jaw_params, float) + c
+
+
+def jaw_joint_penalty(joint: JawJoint, jaw_params: np.ndarray) -> Penalty:
+    """Sum of squared violations of the jaw joint constraints (equalities and one-sided ranges)."""
+    A, c, lo, hi = _joint_rows(joint)
+    psi = A @ np.asarray(jaw_params, float) + c
+    viol = np.where(psi < lo, psi - lo, np.where(psi > hi, psi - hi, 0.0))
+    active = (psi < lo) | (psi > hi) | (lo == hi)
+    Aa = A[active]
+    return Penalty(float(np.sum(viol**2)), 2.0 * A.T @ viol, 2.0 * Aa.T @ Aa)
+
+
+def bone_penalty(joint: JawJoint, b: np.ndarray) -> Penalty:
+    """Rigidity of cranium and jaw plus the jaw joint, over all 24 bone parameters."""
+    b = _check_b(b)
+    g = np.zeros(24)
+    H = np.zeros((24, 24))
+    rc = rigidity_penalty(b[:9].reshape(3, 3))
+    rm = rigidity_penalty(b[12:21].reshape(3, 3))
+    jj = jaw_joint_penalty(joint, b[12:])
+    g[:9] += rc.gradient
+    H[:9, :9] += rc.hessian
+    g[12:21] += rm.gradient
+    H[12:21, 12:21] += rm.hessian
+    g[12:] += jj.gradient
+    H[12:, 12:] += jj.hessian
+    return Penalty(rc.value + rm.value + jj.value, g, H)
+
+
+# ---------------------------------------------------------------------- intuitive jaw controls
+def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def jaw_limits(joint: JawJoint) -> dict:
+    """Largest opening (deg), protrusion range (m) and yaw (deg) allowed by the joint."""
+    return {
+        "opening_deg": (0.0, float(np.degrees(np.arcsin(joint.max_opening_sine)))),
+        "protrusion_m": (0.0, float(joint.track_length_m)),
+        "lateral_deg": float(np.degrees(np.arcsin(min(1.0, joint.track_length_m / joint.condyle_distance_m)))),
+    }
+
+
+def jaw_from_intuitive(
+    joint: JawJoint,
+    opening_deg: float = 0.0,
+    protrusion_m: float = 0.0,
+    lateral_deg: float = 0.0,
+    *,
+    clamp: bool = True,
+) -> np.ndarray:
+    """12 jaw parameters from opening angle, protrusion and lateral yaw, inside the joint limits.
+
+    The jaw rotates by ``opening_deg`` about the condyle axis u (chin down), yaws by ``lateral_deg``
+    about w (the chin moves toward the subject's left for positive values), and both condyles slide
+    forward along the tracks by ``protrusion_m`` on average (each condyle stays within [0, d]).
+    With ``clamp`` the numbers are clipped into the joint's range; without it, out-of-range values raise.
+    """
+    u, v = np.asarray(joint.u, float), np.asarray(joint.v, float)
+    w = np.cross(v, u)
+    m = np.asarray(joint.midpoint_m, float)
+    half, d = 0.5 * joint.condyle_distance_m, joint.track_length_m
+    alpha, beta, p = np.radians(opening_deg), np.radians(lateral_deg), float(protrusion_m)
+    a_max = np.arcsin(joint.max_opening_sine)
+    b_max = np.arcsin(min(1.0, d / (2 * half)))
+    if clamp:
+        alpha = float(np.clip(alpha, 0.0, a_max))
+        beta = float(np.clip(beta, -b_max, b_max))
+        slack = half * abs(np.sin(beta))
+        p = float(np.clip(p, slack, d - slack))
+    else:
+        slack = half * abs(np.sin(beta))
+        if not (0 <= alpha <= a_max + 1e-12 and abs(beta) <= b_max + 1e-12 and slack - 1e-12 <= p <= d - slack + 1e-12):
+            raise ValueError(
+                f"jaw pose outside the joint limits: opening {opening_deg} deg (max {np.degrees(a_max):.1f}), "
+                f"lateral {lateral_deg} deg (max {np.degrees(b_max):.1f}), protrusion {protrusion_m} m "
+                f"(allowed [{slack:.4f}, {d - slack:.4f}])"
+            )
+    # Opening: rotate about u by +alpha (the forward track direction v tips down, toward -w); yaw about w.
+    Mm = _rotation(w, beta) @ _rotation(u, alpha)
+    tm = m - Mm @ m + p * v
+    return params_from_affine(Mm, tm)
+
+
+def jaw_to_intuitive(joint: JawJoint, jaw_params: np.ndarray) -> dict:
+    """Inverse of ``jaw_from_intuitive``: {"opening_deg", "protrusion_m", "lateral_deg"}."""
+    u, v = np.asarray(joint.u, float), np.asarray(joint.v, float)
+    w = np.cross(v, u)
+    m = np.asarray(joint.midpoint_m, float)
+    Mm, tm = affine_from_params(jaw_params)
+    opening = np.degrees(np.arcsin(np.clip(-(w @ Mm @ v), -1, 1)))
+    lateral = np.degrees(np.arcsin(np.clip(-(v @ Mm @ u), -1, 1)))
+    protrusion = float(v @ (Mm @ m + tm - m))
+    return {"opening_deg": float(opening), "protrusion_m": protrusion, "lateral_deg": float(lateral)}

@@ -1,0 +1,436 @@
+"""The physics face: nodal forces, energy, stiffness and quasistatic equilibria of a ``FaceModel``.
+
+f(x, a) = f0(x) + sum_i a_i f_i(x)  (seed 000, eq. 1): f0 is the passive flesh plus the passive
+fibre response, f_i the active fibre force of muscle i at full activation. The constitutive model
+(Mooney-Rivlin flesh with volumetric term, transversely isotropic fibres, inversion-safe clamped
+singular values, projected-definite tangent) is documented in ``wface.kernels.fem``.
+
+Sign conventions: ``forces`` are the nodal forces f = -dE/dx (N); the stiffness is K = -df/dx
+(N/m), symmetric and, in its projected form, positive semi-definite (definite once Dirichlet rows
+are removed). Positions are (n, 3) float64 metres; activations (M,) in [0, 1] or a {name: value}
+dict.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import scipy.sparse as sp
+
+from wface.model import FaceModel
+from wface.physics.pattern import BlockPattern
+from wface.warp_runtime import init_warp, resolve_device
+
+__all__ = ["Simulator", "StiffnessSolver", "Tangent", "count_inverted"]
+
+PRECISIONS = ("float64", "float32")
+
+
+def count_inverted(model: FaceModel, x: np.ndarray) -> int:
+    """Number of tets with det F <= 0 at positions ``x`` (n, 3)."""
+    p = np.asarray(x, dtype=np.float64)[model.tets]
+    e1, e2, e3 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]
+    return int(np.count_nonzero(np.einsum("ij,ij->i", e1, np.cross(e2, e3)) <= 0.0))
+
+
+class Tangent:
+    """The stiffness K = -df/dx at one configuration, held as per-tet 9x9 tangents V0 dP/dF
+    (symmetric, stored packed: 45 values per tet).
+
+    ``matvec`` is matrix-free (one Warp launch over tets), ``assemble`` builds a scipy CSR matrix
+    over the unknowns of a ``BlockPattern`` (a Warp kernel scatters element blocks into BSR values),
+    ``diagonal`` gives diag(K) for Jacobi preconditioning.
+    """
+
+    def __init__(self, sim: Simulator, tangent_wp, projected: bool):
+        self._sim = sim
+        self.element_tangents = tangent_wp  # wp.array of packed symmetric 9x9 (45 values), one per tet
+        self.projected = projected
+
+    def matvec(self, v: np.ndarray) -> np.ndarray:
+        """K v for v of shape (n, 3) (or flat 3n); returns (n, 3) float64."""
+        s = self._sim
+        s._v.assign(np.asarray(v, dtype=s._np_dtype).reshape(-1, 3))
+        s._out.zero_()
+        inputs = [s._tets, s._dm_inv, self.element_tangents, s._v, s._out]
+        s._launch_tets(s._k.tangent_matvec, inputs, sliced=(0, 1, 2), scattered=(4,))
+        return s._out.numpy().astype(np.float64)
+
+    def diagonal(self) -> np.ndarray:
+        """diag(K) as (n, 3)."""
+        s = self._sim
+        s._out.zero_()
+        inputs = [s._tets, s._dm_inv, self.element_tangents, s._out]
+        s._launch_tets(s._k.tangent_diagonal, inputs, sliced=(0, 1, 2), scattered=(3,))
+        return s._out.numpy().astype(np.float64)
+
+    def assemble(self, pattern: BlockPattern | None = None) -> sp.csr_matrix:
+        """K restricted to the unknowns of ``pattern`` (default: all nodes) as CSR float64, (3k, 3k)."""
+        s = self._sim
+        wp = s._wp
+        pattern = pattern or s.pattern(None)
+        block_index = s._block_index_array(pattern)
+        blocks = wp.zeros(pattern.n_blocks, dtype=s._k.mat33, device=s.device)
+        inputs = [s._dm_inv, self.element_tangents, block_index, blocks]
+        s._launch_tets(s._k.tangent_assemble, inputs, sliced=(0, 1, 2), scattered=(3,))
+        return pattern.to_csr(blocks.numpy().astype(np.float64))
+
+
+class StiffnessSolver:
+    """K_UU X = B for many right-hand sides at one configuration (the Jacobian solves, DESIGN.md
+    section 4): factored once with the direct backend, or Jacobi-preconditioned CG per column.
+
+    Right-hand sides live on the unknowns of ``pattern`` (``pattern.gather`` / ``pattern.scatter``
+    convert from / to nodal (n, 3) arrays); ``solve_nodal`` does that for you.
+    """
+
+    def __init__(self, tangent: Tangent, pattern: BlockPattern, engine: str):
+        self.tangent = tangent
+        self.pattern = pattern
+        self.engine = engine
+        self.cg_iterations = 0
+        self._factor = None
+        if engine == "direct":
+            from wface.solvers.linear import DirectFactor
+
+            self._factor = DirectFactor(tangent.assemble(pattern))
+
+    def solve(self, B: np.ndarray, *, rtol: float = 1e-10) -> np.ndarray:
+        """X = K_UU^-1 B for B of shape (3k,) or (3k, c)."""
+        if self._factor is not None:
+            return self._factor.solve(B)
+        from wface.solvers.newton import solve_free
+
+        X, its = solve_free(self.tangent, self.pattern, np.asarray(B, dtype=np.float64), engine="cg", rtol=rtol)
+        self.cg_iterations += its
+        return X
+
+    def solve_nodal(self, F: np.ndarray, *, rtol: float = 1e-10) -> np.ndarray:
+        """Nodal right-hand sides (n, 3) or (c, n, 3) -> nodal solutions, zero on Dirichlet nodes."""
+        F = np.asarray(F, dtype=np.float64)
+        if F.ndim == 2:
+            return self.pattern.scatter(self.solve(self.pattern.gather(F), rtol=rtol))
+        B = np.stack([self.pattern.gather(f) for f in F], axis=1)
+        return self.pattern.scatter(self.solve(B, rtol=rtol))
+
+    def free(self) -> None:
+        """Release the factorisation now."""
+        if self._factor is not None:
+            self._factor.free()
+            self._factor = None
+
+
+class Simulator:
+    """Quasistatic FEM of a face model on a Warp device.
+
+    Args:
+        model: the face (validated ``FaceModel``).
+        device: Warp device, "cpu", "cuda:0" or "auto".
+        precision: "float64" (default; use it for Newton and derivative checks) or "float32".
+        solver: linear solver of the Newton steps: "auto" (direct on the CPU when installed, else
+            CG), "cg" or "direct" (see ``wface.solvers.linear``).
+        force_length_scale: exaggeration beyond physical limits (seed 000, section 9): scales the
+            whole active force-length curve, T = k (s a f_L + f_P), so activations stay in [0, 1].
+            Also a mutable attribute.
+    """
+
+    def __init__(
+        self,
+        model: FaceModel,
+        *,
+        device: str = "cpu",
+        precision: str = "float64",
+        solver: str = "auto",
+        force_length_scale: float = 1.0,
+    ):
+        init_warp()
+        import warp as wp
+
+        from wface.kernels.fem import fem_kernels
+        from wface.solvers.linear import resolve_linear_solver
+
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+        self._wp = wp
+        self.model = model
+        self.device = resolve_device(device)
+        self.precision = precision
+        self.solver = solver
+        self.linear_solver = resolve_linear_solver(solver, self.device)
+        scalar = wp.float64 if precision == "float64" else wp.float32
+        self._np_dtype = np.float64 if precision == "float64" else np.float32
+        self._k = fem_kernels(scalar)
+        k, dev, dt = self._k, self.device, self._np_dtype
+        m = model.material
+        self._material = [dt(m.mu10_pa), dt(m.mu01_pa), dt(m.kappa_pa), dt(m.inversion_clamp)]
+        n, nt = model.n_nodes, model.n_tets
+        self._tets = wp.array(model.tets.astype(np.int32), dtype=wp.int32, device=dev)
+        self._dm_inv = wp.array(model.dm_inv.astype(dt), dtype=k.mat33, device=dev)
+        self._volume = wp.array(model.rest_volume_m3.astype(dt), dtype=k.scalar, device=dev)
+        entry_start = np.searchsorted(model.fibre_tet, np.arange(nt + 1)).astype(np.int32)
+        coef = model.fibre_fraction * model.muscle_strength[model.fibre_muscle] * m.sigma_max_pa
+        self._entry_start = wp.array(entry_start, dtype=wp.int32, device=dev)
+        self._entry_tet = wp.array(model.fibre_tet.astype(np.int32), dtype=wp.int32, device=dev)
+        self._entry_muscle = wp.array(model.fibre_muscle.astype(np.int32), dtype=wp.int32, device=dev)
+        self._entry_dir = wp.array(model.fibre_direction.astype(dt), dtype=k.vec3, device=dev)
+        self._entry_coef = wp.array(coef.astype(dt), dtype=k.scalar, device=dev)
+        self._x = wp.zeros(n, dtype=k.vec3, device=dev)
+        self._v = wp.zeros(n, dtype=k.vec3, device=dev)
+        self._out = wp.zeros(n, dtype=k.vec3, device=dev)
+        self._f = wp.zeros(n, dtype=k.vec3, device=dev)
+        self._e = wp.zeros(nt, dtype=k.scalar, device=dev)
+        self._a = wp.zeros(max(model.n_muscles, 1), dtype=k.scalar, device=dev)
+        self._tangent_wp = None
+        if not (np.isfinite(force_length_scale) and force_length_scale >= 0):
+            raise ValueError(f"force_length_scale must be finite and >= 0, got {force_length_scale}")
+        self.force_length_scale = float(force_length_scale)
+        self.parallel_min_tets = 20_000  # CPU: per-tet kernels run on all cores above this size
+        self._patterns: dict = {}
+        self._block_index: dict = {}
+
+    # ------------------------------------------------------------------ inputs
+    @property
+    def n_nodes(self) -> int:
+        return self.model.n_nodes
+
+    def _set_state(self, x: np.ndarray | None, a) -> None:
+        x = self.model.rest_positions_m if x is None else np.asarray(x, dtype=np.float64)
+        if x.shape != (self.model.n_nodes, 3):
+            raise ValueError(f"positions have shape {x.shape}, expected ({self.model.n_nodes}, 3)")
+        self._x.assign(x.astype(self._np_dtype))
+        if self.model.n_muscles:
+            # activations are checked in [0, 1]; the kernels see s a (T is linear in a, see __init__)
+            a = self.model.activation_vector(a) * self.force_length_scale
+            self._a.assign(a.astype(self._np_dtype))
+
+    def _launch_tets(
+        self,
+        kernel,
+        inputs: list,
+        *,
+        sliced: tuple[int, ...],
+        offsets: tuple[int, ...] = (),
+        scattered: tuple[int, ...] = (),
+    ) -> None:
+        """Launch a per-tet kernel, on the CPU over tet ranges on all cores.
+
+        Warp CPU kernels run on one thread (DESIGN.md section 8) but a launch releases the GIL, so
+        large meshes are cut into one contiguous tet range per core. ``sliced``: indices of inputs
+        indexed by tet (sliced [lo:hi], per-tet outputs included); ``offsets``: per-tet offset
+        arrays (sliced [lo:hi+1]); ``scattered``: outputs accumulated with atomics at nodes or
+        blocks: each extra thread gets a zeroed private copy, added to the original afterwards
+        (CPU atomics are plain +=, never shared between threads).
+        """
+        wp = self._wp
+        m = self.model.n_tets
+        threads = min(os.cpu_count() or 1, 8)
+        if not self.device.startswith("cpu") or threads < 2 or m < self.parallel_min_tets:
+            wp.launch(kernel, m, inputs=inputs, device=self.device)
+            return
+        bounds = np.linspace(0, m, threads + 1).astype(int)
+        private = [{i: (inputs[i] if k == 0 else wp.zeros_like(inputs[i])) for i in scattered} for k in range(threads)]
+
+        def run(k: int) -> None:
+            lo, hi = int(bounds[k]), int(bounds[k + 1])
+            args = list(inputs)
+            for i in sliced:
+                args[i] = inputs[i][lo:hi]
+            for i in offsets:
+                args[i] = inputs[i][lo : hi + 1]
+            for i in scattered:
+                args[i] = private[k][i]
+            wp.launch(kernel, hi - lo, inputs=args, device=self.device)
+
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(run, range(threads)))
+        for i in scattered:
+            total = inputs[i].numpy()
+            for k in range(1, threads):
+                total += private[k][i].numpy()
+
+    def _launch_per_tet(self, kernel, extra_inputs, *outputs, scattered: tuple[int, ...] = ()) -> None:
+        """``_launch_tets`` for kernels whose inputs start with ``_model_inputs()``."""
+        inputs = [*self._model_inputs(), *extra_inputs, *outputs]
+        n_model = len(self._model_inputs())
+        per_tet_outputs = tuple(i for i in range(n_model + len(extra_inputs), len(inputs)) if i not in scattered)
+        self._launch_tets(kernel, inputs, sliced=(0, 1, 2, *per_tet_outputs), offsets=(7,), scattered=scattered)
+
+    def _model_inputs(self):
+        return [
+            self._tets,
+            self._dm_inv,
+            self._volume,
+            *self._material,
+            self._entry_start,
+            self._entry_muscle,
+            self._entry_dir,
+            self._entry_coef,
+        ]
+
+    # ------------------------------------------------------------------ energy and forces
+    def energy(self, x: np.ndarray | None = None, activations=None) -> float:
+        """Total elastic energy (J) at positions x (n, 3) with activations (dict, (M,) array or None)."""
+        self._set_state(x, activations)
+        self._launch_per_tet(self._k.element_energy, [self._x, self._a], self._e)
+        return float(self._e.numpy().astype(np.float64).sum())
+
+    def energy_and_forces(self, x: np.ndarray | None = None, activations=None) -> tuple[float, np.ndarray]:
+        """(E, f) with f = -dE/dx of shape (n, 3), in one pass."""
+        self._set_state(x, activations)
+        self._f.zero_()
+        n_in = len(self._model_inputs()) + 2
+        self._launch_per_tet(self._k.element_forces, [self._x, self._a], self._f, self._e, scattered=(n_in,))
+        return float(self._e.numpy().astype(np.float64).sum()), self._f.numpy().astype(np.float64)
+
+    def forces(self, x: np.ndarray | None = None, activations=None) -> np.ndarray:
+        """Nodal forces f(x, a) = f0(x) + sum_i a_i f_i(x), (n, 3) newtons."""
+        return self.energy_and_forces(x, activations)[1]
+
+    def last_element_energies(self) -> np.ndarray:
+        """(m,) per-tet energies of the latest ``energy`` / ``energy_and_forces`` call."""
+        return self._e.numpy().astype(np.float64)
+
+    def element_energies(self, x: np.ndarray | None = None, activations=None) -> np.ndarray:
+        """(m,) energy of each tet (J)."""
+        self.energy(x, activations)
+        return self._e.numpy().astype(np.float64)
+
+    def muscle_forces(self, x: np.ndarray | None = None) -> np.ndarray:
+        """f_i(x): active force of each muscle at full activation, (M, n, 3) newtons, one launch
+        (times ``force_length_scale``)."""
+        wp = self._wp
+        self._set_state(x, None)
+        M, n = self.model.n_muscles, self.model.n_nodes
+        out = wp.zeros((max(M, 1), n), dtype=self._k.vec3, device=self.device)
+        if self.model.fibre_tet.size:
+            wp.launch(
+                self._k.muscle_forces,
+                self.model.fibre_tet.size,
+                inputs=[
+                    self._tets,
+                    self._dm_inv,
+                    self._volume,
+                    self._entry_tet,
+                    self._entry_muscle,
+                    self._entry_dir,
+                    self._entry_coef,
+                    self._x,
+                    out,
+                ],
+            )
+        return out.numpy().astype(np.float64)[:M] * self.force_length_scale
+
+    # ------------------------------------------------------------------ stiffness
+    def tangent(self, x: np.ndarray | None = None, activations=None, *, project: bool = True) -> Tangent:
+        """Stiffness K = -df/dx at (x, a): projected to PSD (default) or the exact Hessian of E."""
+        wp = self._wp
+        self._set_state(x, activations)
+        tangent = wp.empty(self.model.n_tets, dtype=self._k.vec45, device=self.device)
+        self._launch_per_tet(self._k.element_tangent, [int(bool(project)), self._x, self._a], tangent)
+        return Tangent(self, tangent, project)
+
+    def stiffness_matvec(self, x: np.ndarray | None, activations, v: np.ndarray, *, project: bool = True) -> np.ndarray:
+        """K(x, a) v, matrix-free; v and the result are (n, 3)."""
+        return self.tangent(x, activations, project=project).matvec(v)
+
+    def assemble_stiffness(
+        self, x: np.ndarray | None = None, activations=None, *, project: bool = True, nodes: str | np.ndarray = "all"
+    ) -> sp.csr_matrix:
+        """Assembled K as scipy CSR float64.
+
+        Args:
+            nodes: "all" (3n x 3n), "free" (rows/columns of nodes not attached to a bone), or an
+                array of node ids (in increasing order) whose rows and columns are kept.
+        """
+        return self.tangent(x, activations, project=project).assemble(self.pattern(nodes))
+
+    def stiffness_solver(
+        self,
+        x: np.ndarray | None = None,
+        activations=None,
+        *,
+        project: bool = True,
+        nodes: str | np.ndarray = "free",
+        solver: str | None = None,
+    ) -> StiffnessSolver:
+        """A ``StiffnessSolver`` for K_UU at (x, a) over the unknown ``nodes`` (default: free nodes).
+
+        Example (activation Jacobian, seed 000 eq. 5): ``dX = sim.stiffness_solver(x, a)
+        .solve_nodal(sim.muscle_forces(x))`` gives dX_U/da_i for every muscle i, shape (M, n, 3).
+        """
+        from wface.solvers.linear import resolve_linear_solver
+
+        engine = resolve_linear_solver(solver, self.device) if solver else self.linear_solver
+        return StiffnessSolver(self.tangent(x, activations, project=project), self.pattern(nodes), engine)
+
+    def pattern(self, nodes: str | np.ndarray | None = "all") -> BlockPattern:
+        """Block sparsity pattern (cached) over "all" nodes, the "free" nodes, or given node ids."""
+        if nodes is None or (isinstance(nodes, str) and nodes == "all"):
+            key, ids = "all", None
+        elif isinstance(nodes, str) and nodes == "free":
+            key, ids = "free", self.model.free_nodes
+        else:
+            ids = np.unique(np.asarray(nodes, dtype=np.int64))
+            key = ("ids", ids.tobytes())
+        if key not in self._patterns:
+            self._patterns[key] = BlockPattern(self.model.tets, self.model.n_nodes, ids)
+        return self._patterns[key]
+
+    def _block_index_array(self, pattern: BlockPattern):
+        key = id(pattern)
+        if key not in self._block_index:
+            self._block_index[key] = self._wp.array(pattern.block_index, dtype=self._wp.int32, device=self.device)
+        return self._block_index[key]
+
+    # ------------------------------------------------------------------ equilibrium
+    def solve(
+        self,
+        activations=None,
+        attached_positions: np.ndarray | None = None,
+        x0: np.ndarray | None = None,
+        *,
+        tol: float = 1e-6,
+        max_iterations: int = 40,
+        solver: str | None = None,
+        stiffness: str = "auto",
+        reuse_factor: bool = False,
+    ):
+        """Quasistatic equilibrium f_U(x, a) = 0 with attached nodes at ``attached_positions``.
+
+        Args:
+            activations: dict {muscle: value}, (M,) array, or None (all zero).
+            attached_positions: (a, 3) positions of ``model.attached_nodes`` (default: rest), e.g.
+                from ``wface.physics.bones.attached_positions``.
+            x0: warm start (n, 3); its attached nodes are replaced by the targets through one
+                linearised "lift" step. Default: rest positions.
+            tol: convergence on the relative residual (see ``Equilibrium``).
+            max_iterations: Newton iteration cap.
+            solver: override of the simulator's linear solver ("auto" | "cg" | "direct").
+            stiffness: "auto" (exact Hessian when definite, else projected), "projected" or "exact";
+                see ``wface.solvers.newton``.
+            reuse_factor: with the direct solver, precondition CG with the previous step's factor
+                and refactor only when that CG does not converge within a few iterations (off by
+                default: on the 2-core CPU at 20K-100K tets a fresh factorisation was as fast).
+
+        Returns:
+            ``wface.solvers.newton.Equilibrium``.
+        """
+        from wface.solvers.newton import newton_quasistatic
+
+        start = time.perf_counter()
+        result = newton_quasistatic(
+            self,
+            self.model.activation_vector(activations),
+            attached_positions,
+            x0,
+            tol=tol,
+            max_iterations=max_iterations,
+            solver=solver or self.linear_solver,
+            stiffness=stiffness,
+            reuse_factor=reuse_factor,
+        )
+        result.seconds = time.perf_counter() - start
+        return result

@@ -1,0 +1,73 @@
+"""Bringing a real capture onto a face model (seed 003 section 4.1.1; DESIGN.md section 5).
+
+The first frame is aligned to the skin by a similarity transform iterated with projection onto
+the surface; markers whose names the model also has pull toward the model's marker as landmarks.
+The same similarity maps every frame, so the actor's rigid head motion stays in the data and is
+carried by the cranium controls. Each marker is embedded in its closest skin triangle with its
+offset along the normal (an off-surface marker keeps its offset).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wface.tracking.estimator import MarkerMap
+
+__all__ = ["PreparedCapture", "prepare_capture"]
+
+
+@dataclass
+class PreparedCapture:
+    targets_m: np.ndarray  # (F, k, 3) capture in the model frame
+    markers: MarkerMap
+    marker_names: list[str]
+    scale: float
+    alignment_rms_mm: float
+    matched_names: list[str]
+
+
+def prepare_capture(
+    model, positions_m: np.ndarray, marker_names: list[str], *, reference_frame: int = 0
+) -> PreparedCapture:
+    """Align a capture (F, k, 3) in metres to ``model`` and embed its markers in the skin."""
+    from scipy.spatial import cKDTree
+
+    from wface.align import align_to_surface
+
+    pos = np.asarray(positions_m, dtype=np.float64)
+    if pos.ndim != 3 or pos.shape[2] != 3 or pos.shape[1] != len(marker_names):
+        raise ValueError(
+            f"capture has shape {pos.shape} for {len(marker_names)} marker names; expected (frames, markers, 3)"
+        )
+    ref = pos[reference_frame]
+    if np.isfinite(ref).all(axis=1).sum() < 3:
+        raise ValueError(f"frame {reference_frame} of the capture has fewer than 3 markers present")
+    skin_nodes = np.unique(model.skin_triangles)
+    tree = cKDTree(model.rest_positions_m[skin_nodes])
+    known = dict(zip(model.marker_names, model.marker_positions_m, strict=True))
+    landmarks = np.full(len(marker_names), -1, dtype=np.int64)
+    matched = []
+    for i, name in enumerate(marker_names):
+        if name in known:
+            landmarks[i] = skin_nodes[tree.query(known[name])[1]]
+            matched.append(name)
+    al = align_to_surface(
+        ref,
+        model.rest_positions_m,
+        model.skin_triangles,
+        landmark_vertices=landmarks if matched else None,
+        with_scale=True,
+        landmark_weight=1.0 if matched else 0.0,
+        trim_fraction=0.1,
+    )
+    targets = al.transform.apply(pos)
+    return PreparedCapture(
+        targets,
+        MarkerMap(model, al.embedding),
+        list(marker_names),
+        float(al.transform.scale),
+        float(al.rms_history_m[-1] * 1e3),
+        matched,
+    )

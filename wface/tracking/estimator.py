@@ -1,0 +1,395 @@
+"""Per-frame estimation of controls from markers: Gauss-Newton with progressive penalties and a
+golden-section line search (seed 000, sections 5 and 9; DESIGN.md section 5).
+
+Objective: phi(c) = sum_k w_k |m_k(X(c)) - t_k|^2 over the markers present in the frame, with
+m_k the embedded marker (barycentric point of its skin triangle plus its rest offset along the
+normal) and w_k robust weights, plus two optional regularisers, both off by default: temporal smoothness
+lam |a - a_prev|^2 and a prior mu |a|^2 toward the rest face. One Gauss-Newton step:
+  1. linearise m(c + dc) ~ m(c) + J dc with J = W dX/dc (``FaceRig.jacobian``);
+  2. for rho rising geometrically (x1.05 grid, searched by bisection) from rho0 phi up to 1e6 phi,
+     solve the small system (2 J^T W J + rho H_p + 2 lam I_a) dc = -(2 J^T W r + rho g_p + 2 lam (a - a_prev)),
+     and take the first rho whose bone step is rigid to first order (|sym(M^T dM)| <= 0.05 |dM|).
+     The activation bounds and the jaw-joint equalities are kept exactly inside this small solve
+     (bounded least squares in the null space of the equalities): their quadratic penalties are
+     flat at the bound, so a linearised penalty model cannot stop a step from crossing it.
+     Every trial point is retracted onto valid controls (``retract``: rotations by polar
+     decomposition, the jaw onto its joint's 3 degrees of freedom within the limits), so the
+     penalties phi_p stay ~0 along the search;
+  3. golden-section search of phi + rho phi_p along dc (tau in [0, 1]), each evaluation a
+     quasistatic solve warm-started from the linearised prediction Y + tau dY/dc dc. When the full
+     step tau = 1 already achieves ``accept_full_step`` (80 %) of the reduction the Gauss-Newton
+     model predicts, it is taken without the search (one solve instead of five); set None to
+     always search, as the paper does.
+Steps stop when the objective falls by less than ``min_improvement`` or the RMS marker residual
+changes by less than ``tol_mm``.
+Outliers: iteratively reweighted Tukey biweights on the marker residuals (``_weights``), whose
+cut-off shrinks to ``robust_mm`` as the fit improves; None turns robust weighting off.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wface.controls import activation_penalty, bone_penalty
+from wface.rig import FaceRig, RigState
+
+__all__ = ["TrackOptions", "FrameResult", "FrameEstimator", "MarkerMap"]
+
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+
+
+@dataclass
+class TrackOptions:
+    """Settings of the per-frame estimation (defaults follow seed 000)."""
+
+    gn_steps_first: int = 4  # Gauss-Newton steps on the first frame of a chunk
+    gn_steps: int = 3  # at most, on later frames (warm-started; stops early, usually after 1-2)
+    rho0: float = 1e-3  # first penalty weight, relative to phi
+    rho_growth: float = 1.05
+    rho_max: float = 1e6  # relative to phi
+    rigid_step_tol: float = 0.05  # accepted first-order non-rigidity of a bone step: |sym(M^T dM)| / |dM|
+    line_search_evals: int = 5  # quasistatic solves in the golden-section search
+    accept_full_step: float | None = 0.8  # take tau = 1 without the search when it achieves this share of
+    # the reduction the Gauss-Newton model predicts (None: always run the golden-section search)
+    tol_mm: float = 1e-3  # stop when a step changes the RMS marker residual by less than this (mm)
+    robust_mm: float | None = (
+        3.0  # Tukey cut-off on marker residuals (mm) once the fit is close; None: plain least squares
+    )
+    temporal_weight: float = 0.0  # lam: pull of activations toward the previous frame (m^2 per unit^2)
+    activation_prior: float = 0.0  # mu: pull of activations toward zero (m^2 per unit^2), a small prior
+    extrapolate: bool = True  # start each frame from a constant-velocity prediction of the controls
+    min_improvement: float = 0.05  # stop GN when the objective drops by less than this fraction
+
+
+@dataclass
+class FrameResult:
+    """Estimated controls of one frame and how they were found."""
+
+    frame: int
+    controls: np.ndarray
+    state: RigState
+    markers_m: np.ndarray  # (k, 3) model markers at the solution
+    marker_error_m: np.ndarray  # (k,) distance to the data (NaN where missing)
+    gauss_newton_steps: int
+    quasistatic_solves: int
+    linear_solves: int
+    penalty: float
+    rho: float
+    seconds: float
+    timings: dict = field(default_factory=dict)
+
+
+class MarkerMap:
+    """Markers embedded in the skin: positions m(X) and the node set their Jacobian needs."""
+
+    def __init__(self, model, embedding):
+        self.model = model
+        self.embedding = embedding
+        tri = model.skin_triangles[embedding.triangle]
+        self.nodes, inverse = np.unique(tri.ravel(), return_inverse=True)
+        self._local = inverse.reshape(-1, 3)  # corner -> index into self.nodes
+        self._offset = np.nan_to_num(embedding.normal_offset_m)
+        self._bary = embedding.barycentric
+
+    def positions(self, x_m: np.ndarray) -> np.ndarray:
+        """(k, 3) marker positions on the deformed skin."""
+        return self.embedding.marker_positions(x_m, self.model.skin_triangles)
+
+    def jacobian(self, node_jacobian: np.ndarray) -> np.ndarray:
+        """(3k, p) marker Jacobian from (len(nodes), 3, p) node Jacobians (offsets held fixed in direction)."""
+        Jn = node_jacobian[self._local]  # (k, 3 corners, 3, p)
+        return np.einsum("kj,kjdp->kdp", self._bary, Jn).reshape(-1, node_jacobian.shape[-1])
+
+
+class FrameEstimator:
+    """Gauss-Newton estimation of one frame's controls (see module docstring)."""
+
+    def __init__(self, rig: FaceRig, markers: MarkerMap, options: TrackOptions | None = None):
+        self.rig = rig
+        self.markers = markers
+        self.options = options or TrackOptions()
+        self.M = rig.n_muscles
+
+    # ------------------------------------------------------------------ objective pieces
+    def _penalty(self, c: np.ndarray):
+        a, b = self.rig.split(c)
+        pa = activation_penalty(a)
+        pb = bone_penalty(self.rig.model.jaw_joint, b)
+        g = np.concatenate([pa.gradient, pb.gradient])
+        H = np.zeros((len(c), len(c)))
+        H[: self.M, : self.M] = pa.hessian
+        H[self.M :, self.M :] = pb.hessian
+        return pa.value + pb.value, g, H
+
+    def _weights(self, residual: np.ndarray) -> np.ndarray:
+        """Tukey biweight w = (1 - (e/c)^2)^2 for e < c, 0 beyond, with
+        c = max(robust_mm, 4.685 * 1.4826 * median e): wide while the fit is coarse (a cold start),
+        shrinking to ``robust_mm`` so that outliers get no weight once the face fits."""
+        delta = self.options.robust_mm
+        if delta is None:
+            return np.ones(len(residual))
+        e = np.linalg.norm(residual, axis=1) * 1e3
+        present = e > 0
+        med = np.median(e[present]) if present.any() else 0.0
+        c = max(delta, 4.685 * 1.4826 * med)
+        return np.where(e < c, (1.0 - (e / c) ** 2) ** 2, 0.0)
+
+    def _phi(self, m: np.ndarray, target: np.ndarray, present: np.ndarray, w: np.ndarray) -> float:
+        r = (m - target)[present]
+        return float(np.sum(w[present, None] * r**2))
+
+    # ------------------------------------------------------------------ one frame
+    def estimate(
+        self,
+        frame: int,
+        target_m: np.ndarray,
+        c0: np.ndarray,
+        y0: np.ndarray | None = None,
+        *,
+        steps: int | None = None,
+        a_prev: np.ndarray | None = None,
+    ) -> FrameResult:
+        """Controls for one frame of marker data.
+
+        Args:
+            frame: frame number (for the record).
+            target_m: (k, 3) marker positions, NaN rows = missing markers.
+            c0: starting controls (the previous frame's, or the rest controls).
+            y0: warm start of the equilibrium (cranium frame), e.g. the previous frame's.
+            steps: Gauss-Newton steps (default from the options: first / later frame).
+            a_prev: activations of the previous frame for the temporal term.
+        """
+        opt = self.options
+        t_start = time.perf_counter()
+        rig = self.rig
+        counters0 = dict(rig.counters)
+        target = np.asarray(target_m, dtype=np.float64)
+        present = np.isfinite(target).all(axis=1)
+        if present.sum() < 3:
+            raise ValueError(f"frame {frame}: only {int(present.sum())} markers present; need at least 3")
+        steps = opt.gn_steps if steps is None else steps
+        timings = {"quasistatic_s": 0.0, "jacobian_s": 0.0, "gauss_newton_system_s": 0.0}
+
+        t = time.perf_counter()
+        state = rig.equilibrium(c0, y0)
+        timings["quasistatic_s"] += time.perf_counter() - t
+        c = state.controls
+        m = self.markers.positions(state.x_m)
+        w = self._weights(np.where(present[:, None], m - target, 0.0))
+        rho = 0.0
+        gn_done = 0
+        for _ in range(steps):
+            phi = self._phi(m, target, present, w)
+            t = time.perf_counter()
+            Jy = rig.jacobian_y(state)
+            Jn = rig.world_jacobian(state, Jy.reshape(rig.model.n_nodes, 3, -1)[self.markers.nodes], self.markers.nodes)
+            J = self.markers.jacobian(Jn)  # (3k, p)
+            timings["jacobian_s"] += time.perf_counter() - t
+
+            t = time.perf_counter()
+            rows = np.repeat(present, 3)
+            wr = np.repeat(w, 3)[rows]
+            Jp = J[rows]
+            r = (m - target).reshape(-1)[rows]
+            A = 2.0 * (Jp.T * wr) @ Jp
+            g = 2.0 * (Jp.T * wr) @ r
+            if opt.temporal_weight > 0 and a_prev is not None:
+                A[: self.M, : self.M] += 2.0 * opt.temporal_weight * np.eye(self.M)
+                g[: self.M] += 2.0 * opt.temporal_weight * (c[: self.M] - a_prev)
+            if opt.activation_prior > 0:
+                A[: self.M, : self.M] += 2.0 * opt.activation_prior * np.eye(self.M)
+                g[: self.M] += 2.0 * opt.activation_prior * c[: self.M]
+            pen, gp, Hp = self._penalty(c)
+            dc, rho = self._penalty_step(A, g, Hp, gp, c, max(phi, 1e-12))
+            timings["gauss_newton_system_s"] += time.perf_counter() - t
+
+            # Golden-section search on tau in [0, 1] with warm starts from the linear prediction.
+            t = time.perf_counter()
+            total0 = phi + rho * pen + self._reg(c, a_prev)
+            trial = functools.partial(
+                self._trial, c=c, dc=dc, state=state, Jy=Jy, target=target, present=present, w=w, rho=rho, a_prev=a_prev
+            )
+            cache = None
+            if opt.accept_full_step is not None:
+                predicted = total0 - (float(np.sum(wr * (r + Jp @ dc) ** 2)) + rho * pen + self._reg(c + dc, a_prev))
+                full = trial(1.0)
+                if predicted > 0 and total0 - full[0] >= opt.accept_full_step * predicted:
+                    cache = {1.0: full}  # the model predicted well: the Gauss-Newton point is taken
+            if cache is None:
+                cache = self._golden_section(trial)
+            tau_best = min(cache, key=lambda k: cache[k][0])
+            timings["quasistatic_s"] += time.perf_counter() - t
+            gn_done += 1
+            if cache[tau_best][0] >= total0:
+                break  # no descent along dc: keep c
+            _, state, m = cache[tau_best]
+            c = state.controls
+            w = self._weights(np.where(present[:, None], m - target, 0.0))
+            n_present = max(int(present.sum()), 1)
+            rms_change_mm = abs(np.sqrt(total0 / n_present) - np.sqrt(max(cache[tau_best][0], 0.0) / n_present)) * 1e3
+            if total0 - cache[tau_best][0] < opt.min_improvement * total0 or rms_change_mm < opt.tol_mm:
+                break
+
+        err = np.linalg.norm(m - target, axis=1)
+        err[~present] = np.nan
+        used = {k: rig.counters[k] - counters0[k] for k in rig.counters}
+        return FrameResult(
+            frame,
+            c,
+            state,
+            m,
+            err,
+            gn_done,
+            used["quasistatic_solves"],
+            used["linear_solves"],
+            self._penalty(c)[0],
+            rho,
+            time.perf_counter() - t_start,
+            timings,
+        )
+
+    def _bounded_step(self, H: np.ndarray, g: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """argmin 1/2 dc^T H dc + g^T dc with 0 <= a + da <= 1 and the jaw-joint equalities kept.
+
+        The activation penalty is flat at its bound (no curvature at a = 0), so a linearised
+        penalty model cannot stop a step from crossing it: the box is enforced exactly instead.
+        The joint equalities psi1..psi3 are linear in the jaw parameters: the step lives in their
+        null space (dc = T z, T = blockdiag(I, N_jaw)), which leaves the activation box a box, and
+        the reduced problem is a bounded least squares on the Cholesky factor (BVLS).
+        """
+        from scipy.optimize import lsq_linear
+
+        T = self._step_basis
+        Hz = T.T @ (0.5 * (H + H.T)) @ T
+        gz = T.T @ g
+        p = len(gz)
+        Hz += 1e-10 * max(np.trace(Hz) / p, 1e-30) * np.eye(p)  # damping for unobservable directions
+        R = np.linalg.cholesky(Hz).T  # Hz = R^T R
+        rhs = -np.linalg.solve(R.T, gz)
+        lo = np.full(p, -np.inf)
+        hi = np.full(p, np.inf)
+        a = np.clip(c[: self.M], 0.0, 1.0)
+        lo[: self.M], hi[: self.M] = -a, 1.0 - a
+        z = lsq_linear(R, rhs, bounds=(lo, hi), method="bvls").x
+        return T @ z
+
+    @property
+    def _step_basis(self) -> np.ndarray:
+        if not hasattr(self, "_T"):
+            from scipy.linalg import null_space
+
+            from wface.controls import _joint_rows
+
+            A, _, lo, hi = _joint_rows(self.rig.model.jaw_joint)
+            N = null_space(A[lo == hi])  # (12, 9)
+            p = self.M + 24
+            T = np.zeros((p, self.M + 12 + N.shape[1]))
+            T[: self.M + 12, : self.M + 12] = np.eye(self.M + 12)
+            T[self.M + 12 :, self.M + 12 :] = N
+            self._T = T
+        return self._T
+
+    def _penalty_step(self, A, g, Hp, gp, c, scale) -> tuple[np.ndarray, float]:
+        """(dc, rho): the step for the smallest rho on the grid rho0 phi growth^k (k = 0..K) whose bone
+        step is rigid to first order, found by bisection over k (rigidity improves with rho)."""
+        opt = self.options
+        K = int(np.ceil(np.log(opt.rho_max / opt.rho0) / np.log(opt.rho_growth)))
+        steps: dict[int, np.ndarray] = {}
+
+        def step_at(k: int) -> np.ndarray:
+            if k not in steps:
+                r_k = opt.rho0 * scale * opt.rho_growth**k
+                steps[k] = self._bounded_step(A + r_k * Hp, g + r_k * gp, c)
+            return steps[k]
+
+        lo_k, hi_k = 0, K
+        if self._step_violation(c, step_at(0)) <= opt.rigid_step_tol:
+            hi_k = 0
+        while hi_k - lo_k > 1:
+            mid = (lo_k + hi_k) // 2
+            if self._step_violation(c, step_at(mid)) <= opt.rigid_step_tol:
+                hi_k = mid
+            else:
+                lo_k = mid
+        return step_at(hi_k), opt.rho0 * scale * opt.rho_growth**hi_k
+
+    def _trial(self, tau, *, c, dc, state, Jy, target, present, w, rho, a_prev) -> tuple:
+        """(objective, state, markers) at the retracted controls c + tau dc, warm-started from the
+        linearised equilibrium Y + tau dY/dc dc."""
+        ct = self.retract(c + tau * dc)
+        y_guess = state.y_m + tau * (Jy @ self._dc_y(dc)).reshape(-1, 3)
+        st = self.rig.equilibrium(ct, y_guess)
+        mt = self.markers.positions(st.x_m)
+        value = self._phi(mt, target, present, w) + rho * self._penalty(ct)[0] + self._reg(ct, a_prev)
+        return value, st, mt
+
+    def _golden_section(self, trial) -> dict[float, tuple]:
+        """Golden-section search of ``trial(tau)[0]`` on [0, 1] plus the full step tau = 1;
+        returns every evaluated tau -> trial result (``line_search_evals`` evaluations)."""
+        cache: dict[float, tuple] = {}
+
+        def f(tau: float) -> float:
+            if tau not in cache:
+                cache[tau] = trial(tau)
+            return cache[tau][0]
+
+        lo, hi = 0.0, 1.0
+        x1, x2 = hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
+        f1, f2 = f(x1), f(x2)
+        for _ in range(max(0, self.options.line_search_evals - 3)):
+            if f1 <= f2:
+                hi, x2, f2 = x2, x1, f1
+                x1 = hi - _GOLDEN * (hi - lo)
+                f1 = f(x1)
+            else:
+                lo, x1, f1 = x1, x2, f2
+                x2 = lo + _GOLDEN * (hi - lo)
+                f2 = f(x2)
+        f(1.0)  # the full step: the Gauss-Newton point is often the best
+        return cache
+
+    def _reg(self, c: np.ndarray, a_prev: np.ndarray | None) -> float:
+        """Value of the optional regularisers (temporal smoothness, prior toward rest)."""
+        a = c[: self.M]
+        out = self.options.activation_prior * float(a @ a)
+        if self.options.temporal_weight > 0 and a_prev is not None:
+            out += self.options.temporal_weight * float(np.sum((a - a_prev) ** 2))
+        return out
+
+    def _step_violation(self, c: np.ndarray, dc: np.ndarray) -> float:
+        """First-order rigidity violation of a step, |M^T dM + dM^T M|_F / |dM|_F, worst bone."""
+        worst = 0.0
+        for s0 in (self.M, self.M + 12):
+            Mb, dM = c[s0 : s0 + 9].reshape(3, 3), dc[s0 : s0 + 9].reshape(3, 3)
+            norm = np.linalg.norm(dM)
+            if norm > 1e-12:
+                worst = max(worst, np.linalg.norm(Mb.T @ dM + dM.T @ Mb) / norm)
+        return worst
+
+    def retract(self, c: np.ndarray) -> np.ndarray:
+        """Project controls onto valid ones: activations into [0, 1], the cranium onto the nearest
+        rotation (polar decomposition), the jaw onto a rigid pose inside the joint limits."""
+        from wface.controls import jaw_from_intuitive, jaw_to_intuitive, params_from_affine
+
+        M = self.M
+        out = np.array(c, dtype=np.float64)
+        out[:M] = np.clip(out[:M], 0.0, 1.0)
+        for s0 in (M, M + 12):
+            U, _, Vt = np.linalg.svd(out[s0 : s0 + 9].reshape(3, 3))
+            R = U @ Vt
+            if np.linalg.det(R) < 0:
+                R = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
+            out[s0 : s0 + 12] = params_from_affine(R, out[s0 + 9 : s0 + 12])
+        joint = self.rig.model.jaw_joint
+        pose = jaw_to_intuitive(joint, out[M + 12 :])
+        out[M + 12 :] = jaw_from_intuitive(joint, pose["opening_deg"], pose["protrusion_m"], pose["lateral_deg"])
+        return out
+
+    def _dc_y(self, dc: np.ndarray) -> np.ndarray:
+        """The part of dc that Y (cranium frame) depends on: activations and jaw parameters."""
+        return np.concatenate([dc[: self.M], dc[self.M + 12 :]])

@@ -1,0 +1,122 @@
+"""report.json of a tracked take (keys of DESIGN.md section 9) and the per-frame controls files."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+from wface.controls import jaw_to_intuitive
+from wface.tracking.identifiability import OBSERVABLE_MM
+
+__all__ = ["build_report", "write_controls"]
+
+
+def _jaw_deg(model, bones: np.ndarray) -> np.ndarray:
+    return np.array([jaw_to_intuitive(model.jaw_joint, b[12:])["opening_deg"] for b in bones])
+
+
+def build_report(
+    model, records, *, markers_data_m, marker_names, rig_info: dict, identifiability_mm: np.ndarray, truth=None
+) -> dict:
+    """The report dict. ``truth`` (a SyntheticPerformance) adds the ground-truth errors."""
+    M = model.n_muscles
+    C = np.array([r.controls for r in records])
+    A, B = C[:, :M], C[:, M:]
+    err = np.array([r.marker_error_m for r in records]) * 1e3  # (F, k) mm, NaN = missing
+    per_frame = np.sqrt(np.nanmean(err**2, axis=1))
+    secs = np.array([r.stats["seconds"] for r in records])
+    observable = identifiability_mm >= OBSERVABLE_MM
+    rep = {
+        "frames": len(records),
+        "markers": int(np.asarray(markers_data_m).shape[1]),
+        "tets": model.n_tets,
+        "nodes": model.n_nodes,
+        "muscles": M,
+        **rig_info,
+        "marker_rms_mm": per_frame.tolist(),
+        "marker_rms_mm_mean": float(np.mean(per_frame)),
+        "marker_max_mm": float(np.nanmax(err)),
+        "marker_rms_mm_per_marker": dict(zip(marker_names, np.sqrt(np.nanmean(err**2, axis=0)).tolist(), strict=True)),
+        "seconds_per_frame": secs.tolist(),
+        "seconds_per_frame_median": float(np.median(secs)),
+        "seconds_breakdown_median": {
+            k: float(np.median([r.stats.get(k, 0.0) for r in records]))
+            for k in ("quasistatic_s", "jacobian_s", "gauss_newton_system_s")
+        },
+        "gauss_newton_steps": int(sum(r.stats["gauss_newton_steps"] for r in records)),
+        "quasistatic_solves": int(sum(r.stats["quasistatic_solves"] for r in records)),
+        "linear_solves": int(sum(r.stats["linear_solves"] for r in records)),
+        "cg_iterations": int(sum(r.stats.get("cg_iterations", 0) for r in records)),
+        "activation_bound_violation_max": float(max(0.0, -A.min(), A.max() - 1.0)),
+        "inverted_elements": int(max(r.stats["inverted_elements"] for r in records)),
+        "muscle_identifiability": dict(zip(model.muscle_names, identifiability_mm.tolist(), strict=True)),
+        "observable_threshold_mm_per_unit_activation": OBSERVABLE_MM,
+        "observable_muscles": [n for n, o in zip(model.muscle_names, observable, strict=True) if o],
+        "jaw_opening_deg": _jaw_deg(model, B).tolist(),
+    }
+    if truth is not None:
+        dA = A - truth.activations[: len(records)]
+        rep["activation_rms_error"] = float(np.sqrt(np.mean(dA[:, observable] ** 2))) if observable.any() else None
+        rep["activation_rms_error_all"] = float(np.sqrt(np.mean(dA**2)))
+        sim = np.array([r.markers_m for r in records])
+        d = np.linalg.norm(sim - truth.clean_markers_m[: len(records)], axis=2)
+        rep["truth_marker_rms_mm"] = float(np.sqrt(np.mean(d**2)) * 1e3)
+        rep["jaw_angle_error_deg"] = float(
+            np.sqrt(np.mean((_jaw_deg(model, B) - truth.jaw_opening_deg[: len(records)]) ** 2))
+        )
+        noise = np.linalg.norm(truth.markers_m - truth.clean_markers_m, axis=2)[: len(records)]
+        rep["input_noise_rms_mm"] = float(np.sqrt(np.nanmean(noise[~truth.outlier_mask[: len(records)]] ** 2)) * 1e3)
+    return rep
+
+
+def write_controls(out_dir: Path, model, records) -> tuple[Path, Path]:
+    """controls.npz and controls.csv: per-frame activations, bone parameters and jaw pose."""
+    M = model.n_muscles
+    frames = np.array([r.frame for r in records])
+    C = np.array([r.controls for r in records])
+    jaw = [jaw_to_intuitive(model.jaw_joint, c[M + 12 :]) for c in C]
+    npz = out_dir / "controls.npz"
+    np.savez(
+        npz,
+        frames=frames,
+        activations=C[:, :M],
+        bones=C[:, M:],
+        muscle_names=np.array(model.muscle_names),
+        jaw_opening_deg=np.array([j["opening_deg"] for j in jaw]),
+        jaw_protrusion_m=np.array([j["protrusion_m"] for j in jaw]),
+        jaw_lateral_deg=np.array([j["lateral_deg"] for j in jaw]),
+    )
+    path = out_dir / "controls.csv"
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(
+            [
+                "frame",
+                *model.muscle_names,
+                "jaw_opening_deg",
+                "jaw_protrusion_mm",
+                "jaw_lateral_deg",
+                *[f"cranium_{k}" for k in range(12)],
+            ]
+        )
+        for fr, c, j in zip(frames, C, jaw, strict=True):
+            w.writerow(
+                [
+                    int(fr),
+                    *np.round(c[:M], 6),
+                    round(j["opening_deg"], 4),
+                    round(j["protrusion_m"] * 1e3, 4),
+                    round(j["lateral_deg"], 4),
+                    *np.round(c[M : M + 12], 6),
+                ]
+            )
+    return npz, path
+
+
+def write_report(out_dir: Path, report: dict) -> Path:
+    path = out_dir / "report.json"
+    path.write_text(json.dumps(report, indent=2) + "\n")
+    return path

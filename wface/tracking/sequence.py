@@ -1,0 +1,224 @@
+"""Tracking a whole take: frames in order with warm starts, split into chunks for parallel workers.
+
+Frames are independent given a start guess (seed 000, section 9), so a take splits into chunks
+of consecutive frames; each chunk starts cold (rest controls, cranium from a rigid fit of the
+stable markers, more Gauss-Newton steps) and warm-starts frame to frame inside. Chunks run on any
+``concurrent.futures``-style executor (``submit`` returning futures), e.g. a process pool or a
+Dask ``Client.get_executor()``. With ``out_dir``, each frame is written to
+``out_dir/frames/frame_NNNNNN.npz`` as soon as it is done (atomically), and ``resume=True``
+skips frames already on disk, so an interrupted run loses nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from wface.tracking.estimator import FrameEstimator, MarkerMap, TrackOptions
+
+__all__ = ["FrameRecord", "track_sequence", "embed_model_markers", "initial_controls", "load_frame_records"]
+
+STABLE_MARKERS = ("ForeHead_L", "ForeHead_M", "ForeHead_R", "NoseTop", "Eyebrow_Center")
+
+
+@dataclass
+class FrameRecord:
+    """What is kept of a tracked frame (also what a frame file holds)."""
+
+    frame: int
+    controls: np.ndarray
+    x_m: np.ndarray  # (n, 3) world positions
+    y_m: np.ndarray  # (n, 3) cranium-frame equilibrium
+    markers_m: np.ndarray  # (k, 3)
+    marker_error_m: np.ndarray  # (k,)
+    stats: dict
+
+
+def embed_model_markers(model, markers_rest_m: np.ndarray | None = None):
+    """Embed markers (default: the model's own) in the skin; returns a ``MarkerMap``."""
+    from wface.align import embed_markers
+
+    pts = model.marker_positions_m if markers_rest_m is None else markers_rest_m
+    return MarkerMap(model, embed_markers(pts, model.rest_positions_m, model.skin_triangles))
+
+
+def initial_controls(rig, markers: MarkerMap, target_m: np.ndarray, marker_names) -> np.ndarray:
+    """Rest controls with the cranium set by a rigid fit of the stable markers (all markers if too few)."""
+    from wface.align import umeyama
+    from wface.controls import params_from_affine
+
+    c = rig.rest_controls()
+    rest = markers.positions(rig.model.rest_positions_m)
+    idx = [i for i, n in enumerate(marker_names) if n in STABLE_MARKERS]
+    ok = [i for i in idx if np.all(np.isfinite(target_m[i]))]
+    if len(ok) < 3:
+        ok = list(np.flatnonzero(np.isfinite(target_m).all(axis=1)))
+    if len(ok) >= 3:
+        sim = umeyama(rest[ok], target_m[ok], with_scale=False)
+        c[rig.n_muscles : rig.n_muscles + 12] = params_from_affine(sim.rotation, sim.translation_m)
+    return c
+
+
+def _frame_path(out_dir: Path, frame: int) -> Path:
+    return out_dir / "frames" / f"frame_{frame:06d}.npz"
+
+
+def _write_frame(out_dir: Path, rec: FrameRecord) -> None:
+    path = _frame_path(out_dir, rec.frame)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".part.npz")
+    np.savez(
+        tmp,
+        frame=rec.frame,
+        controls=rec.controls,
+        x_m=rec.x_m,
+        y_m=rec.y_m,
+        markers_m=rec.markers_m,
+        marker_error_m=rec.marker_error_m,
+        stats_json=np.frombuffer(json.dumps(rec.stats).encode(), dtype=np.uint8),
+    )
+    os.replace(tmp, path)
+
+
+def _read_frame(path: Path) -> FrameRecord:
+    with np.load(path) as d:
+        return FrameRecord(
+            int(d["frame"]),
+            d["controls"],
+            d["x_m"],
+            d["y_m"],
+            d["markers_m"],
+            d["marker_error_m"],
+            json.loads(bytes(d["stats_json"]).decode()),
+        )
+
+
+def load_frame_records(out_dir: str | Path, frames) -> dict[int, FrameRecord]:
+    """Frame records already written under ``out_dir`` for the given frame numbers."""
+    out_dir = Path(out_dir)
+    found = {}
+    for f in frames:
+        p = _frame_path(out_dir, int(f))
+        if p.exists():
+            try:
+                found[int(f)] = _read_frame(p)
+            except Exception:  # noqa: BLE001 - a torn file is simply redone
+                continue
+    return found
+
+
+def _track_chunk(model, embedding, targets, frames, marker_names, options, rig_kwargs, out_dir, resume, progress):
+    """Track consecutive frames (runs in a worker). Returns the list of FrameRecords."""
+    from tqdm.auto import tqdm
+
+    from wface.rig import FaceRig
+
+    rig = FaceRig(model, **rig_kwargs)
+    markers = MarkerMap(model, embedding)
+    est = FrameEstimator(rig, markers, options)
+    out = []
+    done = load_frame_records(out_dir, frames) if (out_dir is not None and resume) else {}
+    c, y, a_prev, c_older = None, None, None, None
+    for j, f in enumerate(tqdm(frames, desc="tracking", disable=not progress, unit="frame")):
+        if f in done:
+            rec = done[f]
+            c_older, c, y, a_prev = c, rec.controls, rec.y_m, rec.controls[: rig.n_muscles]
+            out.append(rec)
+            continue
+        first = c is None
+        c_last = c
+        if first:
+            c = initial_controls(rig, markers, targets[j], marker_names)
+        elif c_older is not None and options.extrapolate:
+            c = est.retract(2.0 * c - c_older)  # constant-velocity prediction of the controls
+        res = est.estimate(
+            int(f), targets[j], c, y, steps=options.gn_steps_first if first else options.gn_steps, a_prev=a_prev
+        )
+        c_older = c_last
+        c, y, a_prev = res.controls, res.state.y_m, res.controls[: rig.n_muscles]
+        stats = {
+            "gauss_newton_steps": res.gauss_newton_steps,
+            "quasistatic_solves": res.quasistatic_solves,
+            "linear_solves": res.linear_solves,
+            "newton_iterations": res.state.newton_iterations,
+            "residual_rel": res.state.residual_rel,
+            "inverted_elements": res.state.inverted_elements,
+            "penalty": res.penalty,
+            "rho": res.rho,
+            "seconds": res.seconds,
+            **{k: float(v) for k, v in res.timings.items()},
+        }
+        rec = FrameRecord(int(f), res.controls, res.state.x_m, res.state.y_m, res.markers_m, res.marker_error_m, stats)
+        if out_dir is not None:
+            _write_frame(out_dir, rec)
+        out.append(rec)
+    return out
+
+
+def track_sequence(
+    model,
+    targets_m: np.ndarray,
+    *,
+    marker_names,
+    markers: MarkerMap | None = None,
+    options: TrackOptions | None = None,
+    rig_kwargs: dict | None = None,
+    chunk_size: int | None = None,
+    executor=None,
+    out_dir: str | Path | None = None,
+    resume: bool = False,
+    progress: bool = False,
+    first_frame: int = 0,
+) -> list[FrameRecord]:
+    """Track a take. Returns one ``FrameRecord`` per frame, in order.
+
+    Args:
+        model: the face.
+        targets_m: (F, k, 3) markers in metres, NaN = missing, in the order of ``markers``.
+        marker_names: names of the k markers (for the rigid start of each chunk).
+        markers: embedding of the k markers in the skin (default: the model's own markers).
+        options: estimation settings.
+        rig_kwargs: ``FaceRig`` keyword arguments (device, precision, solver, tol).
+        chunk_size: frames per chunk (default: the whole take in one chunk).
+        executor: ``concurrent.futures``-style executor for the chunks (default: run in-process).
+        out_dir: write each frame under ``out_dir/frames`` as soon as it is done.
+        resume: reuse frames already written under ``out_dir``.
+        first_frame: number of the first frame (frame files are named by it).
+    """
+    targets = np.asarray(targets_m, dtype=np.float64)
+    if targets.ndim != 3 or targets.shape[2] != 3:
+        raise ValueError(f"marker data must have shape (frames, markers, 3), got {targets.shape}")
+    markers = markers or embed_model_markers(model)
+    if targets.shape[1] != len(markers.embedding.triangle):
+        raise ValueError(f"marker data has {targets.shape[1]} markers, the embedding {len(markers.embedding.triangle)}")
+    options = options or TrackOptions()
+    rig_kwargs = rig_kwargs or {}
+    out_dir = Path(out_dir) if out_dir is not None else None
+    F = targets.shape[0]
+    frames = np.arange(first_frame, first_frame + F)
+    size = F if not chunk_size else max(1, int(chunk_size))
+    chunks = [(s, min(F, s + size)) for s in range(0, F, size)]
+    args = [
+        (
+            model,
+            markers.embedding,
+            targets[s:e],
+            frames[s:e].tolist(),
+            list(marker_names),
+            options,
+            rig_kwargs,
+            out_dir,
+            resume,
+        )
+        for s, e in chunks
+    ]
+    if executor is None or len(chunks) == 1 and executor is None:
+        results = [_track_chunk(*a, progress) for a in args]
+    else:
+        futures = [executor.submit(_track_chunk, *a, False) for a in args]
+        results = [fut.result() for fut in futures]
+    return [rec for chunk in results for rec in chunk]

@@ -1,0 +1,1 @@
+"""Pictures, plots, movies and HTML reports people look at (pyvista, matplotlib, imageio: optional)."""

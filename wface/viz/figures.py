@@ -1,0 +1,173 @@
+"""The standard pictures, plots and movie of a take, ready for ``write_html_report``.
+
+One call makes everything a tracking or simulation run shows people::
+
+    images = write_take_figures(out_dir, model=model, node_positions_m=x, fps=60, activations=a,
+                                captured_markers_m=cap, simulated_markers_m=sim, jaw_affines=jaw,
+                                cranium_affines=cranium)
+    write_html_report(out_dir, report, images)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["peak_frame", "write_take_figures"]
+
+
+def peak_frame(
+    node_positions_m: np.ndarray, rest_positions_m: np.ndarray, activations: np.ndarray | None = None
+) -> int:
+    """The most expressive frame: largest total activation, else largest mean displacement from rest."""
+    if activations is not None and np.asarray(activations).size:
+        return int(np.argmax(np.asarray(activations).sum(axis=1)))
+    d = np.linalg.norm(np.asarray(node_positions_m) - rest_positions_m[None], axis=2).mean(axis=1)
+    return int(np.argmax(d))
+
+
+def write_take_figures(
+    out_dir: str | Path,
+    *,
+    model,
+    node_positions_m: np.ndarray,
+    fps: float,
+    activations: np.ndarray | None = None,
+    captured_markers_m: np.ndarray | None = None,
+    simulated_markers_m: np.ndarray | None = None,
+    cranium_affines: np.ndarray | None = None,
+    jaw_affines: np.ndarray | None = None,
+    jaw_frame: str = "cranium",
+    jaw_angle_deg: np.ndarray | None = None,
+    truth_activations: np.ndarray | None = None,
+    truth_jaw_angle_deg: np.ndarray | None = None,
+    movie: bool = True,
+    movie_max_frames: int = 240,
+    panel_size: tuple[int, int] = (720, 800),
+) -> dict[str, Path]:
+    """Write stills, plots and a movie of a take into ``out_dir``.
+
+    Args:
+        out_dir: directory (created).
+        model: the ``FaceModel``.
+        node_positions_m: (F, n, 3) node positions per frame.
+        fps: frames per second.
+        activations: (F, M) activations (muscle colours, activation plot).
+        captured_markers_m / simulated_markers_m: (F, k, 3) markers (red / green; error plot).
+        cranium_affines / jaw_affines: (F, 3, 4) bone motion (jaw opening plot, bones in pictures).
+        jaw_frame: "cranium" (default: jaw affines relative to the cranium, as ``wface.controls``)
+            or "world".
+        jaw_angle_deg: (F,) jaw opening; default: from the affines about the model's jaw axis u.
+        truth_activations / truth_jaw_angle_deg: ground truth, drawn dashed.
+        movie: also write ``take.mp4`` (every frame up to ``movie_max_frames``, else evenly
+            subsampled at a reduced frame rate so the duration stays right).
+        panel_size: pixel size of one picture panel.
+
+    Returns:
+        caption -> path, in display order (pass to ``write_html_report``).
+    """
+    from wface.viz import plots, render
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    x = np.asarray(node_positions_m, dtype=np.float64)
+    if x.ndim != 3 or x.shape[1:] != (model.n_nodes, 3) or x.shape[0] == 0:
+        raise ValueError(f"node_positions_m must have shape (frames, {model.n_nodes}, 3); got {x.shape}")
+    F = x.shape[0]
+    for name, arr in (
+        ("activations", activations),
+        ("captured_markers_m", captured_markers_m),
+        ("simulated_markers_m", simulated_markers_m),
+        ("jaw_affines", jaw_affines),
+        ("cranium_affines", cranium_affines),
+        ("jaw_angle_deg", jaw_angle_deg),
+        ("truth_activations", truth_activations),
+        ("truth_jaw_angle_deg", truth_jaw_angle_deg),
+    ):
+        if arr is not None and len(arr) != F:
+            raise ValueError(f"{name} has {len(arr)} frames but node_positions_m has {F}")
+
+    def at(arr, f):
+        return None if arr is None else np.asarray(arr)[f]
+
+    if jaw_affines is not None and jaw_frame == "world" and cranium_affines is not None:
+        c, j = np.asarray(cranium_affines, float), np.asarray(jaw_affines, float)  # make the jaw relative
+        lin = np.linalg.solve(c[:, :, :3], j[:, :, :3])
+        jaw_rel = np.concatenate([lin, np.linalg.solve(c[:, :, :3], (j[:, :, 3] - c[:, :, 3])[..., None])], axis=2)
+    else:
+        jaw_rel = jaw_affines
+
+    def panel(f: int, title: str) -> render.Panel:
+        return render.Panel(
+            x[f],
+            at(activations, f),
+            at(captured_markers_m, f),
+            at(simulated_markers_m, f),
+            title,
+            at(cranium_affines, f),
+            at(jaw_rel, f),
+        )
+
+    images: dict[str, Path] = {}
+    f = peak_frame(x, model.rest_positions_m, activations)
+    t = f / fps
+    images[f"Expression at frame {f} ({t:.2f} s): captured markers red, tracked green"] = render.render_expression(
+        model,
+        x[f],
+        out / "expression.png",
+        activations=at(activations, f),
+        captured_markers_m=at(captured_markers_m, f),
+        simulated_markers_m=at(simulated_markers_m, f),
+        panel_size=panel_size,
+    )
+    if activations is not None:
+        images[f"Muscles at frame {f}: yellow active, red inactive"] = render.render_panels(
+            model, [panel(f, "")], out / "muscles.png", style="muscles", panel_size=panel_size
+        )
+    images["First frame and most expressive frame"] = render.render_before_after(
+        model,
+        panel(0, "frame 0"),
+        panel(f, f"frame {f}"),
+        out / "before_after.png",
+        panel_size=panel_size,
+    )
+
+    if activations is not None:
+        images["Muscle activations"] = plots.plot_activations(
+            activations, model.muscle_names, out / "activations.png", fps=fps, truth=truth_activations
+        )
+    if captured_markers_m is not None and simulated_markers_m is not None:
+        rms, mx = plots.marker_errors_mm(captured_markers_m, simulated_markers_m)
+        images["Marker error per frame"] = plots.plot_marker_error(
+            rms, out / "marker_error.png", marker_max_mm=mx, fps=fps
+        )
+    if jaw_angle_deg is None and jaw_affines is not None:
+        jaw_angle_deg = plots.jaw_opening_deg(
+            jaw_affines, model.jaw_joint, cranium_affines=cranium_affines, jaw_frame=jaw_frame
+        )
+    if jaw_angle_deg is not None:
+        images["Jaw opening"] = plots.plot_jaw_opening(
+            jaw_angle_deg, out / "jaw_opening.png", fps=fps, truth_deg=truth_jaw_angle_deg
+        )
+    if movie:
+        step = max(1, int(np.ceil(F / movie_max_frames)))
+        sel = np.arange(0, F, step)
+
+        def sub(arr):
+            return None if arr is None else np.asarray(arr)[sel]
+
+        images["Take (movie)"] = render.render_take_movie(
+            model,
+            x[sel],
+            out / "take.mp4",
+            fps=max(1.0, fps / step),
+            activations=sub(activations),
+            captured_markers_m=sub(captured_markers_m),
+            simulated_markers_m=sub(simulated_markers_m),
+            cranium_affines=sub(cranium_affines),
+            jaw_affines=sub(jaw_affines),
+            jaw_frame=jaw_frame,
+            window_size=panel_size,
+        )
+    return images

@@ -1,0 +1,207 @@
+"""Calibrate Waters muscle parameters against reference displacement fields (e.g. artist-made shapes).
+
+For one muscle (and its mirror partner ``_l`` <-> ``_r``), bounded Powell search over its
+geometry and strength minimises the relative squared error of the displacement an action-unit
+set produces against a reference field on the same mesh:
+
+    E = sum_v |d_v(params) - d_ref_v|^2 / sum_v |d_ref_v|^2
+
+Linear muscle parameters: bone offset (3), insertion offset (3; re-snapped to the skin when a
+surface is given), zone angle, Rs / |V2 - V1|, Rf / Rs and K. Sphincter: centre offset (3), semi-axis
+scales (3) and tension. ``ICT_SHAPES`` pairs action units with the ICT-FaceKit shapes
+(``ict_expressions.npz``) that show the same facial action.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from wface.waters.layout import MuscleLayout
+from wface.waters.muscles import LinearMuscle
+from wface.waters.rig import WatersRig
+
+__all__ = ["ICT_SHAPES", "CalibrationResult", "calibrate_muscle", "mirror_name", "relative_error"]
+
+# action unit, ICT-FaceKit shape, muscle to calibrate (the action unit's main muscle)
+ICT_SHAPES: tuple[tuple[str, str, str], ...] = (
+    ("AU12L", "mouthSmile_L", "zygomaticus_major_l"),
+    ("AU1L", "browInnerUp_L", "frontalis_medial_l"),
+    ("AU2L", "browOuterUp_L", "frontalis_lateral_l"),
+    ("AU4L", "browDown_L", "corrugator_l"),
+    ("AU15L", "mouthFrown_L", "depressor_anguli_oris_l"),
+    ("AU20L", "mouthStretch_L", "risorius_l"),
+    ("AU10L", "mouthUpperUp_L", "levator_labii_superioris_l"),
+    ("AU9L", "noseSneer_L", "levator_labii_superioris_alaeque_nasi_l"),
+    ("AU6L", "cheekSquint_L", "orbicularis_oculi_l"),
+    ("AU14L", "mouthDimple_L", "buccinator_l"),
+    ("AU16L", "mouthLowerDown_L", "depressor_labii_inferioris_l"),
+    ("AU17", "mouthShrugLower", "mentalis_l"),
+    ("AU5L", "eyeWide_L", "levator_palpebrae_l"),
+)
+
+
+def mirror_name(name: str) -> str | None:
+    """``zygomaticus_major_l`` -> ``zygomaticus_major_r`` (and back); None for midline muscles."""
+    if name.endswith("_l"):
+        return name[:-2] + "_r"
+    if name.endswith("_r"):
+        return name[:-2] + "_l"
+    return None
+
+
+def relative_error(d: np.ndarray, ref: np.ndarray) -> float:
+    """sum |d - ref|^2 / sum |ref|^2 over all rows."""
+    return float(((d - ref) ** 2).sum() / max((ref**2).sum(), 1e-300))
+
+
+@dataclass
+class CalibrationResult:
+    layout: MuscleLayout
+    muscle: str
+    error_before: float
+    error_after: float
+    evaluations: int
+
+
+_FLIP = np.array([-1.0, 1.0, 1.0])
+
+
+def _mirror(m):
+    other = mirror_name(m.name)
+    if isinstance(m, LinearMuscle):
+        return replace(m, name=other, bone_m=m.bone_m * _FLIP, insertion_m=m.insertion_m * _FLIP)
+    return replace(
+        m, name=other, centre_m=m.centre_m * _FLIP, horizontal=m.horizontal * _FLIP * -1, vertical=m.vertical * _FLIP
+    )
+
+
+def calibrate_muscle(
+    layout: MuscleLayout,
+    rest_positions_m: np.ndarray,
+    reference_m: np.ndarray,
+    *,
+    muscle: str,
+    action_units: Mapping[str, float],
+    jaw_open_deg: float = 0.0,
+    vertices: np.ndarray | None = None,
+    surface: tuple[np.ndarray, np.ndarray] | None = None,
+    mirror: bool = True,
+    max_evaluations: int = 400,
+    bone_range_m: float = 0.012,
+    insertion_range_m: float = 0.006,
+    centre_range_m: float = 0.005,
+    axis_scale_range: tuple[float, float] = (0.8, 1.25),
+) -> CalibrationResult:
+    """Fit one muscle's parameters so the action units reproduce ``reference_m``.
+
+    Args:
+        layout: layout to start from (metres); returned as a new layout, the input is unchanged.
+        rest_positions_m: (n, 3) mesh rest positions.
+        reference_m: (n, 3) reference displacement of the same action, metres.
+        muscle: the muscle to calibrate (its mirror partner follows when ``mirror``).
+        action_units: the action units whose displacement is compared (e.g. ``{"AU12L": 1.0}``).
+        jaw_open_deg: jaw angle used with them.
+        vertices: rows of the mesh that count (default: all); the muscle vertex mask also applies.
+        surface: (vertices_m, triangles) of the skin, to keep insertions on it.
+        max_evaluations: objective evaluations of the Powell search.
+        bone_range_m, insertion_range_m: how far bone / insertion may move.
+        centre_range_m, axis_scale_range: how far a sphincter's centre may move and how much its
+            semi-axes may scale (kept tight: a ring muscle stays around its orifice).
+    """
+    from scipy.optimize import minimize
+
+    from wface.waters.expressions import pose_from_action_units
+
+    x = np.asarray(rest_positions_m, dtype=np.float64)
+    ref = np.asarray(reference_m, dtype=np.float64)
+    if ref.shape != x.shape:
+        raise ValueError(f"reference has shape {ref.shape}, expected {x.shape}")
+    rows = np.arange(len(x)) if vertices is None else np.asarray(vertices, dtype=np.int64)
+    mask = layout.muscle_vertex_mask(len(x))
+    if mask is not None:
+        rows = rows[mask[rows]]
+    pose = pose_from_action_units(action_units, layout.muscle_names)
+    if muscle not in pose.contractions:
+        raise ValueError(f"action units {dict(action_units)} do not contract {muscle!r}")
+    used = [m for m in layout.muscles if m.name in pose.contractions]
+    m0 = layout.muscle(muscle)
+    query = None
+    if surface is not None:
+        from wface.mesh.closest import SurfaceQuery
+
+        query = SurfaceQuery(*surface)
+
+    if isinstance(m0, LinearMuscle):
+        length = float(np.linalg.norm(m0.insertion_m - m0.bone_m))
+        lo = np.r_[-np.ones(3) * bone_range_m, -np.ones(3) * insertion_range_m, 8.0, 0.6, 1.1, 0.0]
+        hi = np.r_[
+            np.ones(3) * bone_range_m, np.ones(3) * insertion_range_m, 60.0, 1.4, 2.5, 3.0 * m0.spring_constant_m
+        ]
+        p0 = np.r_[
+            np.zeros(6), m0.zone_deg, m0.fall_start_m / length, m0.fall_finish_m / m0.fall_start_m, m0.spring_constant_m
+        ]
+
+        def build(p):
+            bone = m0.bone_m + p[0:3]
+            ins = m0.insertion_m + p[3:6]
+            if query is not None:
+                ins = query.closest(ins[None]).point_m[0]
+            rs = p[7] * float(np.linalg.norm(ins - bone))
+            return replace(
+                m0,
+                bone_m=bone,
+                insertion_m=ins,
+                zone_deg=float(p[6]),
+                fall_start_m=rs,
+                fall_finish_m=rs * p[8],
+                spring_constant_m=float(p[9]),
+            )
+    else:
+        lo = np.r_[-np.ones(3) * centre_range_m, np.full(3, axis_scale_range[0]), 0.02]
+        hi = np.r_[np.ones(3) * centre_range_m, np.full(3, axis_scale_range[1]), 0.9]
+        p0 = np.r_[np.zeros(3), 1.0, 1.0, 1.0, m0.tension]
+
+        def build(p):
+            return replace(m0, centre_m=m0.centre_m + p[0:3], semi_axes_m=m0.semi_axes_m * p[3:6], tension=float(p[6]))
+
+    partner = mirror_name(muscle) if mirror else None
+    pts = x[rows]
+    target = ref[rows]
+
+    def layout_with(m):
+        muscles = [m if u.name == muscle else u for u in used]
+        if partner is not None and any(u.name == partner for u in used):
+            muscles = [_mirror(m) if u.name == partner else u for u in muscles]
+        return replace(layout, muscles=muscles, mesh_vertex_count=None, muscle_vertex_ranges=[])
+
+    count = [0]
+
+    def error(q):
+        count[0] += 1
+        p = lo + np.clip(q, 0.0, 1.0) * (hi - lo)
+        try:
+            lay = layout_with(build(p))
+        except ValueError:
+            return 1e3
+        rig = WatersRig(lay, pts, muscle_mask=np.ones(len(pts), bool))
+        d = rig.deform(pose.contractions, jaw_open_deg=jaw_open_deg) - pts
+        return relative_error(d, target)
+
+    q0 = np.clip((p0 - lo) / (hi - lo), 0.0, 1.0)
+    before = error(q0)
+    res = minimize(
+        error,
+        q0,
+        method="Powell",
+        bounds=[(0.0, 1.0)] * len(q0),
+        options={"maxfev": max_evaluations, "xtol": 1e-3, "ftol": 1e-4},
+    )
+    best = res.x if res.fun < before else q0
+    fitted = build(lo + np.clip(best, 0, 1) * (hi - lo))
+    muscles = [fitted if u.name == muscle else u for u in layout.muscles]
+    if mirror and partner is not None and any(u.name == partner for u in layout.muscles):
+        muscles = [_mirror(fitted) if u.name == partner else u for u in muscles]
+    return CalibrationResult(replace(layout, muscles=muscles), muscle, before, min(float(res.fun), before), count[0])
