@@ -34,6 +34,7 @@ __all__ = [
     "jaw_from_intuitive",
     "jaw_to_intuitive",
     "jaw_joint_penalty",
+    "jaw_params_unchecked",
     "params_from_affine",
     "rigidity_penalty",
     "bone_penalty",
@@ -246,9 +247,17 @@ def jaw_from_intuitive(
                 f"lateral {lateral_deg} deg (max {np.degrees(b_max):.1f}), protrusion {protrusion_m} m "
                 f"(allowed [{slack:.4f}, {d - slack:.4f}])"
             )
+    return jaw_params_unchecked(joint, alpha, p, beta)
+
+
+def jaw_params_unchecked(joint: JawJoint, opening_rad: float, protrusion_m: float, lateral_rad: float) -> np.ndarray:
+    """The jaw parameters of ``jaw_from_intuitive`` without limit checks (for derivatives at a limit)."""
+    u, v = np.asarray(joint.u, float), np.asarray(joint.v, float)
+    w = np.cross(v, u)
+    m = np.asarray(joint.midpoint_m, float)
     # Opening: rotate about u by +alpha (the forward track direction v tips down, toward -w); yaw about w.
-    Mm = _rotation(w, beta) @ _rotation(u, alpha)
-    tm = m - Mm @ m + p * v
+    Mm = _rotation(w, lateral_rad) @ _rotation(u, opening_rad)
+    tm = m - Mm @ m + protrusion_m * v
     return params_from_affine(Mm, tm)
 
 
