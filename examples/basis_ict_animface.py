@@ -2,7 +2,9 @@
 
 For each AnimFace take held out in turn: align the markers to the ICT neutral (built-in
 landmarks + projection), analyse it with the ICT basis, refine the basis on the other three takes
-(ridge weight chosen by leave-one-take-out validation inside the training takes only), and
+(ridge weight towards the ICT shapes and number of iterations chosen by leave-one-take-out
+validation inside the three training takes only; ``--no-select --regularization L`` fixes
+the weight instead and iterates until the training error saturates), and
 measure the held-out marker RMS error before and after refinement, both with the refined marker
 shapes and with the refined whole-mesh basis (after RBF carry-over). Writes OUT/folds.json and
 a plot per fold.
@@ -27,7 +29,15 @@ TAKES = ("JawMoCap.c3d", "CheeksMoCap.c3d", "EyebrowsMoCap.c3d", "NoseMoCap.c3d"
 
 
 def main(argv: list[str] | None = None) -> dict:
-    from wface.basis import MarkerLayout, analyze, interpolate_to_mesh, load_basis, prepare_capture, refine_marker_basis
+    from wface.basis import (
+        MarkerLayout,
+        analyze,
+        default_face_split,
+        interpolate_to_mesh,
+        load_basis,
+        prepare_capture,
+        refine_marker_basis,
+    )
     from wface.basis.landmarks import load_ict_animface_landmarks
     from wface.basis.plots import plot_analysis
     from wface.basis.refine import select_regularization
@@ -42,6 +52,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--regularization", type=float, default=0.3, help="used with --no-select")
     ap.add_argument("--no-select", action="store_true", help="skip the inner validation of the ridge weight")
     ap.add_argument("--no-plot", action="store_true")
+    ap.add_argument("--split", action="store_true", help="upper/lower face split in analysis and refinement")
+    ap.add_argument("--support", type=float, default=None, help="locality: support fraction (e.g. 0.1)")
+    ap.add_argument("--only", help="run only the fold holding out this take (e.g. EyebrowsMoCap.c3d)")
     args = ap.parse_args(argv)
     data, out = Path(args.data), Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -50,28 +63,46 @@ def main(argv: list[str] | None = None) -> dict:
     landmarks = load_ict_animface_landmarks()
     folds = []
     for test in TAKES:
+        if args.only and test != args.only:
+            continue
         t0 = time.perf_counter()
         train = [n for n in TAKES if n != test]
         first = takes[train[0]]
         layout = MarkerLayout.from_frame(basis, first.marker_names, first.positions_m[0], landmarks=landmarks)
         mb = layout.marker_basis(basis)
+        split = default_face_split(mb.marker_names, mb.element_names) if args.split else None
         disp = {n: prepare_capture(takes[n], layout).displacements_m for n in TAKES}
         if args.no_select:
-            lam, scores = args.regularization, {}
+            lam, n_it, scores = args.regularization, args.max_iterations, {}
         else:
-            lam, scores = select_regularization(mb, [disp[n] for n in train])
-        res = refine_marker_basis(mb, [disp[n] for n in train], regularization=lam, max_iterations=args.max_iterations,
-                                  rel_tol=args.rel_tol)  # fmt: skip
-        before = analyze(mb, disp[test])
-        after = analyze(res.basis, disp[test])
+            lam, n_it, scores = select_regularization(
+                mb,
+                [disp[n] for n in train],
+                split=split,
+                support_fraction=args.support,
+                choose_iterations=True,
+                max_iterations=args.max_iterations,
+            )
+        res = refine_marker_basis(
+            mb,
+            [disp[n] for n in train],
+            regularization=lam,
+            split=split,
+            support_fraction=args.support,
+            max_iterations=n_it,
+            rel_tol=args.rel_tol if args.no_select else 0.0,
+        )
+        before = analyze(mb, disp[test], split=split)
+        after = analyze(res.basis, disp[test], split=split)
         mesh = interpolate_to_mesh(basis, layout.surface_m, res.basis.shapes_m - mb.shapes_m)
-        after_mesh = analyze(layout.marker_basis(mesh), disp[test])
+        after_mesh = analyze(layout.marker_basis(mesh), disp[test], split=split)
         fold = {
             "test": test,
             "train": train,
             "frames_test": int(disp[test].shape[0]),
             "frames_train": int(sum(disp[n].shape[0] for n in train)),
             "regularization": lam,
+            "iterations_chosen": n_it,
             "regularization_validation_rms_mm": {str(k): v * 1e3 for k, v in scores.items()},
             "train_rms_mm_per_iteration": res.errors_mm,
             "test_rms_mm_before": before.total_rms_m * 1e3,
@@ -94,6 +125,8 @@ def main(argv: list[str] | None = None) -> dict:
         "test_rms_mm_before_mean": float(np.mean([f["test_rms_mm_before"] for f in folds])),
         "test_rms_mm_after_mean": float(np.mean([f["test_rms_mm_after"] for f in folds])),
         "frame_step": args.frame_step,
+        "split": bool(args.split),
+        "support_fraction": args.support,
     }
     (out / "folds.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary

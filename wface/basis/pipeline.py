@@ -136,6 +136,7 @@ def refine_basis(
     regularization: float | str = "auto",
     max_iterations: int = 30,
     rel_tol: float = 1e-3,
+    support_fraction: float | None = None,
     progress: bool = False,
 ) -> tuple[ActuationBasis, RefinementResult, MarkerLayout, dict]:
     """Refine a basis on training takes and carry the result to the whole mesh.
@@ -145,6 +146,7 @@ def refine_basis(
     Args:
         regularization: ridge weight towards the initial shapes, or "auto" to pick it by
             leave-one-take-out validation (needs >= 2 takes; else 0.3).
+        support_fraction: locality mask of :func:`wface.basis.refine.refine_marker_basis`.
 
     Returns:
         (refined basis, refinement result, layout, info dict with the chosen regularisation).
@@ -161,7 +163,7 @@ def refine_basis(
     info: dict = {}
     if regularization == "auto":
         if len(disps) >= 2:
-            lam, scores = select_regularization(mb, disps, upper=upper, split=sp)
+            lam, scores = select_regularization(mb, disps, upper=upper, split=sp, support_fraction=support_fraction)
             info["regularization_scores_mm"] = {str(k): v * 1e3 for k, v in scores.items()}
         else:
             lam = 0.3
@@ -169,6 +171,6 @@ def refine_basis(
         lam = float(regularization)
     info["regularization"] = lam
     res = refine_marker_basis(mb, disps, upper=upper, split=sp, max_iterations=max_iterations, rel_tol=rel_tol,
-                              regularization=lam, progress=progress)  # fmt: skip
+                              regularization=lam, support_fraction=support_fraction, progress=progress)  # fmt: skip
     refined = interpolate_to_mesh(basis, layout.surface_m, res.basis.shapes_m - mb.shapes_m)
     return refined, res, layout, info

@@ -38,12 +38,15 @@ class RefinementResult:
             (entry 0: the initial basis).
         analyses: final analysis of each training take with the refined basis.
         iterations: modelling steps taken.
+        validation_errors_m: RMS error on the validation takes for each iterate (same indexing
+            as ``errors_m``; empty without validation takes).
     """
 
     basis: MarkerBasis
     errors_m: list[float]
     analyses: list[Analysis] = field(default_factory=list)
     iterations: int = 0
+    validation_errors_m: list[float] = field(default_factory=list)
 
     @property
     def errors_mm(self) -> list[float]:
@@ -57,6 +60,7 @@ def model_marker_shapes(
     *,
     split: FaceSplit | None = None,
     regularization: float = 0.0,
+    support: np.ndarray | None = None,
 ) -> np.ndarray:
     """Modelling step: least-squares marker shapes given contractions.
 
@@ -68,6 +72,8 @@ def model_marker_shapes(
         split: disjoint marker/element groups: a marker's shape only has its group's elements.
         regularization: lambda, relative to the mean diagonal of X^T X (0: plain least squares,
             minimum-norm change from the prior where X is rank deficient).
+        support: (k, B) bool, which marker/element shapes may change (default all); the others
+            keep the prior, so an element cannot start moving markers it never moved.
 
     Returns:
         (k, 3, B) refined shapes.
@@ -89,7 +95,15 @@ def model_marker_shapes(
         pred = np.einsum("kcb,fb->fkc", prior, xg)
         resid = d[:, gm] - pred  # (F, kg, 3)
         same_rows = present[:, gm].all()
-        if same_rows:
+        if support is not None:
+            for jj, j in enumerate(gm):
+                rows = present[:, j]
+                cols = np.flatnonzero(support[j, ge])
+                if not rows.any() or len(cols) == 0:
+                    continue
+                delta = _solve_change(xg[rows][:, cols], resid[rows, jj], lam)  # (|cols|, 3)
+                out[j, :, ge[cols]] = (prior[jj][:, cols] + delta.T).T
+        elif same_rows:
             delta = _solve_change(xg, resid.reshape(len(xg), -1), lam)  # (bg, kg*3)
             out[np.ix_(gm, np.arange(3), ge)] = prior + delta.reshape(len(ge), len(gm), 3).transpose(1, 2, 0)
         else:
@@ -121,6 +135,8 @@ def refine_marker_basis(
     max_iterations: int = 30,
     rel_tol: float = 1e-3,
     regularization: float = 0.0,
+    support_fraction: float | None = None,
+    validation_m: Sequence[np.ndarray] = (),
     progress: bool = False,
 ) -> RefinementResult:
     """Fixed-point refinement of the marker shapes over training takes.
@@ -133,6 +149,10 @@ def refine_marker_basis(
         max_iterations: cap on modelling steps.
         rel_tol: stop when the error falls by less than this fraction in one iteration.
         regularization: see :func:`model_marker_shapes`.
+        support_fraction: if given, element i may only change its shape at markers it moves by
+            at least this fraction of its largest marker displacement in the initial basis
+            (locality: refinement reshapes an element where it acts, never adds far motion).
+        validation_m: held-out takes scored (not fitted) at every iterate.
         progress: tqdm progress bars.
 
     Returns:
@@ -150,8 +170,17 @@ def refine_marker_basis(
         from tqdm.auto import tqdm
 
         steps = tqdm(steps, desc="refinement", unit="iter")
+    support = None
+    if support_fraction is not None:
+        mag = np.linalg.norm(basis.shapes_m, axis=1)  # (k, B)
+        support = mag >= support_fraction * np.maximum(mag.max(axis=0, keepdims=True), 1e-300)
     it = 0
+    val_errors: list[float] = []
     for it in steps:
+        if validation_m:
+            verr = [analyze(current, v, upper=upper, split=split).error_m for v in validation_m]
+            verr = np.concatenate([e.ravel() for e in verr])
+            val_errors.append(float(np.sqrt(np.nanmean(verr**2))))
         analyses = [analyze(current, t, upper=upper, split=split) for t in takes]
         x = np.concatenate([a.contractions for a in analyses], axis=0)
         err = np.concatenate([a.error_m for a in analyses], axis=0)
@@ -163,9 +192,11 @@ def refine_marker_basis(
             break
         if it == max_iterations:
             break
-        shapes = model_marker_shapes(x, all_d, current.shapes_m, split=split, regularization=regularization)
+        shapes = model_marker_shapes(
+            x, all_d, current.shapes_m, split=split, regularization=regularization, support=support
+        )
         current = current.with_shapes(shapes)
-    return RefinementResult(best[1], errors, best[2], it)
+    return RefinementResult(best[1], errors, best[2], it, val_errors)
 
 
 def interpolate_to_mesh(
@@ -230,26 +261,42 @@ def select_regularization(
     split: FaceSplit | None = None,
     max_iterations: int = 8,
     frame_step: int = 3,
-) -> tuple[float, dict[float, float]]:
-    """Pick the ridge weight by leave-one-take-out validation inside the training takes.
+    support_fraction: float | None = None,
+    choose_iterations: bool = False,
+) -> tuple[float, dict[float, float]] | tuple[float, int, dict[float, float]]:
+    """Pick the ridge weight (and optionally the iteration count) by leave-one-take-out validation.
 
     Each candidate refines on all training takes but one (every ``frame_step``-th frame, at most
     ``max_iterations`` steps) and is scored by the analysis error on the left-out take; the
-    candidate with the lowest mean validation RMS wins. Needs at least two takes.
+    candidate with the lowest mean validation RMS wins. With ``choose_iterations`` the left-out
+    take is scored after every iteration and the (lambda, iterations) pair with the lowest mean
+    validation RMS wins (early stopping chosen by validation). Needs at least two takes.
 
     Returns:
-        (chosen lambda, {lambda: mean validation RMS in metres}).
+        (lambda, {lambda: best mean validation RMS in metres}), or with ``choose_iterations``
+        (lambda, iterations, {lambda: best mean validation RMS in metres}).
     """
     takes = [np.asarray(t)[::frame_step] for t in displacements_m]
     if len(takes) < 2:
         raise ValueError("select_regularization: needs at least two training takes")
-    scores = {}
+    scores, best_it = {}, {}
     for lam in candidates:
-        errs = []
+        curves = []
         for k in range(len(takes)):
             train = [t for i, t in enumerate(takes) if i != k]
             res = refine_marker_basis(basis, train, upper=upper, split=split, max_iterations=max_iterations,
-                                      regularization=lam)  # fmt: skip
-            errs.append(analyze(res.basis, takes[k], upper=upper, split=split).total_rms_m)
-        scores[float(lam)] = float(np.mean(errs))
-    return min(scores, key=scores.get), scores
+                                      rel_tol=0.0 if choose_iterations else 1e-3, regularization=lam,
+                                      support_fraction=support_fraction,
+                                      validation_m=[takes[k]] if choose_iterations else ())  # fmt: skip
+            if choose_iterations:
+                curves.append(res.validation_errors_m)
+            else:
+                curves.append([analyze(res.basis, takes[k], upper=upper, split=split).total_rms_m])
+        n = min(len(c) for c in curves)
+        mean_curve = np.mean([c[:n] for c in curves], axis=0)
+        best_it[float(lam)] = int(np.argmin(mean_curve))
+        scores[float(lam)] = float(mean_curve.min())
+    lam = min(scores, key=scores.get)
+    if choose_iterations:
+        return lam, best_it[lam], scores
+    return lam, scores

@@ -63,6 +63,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--out", required=True, help="refined basis .npz")
     r.add_argument("--regularization", default="auto",
                    help="ridge weight towards the initial shapes, or 'auto' (leave-one-take-out; default)")  # fmt: skip
+    r.add_argument("--support", type=float, default=None,
+                   help="locality: an element may only change at markers it moves by at least this fraction "
+                   "of its largest marker displacement (e.g. 0.1; default off)")  # fmt: skip
     r.add_argument("--max-iterations", type=int, default=30, help="cap on refinement iterations (default 30)")
     r.add_argument("--rel-tol", type=float, default=1e-3, help="stop when the error falls less than this fraction")
     r.set_defaults(func=_refine)
@@ -134,7 +137,8 @@ def _refine(args) -> int:
     t0 = time.perf_counter()
     refined, res, layout, info = refine_basis(
         basis, takes, landmarks=landmarks, upper=None if args.exaggerate else 1.0, split=args.split,
-        regularization=reg, max_iterations=args.max_iterations, rel_tol=args.rel_tol, progress=not args.no_progress,
+        regularization=reg, max_iterations=args.max_iterations, rel_tol=args.rel_tol, support_fraction=args.support,
+        progress=not args.no_progress,
     )  # fmt: skip
     out = Path(args.out)
     refined.save(out)
