@@ -73,7 +73,35 @@ def register(sub: argparse._SubParsersAction) -> None:
     i = bsub.add_parser("info", help="summarise a basis file")
     i.add_argument("path", help="basis .npz")
     i.set_defaults(func=_info)
+    f = bsub.add_parser(
+        "from-face",
+        help="physically derived basis: each muscle of an FEM face activated alone",
+        description="Build an actuation basis from an FEM face: element i is the skin displacement with muscle i "
+        "alone at --activation (quasistatic solve). Element names are the muscle names.",
+    )
+    f.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
+    f.add_argument("--tets", type=int, default=5000, help="size of the built-in face when --model is not given")
+    f.add_argument("--activation", type=float, default=1.0, help="activation of each muscle (default 1)")
+    f.add_argument("--out", required=True, help="basis file to write (.npz)")
+    f.set_defaults(func=_from_face)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def _from_face(args) -> int:
+    from wface.basis.physical import basis_from_face
+
+    if args.model:
+        from wface.model import load_model
+
+        model = load_model(args.model)
+    else:
+        from wface.builtin import build_face
+
+        model = build_face(args.tets, progress=True)
+    basis = basis_from_face(model, activation=args.activation, progress=True)
+    basis.save(args.out)
+    print(f"wrote {args.out}: {basis.n_elements} elements on {basis.n_vertices} skin vertices")
+    return 0
 
 
 def _load(args):
