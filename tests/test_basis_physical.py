@@ -48,10 +48,10 @@ def test_unknown_muscle_is_named():
 
 
 def test_cli_from_face(tmp_path):
-    from wface.basis.core import ActuationBasis
+    from wface.basis.core import load_basis
     from wface.cli import main
 
     out = tmp_path / "fem_basis.npz"
     assert main(["basis", "from-face", "--tets", "1500", "--out", str(out)]) == 0
-    basis = ActuationBasis.load(out)
+    basis = load_basis(out)
     assert basis.n_elements == 35 and np.abs(basis.shapes_m).max() > 1e-3
