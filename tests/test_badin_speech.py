@@ -25,7 +25,9 @@ from wface.speech import gesture_times, lip_opening_mm
 
 _EXACT = 1e-12  # float64 round-off of a few operations
 
-BADIN_NAMES = [f"{b}_{s}" for b in ("DAO", "BUC", "DLI", "MENT", "OOM", "OOP", "LLSAN", "LAO", "RIS", "ZYG", "LLS") for s in "lr"]
+BADIN_NAMES = [
+    f"{b}_{s}" for b in ("DAO", "BUC", "DLI", "MENT", "OOM", "OOP", "LLSAN", "LAO", "RIS", "ZYG", "LLS") for s in "lr"
+]
 
 
 def _fake_model(names=BADIN_NAMES):
@@ -43,7 +45,9 @@ def test_interpolation_orders():
     # zero slope at every knot (the "step" in CubicStep), continuous values
     h = 1e-6
     for k in kt:
-        d = (interpolate(kt, kv, np.array([k + h]), "CubicStep") - interpolate(kt, kv, np.array([k - h]), "CubicStep")) / (2 * h)
+        d = (
+            interpolate(kt, kv, np.array([k + h]), "CubicStep") - interpolate(kt, kv, np.array([k - h]), "CubicStep")
+        ) / (2 * h)
         assert abs(d[0]) < 1e-5
     with pytest.raises(ValueError, match="not supported"):
         interpolate(kt, kv, t, "SphericalCubic")
@@ -136,3 +140,21 @@ def test_closure_closes_the_lips_cli(tmp_path):
     # measured: 17.2 -> 11.0 (t = 0.48) -> 5.7 mm; the lips close steadily as OOM, MENT and RIS rise
     assert lo[1] < lo[0] - 2.0 and lo[2] < lo[1] - 2.0
     assert (out / "lip_opening.png").stat().st_size > 1000 and (out / "animation.usdc").stat().st_size > 1000
+
+
+@pytest.mark.slow
+def test_example_runs_headless(tmp_path):
+    """examples/badin_speech.py doubles as a test: one gesture, 3 frames."""
+    import importlib.util
+    from pathlib import Path
+
+    face = data_path("artisynth-face")
+    path = Path(__file__).resolve().parents[1] / "examples" / "badin_speech.py"
+    spec = importlib.util.spec_from_file_location("badin_speech_example", path)
+    ex = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ex)
+    s = ex.run(tmp_path, gestures=("approximant",), max_frames=3, data=face)
+    lo = s["approximant"]["lip_opening_mm"]
+    assert s["approximant"]["probe_to_muscles"] == {"OOP": ["OOP_l", "OOP_r"]}
+    assert s["approximant"]["all_converged"] and lo["first"] > 0
+    assert (tmp_path / "lip_opening_all.png").exists() and (tmp_path / "approximant" / "animation.usdc").exists()

@@ -13,7 +13,9 @@ the curves' timing only sets which activation each frame sees.
 
 Lip opening: the distance between the upper- and lower-lip midline skin markers (``Mouth_Up``,
 ``Mouth_Down``), in millimetres. It is the marker-to-marker distance across both lips' vermilion,
-not the gap between the lips, and not the original's lip-opening *area*.
+not the gap between the lips, and not the original's lip-opening *area*. ``lip_vertical_mm`` is its
+signed vertical part (model +y is up): it would turn negative if the markers crossed, since the
+imported model has no lip-lip contact (the original's lip collision surfaces are not used).
 """
 
 from __future__ import annotations
@@ -22,7 +24,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["GestureResult", "gesture_times", "lip_opening_mm", "select_capture_markers", "simulate_gesture", "summarize"]
+__all__ = [
+    "GestureResult",
+    "gesture_times",
+    "lip_opening_mm",
+    "performance_controls",
+    "select_capture_markers",
+    "simulate_controls",
+    "simulate_gesture",
+    "summarize",
+]
 
 
 @dataclass
@@ -37,6 +48,7 @@ class GestureResult:
     markers_m: np.ndarray  # (F, k, 3)
     marker_names: list[str]
     lip_opening_mm: np.ndarray  # (F,)
+    lip_vertical_mm: np.ndarray  # (F,) signed (Mouth_Up - Mouth_Down) . up: negative once the markers cross
     newton_iterations: np.ndarray  # (F,)
     residual_rel: np.ndarray  # (F,)
     converged: np.ndarray  # (F,) bool
@@ -65,7 +77,9 @@ def gesture_times(t_start: float, t_end: float, fps: float, *, max_frames: int |
     return t
 
 
-def lip_opening_mm(markers_m: np.ndarray, marker_names, *, upper: str = "Mouth_Up", lower: str = "Mouth_Down") -> np.ndarray:
+def lip_opening_mm(
+    markers_m: np.ndarray, marker_names, *, upper: str = "Mouth_Up", lower: str = "Mouth_Down"
+) -> np.ndarray:
     """Distance (mm) between the ``upper`` and ``lower`` markers; ``markers_m`` is (F, k, 3) or (k, 3)."""
     names = list(marker_names)
     for n in (upper, lower):
@@ -111,13 +125,25 @@ def simulate_gesture(
     F = len(times)
     X = np.empty((F, model.n_nodes, 3))
     Mk = np.empty((F, len(model.marker_names), 3))
-    its, res, conv, inv, secs = (np.zeros(F, dtype=int), np.zeros(F), np.zeros(F, dtype=bool), np.zeros(F, dtype=int), np.zeros(F))
+    its, res, conv, inv, secs = (
+        np.zeros(F, dtype=int),
+        np.zeros(F),
+        np.zeros(F, dtype=bool),
+        np.zeros(F, dtype=int),
+        np.zeros(F),
+    )
     x_prev = None
     for f in range(F):
         eq = sim.solve(activations=A[f], x0=x_prev, tol=tol)
         X[f] = eq.x
         Mk[f] = markers.positions(eq.x)
-        its[f], res[f], conv[f], inv[f], secs[f] = eq.iterations, eq.residual_rel, eq.converged, eq.inverted_elements, eq.seconds
+        its[f], res[f], conv[f], inv[f], secs[f] = (
+            eq.iterations,
+            eq.residual_rel,
+            eq.converged,
+            eq.inverted_elements,
+            eq.seconds,
+        )
         x_prev = eq.x
         if progress:
             print(
@@ -134,6 +160,8 @@ def simulate_gesture(
         markers_m=Mk,
         marker_names=list(model.marker_names),
         lip_opening_mm=lip_opening_mm(Mk, model.marker_names),
+        lip_vertical_mm=1e3
+        * (Mk[:, model.marker_names.index("Mouth_Up"), 1] - Mk[:, model.marker_names.index("Mouth_Down"), 1]),
         newton_iterations=its,
         residual_rel=res,
         converged=conv,
@@ -159,6 +187,11 @@ def summarize(result: GestureResult) -> dict:
             "max": float(lo.max()),
             "change": float(lo[-1] - lo[0]),
         },
+        "lip_vertical_mm": {
+            "first": float(result.lip_vertical_mm[0]),
+            "last": float(result.lip_vertical_mm[-1]),
+            "min": float(result.lip_vertical_mm.min()),
+        },
         "probe_to_muscles": result.mapping,
         "notes": result.notes,
         "newton_iterations": result.newton_iterations.tolist(),
@@ -168,7 +201,6 @@ def summarize(result: GestureResult) -> dict:
         "seconds_per_frame": result.seconds.tolist(),
         "seconds_total": float(result.seconds.sum()),
     }
-
 
 
 def select_capture_markers(
@@ -213,8 +245,14 @@ def select_capture_markers(
     skin_nodes = np.unique(model.skin_triangles)
     tree = cKDTree(model.rest_positions_m[skin_nodes])
     landmarks = np.array([skin_nodes[tree.query(known[names[i]])[1]] for i in idx])
-    al = align_to_surface(ref[idx], model.rest_positions_m, model.skin_triangles, landmark_vertices=landmarks,
-                          with_scale=True, landmark_weight=1.0)
+    al = align_to_surface(
+        ref[idx],
+        model.rest_positions_m,
+        model.skin_triangles,
+        landmark_vertices=landmarks,
+        with_scale=True,
+        landmark_weight=1.0,
+    )
     mapped = al.transform.apply(ref)
     dist = np.full(len(names), np.inf)
     ok = np.isfinite(mapped).all(axis=1)
@@ -230,3 +268,67 @@ def select_capture_markers(
         "landmark_rms_mm": float(np.sqrt((lm_err**2).sum(axis=1).mean()) * 1e3),
         "max_distance_mm": float(max_distance_mm),
     }
+
+
+def performance_controls(
+    model,
+    frames: int,
+    *,
+    muscles: tuple[str, ...],
+    max_activation: float = 0.5,
+    max_jaw_deg: float = 6.0,
+    seed: int = 0,
+) -> np.ndarray:
+    """(F, M + 24) controls of a smooth synthetic performance: muscle bumps and a jaw opening.
+
+    Each listed muscle rises and falls once (sin^2 bump at a random start and length, peak in
+    [0.5, 1] x ``max_activation``); the jaw opens by up to ``max_jaw_deg`` about the condyles
+    (``wface.controls.jaw_from_intuitive``) with a little protrusion; the cranium stays at rest.
+    """
+    from wface.controls import IDENTITY_BONES, jaw_from_intuitive
+
+    rng = np.random.default_rng(seed)
+    s = np.linspace(0.0, 1.0, frames) if frames > 1 else np.zeros(1)
+    C = np.tile(np.concatenate([np.zeros(model.n_muscles), IDENTITY_BONES]), (frames, 1))
+    for name in muscles:
+        start, length = rng.uniform(-0.3, 0.3), rng.uniform(0.8, 1.3)
+        peak = rng.uniform(0.5, 1.0) * max_activation
+        C[:, model.muscle_index(name)] = peak * np.sin(np.pi * np.clip((s - start) / length, 0.0, 1.0)) ** 2
+    jaw = max_jaw_deg * np.sin(np.pi * np.clip(0.15 + 0.85 * s, 0.0, 1.0)) ** 2
+    M = model.n_muscles
+    for f in range(frames):
+        C[f, M + 12 :] = jaw_from_intuitive(model.jaw_joint, jaw[f], 0.001 * jaw[f] / max(max_jaw_deg, 1e-9), 0.0)
+    return C
+
+
+def simulate_controls(rig, markers, controls: np.ndarray, *, substeps: int = 3, progress: bool = False) -> dict:
+    """Equilibria of a control sequence by continuation: each frame is reached from the previous
+    one (the first from rest) in ``substeps`` linear control steps, each warm-started.
+
+    A cold Newton solve from rest to a large jaw opening plus several active muscles can stall on
+    the Badin face (measured: residual 0.1 after 40 iterations); small control steps converge in a
+    few iterations each.
+
+    Returns:
+        dict with ``x_m`` (F, n, 3), ``markers_m`` (F, k, 3), ``converged`` (F,), ``residual_rel`` (F,)
+        and ``seconds`` (F,).
+    """
+    import time
+
+    C = np.asarray(controls, dtype=np.float64)
+    F = len(C)
+    X = np.empty((F, rig.model.n_nodes, 3))
+    Mk = np.empty((F, len(markers.embedding.triangle), 3))
+    conv, res, secs = np.zeros(F, dtype=bool), np.zeros(F), np.zeros(F)
+    c_prev, y = rig.rest_controls(), None
+    for f in range(F):
+        t0 = time.perf_counter()
+        for k in range(1, substeps + 1):
+            state = rig.equilibrium(c_prev + (C[f] - c_prev) * k / substeps, y)
+            y = state.y_m
+        X[f], Mk[f] = state.x_m, markers.positions(state.x_m)
+        conv[f], res[f], secs[f] = state.converged, state.residual_rel, time.perf_counter() - t0
+        c_prev = C[f]
+        if progress:
+            print(f"simulated frame {f + 1}/{F}: residual {state.residual_rel:.1e}, {secs[f]:.1f} s", flush=True)
+    return {"x_m": X, "markers_m": Mk, "converged": conv, "residual_rel": res, "seconds": secs}

@@ -76,7 +76,9 @@ class ExcitationCurve:
     def values(self, t: np.ndarray | float) -> np.ndarray:
         """Scaled value(s) at absolute time(s) ``t``; shape (len(t),) for vsize 1, else (len(t), vsize)."""
         t = np.atleast_1d(np.asarray(t, dtype=np.float64))
-        out = np.stack([interpolate(self.times, self.data[:, j], t - self.t0, self.order) for j in range(self.vsize)], 1)
+        out = np.stack(
+            [interpolate(self.times, self.data[:, j], t - self.t0, self.order) for j in range(self.vsize)], 1
+        )
         out = self.scale * out
         return out[:, 0] if self.vsize == 1 else out
 
