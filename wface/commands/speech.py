@@ -183,6 +183,15 @@ def run_speech(args: argparse.Namespace) -> int:
             "setup_seconds": t_load,
             "wall_seconds": time.perf_counter() - t_start,
             "lip_opening_definition": "distance between the Mouth_Up and Mouth_Down skin markers (mm)",
+            "reference_lip_opening_area": None
+            if gesture.reference_lip_area is None
+            else {
+                "what": "the original ArtiSynth (dynamic) simulation's lipOpeningArea output, as recorded",
+                "times_s": gesture.reference_lip_area[:, 0].tolist(),
+                "area": gesture.reference_lip_area[:, 1].tolist(),
+                "first": float(gesture.reference_lip_area[0, 1]),
+                "last": float(gesture.reference_lip_area[-1, 1]),
+            },
             "files": files,
         }
     )
