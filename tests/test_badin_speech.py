@@ -136,9 +136,9 @@ def test_closure_closes_the_lips_cli(tmp_path):
     assert rep["probe_to_muscles"]["OOM"] == ["OOM_l", "OOM_r"]
     table = np.loadtxt(out / "lip_opening.csv", delimiter=",", skiprows=1)
     t, lo = table[:, 0], table[:, 1]
-    assert np.allclose(t, [0.0, 0.48, 1.0])
-    # measured: 17.2 -> 11.0 (t = 0.48) -> 5.7 mm; the lips close steadily as OOM, MENT and RIS rise
-    assert lo[1] < lo[0] - 2.0 and lo[2] < lo[1] - 2.0
+    assert np.allclose(t, [0.0, 0.5, 1.0])  # 101 frames at 100 fps, subsampled to 3
+    # measured: 17.19 -> 7.70 (t = 0.5) -> 5.72 mm; the lips close steadily as OOM, MENT and RIS rise
+    assert lo[1] < lo[0] - 5.0 and lo[2] < lo[1] - 1.0 and lo[2] < lo[0] - 8.0
     assert (out / "lip_opening.png").stat().st_size > 1000 and (out / "animation.usdc").stat().st_size > 1000
 
 
