@@ -64,12 +64,13 @@ def test_synthetic_performance_is_recovered(setup):
     M = model.n_muscles
     A = np.array([r.controls[:M] for r in recs])
     err_mm = np.array([r.marker_error_m for r in recs]) * 1e3
-    # measured: see the report; clean markers must be fitted to a small fraction of a millimetre
-    assert np.sqrt(np.mean(err_mm**2)) < 0.1
-    assert np.sqrt(np.mean((A - C[:, :M]) ** 2)) < 0.05
+    # measured: marker RMS 0.002-0.007 mm per frame (max 0.019 mm); activation RMS over all 22 muscles 0.006
+    # (0.009 over the 10 driven ones, largest single error 0.03); jaw within 0.01 degrees
+    assert np.sqrt(np.mean(err_mm**2)) < 0.05
+    assert np.sqrt(np.mean((A - C[:, :M]) ** 2)) < 0.02 and np.abs(A - C[:, :M]).max() < 0.1
     jaw = [jaw_to_intuitive(model.jaw_joint, r.controls[M + 12 :])["opening_deg"] for r in recs]
     truth = [jaw_to_intuitive(model.jaw_joint, c[M + 12 :])["opening_deg"] for c in C]
-    assert np.allclose(jaw, truth, atol=0.3)
+    assert np.allclose(jaw, truth, atol=0.1)
 
 
 def test_jaw_take_first_frames(setup):
