@@ -61,7 +61,8 @@ def main(argv=None) -> int:
     model = build_face(args.tets, progress=True)
     q = model.metadata["quality"]
     print(
-        f"{model.n_tets} tets, {model.n_nodes} nodes, {model.n_muscles} muscles, min dihedral {q['min_dihedral_deg']:.1f} deg"
+        f"{model.n_tets} tets, {model.n_nodes} nodes, {model.n_muscles} muscles, "
+        f"min dihedral {q['min_dihedral_deg']:.1f} deg"
     )
     path = render_face(model, Path(args.out), size=(args.width, int(args.width * 0.6)))
     print(f"wrote {path}")

@@ -1,7 +1,8 @@
 """Waters (1987) vector muscles on the ICT-FaceKit head: every expression preset, rendered off-screen.
 
 Writes OUT/<preset>.png (shaded), OUT/<preset>_displacement.png, OUT/<preset>.obj/.usda, a contact
-sheet OUT/expressions.png and OUT/expressions.usdc: an animation that blends from preset to preset.
+sheet OUT/expressions.png, OUT/muscles.png (the layout drawn over the face) and OUT/expressions.usdc:
+an animation that blends from preset to preset.
 
     python examples/waters_expressions.py --out out/waters_expressions
     python examples/waters_expressions.py --presets happy --size 200 --out /tmp/w   # quick
@@ -25,7 +26,7 @@ from wface.waters.expressions import interpolate_poses
 from wface.waters.fit import fit_layout
 from wface.waters.layout import load_layout
 from wface.waters.pipeline import pose_mesh
-from wface.waters.render import render_grid
+from wface.waters.render import render_grid, render_layout
 from wface.waters.rig import WatersRig
 from wface.waters.surface import read_surface, write_usd
 from wface.waters.synthetic import synthetic_head, synthetic_landmarks
@@ -73,6 +74,10 @@ def main(argv: list[str] | None = None) -> dict:
         pictures.append(Path(s["files"]["png"]))
         print(f"{name:>9}: max displacement {s['max_displacement_mm']:.1f} mm, jaw {s['jaw_open_deg']:.1f} deg")
     render_grid(out / "expressions.png", pictures, columns=min(4, len(pictures)))
+    marks = np.stack(list(rig.layout.landmarks_m.values()))
+    lo, hi = marks.min(axis=0), marks.max(axis=0)
+    box = np.ravel(np.column_stack([lo - 0.3 * (hi - lo), hi + 0.3 * (hi - lo)]))
+    render_layout(out / "muscles.png", mesh.vertices_m, mesh.triangles(), rig.layout, size=args.size, bounds_m=box)
 
     frames = []
     cycle = args.presets + args.presets[:1]

@@ -31,12 +31,15 @@ Muscle fibre of one (tet, muscle) entry, fibre direction d, q = F d, lam = |q|:
 Force-length f_L and passive f_P are the piecewise curves of DESIGN.md section 3.
 
 All kernels come from ``fem_kernels(dtype)`` (dtype = wp.float64 or wp.float32), built once per
-dtype.
+dtype. The flesh energy in singular values lives in ``flesh.py``, the fibre curves in ``fibre.py``.
 """
 
 import functools
 
 import warp as wp
+
+from wface.kernels.fibre import fibre_functions
+from wface.kernels.flesh import flesh_functions
 
 wp.set_module_options({"enable_backward": False})
 
@@ -51,149 +54,15 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
     vec9 = wp.types.vector(9, S)
     mat33 = wp.types.matrix((3, 3), S)
     mat99 = wp.types.matrix((9, 9), S)
+    vec45 = wp.types.vector(45, S)  # a symmetric 9x9 matrix, upper triangle row by row
     tie_eps = 1.0e-6 if S == wp.float64 else 3.0e-3
-    # Constant expressions are folded here in double precision: inside a kernel, S(2.0 / 3.0)
-    # would be evaluated in float32 first.
-    C25_18, C25_6, C25_3, C50_3, C25_9 = 25.0 / 18.0, 25.0 / 6.0, 25.0 / 3.0, 50.0 / 3.0, 25.0 / 9.0
-    C033 = 0.05 * 6.6
-    M2_3, M4_3 = -2.0 / 3.0, -4.0 / 3.0
-
-    # ------------------------------------------------------------------ fibre curves
-    @wp.func
-    def force_length(x: S):
-        """f_L, df_L/dlam and the integral from 1 of f_L, at lam = 1 + x."""
-        ax = wp.abs(x)
-        sg = S(1.0)
-        if x < S(0.0):
-            sg = S(-1.0)
-        g04 = S(0.4) - S(C25_18) * S(0.064)
-        if ax < S(0.4):
-            return S(1.0) - S(C25_6) * x * x, -S(C25_3) * x, x - S(C25_18) * x * x * x
-        if ax < S(0.6):
-            y = ax - S(0.6)
-            return S(C25_3) * y * y, sg * S(C50_3) * y, sg * (g04 + S(C25_9) * (y * y * y + S(0.008)))
-        return S(0.0), S(0.0), sg * (g04 + S(C25_9) * S(0.008))
-
-    @wp.func
-    def passive_curve(x: S):
-        """f_P, df_P/dlam and the integral from 1 of f_P, at lam = 1 + x (C1, linear beyond 1.4)."""
-        if x <= S(0.0):
-            return S(0.0), S(0.0), S(0.0)
-        xe = wp.min(x, S(0.4))
-        e = wp.exp(S(6.6) * xe)
-        f = S(0.05) * (e - S(6.6) * xe - S(1.0))
-        df = S(C033) * (e - S(1.0))
-        g = S(0.05) * ((e - S(1.0)) / S(6.6) - S(3.3) * xe * xe - xe)
-        if x > S(0.4):
-            y = x - S(0.4)
-            g = g + f * y + S(0.5) * df * y * y
-            f = f + df * y
-        return f, df, g
-
-    # ------------------------------------------------------------------ flesh in singular values
-    @wp.func
-    def flesh_derivatives(sh: vec3, delta: vec3, mu10: S, mu01: S, kappa: S, order: int):
-        """psi, gradient, Hessian (order >= 2) at s^ (all > 0), and the third derivative contracted
-        with delta (order >= 3); higher-order outputs are zero when not requested."""
-        psi = S(-3.0) * (mu10 + mu01)
-        g = vec3()
-        H = mat33()
-        Tc = mat33()
-        inv = vec3(S(1.0) / sh[0], S(1.0) / sh[1], S(1.0) / sh[2])
-        L = wp.log(sh[0]) + wp.log(sh[1]) + wp.log(sh[2])
-        j23 = wp.exp(S(M2_3) * L)  # J^(-2/3)
-        for k in range(6):
-            # monomial m = c prod s_i^a_i: mu10 J^-2/3 s_k^2 (k < 3), mu01 J^-4/3 s_i^2 s_j^2 (pairs)
-            a = vec3(S(M2_3), S(M2_3), S(M2_3))
-            m = S(0.0)
-            if k < 3:
-                a[k] = a[k] + S(2.0)
-                m = mu10 * j23 * sh[k] * sh[k]
-            else:
-                a = vec3(S(M4_3), S(M4_3), S(M4_3))
-                p = k - 3  # pairs (0,1), (0,2), (1,2)
-                i0 = 0
-                i1 = 1
-                if p == 1:
-                    i1 = 2
-                if p == 2:
-                    i0 = 1
-                    i1 = 2
-                a[i0] = a[i0] + S(2.0)
-                a[i1] = a[i1] + S(2.0)
-                m = mu01 * j23 * j23 * sh[i0] * sh[i0] * sh[i1] * sh[i1]
-            psi = psi + m
-            for i in range(3):
-                g[i] = g[i] + a[i] * m * inv[i]
-            if order >= 2:
-                for i in range(3):
-                    for j in range(3):
-                        dij = S(0.0)
-                        if i == j:
-                            dij = S(1.0)
-                        hij = a[i] * (a[j] - dij) * m * inv[i] * inv[j]
-                        H[i, j] = H[i, j] + hij
-                        if order >= 3:
-                            for l in range(3):
-                                dil = S(0.0)
-                                djl = S(0.0)
-                                if i == l:
-                                    dil = S(1.0)
-                                if j == l:
-                                    djl = S(1.0)
-                                Tc[j, l] = Tc[j, l] + delta[i] * hij * (a[l] - dil - djl) * inv[l]
-        psi = psi + S(0.5) * kappa * L * L
-        for i in range(3):
-            g[i] = g[i] + kappa * L * inv[i]
-        if order >= 2:
-            for i in range(3):
-                for j in range(3):
-                    H[i, j] = H[i, j] + kappa * inv[i] * inv[j]
-                    if i == j:
-                        H[i, j] = H[i, j] - kappa * L * inv[i] * inv[i]
-                    if order >= 3:
-                        for l in range(3):
-                            t = S(0.0)
-                            if i == l:
-                                t = t - kappa * inv[i] * inv[j] * inv[l]
-                            if j == l:
-                                t = t - kappa * inv[i] * inv[j] * inv[l]
-                            if i == j:
-                                t = t - kappa * inv[i] * inv[i] * inv[l]
-                                if i == l:
-                                    t = t + S(2.0) * kappa * L * inv[i] * inv[i] * inv[i]
-                            Tc[j, l] = Tc[j, l] + delta[i] * t
-        return psi, g, H, Tc
-
-    @wp.func
-    def clamp_values(s: vec3, clamp: S):
-        sh = vec3()
-        delta = vec3()
-        for i in range(3):
-            sh[i] = wp.max(s[i], clamp)
-            delta[i] = s[i] - sh[i]
-        return sh, delta
-
-    @wp.func
-    def flesh_energy_s(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
-        sh, delta = clamp_values(s, clamp)
-        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa, 1)
-        return psi + wp.dot(g, delta)
-
-    @wp.func
-    def flesh_gradient_s(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
-        """psi_ext and its gradient G in singular values."""
-        sh, delta = clamp_values(s, clamp)
-        order = 1
-        if delta[0] != S(0.0) or delta[1] != S(0.0) or delta[2] != S(0.0):
-            order = 2
-        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa, order)
-        G = g
-        Hd = H * delta
-        for j in range(3):
-            if s[j] >= clamp:
-                G[j] = G[j] + Hd[j]
-        return psi + wp.dot(g, delta), G
+    fibre = fibre_functions(S)
+    fibre_tension = fibre.fibre_tension
+    force_length = fibre.force_length
+    flesh = flesh_functions(S)
+    flesh_energy_s = flesh.flesh_energy_s
+    flesh_gradient_s = flesh.flesh_gradient_s
+    flesh_response = flesh.flesh_response
 
     # ------------------------------------------------------------------ element helpers
     @wp.func
@@ -215,13 +84,6 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         wp.atomic_add(out, tets[t, 2], c2)
         wp.atomic_add(out, tets[t, 3], c3)
         wp.atomic_add(out, tets[t, 0], -(c1 + c2 + c3))
-
-    @wp.func
-    def fibre_tension(lam: S, act: S, k: S):
-        """T, dT/dlam, energy W for one fibre entry (k = fraction * strength * sigma_max)."""
-        fl, dfl, gl = force_length(lam - S(1.0))
-        fp, dfp, gp = passive_curve(lam - S(1.0))
-        return k * (act * fl + fp), k * (act * dfl + dfp), k * (act * gl + gp)
 
     # ------------------------------------------------------------------ kernels
     @wp.kernel(module="unique", enable_backward=False)
@@ -366,9 +228,10 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         x: wp.array(dtype=vec3),
         activation: wp.array(dtype=S),
         # Out:
-        tangent_out: wp.array(dtype=mat99),
+        tangent_out: wp.array(dtype=vec45),
     ):
-        """Per-tet V0 dP/dF as a 9x9 matrix on row-major vec(F); projected to PSD if ``project``."""
+        """Per-tet V0 dP/dF (symmetric 9x9 on row-major vec(F), stored packed: upper triangle row
+        by row); projected to PSD if ``project``."""
         t = wp.tid()
         F = deformation_gradient(x, tets, dm_inv[t], t)
         U = mat33()
@@ -376,27 +239,19 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         V = mat33()
         wp.svd3(F, U, s, V)
         psi, G, A = flesh_response(s, mu10, mu01, kappa, clamp)
-        if project != 0:
-            Q = mat33()
-            lam = vec3()
-            wp.eig3(A, Q, lam)
-            for k in range(3):
-                lam[k] = wp.max(lam[k], S(0.0))
-            A = Q * wp.diag(lam) * wp.transpose(Q)
-        C = mat99()
+        # Nine eigen-modes of dP/dF (rows of Wm, orthonormal in vec(F)) and their eigenvalues.
+        Q = mat33()
+        lam = vec3()
+        wp.eig3(A, Q, lam)
+        Wm = mat99()
+        ev = vec9()
         w0 = vec_outer_mode(U, V, 0, 0)
         w1 = vec_outer_mode(U, V, 1, 1)
         w2 = vec_outer_mode(U, V, 2, 2)
-        for r in range(9):
-            for c in range(9):
-                C[r, c] = (
-                    A[0, 0] * w0[r] * w0[c]
-                    + A[1, 1] * w1[r] * w1[c]
-                    + A[2, 2] * w2[r] * w2[c]
-                    + A[0, 1] * (w0[r] * w1[c] + w1[r] * w0[c])
-                    + A[0, 2] * (w0[r] * w2[c] + w2[r] * w0[c])
-                    + A[1, 2] * (w1[r] * w2[c] + w2[r] * w1[c])
-                )
+        for k in range(3):
+            ev[k] = lam[k]
+            for r in range(9):
+                Wm[k, r] = Q[0, k] * w0[r] + Q[1, k] * w1[r] + Q[2, k] * w2[r]
         inv_sqrt2 = S(0.7071067811865476)
         for p in range(3):
             i = 0
@@ -408,18 +263,26 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
                 j = 2
             diff = s[i] - s[j]
             if wp.abs(diff) > S(tie_eps) * wp.max(wp.abs(s[i]), S(1.0)):
-                lsym = (G[i] - G[j]) / diff
+                ev[3 + p] = (G[i] - G[j]) / diff
             else:
-                lsym = A[i, i] - A[i, j]
-            lrot = (G[i] + G[j]) / wp.max(s[i] + s[j], S(tie_eps))
-            if project != 0:
-                lsym = wp.max(lsym, S(0.0))
-                lrot = wp.max(lrot, S(0.0))
+                ev[3 + p] = A[i, i] - A[i, j]  # limit of (G_i - G_j)/(s_i - s_j)
+            ev[6 + p] = (G[i] + G[j]) / wp.max(s[i] + s[j], S(tie_eps))
             wij = vec_outer_mode(U, V, i, j)
             wji = vec_outer_mode(U, V, j, i)
-            qs = inv_sqrt2 * (wij + wji)
-            qr = inv_sqrt2 * (wij - wji)
-            C = C + lsym * wp.outer(qs, qs) + lrot * wp.outer(qr, qr)
+            for r in range(9):
+                Wm[3 + p, r] = inv_sqrt2 * (wij[r] + wji[r])
+                Wm[6 + p, r] = inv_sqrt2 * (wij[r] - wji[r])
+        if project != 0:
+            for m in range(9):
+                ev[m] = wp.max(ev[m], S(0.0))
+        C = mat99()
+        for r in range(9):
+            for c in range(9):
+                if c >= r:
+                    acc = S(0.0)
+                    for m in range(9):
+                        acc = acc + ev[m] * Wm[m, r] * Wm[m, c]
+                    C[r, c] = acc
         for e in range(entry_start[t], entry_start[t + 1]):
             d = entry_direction[e]
             q = F * d
@@ -438,7 +301,22 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
                         for j in range(3):
                             for l in range(3):
                                 C[3 * i + k, 3 * j + l] = C[3 * i + k, 3 * j + l] + Hq[i, j] * d[k] * d[l]
-        tangent_out[t] = rest_volume[t] * C
+        V0 = rest_volume[t]
+        packed = vec45()
+        slot = int(0)
+        for r in range(9):
+            for c in range(9):
+                if c >= r:
+                    packed[slot] = V0 * C[r, c]
+                    slot = slot + 1
+        tangent_out[t] = packed
+
+    @wp.func
+    def packed_entry(Cp: vec45, r: int, c: int):
+        """Entry (r, c) of a symmetric 9x9 matrix stored as its packed upper triangle."""
+        i = wp.min(r, c)
+        j = wp.max(r, c)
+        return Cp[i * 9 - (i * (i - 1)) / 2 + (j - i)]
 
     @wp.func
     def node_gradients(Dmi: mat33):
@@ -463,7 +341,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         # Model:
         tets: wp.array2d(dtype=wp.int32),
         dm_inv: wp.array(dtype=mat33),
-        tangent: wp.array(dtype=mat99),
+        tangent: wp.array(dtype=vec45),
         # State in:
         v: wp.array(dtype=vec3),
         # Out:
@@ -478,11 +356,13 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         for r in range(3):
             for c in range(3):
                 dFv[3 * r + c] = dF[r, c]
-        dPv = tangent[t] * dFv
+        Cp = tangent[t]
         dP = mat33()
-        for r in range(3):
-            for c in range(3):
-                dP[r, c] = dPv[3 * r + c]
+        for r in range(9):
+            acc = S(0.0)
+            for c in range(9):
+                acc = acc + packed_entry(Cp, r, c) * dFv[c]
+            dP[r / 3, r % 3] = acc
         c1 = dP * r1
         c2 = dP * r2
         c3 = dP * r3
@@ -492,7 +372,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         wp.atomic_add(kv_out, tets[t, 0], -(c1 + c2 + c3))
 
     @wp.func
-    def tangent_block(C: mat99, ra: vec3, rb: vec3):
+    def tangent_block(C: vec45, ra: vec3, rb: vec3):
         """3x3 block (a, b) of the element stiffness: B_ij = sum_kl C[3i+k, 3j+l] ra_k rb_l."""
         B = mat33()
         for i in range(3):
@@ -500,7 +380,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
                 acc = S(0.0)
                 for k in range(3):
                     for l in range(3):
-                        acc = acc + C[3 * i + k, 3 * j + l] * ra[k] * rb[l]
+                        acc = acc + packed_entry(C, 3 * i + k, 3 * j + l) * ra[k] * rb[l]
                 B[i, j] = acc
         return B
 
@@ -508,7 +388,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
     def tangent_assemble(
         # Model:
         dm_inv: wp.array(dtype=mat33),
-        tangent: wp.array(dtype=mat99),
+        tangent: wp.array(dtype=vec45),
         block_index: wp.array2d(dtype=wp.int32),
         # Out:
         blocks_out: wp.array(dtype=mat33),
@@ -529,7 +409,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         # Model:
         tets: wp.array2d(dtype=wp.int32),
         dm_inv: wp.array(dtype=mat33),
-        tangent: wp.array(dtype=mat99),
+        tangent: wp.array(dtype=vec45),
         # Out:
         diag_out: wp.array(dtype=vec3),
     ):
@@ -541,86 +421,6 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
             ra = pick(r0, r1, r2, r3, a)
             B = tangent_block(C, ra, ra)
             wp.atomic_add(diag_out, tets[t, a], vec3(B[0, 0], B[1, 1], B[2, 2]))
-
-    @wp.kernel(module="unique", enable_backward=False)
-    def singular_values(
-        # In:
-        F: wp.array(dtype=mat33),
-        # Out:
-        U_out: wp.array(dtype=mat33),
-        s_out: wp.array(dtype=vec3),
-        V_out: wp.array(dtype=mat33),
-    ):
-        """wp.svd3 as used by the FEM (tests pin its sign and order convention)."""
-        t = wp.tid()
-        U = mat33()
-        s = vec3()
-        V = mat33()
-        wp.svd3(F[t], U, s, V)
-        U_out[t] = U
-        s_out[t] = s
-        V_out[t] = V
-
-    @wp.func
-    def flesh_response(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
-        """psi_ext, its gradient G and Hessian A in the signed singular values s."""
-        sh, delta = clamp_values(s, clamp)
-        order = 2
-        if delta[0] != S(0.0) or delta[1] != S(0.0) or delta[2] != S(0.0):
-            order = 3
-        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa, order)
-        G = g
-        Hd = H * delta
-        A = mat33()
-        for i in range(3):
-            if s[i] >= clamp:
-                G[i] = G[i] + Hd[i]
-            for j in range(3):
-                ui = s[i] >= clamp
-                uj = s[j] >= clamp
-                if ui and uj:
-                    A[i, j] = H[i, j] + Tc[i, j]
-                elif ui or uj:
-                    A[i, j] = H[i, j]
-        return psi + wp.dot(g, delta), G, A
-
-    @wp.kernel(module="unique", enable_backward=False)
-    def flesh_in_singular_values(
-        # In:
-        s: wp.array(dtype=vec3),
-        mu10: S,
-        mu01: S,
-        kappa: S,
-        clamp: S,
-        # Out:
-        psi_out: wp.array(dtype=S),
-        grad_out: wp.array(dtype=vec3),
-        hess_out: wp.array(dtype=mat33),
-    ):
-        """The flesh energy density psi_ext(s), its gradient and Hessian (tests, plots)."""
-        i = wp.tid()
-        psi, G, A = flesh_response(s[i], mu10, mu01, kappa, clamp)
-        psi_out[i] = psi
-        grad_out[i] = G
-        hess_out[i] = A
-
-    @wp.kernel(module="unique", enable_backward=False)
-    def fibre_curves(
-        # In:
-        lam: wp.array(dtype=S),
-        # Out:
-        curves_out: wp.array2d(dtype=S),
-    ):
-        """Columns: f_L, f_L', int f_L, f_P, f_P', int f_P at each stretch (integrals from 1)."""
-        i = wp.tid()
-        fl, dfl, gl = force_length(lam[i] - S(1.0))
-        fp, dfp, gp = passive_curve(lam[i] - S(1.0))
-        curves_out[i, 0] = fl
-        curves_out[i, 1] = dfl
-        curves_out[i, 2] = gl
-        curves_out[i, 3] = fp
-        curves_out[i, 4] = dfp
-        curves_out[i, 5] = gp
 
     @wp.kernel(module="unique", enable_backward=False)
     def masked_axpby(
@@ -660,6 +460,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
     ns.vec3 = vec3
     ns.mat33 = mat33
     ns.mat99 = mat99
+    ns.vec45 = vec45
     for k in (
         element_forces,
         element_energy,
@@ -668,11 +469,11 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         tangent_matvec,
         tangent_assemble,
         tangent_diagonal,
-        singular_values,
-        fibre_curves,
-        flesh_in_singular_values,
         masked_axpby,
         diagonal_axpby,
     ):
         setattr(ns, k.func.__name__, k)
+    ns.singular_values = flesh.singular_values
+    ns.flesh_in_singular_values = flesh.flesh_in_singular_values
+    ns.fibre_curves = fibre.fibre_curves
     return ns

@@ -95,7 +95,10 @@ def test_intuitive_round_trip_and_limits():
         jaw_from_intuitive(JAW_JOINT, 50.0, clamp=False)
     assert jaw_limits(JAW_JOINT)["opening_deg"][1] == pytest.approx(35.0)
     # Opening moves the chin down and back, lateral yaw moves it toward the subject's left (+x).
-    M, t = jaw_from_intuitive(JAW_JOINT, 20.0, 0.0, 2.0)[:9].reshape(3, 3), jaw_from_intuitive(JAW_JOINT, 20.0, 0.0, 2.0)[9:]
+    M, t = (
+        jaw_from_intuitive(JAW_JOINT, 20.0, 0.0, 2.0)[:9].reshape(3, 3),
+        jaw_from_intuitive(JAW_JOINT, 20.0, 0.0, 2.0)[9:],
+    )
     chin = np.array([0.0, -0.10, 0.09])
     move = M @ chin + t - chin
     assert move[1] < -0.01 and move[2] < 0 and move[0] > 0

@@ -50,7 +50,8 @@ def test_wheel_installs_kernels_as_wface_kernels(tmp_path):
         assert "site-packages" in wface.__file__, wface.__file__
         init_warp()
         from wface.kernels.geometry import tet_signed_volume
-        x = wp.array(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=np.float64), dtype=wp.vec3d, device="cpu")
+        corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=np.float64)
+        x = wp.array(corners, dtype=wp.vec3d, device="cpu")
         t = wp.array(np.array([[0, 1, 2, 3]], dtype=np.int32), dtype=wp.int32, device="cpu")
         v = wp.zeros(1, dtype=wp.float64, device="cpu")
         wp.launch(tet_signed_volume, dim=1, inputs=[x, t], outputs=[v], device="cpu")

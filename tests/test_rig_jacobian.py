@@ -61,7 +61,9 @@ def test_analytic_cranium_columns_equal_solve_based(setup):
         W[i, j], W[j, i] = -1.0, 1.0
         dMc = W @ Mc
         dtc = W @ c[M + 9 : M + 12]  # rotating the world also turns the cranium translation
-        analytic = np.einsum("nrab,ab->nr", J[:, :, M : M + 9].reshape(-1, 3, 3, 3), dMc) + J[:, :, M + 9 : M + 12] @ dtc
+        analytic = (
+            np.einsum("nrab,ab->nr", J[:, :, M : M + 9].reshape(-1, 3, 3, 3), dMc) + J[:, :, M + 9 : M + 12] @ dtc
+        )
         # Solve-based in the world frame: K is rotated, so use the world-frame tangent at X.
         Kw = rig.sim.assemble_stiffness(Xw, np.clip(c[:M], 0, 1), project=False).tocsr()
         dXC = (XC @ W.T).ravel()

@@ -139,3 +139,20 @@ def test_activation_jacobian_by_one_factorisation_matches_finite_differences():
         xm = sim.solve(a - e, x0=eq.x, tol=1e-11).x
         fd = (xp - xm) / (2 * h)
         assert np.abs(J_direct[i] - fd).max() < 1e-4 * np.abs(fd).max()  # O(h^2) + Newton tolerance
+
+
+@needs_direct
+def test_refactorisation_with_the_same_sparsity_reuses_the_analysis(stiffness):
+    sim, x, a, K0 = stiffness
+    K1 = sim.assemble_stiffness(x * 1.02, a * 0.5, nodes="free")
+    b = np.random.default_rng(4).normal(size=(K1.shape[0], 3))
+    first = DirectFactor(K0)
+    second = DirectFactor(K1, reuse=first)
+    fresh = DirectFactor(K1)
+    assert second.reused_analysis == (second.backend == "pardiso") and not fresh.reused_analysis
+    X = second.solve(b)
+    np.testing.assert_allclose(X, fresh.solve(b), rtol=0, atol=1e-9 * np.abs(X).max())
+    np.testing.assert_allclose(K1 @ X, b, rtol=0, atol=1e-8 * np.abs(b).max())
+    if second.backend == "pardiso":
+        with pytest.raises(RuntimeError, match="freed"):
+            first.solve(b)  # its PARDISO handle now belongs to the newer factor

@@ -48,8 +48,23 @@ def test_track_a_csv_file(tmp_path):
     take = MocapTake(np.concatenate([rest, perf.clean_markers_m]), list(model.marker_names), 30.0)
     write_mocap(take, tmp_path / "take.csv")
     out = tmp_path / "run"
-    assert main(["track", "--mocap", str(tmp_path / "take.csv"), "--tets", "2000", "--out", str(out),
-                 "--frames", "0:3", "--no-pictures"]) == 0
+    assert (
+        main(
+            [
+                "track",
+                "--mocap",
+                str(tmp_path / "take.csv"),
+                "--tets",
+                "2000",
+                "--out",
+                str(out),
+                "--frames",
+                "0:3",
+                "--no-pictures",
+            ]
+        )
+        == 0
+    )
     report = json.loads((out / "report.json").read_text())
     assert report["frames"] == 3 and report["marker_rms_mm_mean"] < 0.1
     assert sorted(p.name for p in (out / "frames").glob("*.npz"))[-1] == "frame_000002.npz"
@@ -64,8 +79,10 @@ def test_track_reports_bad_input(tmp_path, capsys):
 def test_real_jaw_capture_on_the_builtin_face(tmp_path):
     path = data_path("animface", "JawMoCap.c3d")
     out = tmp_path / "jaw"
-    assert main(["track", "--mocap", str(path), "--tets", "2000", "--out", str(out), "--frames", "0:4",
-                 "--no-pictures"]) == 0
+    assert (
+        main(["track", "--mocap", str(path), "--tets", "2000", "--out", str(out), "--frames", "0:4", "--no-pictures"])
+        == 0
+    )
     report = json.loads((out / "report.json").read_text())
     assert report["markers"] == 41 and report["frames"] == 4
     assert report["marker_rms_mm_mean"] < 6.0  # a different person's face: shape mismatch remains

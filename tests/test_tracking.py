@@ -53,14 +53,19 @@ def test_missing_markers_and_outliers(scene):
     data, _ = corrupt_markers(perf.clean_markers_m, noise_mm=0.3, outliers=0.03, dropout=0.1, seed=5)
     assert np.isnan(data).any()
     recs = track_sequence(model, data, marker_names=model.marker_names, markers=markers)
-    truth_mm = np.sqrt(np.mean([np.sum((r.markers_m - perf.clean_markers_m[i]) ** 2, axis=1) for i, r in enumerate(recs)])) * 1e3
+    truth_mm = (
+        np.sqrt(np.mean([np.sum((r.markers_m - perf.clean_markers_m[i]) ** 2, axis=1) for i, r in enumerate(recs)]))
+        * 1e3
+    )
     assert truth_mm < 0.3  # below the noise: the face is not pulled toward outliers
     assert np.isnan(recs[0].marker_error_m).sum() == np.isnan(data[0, :, 0]).sum()  # missing markers drop out
 
 
 def test_resume_reuses_written_frames(scene, tmp_path):
     model, markers, perf = scene
-    first = track_sequence(model, perf.clean_markers_m[:3], marker_names=model.marker_names, markers=markers, out_dir=tmp_path)
+    first = track_sequence(
+        model, perf.clean_markers_m[:3], marker_names=model.marker_names, markers=markers, out_dir=tmp_path
+    )
     frames = sorted((tmp_path / "frames").glob("frame_*.npz"))
     assert len(frames) == 3
     os.remove(frames[-1])  # an interrupted run: the last frame is missing
@@ -82,7 +87,11 @@ def test_dask_two_workers_match_serial(scene):
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         with distributed.Client(cluster) as client:
             par = track_sequence(
-                model, perf.clean_markers_m, marker_names=model.marker_names, markers=markers, chunk_size=2,
+                model,
+                perf.clean_markers_m,
+                marker_names=model.marker_names,
+                markers=markers,
+                chunk_size=2,
                 executor=client.get_executor(pure=False),
             )
     assert [r.frame for r in par] == [r.frame for r in serial]
@@ -91,20 +100,25 @@ def test_dask_two_workers_match_serial(scene):
 
 
 def test_identifiability_flags_invisible_muscles(scene):
-    model, markers, _ = scene
-    from wface.controls import IDENTITY_BONES, bone_penalty
+    from wface.controls import IDENTITY_BONES
+    from wface.tracking.identifiability import bone_motion_basis
 
+    model, markers, _ = scene
     rig = FaceRig(model)
     J = markers.jacobian(rig.jacobian(rig.equilibrium(rig.rest_controls()), markers.nodes))
-    H = bone_penalty(model.jaw_joint, IDENTITY_BONES).hessian
-    s = muscle_identifiability_mm(J, model.n_muscles, bone_hessian=H)
-    assert np.all(s > 0)
-    # With only the forehead markers, mouth muscles become invisible.
+    T = bone_motion_basis(model.jaw_joint, IDENTITY_BONES)
+    s = muscle_identifiability_mm(J, model.n_muscles, bone_basis=T)
+    assert np.all(s > 0.5)  # every muscle of the built-in face moves the full marker set
+    # Full rank: equal to the conditioning formula 1 / sqrt([(J^T J)^-1]_ii).
+    Jr = np.hstack([J[:, : model.n_muscles], J[:, model.n_muscles :] @ T])
+    inv_diag = np.diag(np.linalg.inv(Jr.T @ Jr))[: model.n_muscles]
+    assert np.allclose(s, 1e3 / np.sqrt(inv_diag), rtol=1e-6)
+    # With only forehead and brow markers the chin muscle is invisible, the brow muscle is not.
     keep = [i for i, n in enumerate(model.marker_names) if n.startswith(("ForeHead", "Leyebrow", "Reyebrow"))]
     rows = np.concatenate([[3 * i, 3 * i + 1, 3 * i + 2] for i in keep])
-    s2 = muscle_identifiability_mm(J[rows], model.n_muscles, bone_hessian=H)
-    assert s2[model.muscle_index("mentalis_l")] < 0.15 * s[model.muscle_index("mentalis_l")]
-    assert s2[model.muscle_index("frontalis_medial_l")] > 0.3 * s[model.muscle_index("frontalis_medial_l")]
+    s2 = muscle_identifiability_mm(J[rows], model.n_muscles, bone_basis=T)
+    assert s2[model.muscle_index("mentalis_l")] < 0.01
+    assert s2[model.muscle_index("frontalis_medial_l")] < s[model.muscle_index("frontalis_medial_l")]
 
 
 def test_bad_input_is_named(scene):

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import REPO_ROOT, data_path
 
-from tests.conftest import REPO_ROOT, data_path
 from wface.cli import main
 from wface.waters.surface import SurfaceMesh, read_surface, write_obj
 from wface.waters.synthetic import synthetic_head
@@ -153,3 +153,79 @@ def test_cli_poses_the_builtin_face(tmp_path):
     assert rc == 0
     summary = json.loads((tmp_path / "sad.json").read_text())
     assert summary["layout"].startswith("ict-facekit-on") and summary["max_displacement_mm"] > 1.0
+
+
+def test_cli_blends_between_presets(tmp_path):
+    rc = main(
+        [
+            "waters",
+            "--mesh",
+            "builtin",
+            "--tets",
+            "3000",
+            "--expression",
+            "neutral",
+            "--blend-to",
+            "surprise",
+            "--frames",
+            "4",
+            "--no-render",
+            "--out",
+            str(tmp_path),
+        ]
+    )
+    assert rc == 0
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(tmp_path / "neutral_to_surprise.usdc"))
+    attr = UsdGeom.Mesh(stage.GetPrimAtPath("/WatersFace/Mesh")).GetPointsAttr()
+    first, last = np.asarray(attr.Get(0)), np.asarray(attr.Get(3))
+    assert np.max(np.linalg.norm(last - first, axis=1)) > 0.005  # the jaw opens by 12 degrees
+    assert main(["waters", "--mesh", "builtin", "--blend-to", "nope", "--out", str(tmp_path)]) == 1
+
+
+def test_bench_json_on_stdout_is_clean(tmp_path):
+    r = subprocess.run(
+        [sys.executable, "-m", "wface", "bench", "--suite", "waters", "--json", "--repeat", "1", "--device", "cpu"],
+        env=dict(_env(), WFACE_DATA=str(tmp_path)),
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=REPO_ROOT,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout)
+    assert out["suite"] == "waters" and out["warp_direct_frames_per_second"] > 0
+
+
+def test_cli_with_a_layout_file(tmp_path):
+    from wface.waters.fit import fit_layout
+    from wface.waters.layout import load_layout, save_layout
+    from wface.waters.synthetic import synthetic_landmarks
+
+    head = synthetic_head(30, 60)
+    write_obj(tmp_path / "head.obj", head)
+    base = load_layout("ict")
+    lay = fit_layout(
+        base, synthetic_landmarks(base), target_vertices_m=head.vertices_m, target_triangles=head.triangles()
+    )
+    save_layout(lay, tmp_path / "layout.json", units="mm")
+    rc = main(
+        [
+            "waters",
+            "--mesh",
+            str(tmp_path / "head.obj"),
+            "--units",
+            "m",
+            "--layout",
+            str(tmp_path / "layout.json"),
+            "--expression",
+            "happy",
+            "--no-render",
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
+    assert rc == 0
+    summary = json.loads((tmp_path / "o" / "happy.json").read_text())
+    assert summary["muscles"] == len(lay.muscles) and summary["max_displacement_mm"] > 1.0

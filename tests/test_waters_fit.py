@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from wface.facs import EXPRESSIONS
@@ -167,3 +169,23 @@ def test_layout_dict_is_stable_after_fit_round_trip(tmp_path):
     lay = fit_layout(load_layout("ict"), {k: _xf(v) for k, v in load_layout("ict").landmarks_m.items()}, snap=False)
     again = load_layout(save_layout(lay, tmp_path / "fitted.json"))
     assert layout_to_dict(again) == layout_to_dict(lay)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    st.floats(0.2, 5.0),
+    st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3),
+    st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3),
+)
+def test_fit_under_random_similarities(scale, rotvec, shift):
+    lay = load_layout("ict")
+    rot = Rotation.from_rotvec(rotvec).as_matrix()
+
+    def xf(p):
+        return scale * np.asarray(p) @ rot.T + np.asarray(shift)
+
+    fitted = fit_layout(lay, {k: xf(v) for k, v in lay.landmarks_m.items()}, method="similarity", snap=False)
+    for m0, m1 in zip(lay.muscles, fitted.muscles, strict=True):
+        p0 = m0.bone_m if isinstance(m0, LinearMuscle) else m0.centre_m
+        p1 = m1.bone_m if isinstance(m1, LinearMuscle) else m1.centre_m
+        np.testing.assert_allclose(p1, xf(p0), atol=1e-9 * max(1.0, scale))

@@ -7,8 +7,8 @@ from importlib import resources
 
 import numpy as np
 import pytest
+from conftest import data_path
 
-from tests.conftest import data_path
 from wface.facs import EXPRESSIONS
 from wface.waters.expressions import expression_pose, pose_from_action_units
 from wface.waters.layout import load_layout
@@ -89,3 +89,37 @@ def test_action_units_resemble_the_ict_artist_shapes(ict, au, shape, jaw_deg, mi
     pose = pose_from_action_units({au: 1.0}, rig.muscle_names)
     ours = (rig.deform(pose.contractions, jaw_open_deg=jaw_deg or pose.jaw_open_deg) - mesh.vertices_m)[:9409]
     assert _cosine(ours, ref) > min_cos
+
+
+# action unit -> (AnimFace landmark on the subject's left, axis, sign): the way FACS says the skin moves there
+_AU_MOTION = {
+    "AU1": ("Leyebrow_Inside", 1, +1),  # inner brow up
+    "AU2": ("Leyebrow_Outside", 1, +1),  # outer brow up
+    "AU4": ("Leyebrow_M", 1, -1),  # brow down ...
+    "AU5": ("Leye_Up", 1, +1),  # upper lid up
+    "AU6": ("Lcheek_Up", 1, +1),  # cheek up
+    "AU7": ("Leye_Down", 1, +1),  # lower lid up (lid tightener)
+    "AU9": ("NoseHead_L", 1, +1),  # nose wing up
+    "AU10": ("Mouth_UpL1", 1, +1),  # upper lip up
+    "AU12": ("Mouth_Lend", 1, +1),  # lip corner up ...
+    "AU15": ("Mouth_Lend", 1, -1),  # lip corner down
+    "AU17": ("Chin", 1, +1),  # chin boss up
+    "AU20": ("Mouth_Lend", 0, +1),  # lip corner out (subject's left = +x)
+    "AU23": ("Mouth_Lend", 0, -1),  # lip corner in (lips tighten)
+    "AU25": ("Mouth_Down", 1, -1),  # lower lip down (lips part)
+    "AU26": ("Chin", 1, -1),  # jaw drops
+}
+
+
+@pytest.mark.parametrize("au", list(_AU_MOTION))
+def test_action_units_move_the_skin_the_facs_way(ict, au):
+    mesh, layout, rig = ict
+    name, axis, sign = _AU_MOTION[au]
+    v = int(np.argmin(np.linalg.norm(mesh.vertices_m - layout.landmarks_m[name], axis=1)))
+    pose = pose_from_action_units({au: 1.0}, rig.muscle_names)
+    d = rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg)[v] - mesh.vertices_m[v]
+    assert sign * d[axis] > 0.0005, f"{au} moves {name} by {d * 1e3} mm"  # at least 0.5 mm the right way
+    if au == "AU4":
+        assert d[0] < 0  # ... and toward the midline
+    if au == "AU12":
+        assert d[0] > 0  # ... and outward

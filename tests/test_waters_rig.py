@@ -216,3 +216,23 @@ def test_rig_errors_name_the_problem():
         WatersRig(_layout(jaw=None), _grid(11)).deform(None, jaw_open_deg=5.0)
     with pytest.raises(ValueError, match="shape"):
         WatersRig(_layout(), np.zeros((5, 2)))
+
+
+def test_without_a_jaw_region_the_lip_regions_do_not_apply():
+    rig = WatersRig(_layout(jaw=None), _grid(41))
+    low = np.linalg.norm(rig.muscle_displacement({"depressor_labii_inferioris_l": 1.0}), axis=1)
+    assert low.max() > 0.001
+
+
+def test_given_jaw_weights_override_the_planes():
+    x = _grid(21)
+    w = np.clip((0.02 - x[:, 1]) / 0.04, 0.0, 1.0)
+    rig = WatersRig(_layout(), x, jaw_weights=w)
+    np.testing.assert_array_equal(rig.jaw_weights, w)
+    y = rig.deform(None, jaw_open_deg=10.0)
+    np.testing.assert_array_equal(y[w == 0], x[w == 0])
+    assert np.all(np.linalg.norm(y[w == 1] - x[w == 1], axis=1) > 0)
+    with pytest.raises(ValueError, match="jaw_weights must lie"):
+        WatersRig(_layout(), x, jaw_weights=w + 1)
+    with pytest.raises(ValueError, match="jaw_weights must be"):
+        WatersRig(_layout(), x, jaw_weights=w[:3])

@@ -174,7 +174,9 @@ class MarkerEmbedding:
         return p
 
 
-def embed_markers(markers_m: np.ndarray, vertices_m: np.ndarray, triangles: np.ndarray, *, query=None) -> MarkerEmbedding:
+def embed_markers(
+    markers_m: np.ndarray, vertices_m: np.ndarray, triangles: np.ndarray, *, query=None
+) -> MarkerEmbedding:
     """Embed (k, 3) markers (already in the surface frame) in the closest triangles.
 
     Args:

@@ -17,6 +17,7 @@ COMMAND_MODULES = [
     "wface.commands.model",
     "wface.commands.bench",
     "wface.commands.simulate",
+    "wface.commands.basis",
     "wface.commands.waters",
     "wface.commands.speech",
 ]

@@ -34,6 +34,7 @@ __all__ = [
     "jaw_from_intuitive",
     "jaw_to_intuitive",
     "jaw_joint_penalty",
+    "jaw_params_unchecked",
     "params_from_affine",
     "rigidity_penalty",
     "bone_penalty",
@@ -212,7 +213,12 @@ def jaw_limits(joint: JawJoint) -> dict:
 
 
 def jaw_from_intuitive(
-    joint: JawJoint, opening_deg: float = 0.0, protrusion_m: float = 0.0, lateral_deg: float = 0.0, *, clamp: bool = True
+    joint: JawJoint,
+    opening_deg: float = 0.0,
+    protrusion_m: float = 0.0,
+    lateral_deg: float = 0.0,
+    *,
+    clamp: bool = True,
 ) -> np.ndarray:
     """12 jaw parameters from opening angle, protrusion and lateral yaw, inside the joint limits.
 
@@ -221,9 +227,6 @@ def jaw_from_intuitive(
     forward along the tracks by ``protrusion_m`` on average (each condyle stays within [0, d]).
     With ``clamp`` the numbers are clipped into the joint's range; without it, out-of-range values raise.
     """
-    u, v = np.asarray(joint.u, float), np.asarray(joint.v, float)
-    w = np.cross(v, u)
-    m = np.asarray(joint.midpoint_m, float)
     half, d = 0.5 * joint.condyle_distance_m, joint.track_length_m
     alpha, beta, p = np.radians(opening_deg), np.radians(lateral_deg), float(protrusion_m)
     a_max = np.arcsin(joint.max_opening_sine)
@@ -241,9 +244,17 @@ def jaw_from_intuitive(
                 f"lateral {lateral_deg} deg (max {np.degrees(b_max):.1f}), protrusion {protrusion_m} m "
                 f"(allowed [{slack:.4f}, {d - slack:.4f}])"
             )
+    return jaw_params_unchecked(joint, alpha, p, beta)
+
+
+def jaw_params_unchecked(joint: JawJoint, opening_rad: float, protrusion_m: float, lateral_rad: float) -> np.ndarray:
+    """The jaw parameters of ``jaw_from_intuitive`` without limit checks (for derivatives at a limit)."""
+    u, v = np.asarray(joint.u, float), np.asarray(joint.v, float)
+    w = np.cross(v, u)
+    m = np.asarray(joint.midpoint_m, float)
     # Opening: rotate about u by +alpha (the forward track direction v tips down, toward -w); yaw about w.
-    Mm = _rotation(w, beta) @ _rotation(u, alpha)
-    tm = m - Mm @ m + p * v
+    Mm = _rotation(w, lateral_rad) @ _rotation(u, opening_rad)
+    tm = m - Mm @ m + protrusion_m * v
     return params_from_affine(Mm, tm)
 
 

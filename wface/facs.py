@@ -167,7 +167,10 @@ def muscle_activations(
 
 
 def expression_action_units(name: str) -> dict[str, float]:
-    """Action units of a preset expression (``neutral``, ``happy``, ``sad``, ``fear``, ``anger``, ``surprise``, ``disgust``)."""
+    """Action units of a preset expression.
+
+    Presets: ``neutral``, ``happy``, ``sad``, ``fear``, ``anger``, ``surprise``, ``disgust``.
+    """
     try:
         return dict(EXPRESSIONS[name.lower()])
     except KeyError:

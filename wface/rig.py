@@ -98,7 +98,9 @@ class FaceRig:
         self.counters["newton_iterations"] += eq.iterations
         self.counters["cg_iterations"] += getattr(eq, "cg_iterations", 0)
         if not eq.converged:
-            warnings.warn(f"quasistatic solve stopped at residual {eq.residual_rel:.2e} (tol {self.tol:g})", stacklevel=2)
+            warnings.warn(
+                f"quasistatic solve stopped at residual {eq.residual_rel:.2e} (tol {self.tol:g})", stacklevel=2
+            )
         Mc, tc = affine_from_params(b[:12])
         return RigState(
             np.array(c, dtype=np.float64),

@@ -35,6 +35,8 @@ def init_warp(*, quiet: bool = True) -> None:
     cache.mkdir(parents=True, exist_ok=True)
     wp.config.kernel_cache_dir = str(cache)
     wp.config.quiet = quiet
+    if quiet and hasattr(wp, "LOG_WARNING"):  # Warp 1.19 prints its banner at info level
+        wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
     wp.init()
     _initialised = True
 

@@ -13,11 +13,11 @@ markers and elements form disjoint groups (e.g. upper and lower face) solved ind
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from wface.basis.bvls import bounded_lstsq
+from wface.basis.bvls import bounded_lstsq, bounded_qp
 
 __all__ = ["Analysis", "FaceSplit", "MarkerBasis", "analyze", "default_face_split"]
 
@@ -102,6 +102,7 @@ class Analysis:
         marker_rms_m: (frames,) RMS over present markers.
         iterations: (frames,) active-set iterations per frame (all groups).
         element_names, marker_names: labels.
+        unobservable: elements that move no marker (left at 0).
     """
 
     contractions: np.ndarray
@@ -111,6 +112,7 @@ class Analysis:
     iterations: np.ndarray
     element_names: list[str]
     marker_names: list[str]
+    unobservable: list[str] = field(default_factory=list)
 
     @property
     def marker_rms_mm(self) -> np.ndarray:
@@ -130,6 +132,7 @@ def analyze(
     upper: float | None = 1.0,
     split: FaceSplit | None = None,
     warm_start: bool = True,
+    exact: bool = False,
     progress: bool = False,
 ) -> Analysis:
     """Contractions for every frame.
@@ -141,6 +144,8 @@ def analyze(
         upper: upper bound of every contraction (1.0), or None for x >= 0 only (exaggeration).
         split: disjoint marker/element groups (default: one group).
         warm_start: start each frame from the previous frame's solution and active set.
+        exact: solve each subproblem by least squares on D (robust to nearly dependent shapes)
+            instead of Cholesky on the normal matrix D^T D (faster, the default).
         progress: show a tqdm progress bar.
 
     Returns:
@@ -163,7 +168,21 @@ def analyze(
         from tqdm.auto import tqdm
 
         frames = tqdm(frames, desc="analysis", unit="frame", leave=False)
+    # Elements that (nearly) do not move any marker of their group are unobservable: they stay 0
+    # (e.g. ICT's eyeLook*/PupilDilate* shapes move only the eyeballs).
+    col = np.linalg.norm(basis.shapes_m, axis=(0, 1))
+    observable = col > 1e-6 * max(col.max(initial=0.0), 1e-300)
+    split = FaceSplit([(gm, ge[observable[ge]]) for gm, ge in split.groups])
     group_mats = [basis.shapes_m[np.ix_(gm, np.arange(3), ge)].reshape(len(gm) * 3, len(ge)) for gm, ge in split.groups]
+    group_gram = [a.T @ a for a in group_mats]
+
+    # Cold starts begin at the clipped ridge solution (Q + mu I)^-1 c, mu = 0.1 mean(diag Q): fewer
+    # active-set changes than all-at-zero or the clipped (often wild) unconstrained solution.
+    def ridge_inverse(q):
+        mu = 0.1 * max(np.trace(q) / max(len(q), 1), 1e-300)
+        return np.linalg.inv(q + mu * np.eye(len(q)))
+
+    group_pinv = [ridge_inverse(q) for q in group_gram]
     warm = [None] * len(split.groups)
     for f in frames:
         for g, (gm, ge) in enumerate(split.groups):
@@ -174,18 +193,27 @@ def analyze(
                 warm[g] = None
                 continue
             a = group_mats[g]
+            q = group_gram[g]
             if not ok.all():
                 a = a.reshape(len(gm), 3, len(ge))[ok].reshape(-1, len(ge))
+                q = a.T @ a
             b = d[f, gm[ok]].ravel()
-            start = warm[g] if warm_start else None
-            res = bounded_lstsq(
-                a, b, 0.0, hi, x0=None if start is None else start[0], state0=None if start is None else start[1]
-            )
+            start = (None, None) if (warm[g] is None or not warm_start) else warm[g]
+            if start[0] is None:
+                pinv = group_pinv[g] if ok.all() else ridge_inverse(q)
+                start = (np.clip(pinv @ (a.T @ b), 0.0, hi), None)
+            if exact:
+                res = bounded_lstsq(a, b, 0.0, hi, x0=start[0], state0=start[1])
+            else:
+                res = bounded_qp(q, a.T @ b, 0.0, hi, x0=start[0], state0=start[1], b_norm2=float(b @ b))
             x[f, ge] = res.x
             iters[f] += res.iterations
             warm[g] = (res.x, res.state)
     fitted = basis.predict(x)
     err = np.linalg.norm(d - fitted, axis=2)
-    with np.errstate(invalid="ignore"):
-        rms = np.sqrt(np.nanmean(err**2, axis=1))
-    return Analysis(x, fitted, err, rms, iters, list(basis.element_names), list(basis.marker_names))
+    sq = np.where(np.isfinite(err), err**2, 0.0)
+    count = np.isfinite(err).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.where(count > 0, np.sqrt(sq.sum(axis=1) / np.maximum(count, 1)), np.nan)
+    unobs = [n for n, o in zip(basis.element_names, observable, strict=False) if not o]
+    return Analysis(x, fitted, err, rms, iters, list(basis.element_names), list(basis.marker_names), unobs)

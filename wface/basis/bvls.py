@@ -25,8 +25,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import cho_solve as _cho_solve
+from scipy.linalg import cholesky as _cholesky
 
-__all__ = ["BoundedLSQResult", "bounded_lstsq"]
+__all__ = ["BoundedLSQResult", "bounded_lstsq", "bounded_qp"]
 
 
 @dataclass
@@ -52,6 +54,28 @@ def _free_step(a: np.ndarray, r: np.ndarray, free: np.ndarray, rcond: float) -> 
     p = np.zeros(a.shape[1])
     if free.any():
         p[free] = np.linalg.lstsq(a[:, free], r, rcond=rcond)[0]
+    return p
+
+
+def _free_step_gram(q: np.ndarray, rhs: np.ndarray, free: np.ndarray, rcond: float) -> np.ndarray:
+    """Minimum-norm solution of Q_FF p_F = rhs_F (Cholesky; eigen-pseudo-inverse if singular)."""
+    p = np.zeros(q.shape[0])
+    if not free.any():
+        return p
+    idx = np.flatnonzero(free)
+    qf = q[idx[:, None], idx]
+    rf = rhs[idx]
+    try:
+        chol = _cholesky(qf, lower=True, check_finite=False)
+        dg = np.diag(chol)
+        if dg.min() ** 2 > rcond * dg.max() ** 2:
+            p[idx] = _cho_solve((chol, True), rf, check_finite=False)
+            return p
+    except np.linalg.LinAlgError:
+        pass
+    w, v = np.linalg.eigh(qf)
+    keep = w > rcond * max(w.max(), 0.0)
+    p[idx] = v[:, keep] @ ((v[:, keep].T @ rf) / w[keep])
     return p
 
 
@@ -88,15 +112,83 @@ def bounded_lstsq(
     m, n = a.shape
     if b.shape != (m,):
         raise ValueError(f"bounded_lstsq: A is {a.shape} but b has {b.shape[0]} entries")
+    lo, hi = _bounds(lower, upper, n)
+    if max_iter is None:
+        max_iter = 10 * (n + 1) + 50
+    scale = max(np.linalg.norm(a) * np.linalg.norm(b), 1e-300)
+
+    def step(x, free):
+        return _free_step(a, b - a @ x, free, rcond)
+
+    def grad(x):
+        return a.T @ (a @ x - b)
+
+    x, state, it, converged = _active_set(step, grad, lo, hi, x0, state0, max_iter, tol * scale)
+    r = b - a @ x
+    return BoundedLSQResult(x, state, 0.5 * float(r @ r), it, converged)
+
+
+def bounded_qp(
+    q: np.ndarray,
+    c: np.ndarray,
+    lower: np.ndarray | float = 0.0,
+    upper: np.ndarray | float = np.inf,
+    *,
+    x0: np.ndarray | None = None,
+    state0: np.ndarray | None = None,
+    max_iter: int | None = None,
+    tol: float = 1e-12,
+    rcond: float = 1e-13,
+    b_norm2: float = 0.0,
+) -> BoundedLSQResult:
+    """The same problem in normal-equation form: min 1/2 x^T Q x - c^T x, lower <= x <= upper.
+
+    With Q = A^T A and c = A^T b this is :func:`bounded_lstsq` (cost reported as
+    1/2 x^T Q x - c^T x + 1/2 ``b_norm2``). Each subproblem is a Cholesky solve on Q_FF (an
+    eigen pseudo-inverse when Q_FF is singular): much cheaper than least squares on A_F when A
+    has many more rows than columns or is reused across frames, at the price of squaring the
+    condition number (fine for bases whose shapes are not nearly parallel).
+
+    Args:
+        q: (n, n) symmetric positive semidefinite.
+        c: (n,) linear term.
+        b_norm2: |b|^2, only to report the least-squares cost.
+    """
+    q = np.asarray(q, dtype=np.float64)
+    c = np.asarray(c, dtype=np.float64).reshape(-1)
+    n = q.shape[0]
+    if q.shape != (n, n) or c.shape != (n,):
+        raise ValueError(f"bounded_qp: Q is {q.shape} and c has {c.shape[0]} entries")
+    lo, hi = _bounds(lower, upper, n)
+    if max_iter is None:
+        max_iter = 10 * (n + 1) + 50
+    # Multiplier scale |A|_F |b| when b is known, else |c| (= |A^T b|).
+    scale = max(np.sqrt(max(np.trace(q), 0.0) * b_norm2), float(np.linalg.norm(c)), 1e-300)
+
+    def step(x, free):
+        return _free_step_gram(q, c - q @ x, free, rcond)
+
+    def grad(x):
+        return q @ x - c
+
+    x, state, it, converged = _active_set(step, grad, lo, hi, x0, state0, max_iter, tol * scale)
+    cost = 0.5 * float(x @ q @ x) - float(c @ x) + 0.5 * b_norm2
+    return BoundedLSQResult(x, state, cost, it, converged)
+
+
+def _bounds(lower, upper, n):
     lo = np.broadcast_to(np.asarray(lower, dtype=np.float64), (n,)).copy()
     hi = np.broadcast_to(np.asarray(upper, dtype=np.float64), (n,)).copy()
     if not np.all(np.isfinite(lo)):
-        raise ValueError("bounded_lstsq: lower bounds must be finite")
+        raise ValueError("bounded least squares: lower bounds must be finite")
     if np.any(hi < lo):
-        raise ValueError("bounded_lstsq: some upper bound is below its lower bound")
-    if max_iter is None:
-        max_iter = 10 * (n + 1) + 50
+        raise ValueError("bounded least squares: some upper bound is below its lower bound")
+    return lo, hi
 
+
+def _active_set(step, grad, lo, hi, x0, state0, max_iter, gtol):
+    """The primal active-set loop shared by both front ends (see the module docstring)."""
+    n = len(lo)
     # Feasible start consistent with the working set.
     if x0 is None:
         x = lo.copy()
@@ -107,8 +199,7 @@ def bounded_lstsq(
         state[x <= lo] = -1
         state[x >= hi] = 1
     if state0 is not None:
-        s0 = np.asarray(state0, dtype=np.int8).reshape(n)
-        state = s0.copy()
+        state = np.asarray(state0, dtype=np.int8).reshape(n).copy()
         state[(state == 1) & ~np.isfinite(hi)] = 0
     x[state == -1] = lo[state == -1]
     x[state == 1] = hi[state == 1]
@@ -116,15 +207,17 @@ def bounded_lstsq(
     state[fixed_eq] = -1
     x[fixed_eq] = lo[fixed_eq]
 
-    scale = max(np.linalg.norm(a) * max(np.linalg.norm(b), np.linalg.norm(a @ x)), 1e-300)
-    gtol = tol * scale
     it = 0
     converged = False
+    # Release every violating bound at once while that makes progress (far fewer iterations
+    # from a cold start); after the first zero-length step fall back to the classical single
+    # release, which guarantees termination.
+    multi = True
+    released = np.zeros(n, dtype=bool)
     while it < max_iter:
         it += 1
-        r = b - a @ x
         free = state == 0
-        p = _free_step(a, r, free, rcond)
+        p = step(x, free)
         step_norm = np.linalg.norm(p)
         if step_norm > 1e-14 * (1.0 + np.linalg.norm(x)):
             # Ratio test against the bounds of the free variables.
@@ -142,6 +235,8 @@ def bounded_lstsq(
                 if t[k] < alpha:
                     alpha, block, block_side = float(t[k]), int(np.flatnonzero(pos)[k]), 1
             alpha = max(alpha, 0.0)
+            if alpha == 0.0 and block >= 0 and released[block]:
+                multi = False
             x = x + alpha * p
             x[free] = np.clip(x[free], lo[free], hi[free])
             if block >= 0:
@@ -152,10 +247,8 @@ def bounded_lstsq(
                 on_hi = free & (x >= hi) & (p > 0)
                 state[on_lo], state[on_hi] = -1, 1
                 continue
-            # Full step taken: x is the minimiser over the free subspace; fall through to the
-            # multiplier test with the new residual.
-            r = b - a @ x
-        g = -(a.T @ r)
+        # x minimises over the free subspace: multiplier test on the working set.
+        g = grad(x)
         viol = np.zeros(n)
         at_lo = (state == -1) & ~fixed_eq
         at_hi = (state == 1) & ~fixed_eq
@@ -165,6 +258,10 @@ def bounded_lstsq(
         if viol[j] <= gtol:
             converged = True
             break
-        state[j] = 0
-    r = b - a @ x
-    return BoundedLSQResult(x, state, 0.5 * float(r @ r), it, converged)
+        released[:] = False
+        if multi:
+            released[viol > gtol] = True
+        else:
+            released[j] = True
+        state[released] = 0
+    return x, state, it, converged

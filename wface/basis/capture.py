@@ -85,7 +85,7 @@ class MarkerLayout:
         """Marker shapes d_ij (k, 3, B) by barycentric interpolation of the element shapes."""
         emb = self.embedding
         if np.any(emb.triangle < 0):
-            missing = [n for n, t in zip(self.marker_names, emb.triangle) if t < 0]
+            missing = [n for n, t in zip(self.marker_names, emb.triangle, strict=False) if t < 0]
             raise ValueError(f"marker layout has markers without an embedding (missing at rest): {missing}")
         corners = self.triangles[emb.triangle]  # (k, 3)
         shapes = np.einsum("kv,bkvc->kcb", emb.barycentric, basis.shapes_m[:, corners, :])
@@ -138,11 +138,16 @@ def prepare_capture(
     sub = take.select(layout.marker_names)
     stable = [i for i, n in enumerate(layout.marker_names) if n in set(stable_markers)]
     if len(stable) < 3:
-        raise ValueError(f"{take.source or 'take'}: needs >= 3 stable markers for head-motion removal, got {len(stable)}")
+        raise ValueError(
+            f"{take.source or 'take'}: needs >= 3 stable markers for head-motion removal, got {len(stable)}"
+        )
     p = sub.positions_m
     steady, tfs = remove_head_motion(p, stable, reference_frame=reference_frame)
     head_rms = np.array(
-        [np.sqrt(np.nanmean(np.sum((tf.apply(p[f, stable]) - p[reference_frame, stable]) ** 2, axis=1))) for f, tf in enumerate(tfs)]
+        [
+            np.sqrt(np.nanmean(np.sum((tf.apply(p[f, stable]) - p[reference_frame, stable]) ** 2, axis=1)))
+            for f, tf in enumerate(tfs)
+        ]
     )
     tf = umeyama(steady[reference_frame], layout.rest_m, with_scale=with_scale)
     aligned = tf.apply(steady)

@@ -143,7 +143,12 @@ class ActuationBasis:
         """The basis restricted to (and ordered as) ``names``."""
         idx = [self.index(n) for n in names]
         return ActuationBasis(
-            self.neutral_m, self.shapes_m[idx], list(names), self.face_counts, self.face_indices, self.skin_vertices,
+            self.neutral_m,
+            self.shapes_m[idx],
+            list(names),
+            self.face_counts,
+            self.face_indices,
+            self.skin_vertices,
             self.source,
         )
 
@@ -177,7 +182,9 @@ class ActuationBasis:
         return cls(neutral_m, shapes_m, list(names), face_counts, face_indices, skin_vertices, source)
 
     @classmethod
-    def from_ict_npz(cls, path: str | Path, *, names: Sequence[str] | None = None, skin_only: bool = True) -> ActuationBasis:
+    def from_ict_npz(
+        cls, path: str | Path, *, names: Sequence[str] | None = None, skin_only: bool = True
+    ) -> ActuationBasis:
         """Basis from ICT-FaceKit's ``ict_expressions.npz`` (centimetres -> metres).
 
         Args:
@@ -203,7 +210,13 @@ class ActuationBasis:
         return cls(neutral, shapes, [all_names[i] for i in keep], counts, indices, skin, str(path))
 
     @classmethod
-    def from_obj_files(cls, neutral_path: str | Path, element_paths: dict[str, str | Path] | Sequence[str | Path], *, units_to_m: float = 1.0) -> ActuationBasis:
+    def from_obj_files(
+        cls,
+        neutral_path: str | Path,
+        element_paths: dict[str, str | Path] | Sequence[str | Path],
+        *,
+        units_to_m: float = 1.0,
+    ) -> ActuationBasis:
         """Basis from OBJ files: the neutral and one posed mesh per element (same topology).
 
         Args:
@@ -246,7 +259,10 @@ def _read_obj(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                 parts = line.split()
                 if len(parts) < 4:
                     raise ValueError(f"{path}:{ln}: vertex line needs 3 coordinates")
-                verts.append([float(p) for p in parts[1:4]])
+                try:
+                    verts.append([float(p) for p in parts[1:4]])
+                except ValueError:
+                    raise ValueError(f"{path}:{ln}: vertex coordinates are not numbers: {line.strip()!r}") from None
             elif line.startswith("f "):
                 ids = [int(p.split("/")[0]) for p in line.split()[1:]]
                 ids = [i - 1 if i > 0 else len(verts) + i for i in ids]
@@ -270,7 +286,12 @@ def load_basis(path: str | Path) -> ActuationBasis:
                 raise ValueError(f"{path}: basis format version {version} is newer than this wface ({FORMAT_VERSION})")
             skin = d["skin_vertices"] if "skin_vertices" in files else None
             return ActuationBasis(
-                d["neutral_m"], d["shapes_m"], [str(n) for n in d["names"]], d["face_counts"], d["face_indices"], skin,
+                d["neutral_m"],
+                d["shapes_m"],
+                [str(n) for n in d["names"]],
+                d["face_counts"],
+                d["face_indices"],
+                skin,
                 str(d["source"]),
             )
     if {"neutral", "deltas", "names"} <= files:

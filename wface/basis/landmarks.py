@@ -4,10 +4,10 @@
 vertex. It was derived geometrically by :func:`derive_landmarks` from the first frame of
 ``JawMoCap.c3d``: a similarity fit to 18 semantic seeds (dlib-68 landmark vertices of the ICT
 face: eye corners, brows, nose, lip midpoints and corners), then the similarity fit iterated with
-projection onto the ICT face skin (Choe & Ko 2001, sec. 4.1.1), then each marker takes the
-nearest vertex of its projection's triangle. The actor's markers sit around the features, not on
-them (mouth-corner markers ~73 mm apart against ~51 mm between ICT mouth corners), so the
-projection, not the seed, fixes each landmark.
+projection onto the ICT face region (polygons of vertices 0-9408; Choe & Ko 2001, sec. 4.1.1),
+then each marker takes the nearest vertex of its projection's triangle. The actor's markers sit
+around the features, not on them (mouth-corner markers ~73 mm apart against ~51 mm between ICT
+mouth corners), so the projection, not the seed, fixes each landmark.
 """
 
 from __future__ import annotations

@@ -4,6 +4,8 @@ Mesh: the ICT-FaceKit neutral head (26,719 vertices, 37 muscles) from ../shared/
 $WFACE_DATA); without it, a synthetic ellipsoid head of similar size with the ICT layout fitted to
 it by landmarks (the JSON says which). A frame = one pose along a loop through every expression
 preset: action units -> contractions, sparse muscle field, per-vertex limit, jaw rotation.
+Also timed: every muscle evaluated from the formulas on every vertex (numpy, and the Warp kernel
+``wface.kernels.waters``), the path for a mesh whose rest shape changes each frame.
 """
 
 from __future__ import annotations
@@ -83,6 +85,21 @@ def run(args: argparse.Namespace) -> dict:
     direct_displacement(layout, mesh.vertices_m, {m: pose.contractions.get(m, 0.0) for m in rig.muscle_names})
     direct_s = time.perf_counter() - t
 
+    warp_s = None
+    try:
+        from wface.waters.warp_backend import WarpWaters
+
+        ww = WarpWaters(layout, device=getattr(args, "device", None) or "auto")
+        c = rig.contraction_vector(pose.contractions)
+        ww.muscle_displacement(mesh.vertices_m, c, jaw_weights=rig.jaw_weights)  # compile / load the kernel
+        t = time.perf_counter()
+        for _ in range(repeat):
+            ww.muscle_displacement(mesh.vertices_m, c, jaw_weights=rig.jaw_weights)
+        warp_s = (time.perf_counter() - t) / repeat
+        warp_device = ww.device
+    except ImportError:  # pragma: no cover - warp is a core dependency
+        warp_device = None
+
     out = {
         "mesh": source,
         "vertices": mesh.n_vertices,
@@ -95,6 +112,9 @@ def run(args: argparse.Namespace) -> dict:
         "basis_nonzeros": int(rig.basis.nnz),
         "direct_formula_seconds_per_frame": direct_s,
         "direct_formula_frames_per_second": 1.0 / direct_s,
+        "warp_direct_device": warp_device,
+        "warp_direct_seconds_per_frame": warp_s,
+        "warp_direct_frames_per_second": None if not warp_s else 1.0 / warp_s,
         "backend": "numpy + scipy.sparse (CPU)",
     }
     if note:

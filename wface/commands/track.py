@@ -42,11 +42,15 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--device", default="cpu", help="Warp device: cpu, cuda:0 or auto")
     p.add_argument("--solver", default="auto", choices=["auto", "direct", "cg"], help="linear solver")
-    p.add_argument("--workers", type=int, default=1, help="split the take into chunks on a local Dask cluster of N workers")
+    p.add_argument(
+        "--workers", type=int, default=1, help="split the take into chunks on a local Dask cluster of N workers"
+    )
     p.add_argument("--scheduler", help="address of a running Dask scheduler (instead of a local cluster)")
     p.add_argument("--chunk-size", type=int, help="frames per chunk (default: frames / workers)")
     p.add_argument("--resume", action="store_true", help="reuse frames already written under OUT/frames")
-    p.add_argument("--robust-mm", type=float, default=3.0, help="Tukey cut-off on marker residuals in mm (0: plain least squares)")
+    p.add_argument(
+        "--robust-mm", type=float, default=3.0, help="Tukey cut-off on marker residuals in mm (0: plain least squares)"
+    )
     p.add_argument("--temporal-weight", type=float, default=0.0, help="pull of activations toward the previous frame")
     p.add_argument("--no-movie", action="store_true", help="skip the mp4 movie")
     p.add_argument("--no-pictures", action="store_true", help="skip pictures, plots, movie and HTML")
@@ -54,8 +58,10 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 def register(sub: argparse._SubParsersAction) -> None:
     d = sub.add_parser(
-        "demo", help="the main job: track a synthetic performance on the built-in face",
-        description=_DEMO_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
+        "demo",
+        help="the main job: track a synthetic performance on the built-in face",
+        description=_DEMO_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     _common(d)
     d.add_argument("--tets", type=int, default=5000, help="size of the built-in face in tets (default 5000)")
@@ -68,8 +74,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.set_defaults(func=run_demo)
 
     t = sub.add_parser(
-        "track", help="track a motion-capture take (C3D, TRC, CSV) on a face model",
-        description=_TRACK_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
+        "track",
+        help="track a motion-capture take (C3D, TRC, CSV) on a face model",
+        description=_TRACK_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     _common(t)
     t.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
@@ -117,24 +125,51 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
     try:
         t0 = time.perf_counter()
         records = track_sequence(
-            model, targets, marker_names=marker_names, markers=markers, options=_options(args), rig_kwargs=rig_kwargs,
-            chunk_size=chunk, executor=executor, out_dir=out, resume=args.resume, progress=True, first_frame=first_frame,
+            model,
+            targets,
+            marker_names=marker_names,
+            markers=markers,
+            options=_options(args),
+            rig_kwargs=rig_kwargs,
+            chunk_size=chunk,
+            executor=executor,
+            out_dir=out,
+            resume=args.resume,
+            progress=True,
+            first_frame=first_frame,
         )
         wall = time.perf_counter() - t0
     finally:
         close()
     rig = FaceRig(model, **rig_kwargs)
     ident = rig_identifiability_mm(rig, markers)
-    info = {"device": rig.sim.device, "solver": rig.sim.linear_solver, "wall_seconds": wall,
-            "workers": args.workers if not args.scheduler else "scheduler"}
-    report = build_report(model, records, markers_data_m=targets, marker_names=marker_names, rig_info=info,
-                          identifiability_mm=ident, truth=truth)
+    info = {
+        "device": rig.sim.device,
+        "solver": rig.sim.linear_solver,
+        "wall_seconds": wall,
+        "workers": args.workers if not args.scheduler else "scheduler",
+    }
+    report = build_report(
+        model,
+        records,
+        markers_data_m=targets,
+        marker_names=marker_names,
+        rig_info=info,
+        identifiability_mm=ident,
+        truth=truth,
+    )
     write_controls(out, model, records)
     write_report(out, report)
     if not args.no_pictures:
         _pictures(args, out, model, records, targets, fps, report, truth)
-    keys = ("marker_rms_mm_mean", "activation_rms_error", "activation_rms_error_all", "truth_marker_rms_mm",
-            "jaw_angle_error_deg", "seconds_per_frame_median")
+    keys = (
+        "marker_rms_mm_mean",
+        "activation_rms_error",
+        "activation_rms_error_all",
+        "truth_marker_rms_mm",
+        "jaw_angle_error_deg",
+        "seconds_per_frame_median",
+    )
     print("  ".join(f"{k}={report[k]:.4g}" for k in keys if report.get(k) is not None))
     print(f"wrote {out / 'report.json'}")
     return 0
@@ -154,13 +189,30 @@ def _pictures(args, out, model, records, targets, fps, report, truth):
         return np.stack([np.hstack([b[:9].reshape(3, 3), b[9:12, None]]) for b in block])
 
     cranium, jaw = affines(C[:, M : M + 12]), affines(C[:, M + 12 :])
-    write_take(out / "animation.usdc", model=model, node_positions_m=X, fps=fps, captured_markers_m=targets,
-               simulated_markers_m=sim, cranium_affines=cranium, jaw_affines=jaw, activations=C[:, :M])
+    write_take(
+        out / "animation.usdc",
+        model=model,
+        node_positions_m=X,
+        fps=fps,
+        captured_markers_m=targets,
+        simulated_markers_m=sim,
+        cranium_affines=cranium,
+        jaw_affines=jaw,
+        activations=C[:, :M],
+    )
     images = write_take_figures(
-        out, model=model, node_positions_m=X, fps=fps, activations=C[:, :M], captured_markers_m=targets,
-        simulated_markers_m=sim, cranium_affines=cranium, jaw_affines=jaw,
+        out,
+        model=model,
+        node_positions_m=X,
+        fps=fps,
+        activations=C[:, :M],
+        captured_markers_m=targets,
+        simulated_markers_m=sim,
+        cranium_affines=cranium,
+        jaw_affines=jaw,
         truth_activations=None if truth is None else truth.activations,
-        truth_jaw_angle_deg=None if truth is None else truth.jaw_opening_deg, movie=not args.no_movie,
+        truth_jaw_angle_deg=None if truth is None else truth.jaw_opening_deg,
+        movie=not args.no_movie,
     )
     write_html_report(out, report, images, title=f"wface {args.command}")
 
@@ -175,12 +227,24 @@ def run_demo(args: argparse.Namespace) -> int:
     rig = FaceRig(model, device=args.device, solver=args.solver, tol=1e-6)
     markers = embed_model_markers(model)
     perf = synthesize_performance(
-        rig, markers, frames=args.frames, rate_hz=args.fps, seed=args.seed, noise_mm=args.noise_mm,
-        outliers=args.outliers, dropout=args.dropout, progress=True,
+        rig,
+        markers,
+        frames=args.frames,
+        rate_hz=args.fps,
+        seed=args.seed,
+        noise_mm=args.noise_mm,
+        outliers=args.outliers,
+        dropout=args.dropout,
+        progress=True,
     )
-    np.savez(Path(args.out).mkdir(parents=True, exist_ok=True) or Path(args.out) / "truth.npz",
-             activations=perf.activations, bones=perf.bones, clean_markers_m=perf.clean_markers_m,
-             markers_m=perf.markers_m, outlier_mask=perf.outlier_mask)
+    np.savez(
+        Path(args.out).mkdir(parents=True, exist_ok=True) or Path(args.out) / "truth.npz",
+        activations=perf.activations,
+        bones=perf.bones,
+        clean_markers_m=perf.clean_markers_m,
+        markers_m=perf.markers_m,
+        outlier_mask=perf.outlier_mask,
+    )
     return _run(args, model, perf.markers_m, model.marker_names, markers, args.fps, truth=perf)
 
 
@@ -208,6 +272,8 @@ def run_track(args: argparse.Namespace) -> int:
     if take.n_frames == 0:
         raise ValueError(f"{args.mocap}: no frames in the range {args.frames}")
     cap = prepare_capture(model, take.positions_m, take.marker_names)
-    print(f"aligned {take.n_markers} markers ({len(cap.matched_names)} by name), scale {cap.scale:.3f}, "
-          f"rest fit {cap.alignment_rms_mm:.2f} mm RMS")
+    print(
+        f"aligned {take.n_markers} markers ({len(cap.matched_names)} by name), scale {cap.scale:.3f}, "
+        f"rest fit {cap.alignment_rms_mm:.2f} mm RMS"
+    )
     return _run(args, model, cap.targets_m, take.marker_names, cap.markers, take.rate_hz, first_frame=first)

@@ -37,34 +37,63 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--size", type=int, default=600, help="render size in pixels")
     p.add_argument("--no-render", action="store_true", help="skip the PNG renders")
     p.add_argument("--usdc", action="store_true", help="write binary .usdc instead of text .usda")
+    p.add_argument("--blend-to", metavar="EXPRESSION", help="also write an animation from --expression to this preset")
+    p.add_argument("--frames", type=int, default=24, help="frames of the --blend-to animation (24 fps)")
     p.add_argument("--out", required=True, help="output directory")
     p.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
-    from wface.waters.expressions import parse_au_assignments
-    from wface.waters.pipeline import pose_mesh
+    from wface.waters.expressions import expression_pose, parse_au_assignments
+    from wface.waters.pipeline import layout_for_mesh, pose_mesh
+    from wface.waters.rig import WatersRig
+    from wface.waters.surface import read_surface
 
-    mesh, rig = args.mesh, None
+    # bad names fail before any work
+    extra = parse_au_assignments(args.au)
+    expression_pose(args.expression, intensity=args.intensity, extra_action_units=extra)
+    if args.blend_to:
+        expression_pose(args.blend_to)
+        if args.frames < 2:
+            raise ValueError(f"--frames must be >= 2, got {args.frames}")
     if args.mesh == "builtin":
         from wface.builtin import build_face
         from wface.waters.face_model import face_model_rig
 
-        parse_au_assignments(args.au)  # fail on bad names before building the face
         rig, mesh, _ = face_model_rig(build_face(args.tets))
+    else:
+        mesh = read_surface(args.mesh, units=args.units)
+        rig = WatersRig(layout_for_mesh(mesh, layout=args.layout, landmarks=args.landmarks), mesh.vertices_m)
     summary = pose_mesh(
         mesh,
         args.out,
         expression=args.expression,
-        action_units=parse_au_assignments(args.au),
+        action_units=extra,
         intensity=args.intensity,
-        layout=args.layout,
-        landmarks=args.landmarks,
-        units=args.units,
         render=not args.no_render,
         size=args.size,
         usd_suffix=".usdc" if args.usdc else ".usda",
         rig=rig,
     )
+    if args.blend_to:
+        summary["files"]["animation"] = str(_blend(args, summary, rig, mesh))
     print(json.dumps({k: summary[k] for k in ("expression", "jaw_open_deg", "max_displacement_mm", "files")}, indent=2))
     return 0
+
+
+def _blend(args: argparse.Namespace, summary: dict, rig, mesh):
+    """Write OUT/<expression>_to_<blend_to>.usdc: a linear blend in action-unit space."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from wface.waters.expressions import interpolate_poses
+    from wface.waters.surface import write_usd
+
+    start = summary["action_units"]
+    frames = []
+    for k in range(args.frames):
+        pose = interpolate_poses(start, args.blend_to, k / (args.frames - 1), muscle_names=rig.muscle_names)
+        frames.append(rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg))
+    path = Path(args.out) / f"{args.expression}_to_{args.blend_to}.usdc"
+    return write_usd(path, mesh, frames_m=np.stack(frames), fps=24.0)

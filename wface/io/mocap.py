@@ -124,7 +124,12 @@ class MocapTake:
         """The take restricted to (and reordered as) ``names``."""
         idx = [self.marker_index(n) for n in names]
         return MocapTake(
-            self.positions_m[:, idx], list(names), self.rate_hz, self.source, self.first_frame, dict(self.meta),
+            self.positions_m[:, idx],
+            list(names),
+            self.rate_hz,
+            self.source,
+            self.first_frame,
+            dict(self.meta),
             self.start_time_s,
         )
 
@@ -239,7 +244,7 @@ def read_trc(path: str | Path) -> MocapTake:
     vals = lines[2].split("\t")
     if len(vals) < len(keys):
         raise ValueError(f"{path}: TRC header line 3 has {len(vals)} values for {len(keys)} keys")
-    header = {k.strip(): v.strip() for k, v in zip(keys, vals)}
+    header = {k.strip(): v.strip() for k, v in zip(keys, vals, strict=False)}
     try:
         rate = float(header["DataRate"])
         n_markers = int(header["NumMarkers"])
@@ -265,7 +270,9 @@ def read_trc(path: str | Path) -> MocapTake:
             if len(cells) > n_markers * 3 and not any(c.strip() for c in cells[n_markers * 3 :]):
                 cells = cells[: n_markers * 3]
             else:
-                raise ValueError(f"{path}: TRC data row {i + 1} has {len(cells)} coordinate columns, expected {n_markers * 3}")
+                raise ValueError(
+                    f"{path}: TRC data row {i + 1} has {len(cells)} coordinate columns, expected {n_markers * 3}"
+                )
         for j, cell in enumerate(cells):
             cell = cell.strip()
             if cell:

@@ -13,7 +13,9 @@ dict.
 
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.sparse as sp
@@ -35,7 +37,8 @@ def count_inverted(model: FaceModel, x: np.ndarray) -> int:
 
 
 class Tangent:
-    """The stiffness K = -df/dx at one configuration, held as per-tet 9x9 tangents V0 dP/dF.
+    """The stiffness K = -df/dx at one configuration, held as per-tet 9x9 tangents V0 dP/dF
+    (symmetric, stored packed: 45 values per tet).
 
     ``matvec`` is matrix-free (one Warp launch over tets), ``assemble`` builds a scipy CSR matrix
     over the unknowns of a ``BlockPattern`` (a Warp kernel scatters element blocks into BSR values),
@@ -44,7 +47,7 @@ class Tangent:
 
     def __init__(self, sim: Simulator, tangent_wp, projected: bool):
         self._sim = sim
-        self.element_tangents = tangent_wp  # wp.array of (9, 9) matrices, one per tet
+        self.element_tangents = tangent_wp  # wp.array of packed symmetric 9x9 (45 values), one per tet
         self.projected = projected
 
     def matvec(self, v: np.ndarray) -> np.ndarray:
@@ -52,16 +55,16 @@ class Tangent:
         s = self._sim
         s._v.assign(np.asarray(v, dtype=s._np_dtype).reshape(-1, 3))
         s._out.zero_()
-        s._wp.launch(
-            s._k.tangent_matvec, s.model.n_tets, inputs=[s._tets, s._dm_inv, self.element_tangents, s._v, s._out]
-        )
+        inputs = [s._tets, s._dm_inv, self.element_tangents, s._v, s._out]
+        s._launch_tets(s._k.tangent_matvec, inputs, sliced=(0, 1, 2), scattered=(4,))
         return s._out.numpy().astype(np.float64)
 
     def diagonal(self) -> np.ndarray:
         """diag(K) as (n, 3)."""
         s = self._sim
         s._out.zero_()
-        s._wp.launch(s._k.tangent_diagonal, s.model.n_tets, inputs=[s._tets, s._dm_inv, self.element_tangents, s._out])
+        inputs = [s._tets, s._dm_inv, self.element_tangents, s._out]
+        s._launch_tets(s._k.tangent_diagonal, inputs, sliced=(0, 1, 2), scattered=(3,))
         return s._out.numpy().astype(np.float64)
 
     def assemble(self, pattern: BlockPattern | None = None) -> sp.csr_matrix:
@@ -71,7 +74,8 @@ class Tangent:
         pattern = pattern or s.pattern(None)
         block_index = s._block_index_array(pattern)
         blocks = wp.zeros(pattern.n_blocks, dtype=s._k.mat33, device=s.device)
-        wp.launch(s._k.tangent_assemble, s.model.n_tets, inputs=[s._dm_inv, self.element_tangents, block_index, blocks])
+        inputs = [s._dm_inv, self.element_tangents, block_index, blocks]
+        s._launch_tets(s._k.tangent_assemble, inputs, sliced=(0, 1, 2), scattered=(3,))
         return pattern.to_csr(blocks.numpy().astype(np.float64))
 
 
@@ -128,9 +132,20 @@ class Simulator:
         precision: "float64" (default; use it for Newton and derivative checks) or "float32".
         solver: linear solver of the Newton steps: "auto" (direct on the CPU when installed, else
             CG), "cg" or "direct" (see ``wface.solvers.linear``).
+        force_length_scale: exaggeration beyond physical limits (seed 000, section 9): scales the
+            whole active force-length curve, T = k (s a f_L + f_P), so activations stay in [0, 1].
+            Also a mutable attribute.
     """
 
-    def __init__(self, model: FaceModel, *, device: str = "cpu", precision: str = "float64", solver: str = "auto"):
+    def __init__(
+        self,
+        model: FaceModel,
+        *,
+        device: str = "cpu",
+        precision: str = "float64",
+        solver: str = "auto",
+        force_length_scale: float = 1.0,
+    ):
         init_warp()
         import warp as wp
 
@@ -169,6 +184,10 @@ class Simulator:
         self._e = wp.zeros(nt, dtype=k.scalar, device=dev)
         self._a = wp.zeros(max(model.n_muscles, 1), dtype=k.scalar, device=dev)
         self._tangent_wp = None
+        if not (np.isfinite(force_length_scale) and force_length_scale >= 0):
+            raise ValueError(f"force_length_scale must be finite and >= 0, got {force_length_scale}")
+        self.force_length_scale = float(force_length_scale)
+        self.parallel_min_tets = 20_000  # CPU: per-tet kernels run on all cores above this size
         self._patterns: dict = {}
         self._block_index: dict = {}
 
@@ -183,7 +202,61 @@ class Simulator:
             raise ValueError(f"positions have shape {x.shape}, expected ({self.model.n_nodes}, 3)")
         self._x.assign(x.astype(self._np_dtype))
         if self.model.n_muscles:
-            self._a.assign(self.model.activation_vector(a).astype(self._np_dtype))
+            # activations are checked in [0, 1]; the kernels see s a (T is linear in a, see __init__)
+            a = self.model.activation_vector(a) * self.force_length_scale
+            self._a.assign(a.astype(self._np_dtype))
+
+    def _launch_tets(
+        self,
+        kernel,
+        inputs: list,
+        *,
+        sliced: tuple[int, ...],
+        offsets: tuple[int, ...] = (),
+        scattered: tuple[int, ...] = (),
+    ) -> None:
+        """Launch a per-tet kernel, on the CPU over tet ranges on all cores.
+
+        Warp CPU kernels run on one thread (DESIGN.md section 8) but a launch releases the GIL, so
+        large meshes are cut into one contiguous tet range per core. ``sliced``: indices of inputs
+        indexed by tet (sliced [lo:hi], per-tet outputs included); ``offsets``: per-tet offset
+        arrays (sliced [lo:hi+1]); ``scattered``: outputs accumulated with atomics at nodes or
+        blocks: each extra thread gets a zeroed private copy, added to the original afterwards
+        (CPU atomics are plain +=, never shared between threads).
+        """
+        wp = self._wp
+        m = self.model.n_tets
+        threads = min(os.cpu_count() or 1, 8)
+        if not self.device.startswith("cpu") or threads < 2 or m < self.parallel_min_tets:
+            wp.launch(kernel, m, inputs=inputs, device=self.device)
+            return
+        bounds = np.linspace(0, m, threads + 1).astype(int)
+        private = [{i: (inputs[i] if k == 0 else wp.zeros_like(inputs[i])) for i in scattered} for k in range(threads)]
+
+        def run(k: int) -> None:
+            lo, hi = int(bounds[k]), int(bounds[k + 1])
+            args = list(inputs)
+            for i in sliced:
+                args[i] = inputs[i][lo:hi]
+            for i in offsets:
+                args[i] = inputs[i][lo : hi + 1]
+            for i in scattered:
+                args[i] = private[k][i]
+            wp.launch(kernel, hi - lo, inputs=args, device=self.device)
+
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(run, range(threads)))
+        for i in scattered:
+            total = inputs[i].numpy()
+            for k in range(1, threads):
+                total += private[k][i].numpy()
+
+    def _launch_per_tet(self, kernel, extra_inputs, *outputs, scattered: tuple[int, ...] = ()) -> None:
+        """``_launch_tets`` for kernels whose inputs start with ``_model_inputs()``."""
+        inputs = [*self._model_inputs(), *extra_inputs, *outputs]
+        n_model = len(self._model_inputs())
+        per_tet_outputs = tuple(i for i in range(n_model + len(extra_inputs), len(inputs)) if i not in scattered)
+        self._launch_tets(kernel, inputs, sliced=(0, 1, 2, *per_tet_outputs), offsets=(7,), scattered=scattered)
 
     def _model_inputs(self):
         return [
@@ -201,25 +274,24 @@ class Simulator:
     def energy(self, x: np.ndarray | None = None, activations=None) -> float:
         """Total elastic energy (J) at positions x (n, 3) with activations (dict, (M,) array or None)."""
         self._set_state(x, activations)
-        self._wp.launch(
-            self._k.element_energy, self.model.n_tets, inputs=[*self._model_inputs(), self._x, self._a, self._e]
-        )
+        self._launch_per_tet(self._k.element_energy, [self._x, self._a], self._e)
         return float(self._e.numpy().astype(np.float64).sum())
 
     def energy_and_forces(self, x: np.ndarray | None = None, activations=None) -> tuple[float, np.ndarray]:
         """(E, f) with f = -dE/dx of shape (n, 3), in one pass."""
         self._set_state(x, activations)
         self._f.zero_()
-        self._wp.launch(
-            self._k.element_forces,
-            self.model.n_tets,
-            inputs=[*self._model_inputs(), self._x, self._a, self._f, self._e],
-        )
+        n_in = len(self._model_inputs()) + 2
+        self._launch_per_tet(self._k.element_forces, [self._x, self._a], self._f, self._e, scattered=(n_in,))
         return float(self._e.numpy().astype(np.float64).sum()), self._f.numpy().astype(np.float64)
 
     def forces(self, x: np.ndarray | None = None, activations=None) -> np.ndarray:
         """Nodal forces f(x, a) = f0(x) + sum_i a_i f_i(x), (n, 3) newtons."""
         return self.energy_and_forces(x, activations)[1]
+
+    def last_element_energies(self) -> np.ndarray:
+        """(m,) per-tet energies of the latest ``energy`` / ``energy_and_forces`` call."""
+        return self._e.numpy().astype(np.float64)
 
     def element_energies(self, x: np.ndarray | None = None, activations=None) -> np.ndarray:
         """(m,) energy of each tet (J)."""
@@ -227,7 +299,8 @@ class Simulator:
         return self._e.numpy().astype(np.float64)
 
     def muscle_forces(self, x: np.ndarray | None = None) -> np.ndarray:
-        """f_i(x): active force of each muscle at full activation, (M, n, 3) newtons, one launch."""
+        """f_i(x): active force of each muscle at full activation, (M, n, 3) newtons, one launch
+        (times ``force_length_scale``)."""
         wp = self._wp
         self._set_state(x, None)
         M, n = self.model.n_muscles, self.model.n_nodes
@@ -248,19 +321,15 @@ class Simulator:
                     out,
                 ],
             )
-        return out.numpy().astype(np.float64)[:M]
+        return out.numpy().astype(np.float64)[:M] * self.force_length_scale
 
     # ------------------------------------------------------------------ stiffness
     def tangent(self, x: np.ndarray | None = None, activations=None, *, project: bool = True) -> Tangent:
         """Stiffness K = -df/dx at (x, a): projected to PSD (default) or the exact Hessian of E."""
         wp = self._wp
         self._set_state(x, activations)
-        tangent = wp.empty(self.model.n_tets, dtype=self._k.mat99, device=self.device)
-        wp.launch(
-            self._k.element_tangent,
-            self.model.n_tets,
-            inputs=[*self._model_inputs(), int(bool(project)), self._x, self._a, tangent],
-        )
+        tangent = wp.empty(self.model.n_tets, dtype=self._k.vec45, device=self.device)
+        self._launch_per_tet(self._k.element_tangent, [int(bool(project)), self._x, self._a], tangent)
         return Tangent(self, tangent, project)
 
     def stiffness_matvec(self, x: np.ndarray | None, activations, v: np.ndarray, *, project: bool = True) -> np.ndarray:

@@ -19,8 +19,6 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import os
-
 import numpy as np
 import scipy.sparse as sp
 
@@ -90,13 +88,17 @@ class DirectFactor:
     Args:
         A: (N, N) symmetric positive definite scipy sparse matrix (float64).
         backend: "cholmod" or "pardiso"; default: ``direct_backend()``.
+        reuse: an older factor of a matrix with the same sparsity (e.g. the previous Newton step):
+            PARDISO keeps its analysis (ordering, symbolic factor) and refactors numerically only
+            (about a third less time at 100K tets). ``reuse`` is unusable afterwards.
     """
 
-    def __init__(self, A: sp.spmatrix, *, backend: str | None = None):
+    def __init__(self, A: sp.spmatrix, *, backend: str | None = None, reuse: DirectFactor | None = None):
         self.backend = backend or direct_backend()
         if self.backend is None:
             raise RuntimeError("no sparse direct backend installed (pip install pypardiso, or scikit-sparse)")
         self.shape = A.shape
+        self.reused_analysis = False
         if self.backend == "cholmod":
             from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
 
@@ -113,11 +115,25 @@ class DirectFactor:
             # Real SPD (mtype 2): PARDISO reads the upper triangle only.
             self._matrix = sp.triu(sp.csr_matrix(A, dtype=np.float64), format="csr")
             self._matrix.sort_indices()
-            self._solver = pypardiso.PyPardisoSolver(mtype=2)
-            # pypardiso searches sys.prefix for MKL on every construction (~1 s): remember the library.
-            os.environ.setdefault("PYPARDISO_MKL_RT", self._solver.libmkl._name)
+            phase = 12  # analysis (fill-reducing ordering) + numeric factorisation
+            if (
+                reuse is not None
+                and reuse.backend == "pardiso"
+                and getattr(reuse, "_solver", None) is not None
+                and reuse._matrix.shape == self._matrix.shape
+                and np.array_equal(reuse._matrix.indptr, self._matrix.indptr)
+                and np.array_equal(reuse._matrix.indices, self._matrix.indices)
+            ):
+                # Same sparsity (next Newton step): keep the analysis, refactor numerically only.
+                self._solver, reuse._solver = reuse._solver, None
+                phase = 22
+                self.reused_analysis = True
+            else:
+                self._solver = pypardiso.PyPardisoSolver(mtype=2)
+            self._solver._check_A(self._matrix)  # CSR, sorted, no empty rows; sets iparm for CSR input
+            self._solver.set_phase(phase)
             try:
-                self._solver.factorize(self._matrix)
+                self._solver._call_pardiso(self._matrix, np.zeros((self._matrix.shape[0], 1)))
             except pypardiso.pardiso_wrapper.PyPardisoError as exc:
                 self.free()
                 if exc.value == -4:  # zero or negative pivot
@@ -131,7 +147,11 @@ class DirectFactor:
         B = np.asarray(B, dtype=np.float64)
         if self.backend == "cholmod":
             return np.asarray(self._factor(B))
-        return np.asarray(self._solver.solve(self._matrix, B)).reshape(B.shape)
+        if self._solver is None:
+            raise RuntimeError("this factorisation was freed (or handed on to a newer one)")
+        self._solver.set_phase(33)  # forward / back substitution with the stored factor
+        X = self._solver._call_pardiso(self._matrix, np.asfortranarray(B.reshape(B.shape[0], -1)))
+        return np.asarray(X).reshape(B.shape)
 
     def __call__(self, B: np.ndarray) -> np.ndarray:
         return self.solve(B)

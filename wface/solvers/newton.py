@@ -7,10 +7,14 @@ from their targets, a first "lift" step moves them there and the free nodes by t
 response K_UU dx_U = f_U(x) - K_UC dx_C, which carries bone motion smoothly into the flesh.
 
 Stiffness (``stiffness=``): "projected" uses the Teran et al. 2005 projected-definite K every step;
-"auto" (default) first tries the exact Hessian, which gives quadratic convergence near the
-solution, and falls back to the projected K for that step when the exact K_UU is not positive
-definite (the Cholesky factorisation or CG reports it) or the step is not a descent direction;
-after a fallback the next step uses the projected K directly.
+"auto" (default) uses the projected K while the relative residual is above ``exact_below``
+(0.1) and then tries the exact Hessian, which gives quadratic convergence near the solution,
+falling back to the projected K for that step when the exact K_UU is not positive definite (the
+Cholesky factorisation or CG reports it) or the step is not a descent direction; after a
+fallback the next step uses the projected K directly. Measured on the built-in face (20K tets,
+jaw 5-25 deg, up to all 35 muscles at 1): the same Newton iteration counts as trying the exact K
+from the start, without its failed factorisations, and 1.5-1.7x fewer iterations than
+"projected" alone.
 
 Relative residual (``Equilibrium.residual_rel``):
     ||f_U(x)||_2 / max(||f_U(X_load)||_2, f_floor),
@@ -53,6 +57,7 @@ class Equilibrium:
         energy: total elastic energy at x, joules.
         cg_iterations: CG iterations over all Newton steps (0 for the direct solver).
         projected_steps: Newton steps that used the projected stiffness.
+        exact_failures: exact-Hessian attempts rejected (not positive definite / not descent).
         factorizations: sparse factorisations done (direct solver; later steps first try CG
             preconditioned by the previous factor).
         solver: linear engine used ("direct" or "cg").
@@ -71,6 +76,7 @@ class Equilibrium:
     cg_iterations: int = 0
     projected_steps: int = 0
     factorizations: int = 0
+    exact_failures: int = 0
     solver: str = "direct"
     history: list = field(default_factory=list)
     seconds: float = 0.0
@@ -98,17 +104,18 @@ def solve_free(
 ):
     """Solve K_UU X = rhs for (3k,) or (3k, c) right-hand sides over the unknowns of ``pattern``.
 
-    With ``engine="direct"`` and a ``state`` dict, the factor is kept in ``state["factor"]`` and
-    the next call first tries CG preconditioned by that (older) factor, for at most
-    ``reuse_iterations`` iterations, before factoring anew (DESIGN.md section 8: refactor only
-    when the old factor stops being a good preconditioner). ``state["factorizations"]`` counts.
+    With ``engine="direct"`` and a ``state`` dict, the factor is kept in ``state["factor"]``; the
+    next factorisation of the same sparsity reuses its analysis (numeric refactor only). With
+    ``state["precondition"]`` set, the next call first tries CG preconditioned by that older
+    factor, for at most ``reuse_iterations`` iterations, before factoring anew (DESIGN.md
+    section 8). ``state["factorizations"]`` counts the factorisations.
 
     Returns (X, cg_iterations). Raises ``NotPositiveDefiniteError`` when K_UU is not positive
     definite (factorisation failure, or p.K p <= 0 in CG).
     """
     if engine == "direct":
         old = state.get("factor") if state is not None else None
-        if old is not None:
+        if old is not None and state.get("precondition", False):
             res = pcg(
                 _free_matvec(tangent, pattern),
                 rhs,
@@ -118,12 +125,14 @@ def solve_free(
             )
             if res.converged and not res.indefinite:
                 return res.x, res.iterations
-        factor = DirectFactor(tangent.assemble(pattern))
         if state is None:
+            factor = DirectFactor(tangent.assemble(pattern))
             try:
                 return factor.solve(rhs), 0
             finally:
                 factor.free()
+        state["factor"] = None
+        factor = DirectFactor(tangent.assemble(pattern), reuse=old)  # keeps PARDISO's analysis
         if old is not None:
             old.free()
         state["factor"] = factor
@@ -154,6 +163,7 @@ def newton_quasistatic(
     max_line_search: int = 30,
     stiffness: str = "auto",
     reuse_factor: bool = False,
+    exact_below: float = 0.1,
 ) -> Equilibrium:
     """Newton-Raphson for f_U(x, a) = 0 (see module docstring). ``sim`` is a ``Simulator``."""
     from wface.physics.simulator import count_inverted
@@ -178,7 +188,7 @@ def newton_quasistatic(
     x = rest.copy() if x0 is None else np.array(x0, dtype=np.float64)
     iterations = 0
     cg_total = 0
-    linear_state: dict = {} if reuse_factor else None
+    linear_state: dict = {"precondition": bool(reuse_factor)}
     history: list[float] = []
 
     dxc = targets - x[fixed]
@@ -198,17 +208,19 @@ def newton_quasistatic(
         iterations += 1
 
     energy, f = sim.energy_and_forces(x, a)
+    energy_abs = float(np.abs(sim.last_element_energies()).sum())
     residual = float(np.linalg.norm(f[free]))
     history.append(residual / scale)
     if stiffness not in ("auto", "projected", "exact"):
         raise ValueError(f"stiffness must be 'auto', 'projected' or 'exact', got {stiffness!r}")
     skip_exact = False  # after a failed exact attempt, the next step goes straight to the projected K
+    exact_failures = 0
     projected_steps = 0
     while residual / scale > tol and iterations < max_iterations:
         rhs = pattern.gather(f)
         eta = float(np.clip(0.1 * residual / scale, 1e-12, 1e-2))
         dx = None
-        attempted = stiffness != "projected" and not skip_exact
+        attempted = stiffness == "exact" or (stiffness == "auto" and not skip_exact and residual / scale < exact_below)
         if attempted:
             tan = sim.tangent(x, a, project=False)
             try:
@@ -221,6 +233,7 @@ def newton_quasistatic(
                     raise
                 dx = None
         skip_exact = attempted and dx is None
+        exact_failures += int(skip_exact)
         if dx is None:
             tan = sim.tangent(x, a)
             dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta, state=linear_state)
@@ -231,7 +244,7 @@ def newton_quasistatic(
         if not slope > 0:  # not a descent direction (should not happen with SPD K): steepest descent
             dx = f[free] / max(float(np.abs(tan.diagonal()[free]).max()), 1e-30)
             slope = float(rhs @ dx.reshape(-1))
-        slack = 64 * np.finfo(sim._np_dtype).eps * float(np.abs(sim.element_energies(x, a)).sum())
+        slack = 64 * np.finfo(sim._np_dtype).eps * energy_abs  # round-off of the energy sum
         t = 1.0
         trial = x.copy()
         for _ in range(max_line_search):
@@ -243,14 +256,13 @@ def newton_quasistatic(
         x = trial
         iterations += 1
         energy, f = sim.energy_and_forces(x, a)
+        energy_abs = float(np.abs(sim.last_element_energies()).sum())
         residual = float(np.linalg.norm(f[free]))
         history.append(residual / scale)
 
-    factorizations = 0
-    if linear_state:
-        factorizations = linear_state.get("factorizations", 0)
-        if linear_state.get("factor") is not None:
-            linear_state["factor"].free()
+    factorizations = linear_state.get("factorizations", 0)
+    if linear_state.get("factor") is not None:
+        linear_state["factor"].free()
     return Equilibrium(
         x=x,
         converged=bool(residual / scale <= tol),
@@ -263,6 +275,7 @@ def newton_quasistatic(
         cg_iterations=cg_total,
         projected_steps=projected_steps,
         factorizations=factorizations,
+        exact_failures=exact_failures,
         solver=engine,
         history=history,
     )

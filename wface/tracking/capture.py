@@ -28,7 +28,9 @@ class PreparedCapture:
     matched_names: list[str]
 
 
-def prepare_capture(model, positions_m: np.ndarray, marker_names: list[str], *, reference_frame: int = 0) -> PreparedCapture:
+def prepare_capture(
+    model, positions_m: np.ndarray, marker_names: list[str], *, reference_frame: int = 0
+) -> PreparedCapture:
     """Align a capture (F, k, 3) in metres to ``model`` and embed its markers in the skin."""
     from scipy.spatial import cKDTree
 
@@ -36,7 +38,9 @@ def prepare_capture(model, positions_m: np.ndarray, marker_names: list[str], *, 
 
     pos = np.asarray(positions_m, dtype=np.float64)
     if pos.ndim != 3 or pos.shape[2] != 3 or pos.shape[1] != len(marker_names):
-        raise ValueError(f"capture has shape {pos.shape} for {len(marker_names)} marker names; expected (frames, markers, 3)")
+        raise ValueError(
+            f"capture has shape {pos.shape} for {len(marker_names)} marker names; expected (frames, markers, 3)"
+        )
     ref = pos[reference_frame]
     if np.isfinite(ref).all(axis=1).sum() < 3:
         raise ValueError(f"frame {reference_frame} of the capture has fewer than 3 markers present")

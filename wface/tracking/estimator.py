@@ -16,13 +16,19 @@ lam |a - a_prev|^2 and a prior mu |a|^2 toward the rest face. One Gauss-Newton s
      decomposition, the jaw onto its joint's 3 degrees of freedom within the limits), so the
      penalties phi_p stay ~0 along the search;
   3. golden-section search of phi + rho phi_p along dc (tau in [0, 1]), each evaluation a
-     quasistatic solve warm-started from the linearised prediction Y + tau dY/dc dc.
+     quasistatic solve warm-started from the linearised prediction Y + tau dY/dc dc. When the full
+     step tau = 1 already achieves ``accept_full_step`` (80 %) of the reduction the Gauss-Newton
+     model predicts, it is taken without the search (one solve instead of five); set None to
+     always search, as the paper does.
+Steps stop when the objective falls by less than ``min_improvement`` or the RMS marker residual
+changes by less than ``tol_mm``.
 Outliers: iteratively reweighted Tukey biweights on the marker residuals (``_weights``), whose
-cut-off shrinks to ``robust_mm`` as the fit improves; None turns robust weighting off. Temporal regularisation lam (default 0) is switchable.
+cut-off shrinks to ``robust_mm`` as the fit improves; None turns robust weighting off.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -48,7 +54,12 @@ class TrackOptions:
     rho_max: float = 1e6  # relative to phi
     rigid_step_tol: float = 0.05  # accepted first-order non-rigidity of a bone step: |sym(M^T dM)| / |dM|
     line_search_evals: int = 5  # quasistatic solves in the golden-section search
-    robust_mm: float | None = 3.0  # Tukey cut-off on marker residuals (mm) once the fit is close; None: plain least squares
+    accept_full_step: float | None = 0.8  # take tau = 1 without the search when it achieves this share of
+    # the reduction the Gauss-Newton model predicts (None: always run the golden-section search)
+    tol_mm: float = 1e-3  # stop when a step changes the RMS marker residual by less than this (mm)
+    robust_mm: float | None = (
+        3.0  # Tukey cut-off on marker residuals (mm) once the fit is close; None: plain least squares
+    )
     temporal_weight: float = 0.0  # lam: pull of activations toward the previous frame (m^2 per unit^2)
     activation_prior: float = 0.0  # mu: pull of activations toward zero (m^2 per unit^2), a small prior
     extrapolate: bool = True  # start each frame from a constant-velocity prediction of the controls
@@ -194,58 +205,23 @@ class FrameEstimator:
                 A[: self.M, : self.M] += 2.0 * opt.activation_prior * np.eye(self.M)
                 g[: self.M] += 2.0 * opt.activation_prior * c[: self.M]
             pen, gp, Hp = self._penalty(c)
-            scale = max(phi, 1e-12)
-            # The smallest rho on the grid rho0 phi * growth^k (k = 0..K) whose step satisfies the
-            # penalties, found by bisection over k (feasibility grows with rho).
-            K = int(np.ceil(np.log(opt.rho_max / opt.rho0) / np.log(opt.rho_growth)))
-            steps_at: dict[int, np.ndarray] = {}
-
-            def step_at(k: int) -> np.ndarray:
-                if k not in steps_at:
-                    r_k = opt.rho0 * scale * opt.rho_growth**k
-                    steps_at[k] = self._bounded_step(A + r_k * Hp, g + r_k * gp, c)
-                return steps_at[k]
-
-            lo_k, hi_k = 0, K
-            if self._step_violation(c, step_at(0)) <= opt.rigid_step_tol:
-                hi_k = 0
-            while hi_k - lo_k > 1:
-                mid = (lo_k + hi_k) // 2
-                if self._step_violation(c, step_at(mid)) <= opt.rigid_step_tol:
-                    hi_k = mid
-                else:
-                    lo_k = mid
-            rho = opt.rho0 * scale * opt.rho_growth**hi_k
-            dc = step_at(hi_k)
+            dc, rho = self._penalty_step(A, g, Hp, gp, c, max(phi, 1e-12))
             timings["gauss_newton_system_s"] += time.perf_counter() - t
 
             # Golden-section search on tau in [0, 1] with warm starts from the linear prediction.
             t = time.perf_counter()
             total0 = phi + rho * pen + self._reg(c, a_prev)
-            cache: dict[float, tuple] = {}
-
-            def evaluate(tau: float):
-                if tau not in cache:
-                    ct = self.retract(c + tau * dc)
-                    y_guess = state.y_m + tau * (Jy @ self._dc_y(dc)).reshape(-1, 3)
-                    st = rig.equilibrium(ct, y_guess)
-                    mt = self.markers.positions(st.x_m)
-                    cache[tau] = (self._phi(mt, target, present, w) + rho * self._penalty(ct)[0] + self._reg(ct, a_prev), st, mt)
-                return cache[tau][0]
-
-            lo, hi = 0.0, 1.0
-            x1, x2 = hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
-            f1, f2 = evaluate(x1), evaluate(x2)
-            for _ in range(max(0, opt.line_search_evals - 3)):
-                if f1 <= f2:
-                    hi, x2, f2 = x2, x1, f1
-                    x1 = hi - _GOLDEN * (hi - lo)
-                    f1 = evaluate(x1)
-                else:
-                    lo, x1, f1 = x1, x2, f2
-                    x2 = lo + _GOLDEN * (hi - lo)
-                    f2 = evaluate(x2)
-            evaluate(1.0)  # the full step: the Gauss-Newton point is often the best
+            trial = functools.partial(
+                self._trial, c=c, dc=dc, state=state, Jy=Jy, target=target, present=present, w=w, rho=rho, a_prev=a_prev
+            )
+            cache = None
+            if opt.accept_full_step is not None:
+                predicted = total0 - (float(np.sum(wr * (r + Jp @ dc) ** 2)) + rho * pen + self._reg(c + dc, a_prev))
+                full = trial(1.0)
+                if predicted > 0 and total0 - full[0] >= opt.accept_full_step * predicted:
+                    cache = {1.0: full}  # the model predicted well: the Gauss-Newton point is taken
+            if cache is None:
+                cache = self._golden_section(trial)
             tau_best = min(cache, key=lambda k: cache[k][0])
             timings["quasistatic_s"] += time.perf_counter() - t
             gn_done += 1
@@ -254,7 +230,9 @@ class FrameEstimator:
             _, state, m = cache[tau_best]
             c = state.controls
             w = self._weights(np.where(present[:, None], m - target, 0.0))
-            if total0 - cache[tau_best][0] < opt.min_improvement * total0:
+            n_present = max(int(present.sum()), 1)
+            rms_change_mm = abs(np.sqrt(total0 / n_present) - np.sqrt(max(cache[tau_best][0], 0.0) / n_present)) * 1e3
+            if total0 - cache[tau_best][0] < opt.min_improvement * total0 or rms_change_mm < opt.tol_mm:
                 break
 
         err = np.linalg.norm(m - target, axis=1)
@@ -315,6 +293,65 @@ class FrameEstimator:
             T[self.M + 12 :, self.M + 12 :] = N
             self._T = T
         return self._T
+
+    def _penalty_step(self, A, g, Hp, gp, c, scale) -> tuple[np.ndarray, float]:
+        """(dc, rho): the step for the smallest rho on the grid rho0 phi growth^k (k = 0..K) whose bone
+        step is rigid to first order, found by bisection over k (rigidity improves with rho)."""
+        opt = self.options
+        K = int(np.ceil(np.log(opt.rho_max / opt.rho0) / np.log(opt.rho_growth)))
+        steps: dict[int, np.ndarray] = {}
+
+        def step_at(k: int) -> np.ndarray:
+            if k not in steps:
+                r_k = opt.rho0 * scale * opt.rho_growth**k
+                steps[k] = self._bounded_step(A + r_k * Hp, g + r_k * gp, c)
+            return steps[k]
+
+        lo_k, hi_k = 0, K
+        if self._step_violation(c, step_at(0)) <= opt.rigid_step_tol:
+            hi_k = 0
+        while hi_k - lo_k > 1:
+            mid = (lo_k + hi_k) // 2
+            if self._step_violation(c, step_at(mid)) <= opt.rigid_step_tol:
+                hi_k = mid
+            else:
+                lo_k = mid
+        return step_at(hi_k), opt.rho0 * scale * opt.rho_growth**hi_k
+
+    def _trial(self, tau, *, c, dc, state, Jy, target, present, w, rho, a_prev) -> tuple:
+        """(objective, state, markers) at the retracted controls c + tau dc, warm-started from the
+        linearised equilibrium Y + tau dY/dc dc."""
+        ct = self.retract(c + tau * dc)
+        y_guess = state.y_m + tau * (Jy @ self._dc_y(dc)).reshape(-1, 3)
+        st = self.rig.equilibrium(ct, y_guess)
+        mt = self.markers.positions(st.x_m)
+        value = self._phi(mt, target, present, w) + rho * self._penalty(ct)[0] + self._reg(ct, a_prev)
+        return value, st, mt
+
+    def _golden_section(self, trial) -> dict[float, tuple]:
+        """Golden-section search of ``trial(tau)[0]`` on [0, 1] plus the full step tau = 1;
+        returns every evaluated tau -> trial result (``line_search_evals`` evaluations)."""
+        cache: dict[float, tuple] = {}
+
+        def f(tau: float) -> float:
+            if tau not in cache:
+                cache[tau] = trial(tau)
+            return cache[tau][0]
+
+        lo, hi = 0.0, 1.0
+        x1, x2 = hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
+        f1, f2 = f(x1), f(x2)
+        for _ in range(max(0, self.options.line_search_evals - 3)):
+            if f1 <= f2:
+                hi, x2, f2 = x2, x1, f1
+                x1 = hi - _GOLDEN * (hi - lo)
+                f1 = f(x1)
+            else:
+                lo, x1, f1 = x1, x2, f2
+                x2 = lo + _GOLDEN * (hi - lo)
+                f2 = f(x2)
+        f(1.0)  # the full step: the Gauss-Newton point is often the best
+        return cache
 
     def _reg(self, c: np.ndarray, a_prev: np.ndarray | None) -> float:
         """Value of the optional regularisers (temporal smoothness, prior toward rest)."""

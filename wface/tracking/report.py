@@ -64,7 +64,9 @@ def build_report(
         sim = np.array([r.markers_m for r in records])
         d = np.linalg.norm(sim - truth.clean_markers_m[: len(records)], axis=2)
         rep["truth_marker_rms_mm"] = float(np.sqrt(np.mean(d**2)) * 1e3)
-        rep["jaw_angle_error_deg"] = float(np.sqrt(np.mean((_jaw_deg(model, B) - truth.jaw_opening_deg[: len(records)]) ** 2)))
+        rep["jaw_angle_error_deg"] = float(
+            np.sqrt(np.mean((_jaw_deg(model, B) - truth.jaw_opening_deg[: len(records)]) ** 2))
+        )
         noise = np.linalg.norm(truth.markers_m - truth.clean_markers_m, axis=2)[: len(records)]
         rep["input_noise_rms_mm"] = float(np.sqrt(np.nanmean(noise[~truth.outlier_mask[: len(records)]] ** 2)) * 1e3)
     return rep
@@ -90,11 +92,27 @@ def write_controls(out_dir: Path, model, records) -> tuple[Path, Path]:
     path = out_dir / "controls.csv"
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["frame", *model.muscle_names, "jaw_opening_deg", "jaw_protrusion_mm", "jaw_lateral_deg",
-                    *[f"cranium_{k}" for k in range(12)]])
+        w.writerow(
+            [
+                "frame",
+                *model.muscle_names,
+                "jaw_opening_deg",
+                "jaw_protrusion_mm",
+                "jaw_lateral_deg",
+                *[f"cranium_{k}" for k in range(12)],
+            ]
+        )
         for fr, c, j in zip(frames, C, jaw, strict=True):
-            w.writerow([int(fr), *np.round(c[:M], 6), round(j["opening_deg"], 4), round(j["protrusion_m"] * 1e3, 4),
-                        round(j["lateral_deg"], 4), *np.round(c[M : M + 12], 6)])
+            w.writerow(
+                [
+                    int(fr),
+                    *np.round(c[:M], 6),
+                    round(j["opening_deg"], 4),
+                    round(j["protrusion_m"] * 1e3, 4),
+                    round(j["lateral_deg"], 4),
+                    *np.round(c[M : M + 12], 6),
+                ]
+            )
     return npz, path
 
 

@@ -203,7 +203,17 @@ def track_sequence(
     size = F if not chunk_size else max(1, int(chunk_size))
     chunks = [(s, min(F, s + size)) for s in range(0, F, size)]
     args = [
-        (model, markers.embedding, targets[s:e], frames[s:e].tolist(), list(marker_names), options, rig_kwargs, out_dir, resume)
+        (
+            model,
+            markers.embedding,
+            targets[s:e],
+            frames[s:e].tolist(),
+            list(marker_names),
+            options,
+            rig_kwargs,
+            out_dir,
+            resume,
+        )
         for s, e in chunks
     ]
     if executor is None or len(chunks) == 1 and executor is None:

@@ -115,7 +115,9 @@ def synthesize_performance(
     B = np.tile(IDENTITY_BONES, (frames, 1))
     for f in range(frames):
         if head_motion:
-            ang = np.radians(2.0) * np.sin(2 * np.pi * (t[f] / T) * np.array([0.5, 0.8, 0.3]) + np.array([0.0, 1.0, 2.0]))
+            ang = np.radians(2.0) * np.sin(
+                2 * np.pi * (t[f] / T) * np.array([0.5, 0.8, 0.3]) + np.array([0.0, 1.0, 2.0])
+            )
             trans = 0.004 * np.sin(2 * np.pi * (t[f] / T) * np.array([0.4, 0.6, 0.5]) + np.array([0.5, 1.5, 2.5]))
             B[f, :12] = params_from_affine(_rotation_xyz(*ang), trans)
         B[f, 12:] = jaw_from_intuitive(model.jaw_joint, jaw[f], 0.0015 * jaw[f] / max(max_jaw_deg, 1e-9), 0.0)

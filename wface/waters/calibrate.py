@@ -92,6 +92,8 @@ def calibrate_muscle(
     max_evaluations: int = 400,
     bone_range_m: float = 0.012,
     insertion_range_m: float = 0.006,
+    centre_range_m: float = 0.005,
+    axis_scale_range: tuple[float, float] = (0.8, 1.25),
 ) -> CalibrationResult:
     """Fit one muscle's parameters so the action units reproduce ``reference_m``.
 
@@ -106,6 +108,8 @@ def calibrate_muscle(
         surface: (vertices_m, triangles) of the skin, to keep insertions on it.
         max_evaluations: objective evaluations of the Powell search.
         bone_range_m, insertion_range_m: how far bone / insertion may move.
+        centre_range_m, axis_scale_range: how far a sphincter's centre may move and how much its
+            semi-axes may scale (kept tight: a ring muscle stays around its orifice).
     """
     from scipy.optimize import minimize
 
@@ -156,8 +160,8 @@ def calibrate_muscle(
                 spring_constant_m=float(p[9]),
             )
     else:
-        lo = np.r_[-np.ones(3) * bone_range_m, 0.6, 0.6, 0.6, 0.02]
-        hi = np.r_[np.ones(3) * bone_range_m, 1.6, 1.6, 1.6, 0.9]
+        lo = np.r_[-np.ones(3) * centre_range_m, np.full(3, axis_scale_range[0]), 0.02]
+        hi = np.r_[np.ones(3) * centre_range_m, np.full(3, axis_scale_range[1]), 0.9]
         p0 = np.r_[np.zeros(3), 1.0, 1.0, 1.0, m0.tension]
 
         def build(p):

@@ -17,7 +17,7 @@ from wface.waters.layout import JawRegion, MuscleLayout, load_layout
 from wface.waters.rig import WatersRig
 from wface.waters.surface import SurfaceMesh
 
-__all__ = ["face_model_rig", "fit_layout_to_face_model", "harmonic_jaw_weights", "skin_surface"]
+__all__ = ["builtin_face_layout", "face_model_rig", "fit_layout_to_face_model", "harmonic_jaw_weights", "skin_surface"]
 
 
 def skin_surface(model) -> tuple[SurfaceMesh, np.ndarray]:
@@ -97,3 +97,26 @@ def face_model_rig(model, layout: MuscleLayout | None = None) -> tuple[WatersRig
     weights = harmonic_jaw_weights(model)[nodes]
     rig = WatersRig(layout, skin.vertices_m, muscle_mask=~attached[nodes], jaw_weights=weights)
     return rig, skin, nodes
+
+
+BUILTIN_LAYOUT_TETS = 20_000
+
+
+def builtin_face_layout(target_tets: int = BUILTIN_LAYOUT_TETS) -> MuscleLayout:
+    """The layout packaged as ``waters_builtin.json``: the ICT layout fitted to ``build_face(target_tets)``.
+
+    Regenerate the packaged file after changing the ICT layout or the built-in face::
+
+        save_layout(builtin_face_layout(), "wface/data/waters_builtin.json")
+    """
+    from wface.builtin import build_face
+
+    lay = fit_layout_to_face_model(build_face(target_tets))
+    lay.name = "builtin"
+    lay.notes = (
+        "The packaged ICT layout (waters_ict.json) fitted to wface's built-in face "
+        f"(wface.builtin.build_face({target_tets})) by its AnimFace markers: similarity + thin-plate RBF warp, "
+        "insertions snapped to the skin, jaw pivot/axis from the model's jaw joint. Regenerate with "
+        "wface.waters.face_model.builtin_face_layout()."
+    )
+    return lay

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["render_mesh", "render_grid"]
+__all__ = ["render_grid", "render_layout", "render_mesh"]
 
 
 def _polydata(vertices_m: np.ndarray, triangles: np.ndarray, scalars: np.ndarray | None):
@@ -100,3 +100,53 @@ def render_grid(path: str | Path, images: list[Path], *, columns: int = 4) -> Pa
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return Path(path)
+
+
+def render_layout(
+    path: str | Path,
+    vertices_m: np.ndarray,
+    triangles: np.ndarray,
+    layout,
+    *,
+    size: int = 700,
+    bounds_m: np.ndarray | None = None,
+) -> Path:
+    """Draw a layout's muscles over a translucent face: linear muscles as arrows from the bony
+    attachment V1 (dot) to the insertion V2, sphincters as their ellipses, landmarks as small points."""
+    import pyvista as pv
+
+    from wface.waters.muscles import LinearMuscle
+
+    pv.OFF_SCREEN = True
+    plotter = pv.Plotter(off_screen=True, window_size=(size, size))
+    plotter.add_mesh(
+        _polydata(vertices_m, triangles, None), color=(0.87, 0.72, 0.62), opacity=0.55, smooth_shading=True
+    )
+    scale = float(np.ptp(np.asarray(vertices_m), axis=0).max())
+    for m in layout.muscles:
+        if isinstance(m, LinearMuscle):
+            colour = "royalblue" if m.region == "any" else ("seagreen" if m.region == "upper" else "darkorange")
+            plotter.add_mesh(pv.Line(m.bone_m, m.insertion_m), color=colour, line_width=4)
+            plotter.add_mesh(pv.Sphere(radius=0.006 * scale, center=m.bone_m), color="black")
+            plotter.add_mesh(pv.Sphere(radius=0.004 * scale, center=m.insertion_m), color=colour)
+        else:
+            t = np.linspace(0, 2 * np.pi, 64)
+            ring = (
+                m.centre_m
+                + np.outer(np.cos(t) * m.semi_axes_m[0], m.horizontal)
+                + np.outer(np.sin(t) * m.semi_axes_m[1], m.vertical)
+            )
+            plotter.add_mesh(pv.Spline(ring, 128), color="crimson", line_width=3)
+    if layout.landmarks_m:
+        pts = np.stack(list(layout.landmarks_m.values()))
+        plotter.add_points(pts, color="yellow", point_size=8, render_points_as_spheres=True)
+    plotter.add_text(f"{layout.name}: {len(layout.muscles)} muscles", font_size=max(8, size // 50))
+    plotter.view_xy()
+    if bounds_m is not None:
+        plotter.reset_camera(bounds=[float(b) for b in bounds_m])
+        plotter.camera.zoom(1.3)
+    plotter.set_background("white")
+    path = Path(path)
+    plotter.screenshot(str(path))
+    plotter.close()
+    return path

@@ -12,7 +12,8 @@ the summed displacement is scaled back to length L_v where it exceeds it. One mu
 c <= 1 is never clamped (overlap_factor >= 1).
 
 Region factors: a muscle with ``region="upper"`` is multiplied by (1 - w_jaw), ``"lower"`` by
-w_jaw (w_jaw from the layout's jaw region), so lip muscles move only their own lip.
+w_jaw (w_jaw from the layout's jaw region), so lip muscles move only their own lip. Without a jaw
+region (and no jaw weights given) there is no upper/lower split and regions are ignored.
 
 Jaw (AU26): x' = x + w_jaw (Rot(theta) (x - pivot) + pivot - x), applied after the muscles.
 """
@@ -89,7 +90,16 @@ class WatersRig:
             if muscle_mask.shape != (n,):
                 raise ValueError(f"muscle_mask has shape {muscle_mask.shape}, expected ({n},)")
         self.muscle_mask = muscle_mask
-        self.jaw_weights = layout.jaw.weights(self.rest_positions_m) if layout.jaw is not None else np.zeros(n)
+        self.has_jaw = jaw_weights is not None or layout.jaw is not None  # else regions do not apply
+        if jaw_weights is not None:
+            jaw_weights = np.asarray(jaw_weights, dtype=np.float64).reshape(-1)
+            if jaw_weights.shape != (n,) or not np.all(np.isfinite(jaw_weights)):
+                raise ValueError(f"jaw_weights must be ({n},) finite values, got shape {jaw_weights.shape}")
+            if np.any((jaw_weights < 0) | (jaw_weights > 1)):
+                raise ValueError("jaw_weights must lie in [0, 1]")
+            self.jaw_weights = jaw_weights
+        else:
+            self.jaw_weights = layout.jaw.weights(self.rest_positions_m) if layout.jaw is not None else np.zeros(n)
         tree = cKDTree(self.rest_positions_m)
         rows, cols, vals = [], [], []
         strongest = np.zeros(n)
@@ -102,9 +112,9 @@ class WatersRig:
                 continue
             idx.sort()
             b = _muscle_field(self.rest_positions_m[idx], m)
-            if m.region == "upper":
+            if m.region == "upper" and self.has_jaw:
                 b *= (1.0 - self.jaw_weights[idx])[:, None]
-            elif m.region == "lower":
+            elif m.region == "lower" and self.has_jaw:
                 b *= self.jaw_weights[idx][:, None]
             size = np.linalg.norm(b, axis=1)
             keep = size > 0

@@ -1,0 +1,206 @@
+"""Isotropic flesh in singular values (Warp device code, float64 and float32; DESIGN.md section 3).
+
+psi(s) = mu10 (J^-2/3 I1 - 3) + mu01 (J^-4/3 I2 - 3) + kappa/2 (ln J)^2, J = s1 s2 s3,
+I1 = sum s_i^2, I2 = sum_{i<j} s_i^2 s_j^2, on the signed singular values of F = U diag(s) V^T
+(det U = det V = +1, the smallest carrying the sign of det F: Irving et al. 2004).
+
+Below the clamp c the energy is continued by its first-order Taylor expansion in the clamped
+values, psi_ext(s) = psi(s^) + sum_i g_i(s^)(s_i - s^_i) with s^ = max(s, c), so the stress is the
+exact gradient of an energy (Stomakhin et al. 2012). psi is a sum of monomials c prod s_i^a_i
+plus the volumetric term, so its first, second and third derivatives are closed form.
+"""
+
+import functools
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+__all__ = ["flesh_functions"]
+
+
+@functools.cache
+def flesh_functions(dtype):
+    """Namespace with the flesh wp.funcs (``clamp_values``, ``flesh_derivatives``,
+    ``flesh_energy_s``, ``flesh_gradient_s``, ``flesh_response``) and the test kernels
+    ``singular_values`` and ``flesh_in_singular_values`` for scalar ``dtype``."""
+    S = dtype
+    vec3 = wp.types.vector(3, S)
+    mat33 = wp.types.matrix((3, 3), S)
+    M2_3, M4_3 = -2.0 / 3.0, -4.0 / 3.0  # folded in double precision (see fibre.py)
+
+    @wp.func
+    def flesh_derivatives(sh: vec3, delta: vec3, mu10: S, mu01: S, kappa: S, order: int):
+        """psi, gradient, Hessian (order >= 2) at s^ (all > 0), and the third derivative contracted
+        with delta (order >= 3); higher-order outputs are zero when not requested."""
+        psi = S(-3.0) * (mu10 + mu01)
+        g = vec3()
+        H = mat33()
+        Tc = mat33()
+        inv = vec3(S(1.0) / sh[0], S(1.0) / sh[1], S(1.0) / sh[2])
+        L = wp.log(sh[0]) + wp.log(sh[1]) + wp.log(sh[2])
+        j23 = wp.exp(S(M2_3) * L)  # J^(-2/3)
+        for k in range(6):
+            # monomial m = c prod s_i^a_i: mu10 J^-2/3 s_k^2 (k < 3), mu01 J^-4/3 s_i^2 s_j^2 (pairs)
+            a = vec3(S(M2_3), S(M2_3), S(M2_3))
+            m = S(0.0)
+            if k < 3:
+                a[k] = a[k] + S(2.0)
+                m = mu10 * j23 * sh[k] * sh[k]
+            else:
+                a = vec3(S(M4_3), S(M4_3), S(M4_3))
+                p = k - 3  # pairs (0,1), (0,2), (1,2)
+                i0 = 0
+                i1 = 1
+                if p == 1:
+                    i1 = 2
+                if p == 2:
+                    i0 = 1
+                    i1 = 2
+                a[i0] = a[i0] + S(2.0)
+                a[i1] = a[i1] + S(2.0)
+                m = mu01 * j23 * j23 * sh[i0] * sh[i0] * sh[i1] * sh[i1]
+            psi = psi + m
+            for i in range(3):
+                g[i] = g[i] + a[i] * m * inv[i]
+            if order >= 2:
+                for i in range(3):
+                    for j in range(3):
+                        dij = S(0.0)
+                        if i == j:
+                            dij = S(1.0)
+                        hij = a[i] * (a[j] - dij) * m * inv[i] * inv[j]
+                        H[i, j] = H[i, j] + hij
+                        if order >= 3:
+                            for l in range(3):
+                                dil = S(0.0)
+                                djl = S(0.0)
+                                if i == l:
+                                    dil = S(1.0)
+                                if j == l:
+                                    djl = S(1.0)
+                                Tc[j, l] = Tc[j, l] + delta[i] * hij * (a[l] - dil - djl) * inv[l]
+        psi = psi + S(0.5) * kappa * L * L
+        for i in range(3):
+            g[i] = g[i] + kappa * L * inv[i]
+        if order >= 2:
+            for i in range(3):
+                for j in range(3):
+                    H[i, j] = H[i, j] + kappa * inv[i] * inv[j]
+                    if i == j:
+                        H[i, j] = H[i, j] - kappa * L * inv[i] * inv[i]
+                    if order >= 3:
+                        for l in range(3):
+                            t = S(0.0)
+                            if i == l:
+                                t = t - kappa * inv[i] * inv[j] * inv[l]
+                            if j == l:
+                                t = t - kappa * inv[i] * inv[j] * inv[l]
+                            if i == j:
+                                t = t - kappa * inv[i] * inv[i] * inv[l]
+                                if i == l:
+                                    t = t + S(2.0) * kappa * L * inv[i] * inv[i] * inv[i]
+                            Tc[j, l] = Tc[j, l] + delta[i] * t
+        return psi, g, H, Tc
+
+    @wp.func
+    def clamp_values(s: vec3, clamp: S):
+        sh = vec3()
+        delta = vec3()
+        for i in range(3):
+            sh[i] = wp.max(s[i], clamp)
+            delta[i] = s[i] - sh[i]
+        return sh, delta
+
+    @wp.func
+    def flesh_energy_s(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
+        sh, delta = clamp_values(s, clamp)
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa, 1)
+        return psi + wp.dot(g, delta)
+
+    @wp.func
+    def flesh_gradient_s(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
+        """psi_ext and its gradient G in singular values."""
+        sh, delta = clamp_values(s, clamp)
+        order = 1
+        if delta[0] != S(0.0) or delta[1] != S(0.0) or delta[2] != S(0.0):
+            order = 2
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa, order)
+        G = g
+        Hd = H * delta
+        for j in range(3):
+            if s[j] >= clamp:
+                G[j] = G[j] + Hd[j]
+        return psi + wp.dot(g, delta), G
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def singular_values(
+        # In:
+        F: wp.array(dtype=mat33),
+        # Out:
+        U_out: wp.array(dtype=mat33),
+        s_out: wp.array(dtype=vec3),
+        V_out: wp.array(dtype=mat33),
+    ):
+        """wp.svd3 as used by the FEM (tests pin its sign and order convention)."""
+        t = wp.tid()
+        U = mat33()
+        s = vec3()
+        V = mat33()
+        wp.svd3(F[t], U, s, V)
+        U_out[t] = U
+        s_out[t] = s
+        V_out[t] = V
+
+    @wp.func
+    def flesh_response(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
+        """psi_ext, its gradient G and Hessian A in the signed singular values s."""
+        sh, delta = clamp_values(s, clamp)
+        order = 2
+        if delta[0] != S(0.0) or delta[1] != S(0.0) or delta[2] != S(0.0):
+            order = 3
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa, order)
+        G = g
+        Hd = H * delta
+        A = mat33()
+        for i in range(3):
+            if s[i] >= clamp:
+                G[i] = G[i] + Hd[i]
+            for j in range(3):
+                ui = s[i] >= clamp
+                uj = s[j] >= clamp
+                if ui and uj:
+                    A[i, j] = H[i, j] + Tc[i, j]
+                elif ui or uj:
+                    A[i, j] = H[i, j]
+        return psi + wp.dot(g, delta), G, A
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def flesh_in_singular_values(
+        # In:
+        s: wp.array(dtype=vec3),
+        mu10: S,
+        mu01: S,
+        kappa: S,
+        clamp: S,
+        # Out:
+        psi_out: wp.array(dtype=S),
+        grad_out: wp.array(dtype=vec3),
+        hess_out: wp.array(dtype=mat33),
+    ):
+        """The flesh energy density psi_ext(s), its gradient and Hessian (tests, plots)."""
+        i = wp.tid()
+        psi, G, A = flesh_response(s[i], mu10, mu01, kappa, clamp)
+        psi_out[i] = psi
+        grad_out[i] = G
+        hess_out[i] = A
+
+    class _Functions:
+        pass
+
+    ns = _Functions()
+    for f in (clamp_values, flesh_derivatives, flesh_energy_s, flesh_gradient_s, flesh_response):
+        setattr(ns, f.func.__name__, f)
+    ns.singular_values = singular_values
+    ns.flesh_in_singular_values = flesh_in_singular_values
+    return ns

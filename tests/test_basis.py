@@ -1,0 +1,179 @@
+"""Actuation basis: building, synthesis, analysis, refinement, RBF carry-over, retargeting."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wface.basis import (
+    ActuationBasis,
+    FaceSplit,
+    MarkerBasis,
+    analyze,
+    interpolate_to_mesh,
+    load_basis,
+    match_elements,
+    refine_marker_basis,
+    retarget,
+)
+from wface.basis.core import polygons_to_triangles
+
+
+def _grid_basis(n_side=12, n_elements=5, seed=0) -> ActuationBasis:
+    """A bumpy sheet (metres) with smooth Gaussian 'muscle' displacement fields."""
+    rng = np.random.default_rng(seed)
+    u = np.linspace(-0.05, 0.05, n_side)
+    x, y = np.meshgrid(u, u, indexing="ij")
+    v = np.stack([x.ravel(), y.ravel(), 0.01 * np.cos(30 * x.ravel()) * np.cos(30 * y.ravel())], 1)
+    quads = []
+    for i in range(n_side - 1):
+        for j in range(n_side - 1):
+            a = i * n_side + j
+            quads.append([a, a + n_side, a + n_side + 1, a + 1])
+    quads = np.array(quads)
+    shapes = []
+    for _ in range(n_elements):
+        c = rng.uniform(-0.04, 0.04, size=2)
+        w = np.exp(-np.sum((v[:, :2] - c) ** 2, axis=1) / (2 * 0.02**2))
+        shapes.append(w[:, None] * rng.normal(scale=0.005, size=3))
+    return ActuationBasis(
+        v, np.array(shapes), [f"m{i}_L" for i in range(n_elements)], np.full(len(quads), 4), quads.ravel()
+    )
+
+
+def test_polygons_to_triangles_and_synthesis():
+    tri = polygons_to_triangles(np.array([3, 4, 5]), np.arange(12))
+    np.testing.assert_array_equal(tri, [[0, 1, 2], [3, 4, 5], [3, 5, 6], [7, 8, 9], [7, 9, 10], [7, 10, 11]])
+    b = _grid_basis()
+    x = np.array([0.2, 0.0, 1.0, 0.5, 0.1])
+    pos = b.synthesize(x)
+    np.testing.assert_allclose(pos, b.neutral_m + np.tensordot(x, b.shapes_m, axes=1), atol=1e-15)
+    assert b.synthesize(np.stack([x, x])).shape == (2, b.n_vertices, 3)
+    with pytest.raises(ValueError, match="5 elements"):
+        b.synthesize(np.ones(3))
+
+
+def test_save_load_round_trip_and_builders(tmp_path):
+    b = _grid_basis()
+    b.save(tmp_path / "b.npz")
+    c = load_basis(tmp_path / "b.npz")
+    assert c.names == b.names
+    np.testing.assert_array_equal(c.shapes_m, b.shapes_m)
+    np.testing.assert_array_equal(c.neutral_m, b.neutral_m)
+    np.testing.assert_array_equal(c.triangles, b.triangles)
+    d = ActuationBasis.from_displacements(b.neutral_m, b.shapes_m, b.names, triangles=b.triangles)
+    np.testing.assert_array_equal(d.triangles, b.triangles)
+
+    # OBJ set in centimetres: neutral plus one file per element
+    def write_obj(path, verts):
+        with open(path, "w") as fh:
+            fh.writelines(f"v {float(p[0])!r} {float(p[1])!r} {float(p[2])!r}\n" for p in verts)
+            fh.writelines("f " + " ".join(str(i + 1) for i in q) + "\n" for q in b.face_indices.reshape(-1, 4))
+
+    write_obj(tmp_path / "neutral.obj", b.neutral_m * 100)
+    paths = {}
+    for i, n in enumerate(b.names):
+        paths[n] = tmp_path / f"{n}.obj"
+        write_obj(paths[n], (b.neutral_m + b.shapes_m[i]) * 100)
+    o = ActuationBasis.from_obj_files(tmp_path / "neutral.obj", paths, units_to_m=0.01)
+    np.testing.assert_allclose(o.shapes_m, b.shapes_m, atol=1e-15)
+    with pytest.raises(FileNotFoundError, match="nope.npz"):
+        load_basis(tmp_path / "nope.npz")
+    np.savez(tmp_path / "junk.npz", a=np.zeros(3))
+    with pytest.raises(ValueError, match="junk.npz: neither"):
+        load_basis(tmp_path / "junk.npz")
+
+
+def _marker_basis(b: ActuationBasis, k=20, seed=1) -> MarkerBasis:
+    rng = np.random.default_rng(seed)
+    ids = rng.choice(b.n_vertices, k, replace=False)
+    return MarkerBasis(b.vertex_shapes(ids), [f"k{i}" for i in range(k)], list(b.names), b.neutral_m[ids])
+
+
+def test_analysis_recovers_contractions_with_gaps_and_split():
+    b = _grid_basis(n_elements=6)
+    mb = _marker_basis(b, k=25)
+    rng = np.random.default_rng(4)
+    x_true = rng.uniform(0, 1, size=(40, 6))
+    x_true[x_true < 0.3] = 0.0  # many inactive elements
+    d = mb.predict(x_true)
+    an = analyze(mb, d)
+    np.testing.assert_allclose(an.contractions, x_true, atol=1e-8)
+    assert an.marker_rms_m.max() < 1e-10
+    d_gap = d.copy()
+    d_gap[5, :3] = np.nan
+    an_gap = analyze(mb, d_gap, warm_start=False)
+    np.testing.assert_allclose(an_gap.contractions, x_true, atol=1e-8)
+    assert np.isnan(an_gap.error_m[5, :3]).all()
+    d_gap[7] = np.nan  # a frame with no markers at all: no contractions, NaN error, no crash
+    an_gap = analyze(mb, d_gap)
+    assert np.isnan(an_gap.marker_rms_m[7]) and np.all(an_gap.contractions[7] == 0)
+    np.testing.assert_allclose(an_gap.contractions[8:], x_true[8:], atol=1e-8)
+    # Above the box: clipped at 1, or followed with exaggeration (x >= 0)
+    big = mb.predict(np.full((1, 6), 1.5))
+    assert analyze(mb, big).contractions.max() <= 1.0
+    np.testing.assert_allclose(analyze(mb, big, upper=None).contractions, 1.5, atol=1e-8)
+    # A split with disjoint groups solves each independently (same answer when the groups decouple)
+    split = FaceSplit([(np.arange(12), np.arange(3)), (np.arange(12, 25), np.arange(3, 6))])
+    an_split = analyze(mb, d, split=split)
+    assert an_split.contractions.shape == (40, 6)
+    with pytest.raises(ValueError, match="overlap"):
+        FaceSplit([(np.arange(3), [0]), (np.arange(2, 5), [1])])
+
+
+def test_analysis_matches_scipy_per_frame_on_noisy_data():
+    from scipy.optimize import lsq_linear
+
+    b = _grid_basis(n_elements=8, seed=3)
+    mb = _marker_basis(b, k=15, seed=2)
+    rng = np.random.default_rng(0)
+    d = mb.predict(rng.uniform(0, 1, size=(20, 8))) + rng.normal(scale=3e-4, size=(20, 15, 3))
+    an = analyze(mb, d)
+    a = mb.shapes_m.reshape(-1, 8)
+    for f in range(20):
+        ref = lsq_linear(a, d[f].ravel(), bounds=(0, 1), method="bvls", tol=1e-14)
+        cost = np.sum((a @ an.contractions[f] - d[f].ravel()) ** 2)
+        assert cost <= np.sum((a @ ref.x - d[f].ravel()) ** 2) * (1 + 1e-9) + 1e-20
+
+
+def test_refinement_reduces_training_and_held_out_error():
+    b_true = _grid_basis(n_elements=5, seed=7)
+    mb_true = _marker_basis(b_true, k=30, seed=3)
+    rng = np.random.default_rng(11)
+    wrong = mb_true.shapes_m + rng.normal(scale=1.5e-3, size=mb_true.shapes_m.shape)
+    mb0 = mb_true.with_shapes(wrong)
+    takes = [mb_true.predict(rng.uniform(0, 1, size=(60, 5)) * (rng.random((60, 5)) < 0.6)) for _ in range(3)]
+    res = refine_marker_basis(mb0, takes[:2], max_iterations=15, rel_tol=1e-4)
+    e = res.errors_m
+    assert e[-1] < 0.2 * e[0]
+    assert min(e) == pytest.approx(res.errors_m[-1]) or min(e) < e[0]
+    before = analyze(mb0, takes[2]).total_rms_m
+    after = analyze(res.basis, takes[2]).total_rms_m
+    assert after < 0.3 * before
+
+
+def test_interpolate_to_mesh_is_exact_at_markers_and_local():
+    b = _grid_basis(n_side=30, n_elements=2)
+    ids = np.array([300, 310, 320, 500, 510, 520, 700, 710, 720])
+    change = np.zeros((len(ids), 3, 2))
+    change[:, 2, 0] = 0.001  # +1 mm in z for element 0 at all markers
+    out = interpolate_to_mesh(b, b.neutral_m[ids], change, fade_start_m=0.02, fade_end_m=0.03)
+    np.testing.assert_allclose(out.shapes_m[0, ids, 2] - b.shapes_m[0, ids, 2], 0.001, atol=1e-12)
+    np.testing.assert_array_equal(out.shapes_m[1], b.shapes_m[1])
+    far = np.linalg.norm(b.neutral_m[:, None, :2] - b.neutral_m[ids][None, :, :2], axis=2).min(1) > 0.03
+    np.testing.assert_array_equal(out.shapes_m[0, far], b.shapes_m[0, far])
+
+
+def test_retarget_matches_names_and_reports_unmatched():
+    src = _grid_basis(n_elements=4)
+    tgt = ActuationBasis(src.neutral_m * 1.2, src.shapes_m[[2, 0, 1]] * 2, ["m2_l", "M0Left", "other"], src.face_counts,
+                         src.face_indices)  # fmt: skip
+    m = match_elements(src.names, tgt.names)
+    assert sorted(m.pairs) == [(0, 1), (2, 0)]
+    assert m.unmatched_source == ["m1_L", "m3_L"] and m.unmatched_target == ["other"]
+    x = np.array([[0.5, 0.1, 0.25, 0.9]])
+    r = retarget(x, src.names, tgt, synthesize=True, name_map={"m1_L": "other"})
+    np.testing.assert_allclose(r.contractions, [[0.25, 0.5, 0.1]])
+    np.testing.assert_allclose(r.positions_m[0], tgt.synthesize(r.contractions[0]))
+    with pytest.raises(ValueError, match="no element names in common"):
+        retarget(x[:, :1], ["zzz"], tgt)
