@@ -19,6 +19,7 @@ COMMAND_MODULES = [
     "wface.commands.simulate",
     "wface.commands.basis",
     "wface.commands.waters",
+    "wface.commands.speech",
 ]
 
 _EPILOG = """\
@@ -28,6 +29,7 @@ examples:
   wface model info face.npz --json
   wface bench --suite forward --tets 20000 --json
   wface waters --mesh head.obj --expression happy --au AU26=0.3 --out waters_out
+  wface speech --model badin.npz --gesture closure --out closure_out
 
 Run `wface COMMAND --help` for the options of each command.
 """

@@ -1,0 +1,160 @@
+"""Issue 9 point 3: the ArtiSynth speech gestures (excitation curves) played on the Badin face.
+
+Parsing is checked against exact values from the files; the interpolation against its definition
+(ArtiSynth ``CubicStep``: cubic Hermite with zero end slopes). The physics test plays a subsampled
+closure (3 frames) through the CLI and checks that the lips close.
+"""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tests.conftest import data_path
+from wface.importers.speech import (
+    interpolate,
+    map_gesture_to_model,
+    read_excitation_curve,
+    read_gesture,
+    read_probes,
+)
+from wface.speech import gesture_times, lip_opening_mm
+
+_EXACT = 1e-12  # float64 round-off of a few operations
+
+BADIN_NAMES = [
+    f"{b}_{s}" for b in ("DAO", "BUC", "DLI", "MENT", "OOM", "OOP", "LLSAN", "LAO", "RIS", "ZYG", "LLS") for s in "lr"
+]
+
+
+def _fake_model(names=BADIN_NAMES):
+    return SimpleNamespace(muscle_names=list(names), n_muscles=len(names), muscle_index=list(names).index)
+
+
+def test_interpolation_orders():
+    kt, kv = np.array([0.0, 1.0, 3.0]), np.array([0.0, 2.0, -1.0])
+    t = np.array([-1.0, 0.0, 0.5, 1.0, 2.0, 3.0, 4.0])
+    assert np.allclose(interpolate(kt, kv, t, "Linear"), [0, 0, 1, 2, 0.5, -1, -1], atol=_EXACT)
+    assert np.allclose(interpolate(kt, kv, t, "Step"), [0, 0, 0, 2, 2, -1, -1], atol=_EXACT)
+    # CubicStep: v0 + (v1 - v0)(3s^2 - 2s^3): midpoints are the mean, quarter points 5/32 of the way
+    cs = interpolate(kt, kv, np.array([0.5, 0.25, 2.0]), "CubicStep")
+    assert np.allclose(cs, [1.0, 2.0 * 5 / 32, 0.5], atol=_EXACT)
+    # zero slope at every knot (the "step" in CubicStep), continuous values
+    h = 1e-6
+    for k in kt:
+        d = (
+            interpolate(kt, kv, np.array([k + h]), "CubicStep") - interpolate(kt, kv, np.array([k - h]), "CubicStep")
+        ) / (2 * h)
+        assert abs(d[0]) < 1e-5
+    with pytest.raises(ValueError, match="not supported"):
+        interpolate(kt, kv, t, "SphericalCubic")
+
+
+def test_implicit_time_file_and_scale(tmp_path):
+    f = tmp_path / "c.txt"
+    f.write_text("0.5 1.5 2.0\nLinear 1 0.25\n0.0\n1.0\n1.0\n0.0\n0.0\n")
+    c = read_excitation_curve(f)
+    assert np.allclose(c.times, [0.0, 0.25, 0.5, 0.75, 1.0])
+    # absolute time = t0 + local time; values scaled by 2
+    assert np.allclose(c.values([0.5, 0.625, 1.0, 1.125, 9.0]), [0.0, 1.0, 2.0, 1.0, 0.0], atol=_EXACT)
+
+
+def test_closure_curves_parse_exactly():
+    d = data_path("artisynth-face", "speech", "closure")
+    oop = read_excitation_curve(d / "oop.txt")
+    assert (oop.t0, oop.t1, oop.scale, oop.order, oop.vsize) == (0.0, 1.0, 1.0, "CubicStep", 1)
+    assert np.array_equal(oop.times, [0.0, 0.202, 0.732, 1.0])
+    assert np.array_equal(oop.data[:, 0], [0.0, 0.0, 1.0, 1.0])
+    assert abs(oop.values(0.467)[0] - 0.5) < _EXACT  # midpoint of the 0.202 -> 0.732 rise
+    oom = read_excitation_curve(d / "oom.txt")
+    assert np.allclose(oom.values([0.0, 0.2, 0.5, 0.8, 1.0]), [0.0, 0.0, 0.15, 0.3, 0.3], atol=_EXACT)
+
+
+def test_probes_active_flags_targets_and_file_precedence():
+    d = data_path("artisynth-face", "speech")
+    probes, outputs = read_probes(d / "closure" / "0probes.art")
+    by = {p.name: p for p in probes}
+    assert [p.name for p in probes] == ["OOP", "OOM", "MENT", "OOMi", "RIS", "LLSAN", "LLS"]
+    assert {p.name for p in probes if p.active} == {"OOM", "MENT", "RIS"}
+    assert (by["OOMi"].target, by["OOMi"].target_kind) == ("OOMl", "exciters")
+    assert (by["LLS"].target, by["LLS"].attached_file) == ("LLS", "lls.txt")
+    assert outputs[0]["props"] == "lipOpeningArea"
+    g = read_gesture(d / "closure")
+    assert sorted(g.curves) == ["MENT", "OOM", "RIS"] and g.duration_s == (0.0, 1.0)
+    assert len(read_gesture(d / "closure", include_inactive=True).curves) == 7
+    # approximant: the attached file (peak 0.3) replaces the inline data (peak 1.0), as in ArtiSynth
+    ap = read_gesture(d / "approximant")
+    assert sorted(ap.curves) == ["OOP"]
+    assert ap.curves["OOP"].values(1.0)[0] == 0.3
+    assert {p.name: p for p in ap.probes}["OOP"].inline_data[:, 1].max() == 1.0
+    assert ap.reference_lip_area.shape == (101, 2) and ap.reference_lip_area[0, 1] > 40.0
+    fr = read_gesture(d / "fricative")
+    assert sorted(fr.curves) == ["LLS", "LLSAN", "MENT", "OOMi", "RIS"]
+
+
+def test_mapping_drives_both_sides():
+    d = data_path("artisynth-face", "speech")
+    model = _fake_model()
+    fr = read_gesture(d / "fricative")
+    mp = map_gesture_to_model(fr, model)
+    assert mp.muscles["LLS"] == ["LLS_l", "LLS_r"] and mp.muscles["OOMi"] == ["OOM_l", "OOM_r"]
+    assert mp.unmapped == [] and any("OOMl" in n for n in mp.notes)
+    A = mp.activations(fr, model, np.array([0.0, 0.5, 1.0]))
+    assert A.shape == (3, model.n_muscles)
+    assert np.allclose(A[:, model.muscle_index("LLS_l")], [0.0, 0.25, 0.5], atol=_EXACT)
+    assert np.array_equal(A[:, model.muscle_index("LLS_l")], A[:, model.muscle_index("LLS_r")])
+    assert np.all(A[:, model.muscle_index("OOP_l")] == 0)  # OOP is inactive in the fricative
+    skip = map_gesture_to_model(fr, model, lower_oom="skip")
+    assert skip.unmapped == ["OOMi"] and "OOMi" not in skip.muscles
+    partial = map_gesture_to_model(fr, _fake_model(["LLS_l", "LLS_r", "MENT_l", "MENT_r"]))
+    assert sorted(partial.unmapped) == ["LLSAN", "OOMi", "RIS"]
+
+
+def test_frame_times_and_lip_opening():
+    t = gesture_times(0.0, 1.0, 25.0)
+    assert len(t) == 26 and t[0] == 0.0 and abs(t[-1] - 1.0) < _EXACT
+    assert np.allclose(gesture_times(0.0, 0.9, 4.0), [0.0, 0.25, 0.5, 0.75, 0.9], atol=_EXACT)  # end kept
+    sub = gesture_times(0.0, 1.0, 100.0, max_frames=3)
+    assert len(sub) == 3 and sub[0] == 0.0 and sub[-1] == 1.0
+    m = np.zeros((2, 3, 3))
+    m[:, 2, 1] = [0.01, 0.004]
+    assert np.allclose(lip_opening_mm(m, ["Mouth_Down", "x", "Mouth_Up"]), [10.0, 4.0])
+
+
+@pytest.mark.slow
+def test_closure_closes_the_lips_cli(tmp_path):
+    from wface.cli import main
+
+    face = data_path("artisynth-face")
+    out = tmp_path / "closure"
+    assert main(["speech", "--model", str(face), "--gesture", "closure", "--max-frames", "3", "--out", str(out)]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["frames"] == 3 and rep["all_converged"] and rep["inverted_elements_max"] == 0
+    assert rep["probe_to_muscles"]["OOM"] == ["OOM_l", "OOM_r"]
+    table = np.loadtxt(out / "lip_opening.csv", delimiter=",", skiprows=1)
+    t, lo = table[:, 0], table[:, 1]
+    assert np.allclose(t, [0.0, 0.5, 1.0])  # 101 frames at 100 fps, subsampled to 3
+    # measured: 17.19 -> 7.70 (t = 0.5) -> 5.72 mm; the lips close steadily as OOM, MENT and RIS rise
+    assert lo[1] < lo[0] - 5.0 and lo[2] < lo[1] - 1.0 and lo[2] < lo[0] - 8.0
+    assert (out / "lip_opening.png").stat().st_size > 1000 and (out / "animation.usdc").stat().st_size > 1000
+
+
+@pytest.mark.slow
+def test_example_runs_headless(tmp_path):
+    """examples/badin_speech.py doubles as a test: one gesture, 3 frames."""
+    import importlib.util
+    from pathlib import Path
+
+    face = data_path("artisynth-face")
+    path = Path(__file__).resolve().parents[1] / "examples" / "badin_speech.py"
+    spec = importlib.util.spec_from_file_location("badin_speech_example", path)
+    ex = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ex)
+    s = ex.run(tmp_path, gestures=("approximant",), max_frames=3, data=face)
+    lo = s["approximant"]["lip_opening_mm"]
+    assert s["approximant"]["probe_to_muscles"] == {"OOP": ["OOP_l", "OOP_r"]}
+    assert s["approximant"]["all_converged"] and lo["first"] > 0
+    assert (tmp_path / "lip_opening_all.png").exists() and (tmp_path / "approximant" / "animation.usdc").exists()

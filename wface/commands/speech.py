@@ -1,0 +1,205 @@
+"""``wface speech``: play an ArtiSynth speech gesture (excitation curves) on the Badin face.
+
+Writes into --out: lip_opening.csv (time, lip opening in mm, its signed vertical part, activations
+of the driven muscles), lip_opening.png, animation.usdc (skin, markers, per-muscle activations) and report.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+_EPILOG = """\
+The gesture folders (speech/closure, speech/fricative, speech/approximant of the ArtiSynth face
+data) hold one excitation curve per muscle and 0probes.art, which names the muscle each curve
+drives and whether ArtiSynth plays it (active). Each frame is a quasistatic equilibrium
+warm-started from the previous one; the lip opening is the Mouth_Up - Mouth_Down distance.
+
+examples:
+  wface speech --model ../shared/data/artisynth-face --gesture closure --out closure_out
+  wface speech --model badin.npz --gesture fricative --fps 25 --out fricative_out
+  wface speech --model badin.npz --gesture approximant --max-frames 5 --out quick
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "speech",
+        help="play an ArtiSynth speech gesture on the Badin face (lip opening, USD)",
+        description=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "--model",
+        required=True,
+        help="the Badin face: a saved model (.npz) or the artisynth-face data folder (imported)",
+    )
+    p.add_argument(
+        "--gesture", required=True, help="closure, fricative, approximant, or a folder with 0probes.art and curve files"
+    )
+    p.add_argument(
+        "--speech-dir",
+        help="folder holding the gesture folders (default: MODEL_DATA/speech, or ../shared/data/artisynth-face/speech)",
+    )
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--fps", type=float, default=100.0, help="frame rate (default 100, the original's output rate)")
+    p.add_argument("--max-frames", type=int, help="subsample to at most this many frames (first and last kept)")
+    p.add_argument("--tol", type=float, default=1e-4, help="relative force residual of each solve (default 1e-4)")
+    p.add_argument("--all-probes", action="store_true", help="also play probes marked active=false")
+    p.add_argument(
+        "--lower-oom",
+        choices=["whole", "skip"],
+        default="whole",
+        help="what the OOMl exciter drives: the whole OOM (default, approximation) or nothing",
+    )
+    p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
+    p.set_defaults(func=run_speech)
+
+
+def _load_model(path: Path):
+    if path.is_dir():
+        from wface.importers.artisynth import import_artisynth
+
+        return import_artisynth(path, progress=True)
+    from wface.model import load_model
+
+    return load_model(path)
+
+
+def _gesture_dir(args) -> Path:
+    g = Path(args.gesture)
+    if (g / "0probes.art").exists():
+        return g
+    candidates = []
+    if args.speech_dir:
+        candidates.append(Path(args.speech_dir))
+    model = Path(args.model)
+    if model.is_dir():
+        candidates.append(model / "speech")
+    candidates.append(Path(__file__).resolve().parents[3] / "shared" / "data" / "artisynth-face" / "speech")
+    candidates.append(Path.cwd().parent / "shared" / "data" / "artisynth-face" / "speech")
+    for c in candidates:
+        if (c / args.gesture / "0probes.art").exists():
+            return c / args.gesture
+    raise FileNotFoundError(
+        f"gesture {args.gesture!r}: no 0probes.art under {[str(c) for c in candidates]} (use --speech-dir)"
+    )
+
+
+def write_lip_opening(out: Path, result, model) -> tuple[Path, Path]:
+    """lip_opening.csv (time_s, lip_opening_mm, driven activations) and lip_opening.png."""
+    from wface.viz.plots import _plt
+
+    driven = [i for i in range(model.n_muscles) if np.any(result.activations[:, i] > 0)]
+    header = ["time_s", "lip_opening_mm", "lip_vertical_mm"] + [f"a_{model.muscle_names[i]}" for i in driven]
+    table = np.column_stack(
+        [result.times_s, result.lip_opening_mm, result.lip_vertical_mm, result.activations[:, driven]]
+    )
+    csv = out / "lip_opening.csv"
+    np.savetxt(csv, table, delimiter=",", header=",".join(header), comments="", fmt="%.6g")
+    plt = _plt()
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True)
+    ax1.plot(result.times_s, result.lip_opening_mm, "o-", color="C3", ms=3, label="distance")
+    ax1.plot(result.times_s, result.lip_vertical_mm, "--", color="C0", label="vertical part")
+    ax1.legend(fontsize=8)
+    ax1.set_ylabel("lip opening (mm)\nMouth_Up - Mouth_Down")
+    ax1.set_title(f"{result.gesture}: quasistatic Badin face, {len(result.times_s)} frames")
+    ax1.grid(alpha=0.3)
+    seen = set()
+    for i in driven:
+        base = model.muscle_names[i].rsplit("_", 1)[0]
+        if base in seen:
+            continue
+        seen.add(base)
+        ax2.plot(result.times_s, result.activations[:, i], label=base)
+    ax2.set_ylabel("activation (both sides)")
+    ax2.set_xlabel("time (s)")
+    ax2.legend(fontsize=8, ncol=3)
+    ax2.grid(alpha=0.3)
+    png = out / "lip_opening.png"
+    fig.savefig(png, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return csv, png
+
+
+def run_speech(args: argparse.Namespace) -> int:
+    from wface.importers.speech import map_gesture_to_model, read_gesture
+    from wface.speech import simulate_gesture, summarize
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    model = _load_model(Path(args.model))
+    gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
+    mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
+    t_load = time.perf_counter() - t_start
+    result = simulate_gesture(
+        model, gesture, fps=args.fps, max_frames=args.max_frames, mapping=mapping, tol=args.tol, progress=True
+    )
+    csv, png = write_lip_opening(out, result, model)
+    files = [csv.name, png.name]
+    if not args.no_usd:
+        from wface.io.usd import write_take
+
+        F = len(result.times_s)
+        identity = np.tile(np.hstack([np.eye(3), np.zeros((3, 1))]), (F, 1, 1))
+        fps_out = (
+            args.fps
+            if args.max_frames is None
+            else max(1.0, (F - 1) / max(result.times_s[-1] - result.times_s[0], 1e-9))
+        )
+        write_take(
+            out / "animation.usdc",
+            model=model,
+            node_positions_m=result.node_positions_m,
+            fps=fps_out,
+            simulated_markers_m=result.markers_m,
+            marker_names=result.marker_names,
+            cranium_affines=identity,
+            jaw_affines=identity,
+            activations=result.activations,
+            metadata={"gesture": result.gesture, "source": str(gesture.directory)},
+        )
+        files.append("animation.usdc")
+    report = summarize(result)
+    report.update(
+        {
+            "model": str(args.model),
+            "nodes": int(model.n_nodes),
+            "tets": int(len(model.tets)),
+            "gesture_dir": str(gesture.directory),
+            "probes": [
+                {"name": p.name, "drives": p.target, "active": p.active, "file": p.attached_file}
+                for p in gesture.probes
+            ],
+            "played_probes": sorted(gesture.curves),
+            "unmapped_probes": mapping.unmapped,
+            "interpolation": {k: c.order for k, c in gesture.curves.items()},
+            "tol": args.tol,
+            "setup_seconds": t_load,
+            "wall_seconds": time.perf_counter() - t_start,
+            "lip_opening_definition": "distance between the Mouth_Up and Mouth_Down skin markers (mm)",
+            "reference_lip_opening_area": None
+            if gesture.reference_lip_area is None
+            else {
+                "what": "the original ArtiSynth (dynamic) simulation's lipOpeningArea output, as recorded",
+                "times_s": gesture.reference_lip_area[:, 0].tolist(),
+                "area": gesture.reference_lip_area[:, 1].tolist(),
+                "first": float(gesture.reference_lip_area[0, 1]),
+                "last": float(gesture.reference_lip_area[-1, 1]),
+            },
+            "files": files,
+        }
+    )
+    (out / "report.json").write_text(json.dumps(report, indent=2))
+    lo = report["lip_opening_mm"]
+    print(
+        f"{result.gesture}: lip opening {lo['first']:.2f} -> {lo['last']:.2f} mm (min {lo['min']:.2f}, "
+        f"max {lo['max']:.2f}) over {report['frames']} frames, {report['seconds_total']:.1f} s of solves"
+    )
+    print(f"wrote {out / 'report.json'}")
+    return 0
