@@ -212,7 +212,9 @@ def fem_tracked_take(path: Path) -> Path:
     recs = track_sequence(model, perf.markers_m, marker_names=model.marker_names, markers=markers)
     M = model.n_muscles
     C = np.array([r.controls for r in recs])
-    affine = lambda b: np.hstack([b[:9].reshape(3, 3), b[9:12, None]])  # noqa: E731
+    from wface.controls import bone_affines
+
+    cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(c[M:]) for c in C), strict=True))
     rms = float(np.sqrt(np.nanmean(np.array([r.marker_error_m for r in recs]) ** 2)) * 1e3)
     return write_take(
         path,
@@ -221,8 +223,8 @@ def fem_tracked_take(path: Path) -> Path:
         fps=30.0,
         captured_markers_m=perf.markers_m,
         simulated_markers_m=np.array([r.markers_m for r in recs]),
-        cranium_affines=np.stack([affine(c[M : M + 12]) for c in C]),
-        jaw_affines=np.stack([affine(c[M + 12 :]) for c in C]),
+        cranium_affines=cranium,
+        jaw_affines=jaw,
         activations=C[:, :M],
         bone_meshes={},
         metadata={"source": "examples/make_usd_scenes.py fem_tracked_take", "marker_rms_mm": round(rms, 3)},

@@ -30,6 +30,7 @@ __all__ = [
     "activation_penalty",
     "attached_positions",
     "attached_positions_jacobian",
+    "bone_affines",
     "affine_from_params",
     "jaw_from_intuitive",
     "jaw_to_intuitive",
@@ -55,6 +56,17 @@ def params_from_affine(M: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- constrained nodes X_C(b)
+def bone_affines(b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(cranium, jaw) 3x4 affines [M | t] from the 24 bone parameters (the jaw relative to the cranium)."""
+    b = _check_b(b)
+    return _affine_3x4(b[:12]), _affine_3x4(b[12:])
+
+
+def _affine_3x4(p: np.ndarray) -> np.ndarray:
+    M, t = affine_from_params(p)
+    return np.hstack([M, t[:, None]])
+
+
 def attached_positions(model: FaceModel, b: np.ndarray, *, frame: str = "cranium") -> np.ndarray:
     """Positions (a, 3) of ``model.attached_nodes`` for bone parameters b (24,).
 
@@ -62,16 +74,12 @@ def attached_positions(model: FaceModel, b: np.ndarray, *, frame: str = "cranium
         frame: "cranium" (cranium nodes at rest, jaw nodes at Mm X + tm: what the simulator solves)
             or "world" (everything mapped by Mc, tc).
     """
-    b = _check_b(b)
-    X = model.rest_positions_m[model.attached_nodes]
-    jaw = model.attached_bone == BONES.index("jaw")
-    Mm, tm = affine_from_params(b[12:])
-    Y = X.copy()
-    Y[jaw] = X[jaw] @ Mm.T + tm
-    if frame == "cranium":
-        return Y
-    Mc, tc = affine_from_params(b[:12])
-    return Y @ Mc.T + tc
+    from wface.physics import bones
+
+    cranium, jaw = bone_affines(b)
+    if frame not in ("cranium", "world"):
+        raise ValueError(f"frame must be 'cranium' or 'world', got {frame!r}")
+    return bones.attached_positions(model, cranium if frame == "world" else None, jaw)
 
 
 def attached_positions_jacobian(model: FaceModel) -> np.ndarray:
@@ -198,9 +206,9 @@ def bone_penalty(joint: JawJoint, b: np.ndarray) -> Penalty:
 
 # ---------------------------------------------------------------------- intuitive jaw controls
 def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+    from wface.physics.bones import rotation_about_axis
+
+    return rotation_about_axis(axis, angle)
 
 
 def jaw_limits(joint: JawJoint) -> dict:

@@ -185,10 +185,9 @@ def _pictures(args, out, model, records, targets, fps, report, truth):
     X = np.array([r.x_m for r in records])
     sim = np.array([r.markers_m for r in records])
 
-    def affines(block):
-        return np.stack([np.hstack([b[:9].reshape(3, 3), b[9:12, None]]) for b in block])
+    from wface.controls import bone_affines
 
-    cranium, jaw = affines(C[:, M : M + 12]), affines(C[:, M + 12 :])
+    cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(c[M:]) for c in C), strict=True))
     write_take(
         out / "animation.usdc",
         model=model,
