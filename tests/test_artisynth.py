@@ -149,7 +149,8 @@ def test_no_slivers_and_the_boundary_stays_put(model, raw):
     for k, (a, b) in enumerate(sources, start=first):
         if on[k]:  # on its edge: collinear with the ends and between them
             u, v = x[a] - x[k], x[b] - x[k]
-            assert np.dot(u, v) < 0 and np.linalg.norm(np.cross(u, v)) < 1e-12 * np.linalg.norm(u) * np.linalg.norm(v) + 1e-18
+            scale = np.linalg.norm(u) * np.linalg.norm(v)
+            assert np.dot(u, v) < 0 and np.linalg.norm(np.cross(u, v)) < 1e-12 * scale
 
 
 def test_split_of_a_unit_cube_and_a_wedge():
