@@ -147,6 +147,8 @@ def test_exaggerate_keeps_activations_in_range(model, smile, surprise):
                 e_n = 0.0 if neutral is None else neutral.drive
                 np.testing.assert_allclose(p.drive, np.maximum(0, e_n + f * (smile.drive - e_n)), atol=_ROUND_OFF)
     assert not np.any(exaggerate(smile, 0.0).activations)
+    wide = exaggerate(surprise, 4.0, joint=model.jaw_joint)  # 48 deg asked, the joint allows 35
+    assert wide.jaw_opening_deg == pytest.approx(jaw_limits(model.jaw_joint)["opening_deg"][1])
     for bad in (-0.5, np.nan, np.inf):
         with pytest.raises(ValueError):
             exaggerate(smile, bad)
@@ -281,7 +283,9 @@ def test_cli_blend_then_chained_edits_write_valid_usd(model_path, tmp_path, caps
     rep = json.loads((blend_dir / "report.json").read_text())
     assert rep["frames"] == 4 and rep["converged"] and rep["activation_max"] <= 1.0
     x_dir = tmp_path / "x"
-    assert main(["edit", "exaggerate", "--take", str(blend_dir), "--factor", "2", "--out", str(x_dir), *base]) == 0
+    argv = ["edit", "exaggerate", "--take", str(blend_dir), "--factor", "2", "--mesh-only", "--out", str(x_dir)]
+    assert main([*argv, *base]) == 0
+    assert_stage_valid(x_dir / "animation.usdc")  # the skin alone, through write_mesh_animation
     rep = json.loads((x_dir / "report.json").read_text())
     assert rep["activation_max"] <= 1.0 and rep["force_length_scale_max"] == pytest.approx(2.0)
     assert rep["scaled_muscles"]

@@ -166,7 +166,7 @@ def _load(args, model):
     return load_take(args.take, model, fps=args.fps)
 
 
-def _finish(args, model, take, info: dict) -> int:
+def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> int:
     from wface.editing import simulate_poses, write_edit
 
     t0 = time.perf_counter()
@@ -182,6 +182,7 @@ def _finish(args, model, take, info: dict) -> int:
         usd_name="animation.usda" if args.usda else "animation.usdc",
         mesh_only=args.mesh_only,
         pictures=not args.no_pictures,
+        labels=labels,
     )
     state = "converged" if report["converged"] else "NOT all converged"
     print(
@@ -237,7 +238,8 @@ def run_blend(args: argparse.Namespace) -> int:
         ts = ts * ts * (3.0 - 2.0 * ts)
     poses = [interpolate(a, b, float(t), joint=joint) for t in ts]
     take = _take(model, poses, fps, f"{args.from_} -> {args.to}")
-    return _finish(args, model, take, {"edit": "interpolate", "from": args.from_, "to": args.to, "t": ts.tolist()})
+    info = {"edit": "interpolate", "from": args.from_, "to": args.to, "t": ts.tolist()}
+    return _finish(args, model, take, info, [f"t = {t:.2f}" for t in ts])
 
 
 def run_exaggerate(args: argparse.Namespace) -> int:
@@ -254,14 +256,15 @@ def run_exaggerate(args: argparse.Namespace) -> int:
         neutral = _neutral(args, model, take)
         poses = [exaggerate(p, f, neutral, joint=joint, scale_mode=args.scale_mode) for p in take.poses]
         take = take.with_poses(poses, source=f"{take.source} x{f:g}")
-        return _finish(args, model, take, info)
+        return _finish(args, model, take, info, [f"frame {k} x{f:g}" for k in range(len(poses))])
     pose = expression_pose(model, args.expression)
     neutral = _neutral(args, model)
     n = _positive_frames(args.frames)
     factors = np.linspace(0.0, f, n) if n > 1 else np.array([f])
     poses = [exaggerate(pose, float(k), neutral, joint=joint, scale_mode=args.scale_mode) for k in factors]
     take = _take(model, poses, args.fps or 30.0, f"{args.expression} x{f:g}")
-    return _finish(args, model, take, {**info, "expression": args.expression, "factors": factors.tolist()})
+    info = {**info, "expression": args.expression, "factors": factors.tolist()}
+    return _finish(args, model, take, info, [f"x {k:.2f}" for k in factors])
 
 
 def _envelope(n: int, fade: int) -> np.ndarray:

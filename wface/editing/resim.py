@@ -124,10 +124,12 @@ def write_edit(
     usd_name: str = "animation.usdc",
     mesh_only: bool = False,
     pictures: bool = False,
+    labels: list[str] | None = None,
 ) -> dict:
     """Write ``usd_name`` (a ``write_take`` stage: skin, bones, activations; or with ``mesh_only``
     the skin alone through ``write_mesh_animation``), ``controls.npz`` (reloadable with
-    ``load_take``), ``report.json`` and, with ``pictures``, ``contact_sheet.png``. Returns the report."""
+    ``load_take``), ``report.json`` and, with ``pictures``, ``contact_sheet.png`` (panels titled by
+    ``labels``, one per frame, default "frame k"). Returns the report."""
     import json
 
     from wface.controls import bone_affines
@@ -188,12 +190,14 @@ def write_edit(
         "take_info": take.info,
     }
     if pictures:
-        report["contact_sheet"] = write_contact_sheet(out / "contact_sheet.png", model, result)
+        report["contact_sheet"] = write_contact_sheet(out / "contact_sheet.png", model, result, labels=labels)
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     return report
 
 
-def write_contact_sheet(path: Path, model: FaceModel, result: EditResult, *, panels: int = 4) -> str | None:
+def write_contact_sheet(
+    path: Path, model: FaceModel, result: EditResult, *, panels: int = 4, labels: list[str] | None = None
+) -> str | None:
     """Up to ``panels`` evenly spaced frames side by side (pyvista, off-screen); None when unavailable."""
     try:
         from wface.viz.render import Panel, render_panels
@@ -201,7 +205,7 @@ def write_contact_sheet(path: Path, model: FaceModel, result: EditResult, *, pan
         return None
     F = len(result.take.poses)
     idx = sorted({int(round(k)) for k in np.linspace(0, F - 1, min(panels, F))})
-    items = [Panel(result.x_m[i], result.take.activations[i], title=f"frame {i}") for i in idx]
+    items = [Panel(result.x_m[i], result.take.activations[i], title=labels[i] if labels else f"frame {i}") for i in idx]
     try:
         render_panels(model, items, path, panel_size=(360, 400))
     except Exception as exc:  # noqa: BLE001 - no off-screen GL is not an error of the edit
