@@ -5,7 +5,8 @@ Edits work on ``Pose`` values (activations, per-muscle force-length scale, rigid
 intuitive parameters), so every edited frame is a physically attainable face: activations stay in
 [0, 1] (exaggeration past full activation scales the force-length curve instead), the cranium stays
 rigid and the jaw stays on its joint. Modules: ``pose`` (the values), ``ops`` (the edits),
-``sources`` (expressions, tracked takes), ``resim`` (quasistatic re-simulation and output).
+``sources`` (expressions, tracked takes), ``resim`` (quasistatic re-simulation), ``output``
+(USD, controls, report, contact sheet).
 
 Example::
 
@@ -20,8 +21,9 @@ Example::
 """
 
 from wface.editing.ops import SCALE_MODES, blend, exaggerate, interpolate, layer, retime
+from wface.editing.output import write_contact_sheet, write_edit
 from wface.editing.pose import Pose, Take, clamp_jaw, nearest_rotation, pose_from_controls, rest_pose, split_drive
-from wface.editing.resim import EditResult, simulate_poses, write_edit
+from wface.editing.resim import EditResult, simulate_poses
 from wface.editing.sources import expression_names, expression_pose, load_take, save_controls
 
 __all__ = [
@@ -44,5 +46,6 @@ __all__ = [
     "save_controls",
     "simulate_poses",
     "split_drive",
+    "write_contact_sheet",
     "write_edit",
 ]
