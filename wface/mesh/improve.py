@@ -48,7 +48,7 @@ def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 def tet_min_dihedral_deg(p: np.ndarray) -> np.ndarray:
     """Smallest interior dihedral angle (degrees) of tets given by corners p (..., 4, 3).
 
-    Tets with a volume below 1e-9 of their mean edge length cubed (flat or inverted) score -1.
+    Inverted and flat tets (no positive volume, or an angle below 1e-6 deg) score -1.
     """
     p0, p1, p2, p3 = p[..., 0, :], p[..., 1, :], p[..., 2, :], p[..., 3, :]
     normals = (  # outward normals of the faces opposite vertices 0..3 of a positive tet
@@ -65,9 +65,7 @@ def tet_min_dihedral_deg(p: np.ndarray) -> np.ndarray:
             cos_max = np.fmax(cos_max, np.where(np.isnan(c), 1.0, c))
     angle = np.degrees(np.arccos(np.clip(cos_max, -1.0, 1.0)))
     vol6 = -np.einsum("...k,...k->...", p3 - p0, normals[3])
-    d = [p[..., j, :] - p[..., i, :] for i, j in _TET_EDGES]
-    edge = sum(np.sqrt(np.einsum("...k,...k->...", e, e)) for e in d) / 6.0
-    return np.where(vol6 > 6e-9 * edge**3, angle, -1.0)
+    return np.where((vol6 > 0) & (angle > 1e-6), angle, -1.0)
 
 
 def _parity(perm: list[int]) -> int:
