@@ -61,7 +61,7 @@ __all__ = [
 DEFAULT_STIFFNESS_FACTOR = 100.0
 REGIONS = ("lips", "teeth", "bones")
 # Surface groups holding the upper / lower lip contact surfaces, first match wins.
-LIP_GROUPS = (("upper_lip_contact", "lower_lip_contact"), ("upper_lip", "lower_lip"))
+LIP_GROUPS = (("upper_lip", "lower_lip"), ("upper_lip_contact", "lower_lip_contact"))
 
 
 def _vec3(value, what: str) -> np.ndarray:
