@@ -163,9 +163,10 @@ class SignedSurface:
             pseudo[edge] = self.edge_normals[eid]
             on_boundary[edge] = self.boundary_edge[eid]
             ends = self.triangles[tri[edge]]
-            e = self.vertices_m[ends[np.arange(len(local)), (local + 1) % 3]] - self.vertices_m[
-                ends[np.arange(len(local)), local]
-            ]
+            e = (
+                self.vertices_m[ends[np.arange(len(local)), (local + 1) % 3]]
+                - self.vertices_m[ends[np.arange(len(local)), local]]
+            )
             edge_direction[edge] = e / np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-300)
         vert = nz >= 2
         if vert.any():

@@ -64,6 +64,11 @@ REGIONS = ("lips", "teeth", "bones")
 LIP_GROUPS = (("upper_lip", "lower_lip"), ("upper_lip_contact", "lower_lip_contact"))
 
 
+# (phi (k,), outward unit gradient n (k, 3), evaluated (k,) bool, closest feature (k,) 0 face / 1 edge /
+# 2 vertex, edge direction (k, 3)) of k query points against a rigid obstacle.
+_Signed = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
 def _vec3(value, what: str) -> np.ndarray:
     v = np.asarray(value, dtype=np.float64).reshape(-1)
     if v.shape != (3,) or not np.all(np.isfinite(v)):
@@ -93,7 +98,7 @@ class Sphere:
         if not (np.isfinite(self.radius_m) and self.radius_m > 0):
             raise ValueError(f"sphere radius must be finite and > 0, got {self.radius_m}")
 
-    def signed(self, p: np.ndarray, bone_affines: dict, margin_m: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def signed(self, p: np.ndarray, bone_affines: dict, margin_m: float = 0.0) -> _Signed:
         d = p - np.asarray(self.center_m)
         r = np.linalg.norm(d, axis=1)
         n = np.where(r[:, None] > 0, d / np.where(r > 0, r, 1.0)[:, None], np.array([0.0, 0.0, 1.0]))
@@ -114,7 +119,7 @@ class HalfSpace:
         object.__setattr__(self, "point_m", tuple(_vec3(self.point_m, "half-space point")))
         object.__setattr__(self, "normal", tuple(n / np.linalg.norm(n)))
 
-    def signed(self, p: np.ndarray, bone_affines: dict, margin_m: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def signed(self, p: np.ndarray, bone_affines: dict, margin_m: float = 0.0) -> _Signed:
         n = np.asarray(self.normal)
         ok = np.ones(len(p), dtype=bool)
         phi = (p - np.asarray(self.point_m)) @ n
@@ -158,7 +163,7 @@ class MeshObstacle:
             self._cache = (key, SignedSurface(self.vertices_m @ A[:, :3].T + A[:, 3], self.triangles, orient=False))
         return self._cache[1]
 
-    def signed(self, p: np.ndarray, bone_affines: dict, margin_m: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def signed(self, p: np.ndarray, bone_affines: dict, margin_m: float = 0.0) -> _Signed:
         surf = self.surface(bone_affines)
         near = surf.near_box(p, margin_m)
         phi, n, e = np.full(len(p), np.inf), np.zeros((len(p), 3)), np.zeros((len(p), 3))
@@ -460,7 +465,9 @@ class Contact:
             if ("teeth" in self.regions and is_teeth) or ("bones" in self.regions and not is_teeth):
                 self.rigid.append((name, MeshObstacle(mesh.vertices_m, mesh.triangles, bone=mesh.bone, name=name)))
         if "teeth" in self.regions and not any("teeth" in n.lower() for n in model.bone_meshes):
-            raise ValueError(f"contact region 'teeth': the model has no teeth mesh (bone meshes: {list(model.bone_meshes)})")
+            raise ValueError(
+                f"contact region 'teeth': the model has no teeth mesh (bone meshes: {list(model.bone_meshes)})"
+            )
 
         pairs = list(self_pairs)
         if "lips" in self.regions:
@@ -511,7 +518,9 @@ class Contact:
             m = int(act.sum())
             node = self.nodes[act]
             c = self._tangential(phi[act], feature[act])
-            parts.append((node, np.repeat(node[:, None], 3, 1), np.zeros((m, 3)), n[act], self.gap_m - phi[act], s, c, e[act]))
+            parts.append(
+                (node, np.repeat(node[:, None], 3, 1), np.zeros((m, 3)), n[act], self.gap_m - phi[act], s, c, e[act])
+            )
         for s, (_, nodes, tri) in enumerate(self.self_contact, start=len(self.rigid)):
             if not nodes.size:
                 continue
@@ -526,9 +535,18 @@ class Contact:
             phi = hit.phi_m[act]
             c = self._tangential(phi, hit.feature[act])
             parts.append(
-                (cand[act], others, hit.barycentric[act], hit.normal[act], self.gap_m - phi, s, c, hit.edge_direction[act])
+                (
+                    cand[act],
+                    others,
+                    hit.barycentric[act],
+                    hit.normal[act],
+                    self.gap_m - phi,
+                    s,
+                    c,
+                    hit.edge_direction[act],
+                )
             )
-        cat = (lambda i, shape: np.concatenate([q[i] for q in parts]) if parts else np.zeros(shape))  # noqa: E731
+        cat = lambda i, shape: np.concatenate([q[i] for q in parts]) if parts else np.zeros(shape)  # noqa: E731
         return ContactPairs(
             node=cat(0, (0,)).astype(np.int64),
             others=cat(1, (0, 3)).astype(np.int64).reshape(-1, 3),
