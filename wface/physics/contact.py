@@ -514,7 +514,7 @@ class Contact:
         p = x[self.nodes]
         for s, (_, ob) in enumerate(self.rigid):
             phi, n, valid, feature, e = ob.signed(p, self.bone_affines, self.gap_m)
-            act = valid & (phi < self.gap_m)
+            act = valid & (phi <= self.gap_m)
             m = int(act.sum())
             node = self.nodes[act]
             c = self._tangential(phi[act], feature[act])
@@ -530,7 +530,7 @@ class Contact:
                 continue
             cand = nodes[near]
             hit = surf.signed(x[cand])
-            act = ~hit.on_boundary & (hit.phi_m < self.gap_m) & (hit.phi_m > -self.self_max_depth_m)
+            act = ~hit.on_boundary & (hit.phi_m <= self.gap_m) & (hit.phi_m > -self.self_max_depth_m)
             others = surf.triangles[hit.triangle[act]]
             phi = hit.phi_m[act]
             c = self._tangential(phi, hit.feature[act])

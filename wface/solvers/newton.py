@@ -197,7 +197,7 @@ def newton_quasistatic(
     a = activations
     if contact is not None:
         contact.set_pose(targets)
-    state = {"pairs": None}
+    state = {"pairs": None, "x": None}  # the contact pairs at the latest energy_forces point
 
     def energy_only(y):
         if contact is None:
@@ -211,7 +211,7 @@ def newton_quasistatic(
         if contact is None:
             return e, fy, e_abs
         pairs = contact.evaluate(y)
-        state["pairs"] = pairs
+        state["pairs"], state["x"] = pairs, y.copy()
         return e + pairs.energy, fy + pairs.forces(), e_abs + pairs.energy
 
     def tangent_at(y, project=True):
@@ -220,7 +220,8 @@ def newton_quasistatic(
             return tan
         from wface.physics.contact import ContactTangent
 
-        return ContactTangent(tan, contact.evaluate(y))
+        same = state["pairs"] is not None and np.array_equal(state["x"], y)
+        return ContactTangent(tan, state["pairs"] if same else contact.evaluate(y))
 
     x_load = rest.copy()
     x_load[fixed] = targets
