@@ -237,7 +237,9 @@ def default_contact_stiffness(model: FaceModel, factor: float = DEFAULT_STIFFNES
 # ---------------------------------------------------------------------- active pairs
 @dataclass
 class ContactPairs:
-    """The active contact pairs at one configuration (g > 0), with energy, forces and Hessian.
+    """The active contact pairs at one configuration (g >= 0: touching pairs carry no force but join the
+    Hessian, which keeps a Newton step from driving lips that touch at rest into each other), with
+    energy, forces and Hessian.
 
     Attributes:
         node: (P,) contact node of each pair.
@@ -339,18 +341,20 @@ class ContactPairs:
         return H.tocsr()
 
     def stats(self) -> dict:
-        """active_nodes, max_penetration_m, force_n (sum of normal force magnitudes), per source."""
+        """active_nodes (nodes with g > 0; touching pairs at g = 0 carry no force and are not counted),
+        max_penetration_m, force_n (sum of normal force magnitudes), per source."""
         g = self.penetration_m
+        pressing = g > 0
         per = {}
         for s, name in enumerate(self.names):
-            sel = self.source == s
+            sel = (self.source == s) & pressing
             per[name] = {
                 "active_nodes": int(np.unique(self.node[sel]).size),
                 "max_penetration_m": float(g[sel].max()) if sel.any() else 0.0,
                 "force_n": float(self.stiffness_n_per_m * g[sel].sum()),
             }
         return {
-            "active_nodes": int(np.unique(self.node).size),
+            "active_nodes": int(np.unique(self.node[pressing]).size),
             "max_penetration_m": float(g.max()) if g.size else 0.0,
             "force_n": float(self.stiffness_n_per_m * g.sum()),
             "sources": per,
