@@ -60,6 +60,7 @@ __all__ = [
 
 DEFAULT_STIFFNESS_FACTOR = 100.0
 REGIONS = ("lips", "teeth", "bones")
+_ROUND_OFF_M = 1e-12  # penetrations below this are round-off (lips coincide at rest), not contact
 # Surface groups holding the upper / lower lip contact surfaces, first match wins.
 LIP_GROUPS = (("upper_lip", "lower_lip"), ("upper_lip_contact", "lower_lip_contact"))
 
@@ -234,6 +235,22 @@ def default_contact_stiffness(model: FaceModel, factor: float = DEFAULT_STIFFNES
     return float(factor * 6.0 * (model.material.mu10_pa + model.material.mu01_pa) * h)
 
 
+def _contact_points(tri_a: np.ndarray, tri_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Contact points of surface a against surface b: its nodes and the midpoints of its edges, as
+    (S, 2) node ids and (S, 2) weights. Points on a node shared with b (where the two surfaces are
+    joined, e.g. the mouth corners) are left out: they never separate."""
+    tri_a = np.asarray(tri_a, dtype=np.int64).reshape(-1, 3)
+    shared = np.zeros(int(max(tri_a.max(initial=0), np.max(tri_b, initial=0))) + 1, dtype=bool)
+    shared[np.asarray(tri_b).ravel()] = True
+    nodes = np.unique(tri_a)
+    nodes = nodes[~shared[nodes]]
+    edges = np.unique(np.sort(np.concatenate([tri_a[:, [0, 1]], tri_a[:, [1, 2]], tri_a[:, [2, 0]]]), axis=1), axis=0)
+    edges = edges[~shared[edges].any(axis=1)]
+    pn = np.concatenate([np.repeat(nodes[:, None], 2, axis=1), edges])
+    pw = np.concatenate([np.tile([1.0, 0.0], (len(nodes), 1)), np.full((len(edges), 2), 0.5)])
+    return pn, pw
+
+
 # ---------------------------------------------------------------------- active pairs
 @dataclass
 class ContactPairs:
@@ -242,7 +259,10 @@ class ContactPairs:
     energy, forces and Hessian.
 
     Attributes:
-        node: (P,) contact node of each pair.
+        node: (P,) contact node of each pair (the first node of its contact point).
+        point_nodes, point_weights: (P, 2) the contact point x_p = sum_k v_k x_k: a node (v = (1, 0)) or,
+            for self-contact, also the midpoint of a surface edge (v = (1/2, 1/2)), which catches lips
+            that cross edge-on between their nodes on coarse meshes.
         others: (P, 3) triangle vertices (self-contact) or the node itself with zero weights (rigid).
         weights: (P, 3) barycentric weights w_j of the closest point (zero for rigid obstacles).
         normal: (P, 3) unit n (gradient of phi with respect to x_i).
@@ -263,12 +283,17 @@ class ContactPairs:
     n_nodes: int
     tangential: np.ndarray | None = None
     edge_direction: np.ndarray | None = None
+    point_nodes: np.ndarray | None = None
+    point_weights: np.ndarray | None = None
 
     def __post_init__(self):
         if self.tangential is None:
             self.tangential = np.zeros(len(self.node))
         if self.edge_direction is None:
             self.edge_direction = np.zeros((len(self.node), 3))
+        if self.point_nodes is None:
+            self.point_nodes = np.repeat(np.asarray(self.node)[:, None], 2, axis=1)
+            self.point_weights = np.tile([1.0, 0.0], (len(self.node), 1))
 
     def _projector(self) -> np.ndarray:
         """(P, 3, 3) Q = n n^T + c (I - n n^T - e e^T) of each pair (module docstring)."""
@@ -286,9 +311,9 @@ class ContactPairs:
         """f = -dE_c/dx, (n, 3) newtons."""
         f = np.zeros((self.n_nodes, 3))
         fn = (self.stiffness_n_per_m * self.penetration_m)[:, None] * self.normal
-        np.add.at(f, self.node, fn)
-        for j in range(3):
-            np.add.at(f, self.others[:, j], -self.weights[:, j, None] * fn)
+        nodes, coef = self._coefficients()
+        for a in range(nodes.shape[1]):
+            np.add.at(f, nodes[:, a], coef[:, a, None] * fn)
         return f
 
     def force_on_face(self, source: str | None = None) -> np.ndarray:
@@ -298,8 +323,8 @@ class ContactPairs:
         return (fn * (1.0 - self.weights[sel].sum(axis=1))[:, None]).sum(axis=0)
 
     def _coefficients(self) -> tuple[np.ndarray, np.ndarray]:
-        nodes = np.concatenate([self.node[:, None], self.others], axis=1)  # (P, 4)
-        coef = np.concatenate([np.ones((len(self.node), 1)), -self.weights], axis=1)  # J = coef_a n
+        nodes = np.concatenate([self.point_nodes, self.others], axis=1)  # (P, 5)
+        coef = np.concatenate([self.point_weights, -self.weights], axis=1)  # C = [v_1 I, v_2 I, -w_1 I, ...]
         return nodes, coef
 
     def matvec(self, v: np.ndarray) -> np.ndarray:
@@ -311,7 +336,7 @@ class ContactPairs:
         nodes, coef = self._coefficients()
         u = np.einsum("pa,pad->pd", coef, v[nodes])
         qu = self.stiffness_n_per_m * np.einsum("pde,pe->pd", self._projector(), u)
-        for a in range(4):
+        for a in range(nodes.shape[1]):
             np.add.at(out, nodes[:, a], coef[:, a, None] * qu)
         return out
 
@@ -320,18 +345,19 @@ class ContactPairs:
         out = np.zeros((self.n_nodes, 3))
         nodes, coef = self._coefficients()
         q = np.einsum("pdd->pd", self._projector())
-        for a in range(4):
+        for a in range(nodes.shape[1]):
             np.add.at(out, nodes[:, a], self.stiffness_n_per_m * coef[:, a, None] ** 2 * q)
         return out
 
     def assemble(self, pattern) -> sp.csr_matrix:
         """H restricted to the unknowns of a ``BlockPattern``, CSR (3k, 3k)."""
         nodes, coef = self._coefficients()
-        dof = pattern.node_to_dof[nodes]  # (P, 4), -1 for Dirichlet nodes
+        dof = pattern.node_to_dof[nodes]  # (P, 5), -1 for Dirichlet nodes
         nn = self.stiffness_n_per_m * self._projector()
-        blocks = coef[:, :, None, None, None] * coef[:, None, :, None, None] * nn[:, None, None]  # (P,4,4,3,3)
-        ra = np.broadcast_to(dof[:, :, None], (len(dof), 4, 4))
-        cb = np.broadcast_to(dof[:, None, :], (len(dof), 4, 4))
+        blocks = coef[:, :, None, None, None] * coef[:, None, :, None, None] * nn[:, None, None]  # (P,5,5,3,3)
+        shape = (len(dof), nodes.shape[1], nodes.shape[1])
+        ra = np.broadcast_to(dof[:, :, None], shape)
+        cb = np.broadcast_to(dof[:, None, :], shape)
         keep = (ra >= 0) & (cb >= 0) & (coef[:, :, None] * coef[:, None, :] != 0)
         d3 = np.arange(3)
         rows = (3 * ra[keep])[:, None, None] + d3[None, :, None]
@@ -341,10 +367,11 @@ class ContactPairs:
         return H.tocsr()
 
     def stats(self) -> dict:
-        """active_nodes (nodes with g > 0; touching pairs at g = 0 carry no force and are not counted),
+        """active_nodes (nodes with g > 1e-12 m: touching pairs carry no force and are not counted, nor
+        round-off on surfaces that coincide at rest),
         max_penetration_m, force_n (sum of normal force magnitudes), per source."""
         g = self.penetration_m
-        pressing = g > 0
+        pressing = g > _ROUND_OFF_M
         per = {}
         for s, name in enumerate(self.names):
             sel = (self.source == s) & pressing
@@ -488,11 +515,10 @@ class Contact:
                 if g not in model.surface_groups:
                     raise ValueError(f"unknown surface group {g!r}; the model has {list(model.surface_groups)}")
             ta, tb = model.surface_groups[a], model.surface_groups[b]
-            na, nb = np.unique(ta), np.unique(tb)
-            # node-to-triangle both ways; nodes shared by the two surfaces (mouth corners) never separate
-            self.self_contact.append((f"{a}/{b}", np.setdiff1d(na, nb), tb))
-            self.self_contact.append((f"{b}/{a}", np.setdiff1d(nb, na), ta))
-        self.names = [n for n, _ in self.rigid] + [n for n, _, _ in self.self_contact]
+            # point-to-triangle both ways
+            self.self_contact.append((f"{a}/{b}", *_contact_points(ta, tb), tb))
+            self.self_contact.append((f"{b}/{a}", *_contact_points(tb, ta), ta))
+        self.names = [n for n, _ in self.rigid] + [n for n, *_ in self.self_contact]
         if not self.names:
             raise ValueError("contact has nothing to do: give regions and/or obstacles")
 
@@ -522,32 +548,44 @@ class Contact:
             m = int(act.sum())
             node = self.nodes[act]
             c = self._tangential(phi[act], feature[act])
-            parts.append(
-                (node, np.repeat(node[:, None], 3, 1), np.zeros((m, 3)), n[act], self.gap_m - phi[act], s, c, e[act])
-            )
-        for s, (_, nodes, tri) in enumerate(self.self_contact, start=len(self.rigid)):
-            if not nodes.size:
-                continue
-            surf = SignedSurface(x, tri, orient=False)
-            near = surf.near_box(x[nodes], self.gap_m + self.self_max_depth_m)
-            if not near.any():
-                continue
-            cand = nodes[near]
-            hit = surf.signed(x[cand])
-            act = ~hit.on_boundary & (hit.phi_m <= self.gap_m) & (hit.phi_m > -self.self_max_depth_m)
-            others = surf.triangles[hit.triangle[act]]
-            phi = hit.phi_m[act]
-            c = self._tangential(phi, hit.feature[act])
+            point = (np.repeat(node[:, None], 2, 1), np.tile([1.0, 0.0], (m, 1)))
             parts.append(
                 (
-                    cand[act],
-                    others,
+                    node,
+                    np.repeat(node[:, None], 3, 1),
+                    np.zeros((m, 3)),
+                    n[act],
+                    self.gap_m - phi[act],
+                    s,
+                    c,
+                    e[act],
+                    *point,
+                )
+            )
+        for s, (_, pn, pw, tri) in enumerate(self.self_contact, start=len(self.rigid)):
+            if not len(pn):
+                continue
+            surf = SignedSurface(x, tri, orient=False)
+            q = np.einsum("pk,pkd->pd", pw, x[pn])
+            near = np.flatnonzero(surf.near_box(q, self.gap_m + self.self_max_depth_m))
+            if not near.size:
+                continue
+            hit = surf.signed(q[near])
+            act = ~hit.on_boundary & (hit.phi_m <= self.gap_m) & (hit.phi_m > -self.self_max_depth_m)
+            sel = near[act]
+            phi = hit.phi_m[act]
+            parts.append(
+                (
+                    pn[sel, 0],
+                    surf.triangles[hit.triangle[act]],
                     hit.barycentric[act],
                     hit.normal[act],
                     self.gap_m - phi,
                     s,
-                    c,
+                    self._tangential(phi, hit.feature[act]),
                     hit.edge_direction[act],
+                    pn[sel],
+                    pw[sel],
                 )
             )
         cat = lambda i, shape: np.concatenate([q[i] for q in parts]) if parts else np.zeros(shape)  # noqa: E731
@@ -560,6 +598,8 @@ class Contact:
             source=np.concatenate([np.full(len(q[0]), q[5]) for q in parts]) if parts else np.zeros(0, int),
             tangential=cat(6, (0,)),
             edge_direction=cat(7, (0, 3)).reshape(-1, 3),
+            point_nodes=cat(8, (0, 2)).astype(np.int64).reshape(-1, 2),
+            point_weights=cat(9, (0, 2)).reshape(-1, 2),
             names=self.names,
             stiffness_n_per_m=self.stiffness_n_per_m,
             n_nodes=self.model.n_nodes,
