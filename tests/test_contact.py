@@ -242,14 +242,15 @@ def test_simulate_cli_with_contact(face, tmp_path, capsys):
     from wface.model import save_model
 
     path = save_model(face, tmp_path / "face.npz")
-    args = ["simulate", "--model", str(path), "--out", str(tmp_path / "run"), "--json", "--contact", "lips,teeth"]
+    args = ["simulate", "--model", str(path), "--out", str(tmp_path / "run"), "--json"]
     for m in _PRESS:
         args += ["--activation", f"{m}=1"]
-    assert main(args + ["--obstacle", _cheek_sphere(face)]) == 0
+    assert main(args + ["--contact", "lips,teeth", "--obstacle", _cheek_sphere(face), "--picture"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["converged"] and summary["contact_active_nodes"] > 0
     assert summary["contact_max_penetration_mm"] < 0.05
     assert summary["contact_sources"]["sphere0"]["active_nodes"] > 0
+    assert (tmp_path / "run" / "lips_section.png").stat().st_size > 1000
     assert main(args + ["--contact", "lips,tongue"]) == 1
     assert "unknown contact region" in capsys.readouterr().err
     assert main(args + ["--obstacle", "sphere:1,2"]) == 1

@@ -64,6 +64,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="N_PER_M",
         help="contact penalty stiffness in N/m (default: 100 x flesh Young's modulus x median edge length)",
     )
+    p.add_argument(
+        "--picture",
+        action="store_true",
+        help="also write DIR/lips_section.png: the lips and teeth cut by the mid-sagittal plane, at rest and at "
+        "the equilibrium (needs matplotlib and upper_lip / lower_lip surface groups)",
+    )
     p.add_argument("--device", default="cpu", help="Warp device: cpu (default), cuda:0 or auto")
     p.add_argument("--solver", default="auto", choices=["auto", "cg", "direct"], help="linear solver")
     p.add_argument("--tol", type=float, default=1e-6, help="relative residual tolerance (default 1e-6)")
@@ -92,6 +98,22 @@ def _quiet_warp() -> None:
     import warp as wp
 
     wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
+
+
+def _lip_picture(model, x, targets, path: Path) -> Path:
+    """Mid-sagittal section of lips and teeth, rest vs equilibrium (teeth placed by the bone targets)."""
+    from wface.physics.contact import MeshObstacle, bone_affines_from_attached
+    from wface.viz.contact import plot_lip_section
+
+    affines = bone_affines_from_attached(model, targets)
+    teeth = {}
+    for name, mesh in model.bone_meshes.items():
+        if "teeth" in name.lower():
+            surf = MeshObstacle(mesh.vertices_m, mesh.triangles, bone=mesh.bone).surface(affines)
+            teeth[name] = (surf.vertices_m, surf.triangles)
+    rest_teeth = {n: (m.vertices_m, m.triangles) for n, m in model.bone_meshes.items() if "teeth" in n.lower()}
+    panels = {"rest": model.rest_positions_m, "equilibrium": x}
+    return plot_lip_section(model, panels, path, teeth={"rest": rest_teeth, "equilibrium": teeth})
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -147,6 +169,8 @@ def _run(args: argparse.Namespace) -> int:
         "solve_seconds": eq.seconds,
         "seconds": time.perf_counter() - start,
     }
+    if args.picture:
+        summary["picture"] = str(_lip_picture(model, eq.x, targets, out / "lips_section.png"))
     if contact is not None:
         summary.update(
             contact_regions=list(contact.regions),
