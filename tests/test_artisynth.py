@@ -179,10 +179,17 @@ def test_split_is_conforming_between_neighbours():
 
 def test_surfaces_are_classified(model):
     g = model.surface_groups
-    assert set(g) == {"skin", "inner", "edge"}
+    assert set(g) == {"skin", "inner", "edge", "upper_lip", "lower_lip"}
     assert np.array_equal(model.skin_triangles, g["skin"])
-    total = sum(len(v) for v in g.values())
+    total = sum(len(g[k]) for k in ("skin", "inner", "edge"))
     assert total == len(boundary_faces(model.tets))
+    # Lip contact surfaces from ArtiSynth's collision PLYs, on face nodes, facing each other.
+    from wface.mesh.surface import triangle_normals
+
+    xr = model.rest_positions_m
+    up, lo = g["upper_lip"], g["lower_lip"]
+    assert len(up) == 448 and len(lo) == 479 and not np.intersect1d(up, lo).size
+    assert triangle_normals(xr, up).mean(axis=0)[1] < -0.3 < 0.3 < triangle_normals(xr, lo).mean(axis=0)[1]
     # skin faces outward and forward on the whole; inner faces toward the bones
     x = model.rest_positions_m
     jaw = model.bone_meshes["jaw"]

@@ -107,6 +107,10 @@ BONE_FILES = {  # model bone mesh name -> (file, rigid bone it follows)
     "cranium": ("badincranium.obj", "cranium"),
     "upper_teeth": ("upperteeth.obj", "cranium"),
 }
+LIP_SURFACE_FILES = {  # surface group -> ArtiSynth lip collision surface (its vertices are face nodes)
+    "upper_lip": "face_collisionSurf_upperLip_reduced2.ply",
+    "lower_lip": "face_collisionSurf_lowerLip_reduced.ply",
+}
 FIXED_NODE_FILES = ("edge_nodes.nodenum", "nose_nodes_to_fix.txt", "zygomatic_ligament_attachments.txt")
 JAW_NODE_FILE = "face_jaw_attachments.txt"
 FIBRE_POINT_FILE = "face_muscles_CH_with_LLS.node"
@@ -166,6 +170,28 @@ def _classify_boundary(tris: np.ndarray, external: np.ndarray, internal: np.ndar
     ext = np.isin(tris, external).all(axis=1)
     inn = np.isin(tris, internal).all(axis=1)
     return {"skin": tris[ext], "inner": tris[inn & ~ext], "edge": tris[~ext & ~inn]}
+
+
+def _surface_on_nodes(path: Path, x: np.ndarray, boundary: np.ndarray, tol_m: float = 1e-5) -> np.ndarray:
+    """Triangles (t, 3) of a surface file whose vertices are mesh nodes, as node ids, each wound to face
+    the same way as the mesh's outward boundary at its nodes (for ``wface.physics.contact``)."""
+    import meshio
+    from scipy.spatial import cKDTree
+
+    from wface.mesh.surface import triangle_normals, vertex_normals
+
+    mesh = meshio.read(path)
+    tri = mesh.cells_dict.get("triangle")
+    if tri is None or not len(tri):
+        raise ValueError(f"{path.name}: no triangles")
+    dist, node = cKDTree(x).query(badin_to_wface(np.asarray(mesh.points, dtype=np.float64)))
+    if dist.max() > tol_m:
+        raise ValueError(f"{path.name}: a vertex lies {dist.max() * 1e3:.3f} mm from the nearest face node")
+    tri = node[tri].astype(np.int32)
+    outward = vertex_normals(x, boundary)[tri].sum(axis=1)
+    flip = np.einsum("ij,ij->i", triangle_normals(x, tri), outward) < 0
+    tri[flip] = tri[flip][:, ::-1]
+    return tri
 
 
 def _ray_hits(origin: np.ndarray, direction: np.ndarray, v: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -350,7 +376,11 @@ def import_artisynth(
 
     # ---- surfaces (atlas lists hold node numbers; an added node is on a surface when its sources are)
     external, internal = extend(external), extend(internal)
-    groups = _classify_boundary(boundary_faces(tets), external.astype(np.int64), internal.astype(np.int64))
+    boundary = boundary_faces(tets)
+    groups = _classify_boundary(boundary, external.astype(np.int64), internal.astype(np.int64))
+    for group, fname in LIP_SURFACE_FILES.items():  # lip contact surfaces, when the data has them
+        if (directory / fname).exists():
+            groups[group] = _surface_on_nodes(directory / fname, x, boundary)
 
     # ---- bones
     bone_meshes = {}

@@ -420,6 +420,7 @@ class Simulator:
         solver: str | None = None,
         stiffness: str = "auto",
         reuse_factor: bool = False,
+        contact=None,
     ):
         """Quasistatic equilibrium f_U(x, a) = 0 with attached nodes at ``attached_positions``.
 
@@ -437,6 +438,9 @@ class Simulator:
             reuse_factor: with the direct solver, precondition CG with the previous step's factor
                 and refactor only when that CG does not converge within a few iterations (off by
                 default: on the 2-core CPU at 20K-100K tets a fresh factorisation was as fast).
+            contact: a ``wface.physics.contact.Contact`` (lips, teeth, bones, rigid obstacles) or
+                None (default: no contact, the solve is unchanged). Teeth and bone meshes follow the
+                bones implied by ``attached_positions``; contact statistics land on the result.
 
         Returns:
             ``wface.solvers.newton.Equilibrium``.
@@ -454,6 +458,7 @@ class Simulator:
             solver=solver or self.linear_solver,
             stiffness=stiffness,
             reuse_factor=reuse_factor,
+            contact=contact,
         )
         result.seconds = time.perf_counter() - start
         return result
