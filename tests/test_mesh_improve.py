@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from wface.mesh.box import box_tet_mesh
-from wface.mesh.improve import improve_tets, tet_min_dihedral_deg
+from wface.mesh.improve import improve_tets, tet_min_dihedral_deg, tet_sine_quality_deg
 from wface.mesh.quality import dihedral_angles_deg, signed_volumes
 from wface.mesh.surface import boundary_faces
 
@@ -35,15 +35,22 @@ def test_min_dihedral_matches_the_quality_module_and_the_regular_tet():
         regular = regular[[1, 0, 2, 3]]
     assert np.isclose(tet_min_dihedral_deg(regular[None])[0], np.degrees(np.arccos(1 / 3)))
     assert tet_min_dihedral_deg(regular[[1, 0, 2, 3]][None])[0] == -1.0  # inverted scores -1
+    dih = dihedral_angles_deg(y, t)
+    assert np.allclose(tet_sine_quality_deg(y[t]), np.minimum(dih, 180.0 - dih).min(axis=1), atol=1e-9)
+    cap = np.array([[0, 0, 0], [1, 0, 0], [0.5, 0.9, 0], [0.5, 0.3, 0.02]])  # apex over the base: a cap
+    assert tet_sine_quality_deg(cap[None])[0] < 5.0 and tet_min_dihedral_deg(cap[None])[0] < 5.0
 
 
 def test_perturbed_grid_is_improved_and_stays_a_valid_mesh():
     y, t, inner = _perturbed_grid()
     before = tet_min_dihedral_deg(y[t]).min()
     x2, t2, sources, rep = improve_tets(y, t, goal_deg=20.0)
-    q = tet_min_dihedral_deg(x2[t2])
-    assert before < 10.0 and q.min() > 20.0  # measured: 7.97 -> 20.4 deg
-    assert rep.below_goal_after == 0 and rep.min_dihedral_after_deg == pytest.approx(q.min())
+    q = tet_sine_quality_deg(x2[t2])
+    assert before < 10.0 and q.min() > 20.0  # every dihedral angle within [20, 160] deg
+    assert rep.below_goal_after == 0 and rep.quality_after_deg == pytest.approx(q.min())
+    assert rep.min_dihedral_after_deg == pytest.approx(tet_min_dihedral_deg(x2[t2]).min())
+    _, _, _, rep_min = improve_tets(y, t, goal_deg=20.0, objective="min")
+    assert rep_min.min_dihedral_after_deg > 20.0
     assert np.all(signed_volumes(x2, t2) > 0)
     assert np.isclose(signed_volumes(x2, t2).sum(), 1.0, atol=_EXACT)  # same domain, no gaps or overlaps
     assert _interior_faces_shared_twice(t2)
@@ -85,5 +92,7 @@ def test_bad_input_is_named():
         improve_tets(y, t[:, [1, 0, 2, 3]])
     with pytest.raises(ValueError, match=r"\(n, 3\)"):
         improve_tets(y[:, :2], t)
+    with pytest.raises(ValueError, match="objective"):
+        improve_tets(y, t, objective="radius")
     with pytest.raises(ValueError, match="locked"):
         improve_tets(y, t, locked=np.zeros(3, bool))

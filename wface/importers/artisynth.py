@@ -310,8 +310,8 @@ def import_artisynth(
         track_length_m: length of the condylar sliding tracks (the original is a pure hinge).
         steiner_below_deg: a cell whose best split without a new node has a dihedral angle below this
             gets a node at its centre when that does better (see ``hexes_to_tets``).
-        min_dihedral_goal_deg: tets of the split below this smallest dihedral angle are improved by
-            local operations (``wface.mesh.improve.improve_tets``); 0 turns that off.
+        min_dihedral_goal_deg: tets of the split with a dihedral angle outside [goal, 180 - goal] are
+            improved by local operations (``wface.mesh.improve.improve_tets``); 0 turns that off.
         progress: print step timings to stderr.
 
     Returns:

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ImproveReport", "improve_tets", "tet_min_dihedral_deg"]
+__all__ = ["ImproveReport", "improve_tets", "tet_min_dihedral_deg", "tet_sine_quality_deg"]
 
 _PAIRS = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))  # faces opposite vertex i and j share an edge
 _TET_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
@@ -45,11 +45,7 @@ def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
-def tet_min_dihedral_deg(p: np.ndarray) -> np.ndarray:
-    """Smallest interior dihedral angle (degrees) of tets given by corners p (..., 4, 3).
-
-    Inverted and flat tets (no positive volume, or an angle below 1e-6 deg) score -1.
-    """
+def _dihedral_score(p: np.ndarray, sine: bool) -> np.ndarray:
     p0, p1, p2, p3 = p[..., 0, :], p[..., 1, :], p[..., 2, :], p[..., 3, :]
     normals = (  # outward normals of the faces opposite vertices 0..3 of a positive tet
         _cross(p2 - p1, p3 - p1),
@@ -58,14 +54,30 @@ def tet_min_dihedral_deg(p: np.ndarray) -> np.ndarray:
         _cross(p2 - p0, p1 - p0),
     )
     lengths = [np.sqrt(np.einsum("...k,...k->...", nv, nv)) for nv in normals]
-    cos_max = np.full(p.shape[:-2], -1.0)
+    cos_max = np.full(p.shape[:-2], -1.0 if not sine else 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         for i, j in _PAIRS:
             c = -np.einsum("...k,...k->...", normals[i], normals[j]) / (lengths[i] * lengths[j])
-            cos_max = np.fmax(cos_max, np.where(np.isnan(c), 1.0, c))
+            c = np.where(np.isnan(c), 1.0, c)
+            cos_max = np.fmax(cos_max, np.abs(c) if sine else c)
     angle = np.degrees(np.arccos(np.clip(cos_max, -1.0, 1.0)))
     vol6 = -np.einsum("...k,...k->...", p3 - p0, normals[3])
     return np.where((vol6 > 0) & (angle > 1e-6), angle, -1.0)
+
+
+def tet_min_dihedral_deg(p: np.ndarray) -> np.ndarray:
+    """Smallest interior dihedral angle (degrees) of tets given by corners p (..., 4, 3).
+
+    Inverted and flat tets (no positive volume, or an angle below 1e-6 deg) score -1.
+    """
+    return _dihedral_score(p, sine=False)
+
+
+def tet_sine_quality_deg(p: np.ndarray) -> np.ndarray:
+    """The smallest of theta and 180 deg - theta over the six dihedral angles theta, in degrees
+    (arcsin of the smallest dihedral sine; Klingner & Shewchuk's objective): small for slivers,
+    caps and wedges alike, 70.5 deg for the regular tet. Inverted and flat tets score -1."""
+    return _dihedral_score(p, sine=True)
 
 
 def _parity(perm: list[int]) -> int:
@@ -82,6 +94,9 @@ class ImproveReport:
     below_goal_before: int
     below_goal_after: int
     goal_deg: float
+    objective: str
+    quality_before_deg: float
+    quality_after_deg: float
     rounds: int
     operations: dict = field(default_factory=dict)
     added_nodes: int = 0
@@ -94,7 +109,8 @@ class ImproveReport:
 class _Mesh:
     """A mutable tet mesh with node -> tet incidence, for local operations."""
 
-    def __init__(self, x: np.ndarray, tets: np.ndarray, movable: np.ndarray):
+    def __init__(self, x: np.ndarray, tets: np.ndarray, movable: np.ndarray, score):
+        self.score = score  # (..., 4, 3) corners -> (...,) quality in degrees, -1 for flat or inverted
         self.x = np.array(x, dtype=np.float64)
         self.n_orig = len(x)
         self.tets: list[tuple[int, ...] | None] = [tuple(int(v) for v in t) for t in tets]
@@ -124,13 +140,13 @@ class _Mesh:
 
     def q(self, ti: int) -> float:
         if ti not in self.quality:
-            self.quality[ti] = float(tet_min_dihedral_deg(self.x[list(self.tets[ti])][None])[0])
+            self.quality[ti] = float(self.score(self.x[list(self.tets[ti])][None])[0])
         return self.quality[ti]
 
     def fill_quality(self) -> None:
         todo = [ti for ti, t in enumerate(self.tets) if t is not None and ti not in self.quality]
         if todo:
-            qs = tet_min_dihedral_deg(self.x[np.array([self.tets[ti] for ti in todo])])
+            qs = self.score(self.x[np.array([self.tets[ti] for ti in todo])])
             self.quality.update(zip(todo, qs.tolist(), strict=True))
 
     def edge_tets(self, a: int, b: int) -> set[int]:
@@ -206,23 +222,29 @@ class _Mesh:
             self.quality.pop(ti, None)
 
 
-def _star_quality(corners: np.ndarray, slot: np.ndarray, points: np.ndarray) -> np.ndarray:
+def _star_quality(corners: np.ndarray, slot: np.ndarray, points: np.ndarray, score) -> np.ndarray:
     """Smallest angle over a star with its centre at each of points (c, 3): (c,)."""
     p = np.broadcast_to(corners, (len(points), *corners.shape)).copy()
     k = np.arange(corners.shape[0])
     p[:, k, slot, :] = points[:, None, :]
-    return tet_min_dihedral_deg(p).min(axis=1)
+    return score(p).min(axis=1)
 
 
 def _compass_search(
-    corners: np.ndarray, slot: np.ndarray, start: np.ndarray, step: float, directions: np.ndarray, iters: int = 40
+    corners: np.ndarray,
+    slot: np.ndarray,
+    start: np.ndarray,
+    step: float,
+    directions: np.ndarray,
+    score,
+    iters: int = 40,
 ) -> tuple[np.ndarray, float]:
     best_p = start.copy()
-    best = float(_star_quality(corners, slot, best_p[None])[0])
+    best = float(_star_quality(corners, slot, best_p[None], score)[0])
     h = step
     for _ in range(iters):
         trial = best_p[None] + h * directions
-        qs = _star_quality(corners, slot, trial)
+        qs = _star_quality(corners, slot, trial, score)
         j = int(np.argmax(qs))
         if qs[j] > best + 1e-9:
             best, best_p = float(qs[j]), trial[j]
@@ -243,7 +265,7 @@ class _Improver:
     def quality_of(self, tets: list[tuple[int, ...]]) -> float:
         if not tets:
             return np.inf
-        return float(tet_min_dihedral_deg(self.m.x[np.array(tets)]).min())
+        return float(self.m.score(self.m.x[np.array(tets)]).min())
 
     # ---------------------------------------------------------------- edge removal
     def try_edge_removal(self, a: int, b: int) -> bool:
@@ -259,7 +281,7 @@ class _Improver:
         for i, j, l in triples:
             cand.append((a, v[i], v[j], v[l]))
             cand.append((b, v[i], v[l], v[j]))
-        qs = tet_min_dihedral_deg(m.x[np.array(cand)]).reshape(-1, 2).min(axis=1)
+        qs = m.score(m.x[np.array(cand)]).reshape(-1, 2).min(axis=1)
         tri_q = {t: float(q) for t, q in zip(triples, qs, strict=True)}
         best: dict[tuple[int, int], tuple[float, int]] = {}
         for span in range(2, k):
@@ -340,7 +362,7 @@ class _Improver:
         starts = [m.x[v], m.x[others[others != v]].mean(axis=0)]
         best_p, best_q = None, old_q
         for s in starts:
-            p, qv = _compass_search(corners, slot, s, step, _COMPASS)
+            p, qv = _compass_search(corners, slot, s, step, _COMPASS, m.score)
             if qv > best_q + 1e-6:
                 best_p, best_q = p, qv
         if best_p is None:
@@ -370,11 +392,11 @@ class _Improver:
         if boundary:
             s = np.linspace(0.2, 0.8, 13)
             pts = pa[None] + s[:, None] * (pb - pa)[None]
-            qs = _star_quality(corners, slot, pts)
+            qs = _star_quality(corners, slot, pts, m.score)
             j = int(np.argmax(qs))
             best_p, best_q = pts[j], float(qs[j])
         else:
-            best_p, best_q = _compass_search(corners, slot, 0.5 * (pa + pb), 0.1 * length, _COMPASS)
+            best_p, best_q = _compass_search(corners, slot, 0.5 * (pa + pb), 0.1 * length, _COMPASS, m.score)
         if best_q <= old_q + 1e-6:
             return False
         c = m.add_node(best_p, movable=not boundary, boundary=boundary, source=(a, b))
@@ -409,15 +431,19 @@ def improve_tets(
     goal_deg: float = 8.0,
     locked: np.ndarray | None = None,
     max_rounds: int = 12,
+    objective: str = "sine",
 ) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int]], ImproveReport]:
-    """Raise the smallest dihedral angle of a positively oriented tet mesh by local operations.
+    """Improve the dihedral angles of a positively oriented tet mesh by local operations.
 
     Args:
         x: (n, 3) node positions.
         tets: (m, 4) positively oriented tets.
-        goal_deg: tets whose smallest dihedral angle is below this are worked on.
+        goal_deg: tets whose quality (degrees, see ``objective``) is below this are worked on.
         locked: (n,) bool, nodes that must not move (boundary nodes never move anyway).
         max_rounds: passes over the tets still below the goal.
+        objective: "sine" (default): keep every dihedral angle within [goal, 180 - goal]
+            (``tet_sine_quality_deg``: removes slivers without making caps); "min": only raise the
+            smallest dihedral angle (``tet_min_dihedral_deg``).
 
     Returns:
         (x (n', 3) with added nodes appended (moved interior nodes keep their ids), tets (m', 4)
@@ -431,10 +457,14 @@ def improve_tets(
     locked = np.zeros(len(x), dtype=bool) if locked is None else np.asarray(locked, dtype=bool)
     if locked.shape != (len(x),):
         raise ValueError(f"locked must have shape ({len(x)},), got {locked.shape}")
-    q0 = tet_min_dihedral_deg(x[tets])
+    scores = {"sine": tet_sine_quality_deg, "min": tet_min_dihedral_deg}
+    if objective not in scores:
+        raise ValueError(f"objective must be one of {sorted(scores)}, got {objective!r}")
+    score = scores[objective]
+    q0 = score(x[tets])
     if np.any(q0 < 0):
         raise ValueError(f"{int(np.sum(q0 < 0))} tets are flat or inverted (e.g. tet {int(np.argmin(q0))})")
-    mesh = _Mesh(x, tets, ~locked)
+    mesh = _Mesh(x, tets, ~locked, score)
     work = _Improver(mesh, goal_deg)
     rounds = 0
     for rounds in range(1, max_rounds + 1):
@@ -451,13 +481,16 @@ def improve_tets(
         if changed == 0:
             break
     out = np.array([t for t in mesh.tets if t is not None], dtype=np.int32)
-    q1 = tet_min_dihedral_deg(mesh.x[out])
+    q1 = score(mesh.x[out])
     report = ImproveReport(
-        min_dihedral_before_deg=float(q0.min()),
-        min_dihedral_after_deg=float(q1.min()),
+        min_dihedral_before_deg=float(tet_min_dihedral_deg(x[tets]).min()),
+        min_dihedral_after_deg=float(tet_min_dihedral_deg(mesh.x[out]).min()),
         below_goal_before=int(np.sum(q0 < goal_deg)),
         below_goal_after=int(np.sum(q1 < goal_deg)),
         goal_deg=float(goal_deg),
+        objective=objective,
+        quality_before_deg=float(q0.min()),
+        quality_after_deg=float(q1.min()),
         rounds=rounds,
         operations=dict(work.ops),
         added_nodes=len(mesh.sources),
