@@ -246,6 +246,8 @@ class DynamicSimulator:
         mat = self.model.material
         volume = float(self.model.rest_volume_m3.sum())
         self._floor = 1e-3 * (mat.mu10_pa + mat.mu01_pa) * volume ** (2.0 / 3.0)
+        stress = mat.mu10_pa + mat.mu01_pa + mat.sigma_max_pa * float(np.max(self.model.muscle_strength, initial=1.0))
+        self._energy_noise = 64 * np.finfo(np.float64).eps * 3.0 * stress * volume
         self._linear_state: dict = {}
         self._diag_positions = None
 
@@ -430,15 +432,20 @@ class DynamicSimulator:
             if not slope < 0:  # not a descent direction (round-off at the solution): stop
                 break
             dx_full = pattern.scatter(dx)
-            slack = 64 * np.finfo(np.float64).eps * (e_abs + abs(phi))
+            # Round-off of the potential: the sums themselves, and the cancellation in the flesh
+            # energy density (I1~ - 3 ...), whose absolute error scales with mu V, not with E.
+            slack = 64 * np.finfo(np.float64).eps * (e_abs + abs(phi)) + self._energy_noise
             t = 1.0
             accepted = False
             for _ in range(self.max_line_search):
                 trial = y + t * dx_full
                 phi_t, grad_t, e_abs_t = potential_and_gradient(trial)
                 if np.isfinite(phi_t) and phi_t <= phi + 1e-4 * t * slope + slack:
-                    accepted = True
-                    break
+                    # within the round-off band the energy cannot rank the points: ask for a
+                    # smaller gradient as well
+                    if phi_t <= phi + 1e-4 * t * slope or np.linalg.norm(grad_t) < residual:
+                        accepted = True
+                        break
                 t *= 0.5
             stats.newton_iterations += 1
             if not accepted:
