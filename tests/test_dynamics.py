@@ -7,8 +7,6 @@ K v = omega^2 M v (scipy eigsh) and the energy balance of each scheme.
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 import scipy.sparse as sp

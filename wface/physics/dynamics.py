@@ -61,7 +61,7 @@ class Damping:
 
     Defaults: alpha = 0 (no drag: in the world frame alpha M would also brake rigid head motion)
     and beta = 2e-4 s, which damps a mode at f Hz with ratio zeta = pi f beta: 6 % at 100 Hz,
-    25 % at 400 Hz (the lowest modes of the 5K-tet built-in face lie at about 90-150 Hz), so
+    25 % at 400 Hz (the six lowest modes of the 5K-tet built-in face lie at 100-155 Hz), so
     high-frequency mesh noise dies within a few periods while the visible jiggle of the lips and
     cheeks survives a few oscillations. ``Damping.none()`` switches damping off.
     """
@@ -331,9 +331,20 @@ class DynamicSimulator:
         stats.seconds = time.perf_counter() - start
         return new, stats
 
-    def advance(self, state: DynamicState, duration_s: float, substeps: int, activations=None, attached_positions_m=None):
-        """``substeps`` equal steps over ``duration_s``, activations and attached positions
-        interpolated linearly from ``state`` to the given end values (defaults: held).
+    def advance(
+        self,
+        state: DynamicState,
+        duration_s: float,
+        substeps: int,
+        activations=None,
+        attached_positions_m=None,
+        *,
+        activation_ramp: str = "linear",
+    ):
+        """``substeps`` equal steps over ``duration_s`` towards the given end values (defaults:
+        held). Attached positions are interpolated linearly from ``state``; activations too with
+        ``activation_ramp="linear"``, or switched to their end value from the first substep on
+        with ``"step"`` (a sudden onset; the midpoint rule sees half of it in that substep).
 
         Returns:
             (state at the end, combined ``StepStats``).
@@ -342,18 +353,22 @@ class DynamicSimulator:
             raise ValueError(f"substeps must be a positive integer, got {substeps}")
         if not (np.isfinite(duration_s) and duration_s > 0):
             raise ValueError(f"duration_s must be finite and > 0, got {duration_s}")
+        if activation_ramp not in ("linear", "step"):
+            raise ValueError(f"activation_ramp must be 'linear' or 'step', got {activation_ramp!r}")
         fixed = self._fixed
-        a0, a1 = state.activations, (
-            state.activations if activations is None else self.model.activation_vector(activations)
-        )
+        a0 = state.activations
+        a1 = a0 if activations is None else self.model.activation_vector(activations)
         c0 = state.x_m[fixed].copy()
-        c1 = c0 if attached_positions_m is None else _check_array(
-            "attached_positions_m", attached_positions_m, (fixed.size, 3)
+        c1 = (
+            c0
+            if attached_positions_m is None
+            else _check_array("attached_positions_m", attached_positions_m, (fixed.size, 3))
         )
         total = None
         for k in range(1, int(substeps) + 1):
             s = k / substeps
-            state, stats = self.step(state, duration_s / substeps, (1 - s) * a0 + s * a1, (1 - s) * c0 + s * c1)
+            a = a1 if activation_ramp == "step" else (1 - s) * a0 + s * a1
+            state, stats = self.step(state, duration_s / substeps, a, (1 - s) * c0 + s * c1)
             total = stats if total is None else total.combine(stats)
         return state, total
 
@@ -521,4 +536,3 @@ class DynamicSimulator:
             f"DynamicSimulator(scheme={self.scheme!r}, damping={self.damping}, engine={self.engine!r}, "
             f"tets={self.model.n_tets})"
         )
-
