@@ -372,6 +372,7 @@ def resimulate(
     gravity_m_s2=None,
     x0_m: np.ndarray | None = None,
     progress: bool = False,
+    on_step=None,
 ) -> ResimResult:
     """Play a take through the implicit dynamic FEM.
 
@@ -386,6 +387,8 @@ def resimulate(
         tol, solver, stiffness, gravity_m_s2: see ``DynamicSimulator``.
         x0_m: start positions of frame 0 (default: its quasistatic equilibrium).
         progress: show a progress bar.
+        on_step: optional callable ``on_step(state)`` after every time step (``DynamicState``, in
+            the simulation frame), e.g. to record peaks between frames.
 
     Returns:
         ``ResimResult`` with world positions per frame.
@@ -432,7 +435,7 @@ def resimulate(
     try:
         for k in range(1, T):
             state, st = dyn.advance(
-                state, 1.0 / take.fps, substeps, acts[k], xc[k], activation_ramp=take.activation_ramp
+                state, 1.0 / take.fps, substeps, acts[k], xc[k], activation_ramp=take.activation_ramp, on_step=on_step
             )
             if not np.all(np.isfinite(state.x_m)):
                 raise FloatingPointError(f"the dynamic solve produced NaN/inf at frame {k}")

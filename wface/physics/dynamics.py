@@ -340,11 +340,13 @@ class DynamicSimulator:
         attached_positions_m=None,
         *,
         activation_ramp: str = "linear",
+        on_step=None,
     ):
         """``substeps`` equal steps over ``duration_s`` towards the given end values (defaults:
         held). Attached positions are interpolated linearly from ``state``; activations too with
         ``activation_ramp="linear"``, or switched to their end value from the first substep on
         with ``"step"`` (a sudden onset; the midpoint rule sees half of it in that substep).
+        ``on_step(state)`` is called after every substep (e.g. to record peaks between frames).
 
         Returns:
             (state at the end, combined ``StepStats``).
@@ -370,6 +372,8 @@ class DynamicSimulator:
             a = a1 if activation_ramp == "step" else (1 - s) * a0 + s * a1
             state, stats = self.step(state, duration_s / substeps, a, (1 - s) * c0 + s * c1)
             total = stats if total is None else total.combine(stats)
+            if on_step is not None:
+                on_step(state)
         return state, total
 
     # ------------------------------------------------------------------ the Newton solve of one step
