@@ -7,6 +7,8 @@ K v = omega^2 M v (scipy eigsh) and the energy balance of each scheme.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -255,3 +257,81 @@ def test_take_validation(jaw_box):
         Take(np.zeros((3, 1)), fps=30.0, bones=np.zeros((2, 24)))
     with pytest.raises(ValueError, match="NaN"):
         Take(np.full((3, 1), np.nan), fps=30.0)
+
+
+# ---------------------------------------------------------------------- command line and bench
+def test_resim_cli_synthetic_sudden_smile(tmp_path, capsys):
+    from wface.cli import main
+
+    out = tmp_path / "smile"
+    args = ["resim", "--out", str(out), "--tets", "2000", "--frames", "3", "--substeps", "2", "--json"]
+    assert main(args) == 0
+    printed = json.loads(capsys.readouterr().out)  # --json: the summary only on stdout
+    report = json.loads((out / "report.json").read_text())
+    assert printed["frames"] == report["frames"] == 3 and report["steps"] == 4
+    for key in ("kinetic_energy_j", "newton_iterations", "residual_rel", "inverted_elements", "seconds_per_frame"):
+        assert len(report[key]) == 3, key
+    assert report["converged"] and report["inverted_elements_max"] == 0
+    assert report["displacement_mm"] > 1.0 and np.isfinite(report["overshoot_mm"])
+    assert report["kinetic_energy_j"][0] == 0.0 and max(report["kinetic_energy_j"]) > 0
+    assert (out / "animation.usdc").exists() and (out / "resim.npz").exists()
+
+
+def test_resim_cli_replays_a_tracking_directory(jaw_box, tmp_path, capsys):
+    from wface.cli import main
+    from wface.model import save_model
+
+    model_path = save_model(jaw_box, tmp_path / "box.npz")
+    take = _ramp_take(jaw_box, frames=3)
+    take_dir = tmp_path / "run1"
+    take_dir.mkdir()
+    np.savez(take_dir / "controls.npz", frames=np.arange(3), activations=take.activations, bones=take.bones)
+    out = tmp_path / "dyn"
+    rc = main(
+        [
+            "resim",
+            "--take",
+            str(take_dir),
+            "--model",
+            str(model_path),
+            "--out",
+            str(out),
+            "--scheme",
+            "be",
+            "--damping",
+            "none",
+            "--no-usd",
+        ]
+    )
+    assert rc == 0
+    assert "wrote" in capsys.readouterr().out
+    report = json.loads((out / "report.json").read_text())
+    assert report["scheme"] == "be" and report["damping"] == {"alpha_per_s": 0.0, "beta_s": 0.0}
+    assert report["frames"] == 3 and report["deviation_mm_max"] >= 0 and "overshoot_mm" not in report
+    assert (
+        main(["resim", "--take", str(take_dir), "--model", str(model_path), "--out", str(out), "--damping", "1,2,3"])
+        == 1
+    )
+    assert "--damping expects ALPHA,BETA" in capsys.readouterr().err
+
+
+def test_resim_help_teaches(capsys):
+    from wface.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["resim", "--help"])
+    text = capsys.readouterr().out
+    for word in ("midpoint", "backward Euler", "zeta", "report.json", "--substeps", "examples"):
+        assert word in text, word
+
+
+def test_dynamic_bench_prints_json(capsys):
+    from wface.cli import main
+
+    assert main(["bench", "--suite", "dynamic", "--tets", "2000", "--repeat", "1", "--device", "cpu", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    (size,) = result["sizes"]
+    for scheme in ("midpoint", "be"):
+        assert size[scheme]["seconds_per_step_median"] > 0
+        assert size[scheme]["newton_iterations_per_step_mean"] >= 1
+    assert size["steps"] == 4 and result["suite"] == "dynamic"
