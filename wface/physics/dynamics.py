@@ -191,7 +191,9 @@ class DynamicSimulator:
         max_line_search: backtracking halvings per Newton iteration.
         stiffness: Hessian of the Newton steps: "auto" (default: the exact Hessian of E plus the
             inertia and damping terms, falling back to the projected K for one iteration when that
-            matrix is not positive definite or gives no descent), "projected" (always the
+            matrix is not positive definite or gives no descent; after a step with such a
+            fallback, the next step tries the exact Hessian only below a relative residual of
+            0.1), "projected" (always the
             projected-definite K of Teran et al. 2005) or "exact".
 
     Example::
@@ -225,6 +227,9 @@ class DynamicSimulator:
         if stiffness not in ("auto", "projected", "exact"):
             raise ValueError(f"stiffness must be 'auto', 'projected' or 'exact', got {stiffness!r}")
         self.stiffness = stiffness
+        # "auto": try the exact Hessian from the first iteration; after a step in which it was
+        # rejected, only once the relative residual is below 0.1 (as the quasistatic Newton does)
+        self._exact_below = 1.0
         if int(max_iterations) < 1:
             raise ValueError(f"max_iterations must be >= 1, got {max_iterations}")
         self.sim = sim
@@ -427,7 +432,9 @@ class DynamicSimulator:
         skip_exact = False  # after a rejected exact Hessian, the next iteration goes straight to the projected K
         while residual > self.tol * scale and stats.newton_iterations < self.max_iterations:
             dx = None
-            attempted = self.stiffness == "exact" or (self.stiffness == "auto" and not skip_exact)
+            attempted = self.stiffness == "exact" or (
+                self.stiffness == "auto" and not skip_exact and residual < self._exact_below * scale
+            )
             if attempted:
                 try:
                     dx, its = self._solve(sim.tangent(y, a, project=False), k_n, mass_coef, delta * beta, -grad)
@@ -474,6 +481,7 @@ class DynamicSimulator:
             residual = float(np.linalg.norm(grad))
         stats.residual_rel = residual / scale
         stats.converged = bool(residual <= self.tol * scale)
+        self._exact_below = 0.1 if stats.exact_failures else 1.0
         stats.factorizations = self._linear_state.get("factorizations", 0) - factorizations0
         return y, stats
 
