@@ -363,7 +363,7 @@ def resimulate(
     *,
     frame: str = "world",
     scheme: str = "midpoint",
-    substeps: int = 4,
+    substeps: int = 16,
     damping: Damping | None = None,
     sim=None,
     tol: float = 1e-6,

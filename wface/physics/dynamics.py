@@ -318,6 +318,8 @@ class DynamicSimulator:
             y_hat = x_n + 0.5 * h * v_n
             a_eval, y_c = 0.5 * (state.activations + a_next), 0.5 * (x_n[fixed] + xc_next)
         y, stats = self._minimise(x_n, state.activations, y_hat, y_c, a_eval, kappa, delta)
+        if not np.all(np.isfinite(y)):
+            raise FloatingPointError(f"the step from t = {state.t_s:.6g} s gave NaN/inf positions (dt_s = {h:g})")
         if self.scheme == "be":
             x_new = y
             v_new = (y - x_n) / h
