@@ -123,6 +123,27 @@ def test_energy_midpoint_conserves_and_backward_euler_dissipates(clamped, first_
     assert be[-1] < 0.5 * be[0]  # and visibly so at 30 steps per period
 
 
+def test_cg_and_direct_engines_agree():
+    model = box_model((4, 2, 2), muscles=1)
+    sim = Simulator(model)
+    a = np.array([0.7])
+    ends = []
+    for solver in ("cg", "direct"):
+        from wface.solvers.linear import direct_backend
+
+        if solver == "direct" and direct_backend() is None:
+            pytest.skip("no sparse direct backend installed")
+        dyn = DynamicSimulator(sim, scheme="midpoint", solver=solver)
+        assert dyn.engine == solver
+        state = dyn.initial_state()
+        for _ in range(4):
+            state, stats = dyn.step(state, 2e-3, a)
+            assert stats.converged
+        ends.append(state.x_m)
+    moved = np.abs(ends[1] - model.rest_positions_m).max()
+    assert np.abs(ends[0] - ends[1]).max() <= 1e-5 * moved  # both solve each step to tol = 1e-6
+
+
 def test_damping_defaults_and_ratio():
     d = Damping()
     assert d.alpha_per_s == 0.0 and d.beta_s > 0
