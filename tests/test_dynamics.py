@@ -256,6 +256,10 @@ def test_load_take_from_a_tracking_directory_and_write_usd(jaw_box, tmp_path):
     npz = write_resim_npz(tmp_path / "resim.npz", result, reference_positions_m=part.reference_positions_m)
     from pxr import Usd, UsdGeom
 
+    from wface.io.usd import assert_stage_valid, check_extents
+
+    assert_stage_valid(usd)
+    assert check_extents(usd) == []
     stage = Usd.Stage.Open(str(usd))
     mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Face/Mesh"))
     assert stage.GetTimeCodesPerSecond() == 30.0
