@@ -213,7 +213,9 @@ def cranium_to_world(take: Take, positions: np.ndarray) -> np.ndarray:
     return out
 
 
-def load_take(path: str | Path, model, *, fps: float | None = None, frames: slice | None = None) -> Take:
+def load_take(
+    path: str | Path, model, *, fps: float | None = None, frames: slice | None = None, reference: bool = True
+) -> Take:
     """Read the take that ``wface track`` / ``wface demo`` wrote under ``path``.
 
     Controls come from ``path/controls.npz`` (activations (T, M), bones (T, 24), frames), or, for an
@@ -226,6 +228,8 @@ def load_take(path: str | Path, model, *, fps: float | None = None, frames: slic
         fps: frame rate; default: ``timeCodesPerSecond`` of ``path/animation.usdc`` when readable,
             else 30.
         frames: optional slice of the take's frames (e.g. ``slice(0, 60)``).
+        reference: also read the tracked positions (T x n x 3 floats; False skips them when
+            controls.npz is there).
     """
     path = Path(path)
     if not path.is_dir():
@@ -233,7 +237,7 @@ def load_take(path: str | Path, model, *, fps: float | None = None, frames: slic
     frame_files = sorted((path / "frames").glob("frame_*.npz"))
     controls = path / "controls.npz"
     records = {}
-    if frame_files:
+    if frame_files and (reference or not controls.exists()):
         from wface.tracking.sequence import load_frame_records
 
         numbers = [int(p.stem.split("_")[1]) for p in frame_files]
@@ -254,12 +258,12 @@ def load_take(path: str | Path, model, *, fps: float | None = None, frames: slic
             f"{path}: controls have {acts.shape[1]} activations and {bones.shape[1]} bone parameters per frame; "
             f"the model has {model.n_muscles} muscles (and 24 bone parameters)"
         )
-    reference = None
-    if records and all(int(f) in records for f in numbers):
-        reference = np.array([records[int(f)].x_m for f in numbers])
-        if reference.shape[1] != model.n_nodes:
+    tracked = None
+    if reference and records and all(int(f) in records for f in numbers):
+        tracked = np.array([records[int(f)].x_m for f in numbers])
+        if tracked.shape[1] != model.n_nodes:
             raise ValueError(
-                f"{path}: tracked frames have {reference.shape[1]} nodes, the model {model.n_nodes}: wrong model?"
+                f"{path}: tracked frames have {tracked.shape[1]} nodes, the model {model.n_nodes}: wrong model?"
             )
     if fps is None:
         fps = _usd_fps(path / "animation.usdc") or 30.0
@@ -269,7 +273,7 @@ def load_take(path: str | Path, model, *, fps: float | None = None, frames: slic
         fps=fps,
         bones=bones[sl],
         frames=np.asarray(numbers)[sl],
-        reference_positions_m=None if reference is None else reference[sl],
+        reference_positions_m=None if tracked is None else tracked[sl],
         source=str(path),
     )
 

@@ -187,7 +187,9 @@ def _run(args: argparse.Namespace) -> int:
 
         model = build_face(args.tets, progress=True)
     if args.take:
-        take = load_take(args.take, model, fps=args.fps, frames=_frame_range(args.frames))
+        take = load_take(
+            args.take, model, fps=args.fps, frames=_frame_range(args.frames), reference=not args.no_reference
+        )
         if take.n_frames < 2:
             raise ValueError(f"{args.take}: need at least 2 frames to re-simulate, got {take.n_frames}")
     else:
