@@ -21,7 +21,7 @@ stiffness and a backtracking (Armijo) line search on the potential:
   kappa = 1/h^2, delta = 1/h, y_hat = x_n + h v_n, a* = a_{n+1}, y_C = x_C(t_{n+1});
   x_{n+1} = y, v_{n+1} = (y - x_n) / h.
 - implicit midpoint ("midpoint", second order, symplectic: no numerical damping, energy of a
-  linear system conserved exactly, linear and angular momentum conserved):
+  linear system conserved exactly; linear momentum conserved, angular momentum too when undamped):
   kappa = 4/h^2, delta = 2/h, y = x_{n+1/2}, y_hat = x_n + h/2 v_n, a* = (a_n + a_{n+1}) / 2,
   y_C = (x_C(t_n) + x_C(t_{n+1})) / 2;  x_{n+1} = 2 y - x_n, v_{n+1} = 4 (y - x_n) / h - v_n.
 
@@ -33,9 +33,9 @@ targets), which keeps the total momentum of an unconstrained body exact to round
 corrections sum to zero because the rows of K sum to zero. PARDISO keeps its symbolic analysis
 from step to step (numeric refactorisation only). Tried and dropped: CG preconditioned by the
 previous factor instead of refactoring (no faster at 5K or 20K tets: 8 CG iterations cost about
-one numeric refactorisation); adding the previous step's
-Newton correction to the predictor (on the built-in face at dt = 2 ms it raised the potential:
-the correction alternates in sign with the 100+ Hz modes).
+one numeric refactorisation), and adding the previous step's Newton correction to the predictor
+(on the built-in face at dt = 2 ms it raised the potential: the correction alternates in sign
+with the 100+ Hz modes).
 
 Newton Hessian ("auto", default): the exact Hessian of E plus kappa M + delta C, which converges
 quadratically (3-5 iterations per step for a sudden full smile at dt = 2 ms on the 5K-tet face,
