@@ -12,8 +12,8 @@ the start of the step (Teran et al. 2005 projection, so C is positive semi-defin
 the damping ratio zeta_i = alpha / (2 omega_i) + beta omega_i / 2.
 
 Each time step of length h is one minimisation of an incremental potential (Kane et al. 2000;
-Martin et al. 2011; Gast et al. 2015) over the free nodes, solved by Newton with the projected
-stiffness and a backtracking (Armijo) line search on the potential:
+Martin et al. 2011; Gast et al. 2015) over the free nodes, solved by Newton (exact or projected
+stiffness, see below) with a backtracking (Armijo) line search on the potential:
 
     Phi(y) = kappa/2 ||y - y_hat||_M^2 + E(y, a*) + delta/2 (y - x_n)^T C (y - x_n) - g^T M y,
 
@@ -30,7 +30,7 @@ midpoint rule M (v_{n+1} - v_n) / h = f(y, a*) - C (x_{n+1} - x_n) / h + M g). T
 Hessian kappa M + delta C + K(y) is symmetric positive definite with the projected K, so every
 step is a descent direction. Each step starts from the predictor y_hat (attached nodes at their
 targets), which keeps the total momentum of an unconstrained body exact to round-off: the Newton
-corrections sum to zero because the rows of K sum to zero. PARDISO keeps its symbolic analysis
+corrections sum to zero because the rows of K (exact or projected) sum to zero. PARDISO keeps its symbolic analysis
 from step to step (numeric refactorisation only). Tried and dropped: CG preconditioned by the
 previous factor instead of refactoring (no faster at 5K or 20K tets: 8 CG iterations cost about
 one numeric refactorisation), and adding the previous step's Newton correction to the predictor
