@@ -360,3 +360,19 @@ def test_dynamic_bench_prints_json(capsys):
         assert size[scheme]["seconds_per_step_median"] > 0
         assert size[scheme]["newton_iterations_per_step_mean"] >= 1
     assert size["steps"] == 4 and result["suite"] == "dynamic"
+
+
+def test_dynamic_smile_example_runs(tmp_path, capsys):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "dynamic_smile.py"
+    spec = importlib.util.spec_from_file_location("dynamic_smile_example", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    out = tmp_path / "smile"
+    assert example.main(["--tets", "2000", "--duration", "0.004", "--out", str(out)]) == 0
+    assert "overshoot" in capsys.readouterr().out
+    table = np.loadtxt(out / "trajectory.csv", delimiter=",")
+    assert table.shape == (5, 4) and table[0, 1] == 0.0 and table[-1, 1] > 0  # the corner moved
+    assert (out / "smile.usdc").exists()

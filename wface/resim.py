@@ -389,7 +389,8 @@ def resimulate(
         damping: Rayleigh damping (default ``Damping()``).
         sim: a ``Simulator`` of ``model`` to reuse (default: a new float64 CPU one).
         tol, solver, stiffness, gravity_m_s2: see ``DynamicSimulator``.
-        x0_m: start positions of frame 0 (default: its quasistatic equilibrium).
+        x0_m: start positions of frame 0 in the simulation ``frame`` (default: its quasistatic
+            equilibrium); the start velocity is zero.
         progress: show a progress bar.
         on_step: optional callable ``on_step(state)`` after every time step (``DynamicState``, in
             the simulation frame), e.g. to record peaks between frames.
