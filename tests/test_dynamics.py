@@ -376,3 +376,24 @@ def test_dynamic_smile_example_runs(tmp_path, capsys):
     table = np.loadtxt(out / "trajectory.csv", delimiter=",")
     assert table.shape == (5, 4) and table[0, 1] == 0.0 and table[-1, 1] > 0  # the corner moved
     assert (out / "smile.usdc").exists()
+
+
+def test_bone_interpolation_keeps_rotations_rigid():
+    from wface.controls import IDENTITY_BONES, params_from_affine
+    from wface.physics.bones import rotation_about_axis
+    from wface.resim import interpolate_bones
+
+    def bones(deg):
+        b = IDENTITY_BONES.copy()
+        R = rotation_about_axis(np.array([0.0, 1.0, 0.0]), np.radians(deg))
+        b[:12] = params_from_affine(R, np.array([0.0, 0.0, 0.01 * deg]))
+        b[12:] = params_from_affine(rotation_about_axis(np.array([1.0, 0.0, 0.0]), np.radians(deg / 2)), np.zeros(3))
+        return b
+
+    b0, b1 = bones(0.0), bones(40.0)
+    np.testing.assert_allclose(interpolate_bones(b0, b1, 0.0), b0, atol=1e-14)
+    np.testing.assert_allclose(interpolate_bones(b0, b1, 1.0), b1, atol=1e-14)
+    np.testing.assert_allclose(interpolate_bones(b0, b1, 0.5), bones(20.0), atol=1e-12)  # slerp: half the angle
+    linear = 0.5 * (b0 + b1)
+    Ml = linear[:9].reshape(3, 3)
+    assert abs(np.linalg.det(Ml) - 1.0) > 0.05  # what a linear blend would do: shrink the head

@@ -3,9 +3,11 @@ through the implicit dynamic FEM (``wface.physics.dynamics``), so the flesh gets
 secondary motion that a frame-by-frame quasistatic solve cannot have.
 
 A take is (T, M) activations and (T, 24) bone controls (``wface.controls``) or directly the
-(T, a, 3) attached-node positions, at a frame rate. Between frames, activations and attached
-positions are interpolated linearly; each frame interval is split into ``substeps`` equal time
-steps. Frame 0 starts from its quasistatic equilibrium at rest velocity.
+(T, a, 3) attached-node positions, at a frame rate. Each frame interval is split into
+``substeps`` equal time steps. Between frames, activations (and given attached positions) are
+interpolated linearly, and bone controls with their rotations by slerp (``interpolate_bones``),
+so the attached nodes move rigidly. Frame 0 starts from its quasistatic equilibrium at rest
+velocity.
 
 Simulation frame: "world" (default) places the attached nodes with the full head motion (cranium
 affine times jaw affine), so head accelerations shake the flesh; "cranium" simulates in the
@@ -32,6 +34,7 @@ from wface.physics.dynamics import Damping, DynamicSimulator, StepStats
 __all__ = [
     "ResimResult",
     "cranium_to_world",
+    "interpolate_bones",
     "skin_mesh",
     "Take",
     "deviation_mm",
@@ -200,6 +203,35 @@ def take_attached_positions(model, take: Take, *, frame: str = "world") -> np.nd
             model.rest_positions_m[model.attached_nodes], (take.n_frames, model.attached_nodes.size, 3)
         )
     return np.stack([attached_positions(model, b, frame=frame) for b in take.bones])
+
+
+def _polar(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """M = R P with R a rotation and P symmetric (None for R when det M <= 0)."""
+    U, S, Vt = np.linalg.svd(M)
+    R = U @ Vt
+    if np.linalg.det(R) <= 0:
+        return None, M
+    return R, Vt.T @ np.diag(S) @ Vt
+
+
+def interpolate_bones(b0: np.ndarray, b1: np.ndarray, s: float) -> np.ndarray:
+    """Bone controls (24,) at the fraction ``s`` of the way from ``b0`` to ``b1``.
+
+    Each 3x3 part M = R P (polar decomposition) has its rotation R interpolated by slerp and its
+    stretch P and the translation linearly, so a rigid bone stays rigid between frames (a linear
+    blend of positions or matrices would shrink it along the chord of each rotation).
+    """
+    from scipy.spatial.transform import Rotation, Slerp
+
+    out = (1.0 - s) * b0 + s * b1
+    for off in (0, 12):
+        R0, P0 = _polar(b0[off : off + 9].reshape(3, 3))
+        R1, P1 = _polar(b1[off : off + 9].reshape(3, 3))
+        if R0 is None or R1 is None:
+            continue  # an improper matrix: keep the linear blend
+        R = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([R0, R1])))([s]).as_matrix()[0]
+        out[off : off + 9] = (R @ ((1.0 - s) * P0 + s * P1)).ravel()
+    return out
 
 
 def cranium_to_world(take: Take, positions: np.ndarray) -> np.ndarray:
@@ -400,6 +432,7 @@ def resimulate(
     """
     from tqdm.auto import tqdm
 
+    from wface.controls import attached_positions
     from wface.physics import Simulator
 
     if take.activations.shape[1] != model.n_muscles:
@@ -439,8 +472,15 @@ def resimulate(
     bar = tqdm(total=T - 1, desc=f"resim {scheme}", disable=not progress, unit="frame")
     try:
         for k in range(1, T):
+            path = xc[k]
+            if take.bones is not None and take.attached_positions_m is None:
+                b0, b1 = take.bones[k - 1], take.bones[k]
+
+                def path(s, b0=b0, b1=b1):
+                    return attached_positions(model, interpolate_bones(b0, b1, s), frame=frame)
+
             state, st = dyn.advance(
-                state, 1.0 / take.fps, substeps, acts[k], xc[k], activation_ramp=take.activation_ramp, on_step=on_step
+                state, 1.0 / take.fps, substeps, acts[k], path, activation_ramp=take.activation_ramp, on_step=on_step
             )
             if not np.all(np.isfinite(state.x_m)):
                 raise FloatingPointError(f"the dynamic solve produced NaN/inf at frame {k}")

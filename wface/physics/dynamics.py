@@ -361,7 +361,9 @@ class DynamicSimulator:
         on_step=None,
     ):
         """``substeps`` equal steps over ``duration_s`` towards the given end values (defaults:
-        held). Attached positions are interpolated linearly from ``state``; activations too with
+        held). Attached positions are interpolated linearly from ``state`` (or given as a callable
+        ``s -> (a, 3)`` positions at the fraction s in (0, 1] of the interval, e.g. to keep
+        rotating bones rigid between frames); activations too with
         ``activation_ramp="linear"``, or switched to their end value from the first substep on
         with ``"step"`` (a sudden onset; the midpoint rule sees half of it in that substep).
         ``on_step(state)`` is called after every substep (e.g. to record peaks between frames).
@@ -378,17 +380,24 @@ class DynamicSimulator:
         fixed = self._fixed
         a0 = state.activations
         a1 = a0 if activations is None else self.model.activation_vector(activations)
-        c0 = state.x_m[fixed].copy()
-        c1 = (
-            c0
-            if attached_positions_m is None
-            else _check_array("attached_positions_m", attached_positions_m, (fixed.size, 3))
-        )
+        if callable(attached_positions_m):
+            path = attached_positions_m
+        else:
+            c0 = state.x_m[fixed].copy()
+            c1 = (
+                c0
+                if attached_positions_m is None
+                else _check_array("attached_positions_m", attached_positions_m, (fixed.size, 3))
+            )
+
+            def path(s):
+                return (1 - s) * c0 + s * c1
+
         total = None
         for k in range(1, int(substeps) + 1):
             s = k / substeps
             a = a1 if activation_ramp == "step" else (1 - s) * a0 + s * a1
-            state, stats = self.step(state, duration_s / substeps, a, (1 - s) * c0 + s * c1)
+            state, stats = self.step(state, duration_s / substeps, a, path(s))
             total = stats if total is None else total.combine(stats)
             if on_step is not None:
                 on_step(state)
