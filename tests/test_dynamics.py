@@ -397,3 +397,18 @@ def test_bone_interpolation_keeps_rotations_rigid():
     linear = 0.5 * (b0 + b1)
     Ml = linear[:9].reshape(3, 3)
     assert abs(np.linalg.det(Ml) - 1.0) > 0.05  # what a linear blend would do: shrink the head
+
+
+def test_resim_cli_head_shake_without_muscles(tmp_path):
+    from wface.cli import main
+
+    out = tmp_path / "shake"
+    args = ["resim", "--out", str(out), "--tets", "2000", "--frames", "3", "--substeps", "2"]
+    assert main([*args, "--activation", "none", "--head-shake", "10,3", "--no-usd"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert "overshoot_mm" not in report and report["kinetic_energy_peak_j"] > 0
+    assert 0 < report["deviation_mm_max"] < 5.0  # the flesh lags behind the turning head
+    with np.load(out / "resim.npz") as d:
+        x, ref = d["positions_m"], d["reference_positions_m"]
+    assert np.abs(x[-1] - x[0]).max() > 1e-3  # the head turned
+    assert x.shape == ref.shape

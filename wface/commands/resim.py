@@ -51,6 +51,7 @@ examples:
   wface resim --out smile_dyn                                   # sudden smile, 5000 tets
   wface resim --out smile_dyn --tets 20000 --scheme be --substeps 2
   wface resim --out open_dyn --activation orbicularis_oris_lower=0.5 --jaw-open 15 --frames 20
+  wface resim --out shake --activation none --head-shake 15,3   # head shake, no muscle
   wface resim --take run1 --out run1_dyn                        # a `wface track` output dir
   wface resim --take run1 --model face.npz --out run1_dyn --frames 0:60 --damping 5,1e-4
 """
@@ -80,9 +81,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fps", type=float, help="frame rate (take: default from its animation.usdc, else 30)")
     p.add_argument("--frames", help="take: range A:B; synthetic: number of frames (default 30)")
     p.add_argument(
-        "--activation", action="append", default=[], metavar="NAME=VALUE", help="synthetic: activation (repeatable)"
+        "--activation",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="synthetic: activation (repeatable; 'none' for no muscle)",
     )
     p.add_argument("--jaw-open", type=float, default=0.0, metavar="DEG", help="synthetic: jaw opening at the onset")
+    p.add_argument(
+        "--head-shake",
+        metavar="DEG,HZ",
+        help="synthetic: shake the head (yaw amplitude in degrees, frequency in Hz) from the onset on",
+    )
     p.add_argument("--onset-frame", type=int, default=1, help="synthetic: first frame with the activations on")
     p.add_argument(
         "--onset",
@@ -128,17 +138,27 @@ def _frame_range(text: str | None) -> slice | None:
 
 
 def synthetic_take(
-    model, *, frames: int, fps: float, activations: dict, jaw_open_deg: float, onset_frame: int, ramp: str = "step"
+    model,
+    *,
+    frames: int,
+    fps: float,
+    activations: dict,
+    jaw_open_deg: float = 0.0,
+    onset_frame: int = 1,
+    ramp: str = "step",
+    head_shake: tuple[float, float] | None = None,
 ):
     """Rest before ``onset_frame``, then the activations (and jaw opening) held: a ``Take``.
 
     ``ramp="step"`` switches the activations on in the first time step after frame
     ``onset_frame - 1``; ``"linear"`` ramps them over that frame interval. The jaw always
-    moves linearly over the interval."""
+    moves linearly over the interval. ``head_shake=(amplitude_deg, frequency_hz)`` turns the
+    head from the onset on, yaw(t) = A sin(2 pi f t) about the vertical axis through the
+    condyle midpoint."""
     import numpy as np
 
     from wface.controls import IDENTITY_BONES, params_from_affine
-    from wface.physics.bones import jaw_opening_affine
+    from wface.physics.bones import jaw_opening_affine, rotation_about_axis
     from wface.resim import Take
 
     if frames < 2:
@@ -151,7 +171,24 @@ def synthetic_take(
     if jaw_open_deg:
         A = jaw_opening_affine(model, jaw_open_deg)
         bones[on > 0, 12:] = params_from_affine(A[:, :3], A[:, 3])
+    if head_shake is not None:
+        amplitude_deg, frequency_hz = head_shake
+        pivot = np.asarray(model.jaw_joint.midpoint_m, dtype=np.float64)
+        for k in range(onset_frame, frames):
+            yaw = np.radians(amplitude_deg) * np.sin(2 * np.pi * frequency_hz * (k - onset_frame) / fps)
+            R = rotation_about_axis(np.array([0.0, 1.0, 0.0]), yaw)
+            bones[k, :12] = params_from_affine(R, pivot - R @ pivot)
     return Take(activations=on[:, None] * a[None, :], fps=fps, bones=bones, source="synthetic", activation_ramp=ramp)
+
+
+def _head_shake(text: str | None):
+    if not text:
+        return None
+    try:
+        amplitude, frequency = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--head-shake expects DEG,HZ (e.g. 10,3), got {text!r}") from None
+    return amplitude, frequency
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -194,7 +231,10 @@ def _run(args: argparse.Namespace) -> int:
             raise ValueError(f"{args.take}: need at least 2 frames to re-simulate, got {take.n_frames}")
     else:
         n_frames = int(args.frames) if args.frames and args.frames.isdigit() else 30
-        acts = parse_activations(args.activation) or {"zygomaticus_major_l": 1.0, "zygomaticus_major_r": 1.0}
+        if [item.lower() for item in args.activation] == ["none"]:
+            acts = {}
+        else:
+            acts = parse_activations(args.activation) or {"zygomaticus_major_l": 1.0, "zygomaticus_major_r": 1.0}
         take = synthetic_take(
             model,
             frames=n_frames,
@@ -203,6 +243,7 @@ def _run(args: argparse.Namespace) -> int:
             jaw_open_deg=args.jaw_open,
             onset_frame=args.onset_frame,
             ramp=args.onset,
+            head_shake=_head_shake(args.head_shake),
         )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -222,6 +263,7 @@ def _run(args: argparse.Namespace) -> int:
             reference = cranium_to_world(take, reference)
         extra["quasistatic_seconds_per_frame"] = (time.perf_counter() - q0) / take.n_frames
     synthetic = take.source == "synthetic"
+    step_response = synthetic and not args.head_shake  # overshoot of a held step (meaningless for a shaking head)
     substep_skin = []  # synthetic: skin positions after every time step (peaks fall between frames)
     result = resimulate(
         model,
@@ -233,7 +275,7 @@ def _run(args: argparse.Namespace) -> int:
         sim=sim,
         tol=args.tol,
         progress=True,
-        on_step=(lambda state: substep_skin.append(state.x_m[skin_nodes].copy())) if synthetic else None,
+        on_step=(lambda state: substep_skin.append(state.x_m[skin_nodes].copy())) if step_response else None,
     )
     report = {
         "source": take.source,
@@ -248,16 +290,18 @@ def _run(args: argparse.Namespace) -> int:
         report["deviation_mm"] = dev.tolist()
         report["deviation_mm_max"] = float(dev.max())
         report["deviation_mm_rms"] = float(np.sqrt(np.mean(dev**2)))
-        if synthetic:
+        if step_response:
             k = args.onset_frame
             start_skin, target_skin = reference[k - 1, skin_nodes], reference[-1, skin_nodes]
-            path = np.concatenate([result.positions_m[k - 1 : k, skin_nodes], np.array(substep_skin)])
+            after_onset = np.array(substep_skin[(k - 1) * args.substeps :])  # time steps after frame k - 1
+            path = np.concatenate([result.positions_m[k - 1 : k, skin_nodes], after_onset])
             over = step_overshoot_mm(path, start_skin, target_skin)
             sampled = step_overshoot_mm(result.positions_m[k - 1 :, skin_nodes], start_skin, target_skin)
-            over["node"], over["node_max"] = int(skin_nodes[over["node"]]), int(skin_nodes[over["node_max"]])
+            if "node" in over:
+                over["node"], over["node_max"] = int(skin_nodes[over["node"]]), int(skin_nodes[over["node_max"]])
             report.update(over)
             report["overshoot_mm_at_frames"] = sampled["overshoot_mm"]
-            report["kinetic_energy_peak_j"] = float(result.kinetic_energy_j.max())
+    report["kinetic_energy_peak_j"] = float(result.kinetic_energy_j.max())
     write_resim_npz(out / "resim.npz", result, reference_positions_m=reference)
     if not args.no_usd:
         write_resim_usd(out / "animation.usdc", model, result.positions_m, take.fps)
