@@ -24,3 +24,21 @@ def shared_data_dir() -> Path:
     if not DATA_DIR.exists():
         pytest.skip(f"real data directory absent: {DATA_DIR}")
     return DATA_DIR
+
+
+@pytest.fixture(scope="session")
+def badin_model():
+    """The ArtiSynth Badin face imported once per test session (the import takes ~10-20 s)."""
+    from wface.importers.artisynth import import_artisynth
+
+    return import_artisynth(data_path("artisynth-face"), progress=False)
+
+
+@pytest.fixture(scope="session")
+def badin_model_path(badin_model, tmp_path_factory):
+    """The session's Badin model saved as an .npz (for CLI and example tests)."""
+    from wface.model import save_model
+
+    path = tmp_path_factory.mktemp("badin") / "badin.npz"
+    save_model(badin_model, path)
+    return path

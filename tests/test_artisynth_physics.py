@@ -11,8 +11,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.conftest import data_path
-from wface.importers.artisynth import import_artisynth
 from wface.mesh.closest import SurfaceQuery
 
 pytestmark = pytest.mark.slow
@@ -20,10 +18,10 @@ TOL = 1e-4  # relative force residual: enough for millimetre-scale marker motion
 
 
 @pytest.fixture(scope="module")
-def setup():
+def setup(badin_model):
     from wface.physics.simulator import Simulator
 
-    model = import_artisynth(data_path("artisynth-face"), progress=False)
+    model = badin_model
     sim = Simulator(model)
     hit = SurfaceQuery(model.rest_positions_m, model.skin_triangles).closest(model.marker_positions_m)
     tri = model.skin_triangles[hit.triangle]

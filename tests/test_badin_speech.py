@@ -125,10 +125,10 @@ def test_frame_times_and_lip_opening():
 
 
 @pytest.mark.slow
-def test_closure_closes_the_lips_cli(tmp_path):
+def test_closure_closes_the_lips_cli(tmp_path, badin_model_path):
     from wface.cli import main
 
-    face = data_path("artisynth-face")
+    face = badin_model_path  # the import itself (--model DIR) is tested in test_artisynth.py
     out = tmp_path / "closure"
     assert main(["speech", "--model", str(face), "--gesture", "closure", "--max-frames", "3", "--out", str(out)]) == 0
     rep = json.loads((out / "report.json").read_text())
@@ -143,7 +143,7 @@ def test_closure_closes_the_lips_cli(tmp_path):
 
 
 @pytest.mark.slow
-def test_example_runs_headless(tmp_path):
+def test_example_runs_headless(tmp_path, badin_model_path):
     """examples/badin_speech.py doubles as a test: one gesture, 3 frames."""
     import importlib.util
     from pathlib import Path
@@ -153,7 +153,7 @@ def test_example_runs_headless(tmp_path):
     spec = importlib.util.spec_from_file_location("badin_speech_example", path)
     ex = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(ex)
-    s = ex.run(tmp_path, gestures=("approximant",), max_frames=3, data=face)
+    s = ex.run(tmp_path, gestures=("approximant",), max_frames=3, data=face, model_path=badin_model_path)
     lo = s["approximant"]["lip_opening_mm"]
     assert s["approximant"]["probe_to_muscles"] == {"OOP": ["OOP_l", "OOP_r"]}
     assert s["approximant"]["all_converged"] and lo["first"] > 0

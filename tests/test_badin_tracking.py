@@ -21,12 +21,11 @@ PERFORMANCE_MUSCLES = tuple(f"{b}_{s}" for b in ("OOP", "MENT", "RIS", "LLS", "D
 
 
 @pytest.fixture(scope="module")
-def setup():
-    from wface.importers.artisynth import import_artisynth
+def setup(badin_model):
     from wface.io.mocap import read_mocap
     from wface.speech import select_capture_markers
 
-    model = import_artisynth(data_path("artisynth-face"), progress=False)
+    model = badin_model
     take = read_mocap(data_path("animface", "JawMoCap.c3d"))
     sel = select_capture_markers(model, take.positions_m, take.marker_names, max_distance_mm=SELECT_MM)
     return model, take, sel

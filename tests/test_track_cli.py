@@ -70,6 +70,35 @@ def test_track_a_csv_file(tmp_path):
     assert sorted(p.name for p in (out / "frames").glob("*.npz"))[-1] == "frame_000002.npz"
 
 
+def test_neutral_frame_outside_the_range_anchors_the_embedding(tmp_path, capsys):
+    """Tracking frames 1:3 of a take whose neutral face is frame 0: with --neutral-frame 0 the
+    activations come back; embedding at frame 1 instead reads frame 1 as the neutral face."""
+    from wface.builtin import build_face
+    from wface.io.mocap import MocapTake, write_mocap
+    from wface.rig import FaceRig
+    from wface.tracking.sequence import embed_model_markers
+    from wface.tracking.synthetic import synthesize_performance
+
+    model = build_face(2000)
+    perf = synthesize_performance(FaceRig(model), embed_model_markers(model), frames=2, seed=5)
+    rest = embed_model_markers(model).positions(model.rest_positions_m)[None]
+    write_mocap(
+        MocapTake(np.concatenate([rest, perf.clean_markers_m]), list(model.marker_names), 30.0), tmp_path / "t.csv"
+    )
+    errors = {}
+    for neutral in (["--neutral-frame", "0"], []):
+        out = tmp_path / f"run{len(neutral)}"
+        args = ["track", "--mocap", str(tmp_path / "t.csv"), "--tets", "2000", "--out", str(out), "--frames", "1:3"]
+        assert main([*args, "--no-pictures", *neutral]) == 0
+        got = np.load(out / "controls.npz")["activations"]
+        errors[bool(neutral)] = float(np.sqrt(np.mean((got - perf.activations) ** 2)))
+    assert errors[True] < 0.05 < errors[False]
+    assert (
+        main(["track", "--mocap", str(tmp_path / "t.csv"), "--out", str(tmp_path / "x"), "--neutral-frame", "9"]) == 1
+    )
+    assert "--neutral-frame 9" in capsys.readouterr().err
+
+
 def test_track_reports_bad_input(tmp_path, capsys):
     assert main(["track", "--mocap", str(tmp_path / "missing.c3d"), "--out", str(tmp_path / "o")]) == 1
     assert "missing.c3d" in capsys.readouterr().err

@@ -20,6 +20,7 @@ COMMAND_MODULES = [
     "wface.commands.basis",
     "wface.commands.waters",
     "wface.commands.speech",
+    "wface.commands.edit",
     "wface.commands.resim",
 ]
 
@@ -31,6 +32,7 @@ examples:
   wface bench --suite forward --tets 20000 --json
   wface waters --mesh head.obj --expression happy --au AU26=0.3 --out waters_out
   wface speech --model badin.npz --gesture closure --out closure_out
+  wface edit blend --from smile --to surprise --frames 24 --out blend_out
   wface resim --take run1 --out run1_dyn    replay a tracked take with inertia (implicit dynamic FEM)
 
 Run `wface COMMAND --help` for the options of each command.

@@ -38,6 +38,9 @@ JAW_JOINT = JawJoint(
     max_opening_sine=float(np.sin(np.radians(35.0))),
 )
 
+LIP_BAND_M = 0.010  # height of the lip contact regions above / below the mouth line
+_LIP_CORNER_RAD = 0.15  # and how far (azimuth) they reach past the mouth corners
+
 _W_ARC_M, _H_M, _T_MEAN_M = 0.23, Y_TOP - Y_BOTTOM, 0.011
 # The procedural muscles are tubes of 4-12 mm radius, thinner than real facial muscles, so each
 # carries a strength multiplier of sigma_max: at 5, full zygomaticus major moves the mouth corner
@@ -143,11 +146,19 @@ def build_face(target_tets: int = 20_000, *, progress: bool = False, material: M
     at_cut = np.all(np.abs(grid.y[faces] - Y_MOUTH) < 1e-12, axis=1) & ~on_skin & ~on_bone
     upper = at_cut & np.all(faces < n0, axis=1)
     skin = faces[on_skin]
+    # Lip contact regions: every outer face of a lip (cut, skin and vestibule side) within
+    # LIP_BAND_M of the mouth line, out a little past the corners (``wface.physics.contact``).
+    near_mouth = np.abs(grid.theta[faces]).max(axis=1) <= THETA_MOUTH + _LIP_CORNER_RAD
+    y_f = grid.y[faces]
+    upper_lip = near_mouth & (y_f.min(axis=1) >= Y_MOUTH - 1e-12) & (y_f.max(axis=1) <= Y_MOUTH + LIP_BAND_M)
+    lower_lip = near_mouth & (y_f.max(axis=1) <= Y_MOUTH + 1e-12) & (y_f.min(axis=1) >= Y_MOUTH - LIP_BAND_M)
     surfaces = {
         "skin": skin,
         "upper_lip_contact": faces[upper],
         "lower_lip_contact": faces[at_cut & ~upper],
         "inner": faces[on_bone],
+        "upper_lip": faces[upper_lip & ~(at_cut & ~upper)],
+        "lower_lip": faces[lower_lip & ~upper],
     }
     # Markers: analytic skin points snapped onto the skin triangles.
     mk_names = list(MARKERS)

@@ -13,9 +13,15 @@ DIR/summary.json (newton_iterations, residual_rel, converged, max_displacement_m
 inverted_elements, seconds, ...). The residual is ||f_free|| relative to the out-of-balance force
 of the load on the rest shape (see wface.solvers.newton).
 
+With --contact / --obstacle the solve adds penalty contact (wface.physics.contact): the summary then
+also holds contact_active_nodes, contact_max_penetration_mm, contact_force_n and per-source numbers.
+
 examples:
   wface simulate --model face.npz --activation zygomaticus_major_l=0.8 --out smile
   wface simulate --model face.npz --jaw-open 12 --activation orbicularis_oris_lower=0.3 --out open --json
+  wface simulate --model face.npz --activation orbicularis_oris_upper=1 --activation mentalis_l=1 \
+      --activation mentalis_r=1 --contact lips,teeth --out pressed
+  wface simulate --model face.npz --obstacle sphere:0.04,-0.04,0.105,0.015 --contact teeth --out poke
 """
 
 
@@ -36,6 +42,34 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="muscle activation in [0, 1] (repeatable)",
     )
     p.add_argument("--jaw-open", type=float, default=0.0, metavar="DEG", help="jaw opening angle in degrees")
+    p.add_argument(
+        "--contact",
+        default="",
+        metavar="REGIONS",
+        help="comma-separated contact regions: lips (upper vs lower lip self-contact), teeth (flesh against "
+        "the teeth meshes), bones (against the cranium and jaw meshes); teeth and bones move with the jaw",
+    )
+    p.add_argument(
+        "--obstacle",
+        action="append",
+        default=[],
+        metavar="SPEC",
+        help="rigid obstacle pressed into the face (repeatable), metres: sphere:X,Y,Z,R (ball of radius R at "
+        "X,Y,Z) or plane:PX,PY,PZ,NX,NY,NZ (solid half-space through P, outward normal N toward the face)",
+    )
+    p.add_argument(
+        "--contact-stiffness",
+        type=float,
+        default=None,
+        metavar="N_PER_M",
+        help="contact penalty stiffness in N/m (default: 100 x flesh Young's modulus x median edge length)",
+    )
+    p.add_argument(
+        "--picture",
+        action="store_true",
+        help="also write DIR/lips_section.png: the lips and teeth cut by the mid-sagittal plane, at rest and at "
+        "the equilibrium (needs matplotlib and upper_lip / lower_lip surface groups)",
+    )
     p.add_argument("--device", default="cpu", help="Warp device: cpu (default), cuda:0 or auto")
     p.add_argument("--solver", default="auto", choices=["auto", "cg", "direct"], help="linear solver")
     p.add_argument("--tol", type=float, default=1e-6, help="relative residual tolerance (default 1e-6)")
@@ -66,6 +100,22 @@ def _quiet_warp() -> None:
     wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
 
 
+def _lip_picture(model, x, targets, path: Path) -> Path:
+    """Mid-sagittal section of lips and teeth, rest vs equilibrium (teeth placed by the bone targets)."""
+    from wface.physics.contact import MeshObstacle, bone_affines_from_attached
+    from wface.viz.contact import plot_lip_section
+
+    affines = bone_affines_from_attached(model, targets)
+    teeth = {}
+    for name, mesh in model.bone_meshes.items():
+        if "teeth" in name.lower():
+            surf = MeshObstacle(mesh.vertices_m, mesh.triangles, bone=mesh.bone).surface(affines)
+            teeth[name] = (surf.vertices_m, surf.triangles)
+    rest_teeth = {n: (m.vertices_m, m.triangles) for n, m in model.bone_meshes.items() if "teeth" in n.lower()}
+    panels = {"rest": model.rest_positions_m, "equilibrium": x}
+    return plot_lip_section(model, panels, path, teeth={"rest": rest_teeth, "equilibrium": teeth})
+
+
 def _run(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -77,9 +127,16 @@ def _run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     model = load_model(args.model)
     activations = model.activation_vector(parse_activations(args.activation))  # clear KeyError / ValueError
+    contact = None
+    if args.contact or args.obstacle:
+        from wface.physics.contact import Contact
+
+        contact = Contact.from_spec(
+            model, args.contact, args.obstacle, stiffness_n_per_m=args.contact_stiffness
+        )  # clear ValueError for unknown regions / bad specs
     sim = Simulator(model, device=args.device, solver=args.solver)
     targets = attached_positions(model, jaw=jaw_opening_affine(model, args.jaw_open))
-    eq = sim.solve(activations, targets, tol=args.tol, max_iterations=args.max_iterations)
+    eq = sim.solve(activations, targets, tol=args.tol, max_iterations=args.max_iterations, contact=contact)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     np.savez(
@@ -112,6 +169,18 @@ def _run(args: argparse.Namespace) -> int:
         "solve_seconds": eq.seconds,
         "seconds": time.perf_counter() - start,
     }
+    if args.picture:
+        summary["picture"] = str(_lip_picture(model, eq.x, targets, out / "lips_section.png"))
+    if contact is not None:
+        summary.update(
+            contact_regions=list(contact.regions),
+            obstacles=list(args.obstacle),
+            contact_stiffness_n_per_m=contact.stiffness_n_per_m,
+            contact_active_nodes=eq.contact_active_nodes,
+            contact_max_penetration_mm=eq.contact_max_penetration_m * 1e3,
+            contact_force_n=eq.contact_force_n,
+            contact_sources=eq.contact_stats,
+        )
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     if args.json:
         print(json.dumps(summary, indent=2))
@@ -122,4 +191,9 @@ def _run(args: argparse.Namespace) -> int:
             f"max displacement {summary['max_displacement_mm']:.2f} mm, {eq.inverted_elements} inverted, "
             f"{summary['seconds']:.1f} s -> {out}/equilibrium.npz"
         )
+        if contact is not None:
+            print(
+                f"contact: {eq.contact_active_nodes} nodes, max penetration "
+                f"{summary['contact_max_penetration_mm']:.3f} mm, force {eq.contact_force_n:.2f} N"
+            )
     return 0 if eq.converged else 3

@@ -84,6 +84,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--tets", type=int, default=5000, help="size of the built-in face when --model is not given")
     t.add_argument("--mocap", required=True, help="marker file: .c3d, .trc or .csv")
     t.add_argument("--frames", help="frame range A:B (Python slice of the file's frames)")
+    t.add_argument(
+        "--neutral-frame",
+        type=int,
+        help="file frame showing the neutral face, which anchors the alignment and the marker embedding "
+        "(default: the first frame of the range; it may lie outside the range)",
+    )
     t.set_defaults(func=run_track)
 
 
@@ -260,6 +266,10 @@ def run_track(args: argparse.Namespace) -> int:
 
         model = build_face(args.tets, progress=True)
     take = read_mocap(args.mocap)
+    neutral = args.neutral_frame
+    if neutral is not None and not 0 <= neutral < take.n_frames:
+        raise ValueError(f"--neutral-frame {neutral} is outside {args.mocap}'s {take.n_frames} frames")
+    reference = take.positions_m[neutral] if neutral is not None else None
     first = 0
     if args.frames:
         try:
@@ -270,7 +280,7 @@ def run_track(args: argparse.Namespace) -> int:
         take = take.frames(a, b)
     if take.n_frames == 0:
         raise ValueError(f"{args.mocap}: no frames in the range {args.frames}")
-    cap = prepare_capture(model, take.positions_m, take.marker_names)
+    cap = prepare_capture(model, take.positions_m, take.marker_names, reference_positions_m=reference)
     print(
         f"aligned {take.n_markers} markers ({len(cap.matched_names)} by name), scale {cap.scale:.3f}, "
         f"rest fit {cap.alignment_rms_mm:.2f} mm RMS"

@@ -48,6 +48,7 @@ from wface.importers.ansys import (
 )
 from wface.importers.fibres import embed_fibres
 from wface.mesh.closest import SurfaceQuery
+from wface.mesh.improve import improve_tets
 from wface.mesh.quality import quality_report
 from wface.mesh.surface import boundary_faces
 from wface.model import BoneMesh, FaceModel, JawJoint, Material
@@ -105,6 +106,10 @@ BONE_FILES = {  # model bone mesh name -> (file, rigid bone it follows)
     "maxilla": ("badinmaxilla.obj", "cranium"),
     "cranium": ("badincranium.obj", "cranium"),
     "upper_teeth": ("upperteeth.obj", "cranium"),
+}
+LIP_SURFACE_FILES = {  # surface group -> ArtiSynth lip collision surface (its vertices are face nodes)
+    "upper_lip": "face_collisionSurf_upperLip_reduced2.ply",
+    "lower_lip": "face_collisionSurf_lowerLip_reduced.ply",
 }
 FIXED_NODE_FILES = ("edge_nodes.nodenum", "nose_nodes_to_fix.txt", "zygomatic_ligament_attachments.txt")
 JAW_NODE_FILE = "face_jaw_attachments.txt"
@@ -165,6 +170,28 @@ def _classify_boundary(tris: np.ndarray, external: np.ndarray, internal: np.ndar
     ext = np.isin(tris, external).all(axis=1)
     inn = np.isin(tris, internal).all(axis=1)
     return {"skin": tris[ext], "inner": tris[inn & ~ext], "edge": tris[~ext & ~inn]}
+
+
+def _surface_on_nodes(path: Path, x: np.ndarray, boundary: np.ndarray, tol_m: float = 1e-5) -> np.ndarray:
+    """Triangles (t, 3) of a surface file whose vertices are mesh nodes, as node ids, each wound to face
+    the same way as the mesh's outward boundary at its nodes (for ``wface.physics.contact``)."""
+    import meshio
+    from scipy.spatial import cKDTree
+
+    from wface.mesh.surface import triangle_normals, vertex_normals
+
+    mesh = meshio.read(path)
+    tri = mesh.cells_dict.get("triangle")
+    if tri is None or not len(tri):
+        raise ValueError(f"{path.name}: no triangles")
+    dist, node = cKDTree(x).query(badin_to_wface(np.asarray(mesh.points, dtype=np.float64)))
+    if dist.max() > tol_m:
+        raise ValueError(f"{path.name}: a vertex lies {dist.max() * 1e3:.3f} mm from the nearest face node")
+    tri = node[tri].astype(np.int32)
+    outward = vertex_normals(x, boundary)[tri].sum(axis=1)
+    flip = np.einsum("ij,ij->i", triangle_normals(x, tri), outward) < 0
+    tri[flip] = tri[flip][:, ::-1]
+    return tri
 
 
 def _ray_hits(origin: np.ndarray, direction: np.ndarray, v: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -270,6 +297,7 @@ def import_artisynth(
     condyle_distance_m: float = 0.1,
     track_length_m: float = 0.002,
     steiner_below_deg: float = 10.0,
+    min_dihedral_goal_deg: float = 8.0,
     progress: bool = True,
 ) -> FaceModel:
     """Build a ``FaceModel`` from the ArtiSynth Badin face files in ``directory``.
@@ -282,6 +310,8 @@ def import_artisynth(
         track_length_m: length of the condylar sliding tracks (the original is a pure hinge).
         steiner_below_deg: a cell whose best split without a new node has a dihedral angle below this
             gets a node at its centre when that does better (see ``hexes_to_tets``).
+        min_dihedral_goal_deg: tets of the split below this smallest dihedral angle are improved by
+            local operations (``wface.mesh.improve.improve_tets``); 0 turns that off.
         progress: print step timings to stderr.
 
     Returns:
@@ -307,27 +337,50 @@ def import_artisynth(
 
     hexes = by_number(read_ansys_elements(directory / f"{MESH_PREFIX}.elem"), "element file")
     n_wedges = int(sum(len(set(h.tolist())) < 8 for h in hexes))
+
+    # ---- boundary-condition lists: fixed lists are node numbers, the jaw list 0-based positions
+    fixed = np.unique(np.concatenate([by_number(read_int_list(directory / f), f) for f in FIXED_NODE_FILES]))
+    jaw_pos = read_int_list(directory / JAW_NODE_FILE)
+    if jaw_pos.min() < 0 or jaw_pos.max() >= n:
+        raise ValueError(f"{JAW_NODE_FILE}: positions outside [0, {n})")
+    external = by_number(read_ansys_nodes(directory / "atlas_external.node")[0], "atlas_external.node")
+    internal = by_number(read_ansys_nodes(directory / "atlas_internal.node")[0], "atlas_internal.node")
+
+    # ---- tets: split the hexes, then remove the slivers of the flat cells by local operations
     tets, parent, steiner_points, steiner_sources = hexes_to_tets(
         hexes, x, steiner_below_deg=steiner_below_deg, return_sources=True
     )
     x = np.vstack([x, steiner_points])
+    split_quality = quality_report(x, tets)
+    locked = np.zeros(len(x), dtype=bool)
+    locked[np.concatenate([fixed, jaw_pos, external, internal])] = True
+    x, tets, edge_sources, improved = improve_tets(x, tets, goal_deg=min_dihedral_goal_deg, locked=locked)
+    sources = [*steiner_sources, *edge_sources]  # per added node (ids n, n + 1, ...): the nodes it stands for
     quality = quality_report(x, tets)
     _log(
         progress,
         t0,
-        f"{n} nodes (+{len(steiner_points)} added face/cell centres), {len(hexes)} hexes "
-        f"({n_wedges} degenerate) -> {len(tets)} tets; "
-        f"min dihedral {quality.min_dihedral_deg:.2f} deg, inverted {quality.inverted}",
+        f"{n} nodes, {len(hexes)} hexes ({n_wedges} degenerate) -> {len(tets)} tets with "
+        f"{len(x) - n} added nodes; min dihedral {split_quality.min_dihedral_deg:.2f} deg after the split, "
+        f"{quality.min_dihedral_deg:.2f} deg after {sum(improved.operations.values())} local operations; "
+        f"inverted {quality.inverted}",
     )
 
-    # ---- surfaces (atlas lists hold node numbers)
-    external = by_number(read_ansys_nodes(directory / "atlas_external.node")[0], "atlas_external.node")
-    internal = by_number(read_ansys_nodes(directory / "atlas_internal.node")[0], "atlas_internal.node")
-    # an added face-centre node belongs to a surface list when its four corners do
-    quad_centres = [(n + k, src) for k, src in enumerate(steiner_sources) if len(src) == 4]
-    external = np.concatenate([external, [i for i, src in quad_centres if np.isin(src, external).all()]])
-    internal = np.concatenate([internal, [i for i, src in quad_centres if np.isin(src, internal).all()]])
-    groups = _classify_boundary(boundary_faces(tets), external.astype(np.int64), internal.astype(np.int64))
+    def extend(nodes: np.ndarray) -> np.ndarray:
+        """A node list plus the added face-centre and edge nodes whose source nodes are all on it."""
+        member = np.zeros(len(x), dtype=bool)
+        member[nodes] = True
+        for k, src in enumerate(sources):  # cell-centre nodes (more than 4 sources) are interior
+            member[n + k] = len(src) <= 4 and member[list(src)].all()
+        return np.flatnonzero(member)
+
+    # ---- surfaces (atlas lists hold node numbers; an added node is on a surface when its sources are)
+    external, internal = extend(external), extend(internal)
+    boundary = boundary_faces(tets)
+    groups = _classify_boundary(boundary, external.astype(np.int64), internal.astype(np.int64))
+    for group, fname in LIP_SURFACE_FILES.items():  # lip contact surfaces, when the data has them
+        if (directory / fname).exists():
+            groups[group] = _surface_on_nodes(directory / fname, x, boundary)
 
     # ---- bones
     bone_meshes = {}
@@ -336,23 +389,13 @@ def import_artisynth(
         bone_meshes[name] = BoneMesh(badin_to_wface(v), t, bone)
     _log(progress, t0, "surfaces and bones read")
 
-    # ---- boundary conditions: fixed lists are node numbers, the jaw list 0-based positions
-    fixed = np.unique(np.concatenate([by_number(read_int_list(directory / f), f) for f in FIXED_NODE_FILES]))
-    jaw_pos = read_int_list(directory / JAW_NODE_FILE)
-    if jaw_pos.min() < 0 or jaw_pos.max() >= n:
-        raise ValueError(f"{JAW_NODE_FILE}: positions outside [0, {n})")
-    jaw_nodes = np.unique(jaw_pos)
-    overlap = np.intersect1d(fixed, jaw_nodes)
-    cranium_nodes = np.setdiff1d(fixed, jaw_nodes)  # a node on both lists follows the jaw
-    # an added face-centre node whose four corners all follow one bone follows it too
-    added_on = {0: [], 1: []}
-    for k, src in enumerate(steiner_sources):
-        if len(src) == 4:
-            for bone, nodes in ((0, cranium_nodes), (1, jaw_nodes)):
-                if np.isin(src, nodes).all():
-                    added_on[bone].append(n + k)
-    cranium_nodes = np.concatenate([cranium_nodes, added_on[0]]).astype(np.int64)
-    jaw_nodes = np.concatenate([jaw_nodes, added_on[1]]).astype(np.int64)
+    # ---- boundary conditions (a node on both the fixed and the jaw list follows the jaw); an added
+    # node whose source nodes all follow one bone follows it too
+    jaw_orig = np.unique(jaw_pos)
+    overlap = np.intersect1d(fixed, jaw_orig)
+    cranium_nodes = extend(np.setdiff1d(fixed, jaw_orig))
+    jaw_nodes = extend(jaw_orig)
+    added_on = {0: int(np.count_nonzero(cranium_nodes >= n)), 1: int(np.count_nonzero(jaw_nodes >= n))}
     attached = np.concatenate([cranium_nodes, jaw_nodes])
     attached_bone = np.concatenate([np.zeros(len(cranium_nodes)), np.ones(len(jaw_nodes))]).astype(np.int8)
     order = np.argsort(attached, kind="stable")
@@ -445,14 +488,22 @@ def import_artisynth(
         "nodes_on_both_fixed_and_jaw_lists": int(overlap.size),
         "added_nodes": {
             "first_id": int(n),
-            "count": int(len(steiner_points)),
-            "what": "face-centre and cell nodes of the hex split (twisted or flat cells); face centres whose "
-            "corners all follow a bone are attached to it",
-            "attached_to_cranium": len(added_on[0]),
-            "attached_to_jaw": len(added_on[1]),
+            "count": int(len(x) - n),
+            "what": "face-centre and cell nodes of the hex split (twisted or flat cells), then nodes inserted on "
+            "edges by the sliver removal; an added node whose source nodes all follow a bone is attached to it",
+            "edge_nodes": len(edge_sources),
+            "edge_sources": [[int(a), int(b)] for a, b in edge_sources],
+            "attached_to_cranium": added_on[0],
+            "attached_to_jaw": added_on[1],
         },
         "hex_split": "quad faces cut through their smallest node id, cells coned from their smallest node "
         "(Dompierre et al. 1999); conforming",
+        "sliver_removal": {
+            "method": "edge removal, 2-3 flips, smoothing of free interior nodes and edge splits "
+            "(wface.mesh.improve; Klingner & Shewchuk 2007); boundary and boundary-condition nodes do not move",
+            **improved.as_dict(),
+            "tet_quality_after_split": split_quality.as_dict(),
+        },
         "hexes": int(len(hexes)),
         "degenerate_hexes": n_wedges,
         "tet_quality": quality.as_dict(),

@@ -134,7 +134,8 @@ class Simulator:
             CG), "cg" or "direct" (see ``wface.solvers.linear``).
         force_length_scale: exaggeration beyond physical limits (seed 000, section 9): scales the
             whole active force-length curve, T = k (s a f_L + f_P), so activations stay in [0, 1].
-            Also a mutable attribute.
+            A scalar (every muscle) or an (M,) array (one scale per muscle, as
+            ``wface.editing.exaggerate`` produces). Also a mutable, validated attribute.
     """
 
     def __init__(
@@ -144,7 +145,7 @@ class Simulator:
         device: str = "cpu",
         precision: str = "float64",
         solver: str = "auto",
-        force_length_scale: float = 1.0,
+        force_length_scale: float | np.ndarray = 1.0,
     ):
         init_warp()
         import warp as wp
@@ -184,14 +185,36 @@ class Simulator:
         self._e = wp.zeros(nt, dtype=k.scalar, device=dev)
         self._a = wp.zeros(max(model.n_muscles, 1), dtype=k.scalar, device=dev)
         self._tangent_wp = None
-        if not (np.isfinite(force_length_scale) and force_length_scale >= 0):
-            raise ValueError(f"force_length_scale must be finite and >= 0, got {force_length_scale}")
-        self.force_length_scale = float(force_length_scale)
+        self.force_length_scale = force_length_scale
         self.parallel_min_tets = 20_000  # CPU: per-tet kernels run on all cores above this size
         self._patterns: dict = {}
         self._block_index: dict = {}
 
     # ------------------------------------------------------------------ inputs
+    @property
+    def force_length_scale(self) -> float | np.ndarray:
+        """Scale of the active force-length curve: a float, or an (M,) float64 array per muscle."""
+        return self._force_length_scale
+
+    @force_length_scale.setter
+    def force_length_scale(self, value: float | np.ndarray) -> None:
+        s = np.asarray(value, dtype=np.float64)
+        if s.ndim == 0:
+            if not (np.isfinite(s) and s >= 0):
+                raise ValueError(f"force_length_scale must be finite and >= 0, got {value}")
+            self._force_length_scale = float(s)
+            return
+        if s.shape != (self.model.n_muscles,):
+            raise ValueError(f"per-muscle force_length_scale has shape {s.shape}, expected ({self.model.n_muscles},)")
+        if not (np.all(np.isfinite(s)) and np.all(s >= 0)):
+            raise ValueError("per-muscle force_length_scale must be finite and >= 0")
+        self._force_length_scale = s.copy()
+
+    def _muscle_scale(self) -> float | np.ndarray:
+        """The scale as a float or an (M, 1, 1) array for per-muscle force fields."""
+        s = self._force_length_scale
+        return s if isinstance(s, float) else s[:, None, None]
+
     @property
     def n_nodes(self) -> int:
         return self.model.n_nodes
@@ -321,7 +344,7 @@ class Simulator:
                     out,
                 ],
             )
-        return out.numpy().astype(np.float64)[:M] * self.force_length_scale
+        return out.numpy().astype(np.float64)[:M] * self._muscle_scale()
 
     # ------------------------------------------------------------------ stiffness
     def tangent(self, x: np.ndarray | None = None, activations=None, *, project: bool = True) -> Tangent:
@@ -397,6 +420,7 @@ class Simulator:
         solver: str | None = None,
         stiffness: str = "auto",
         reuse_factor: bool = False,
+        contact=None,
     ):
         """Quasistatic equilibrium f_U(x, a) = 0 with attached nodes at ``attached_positions``.
 
@@ -414,6 +438,9 @@ class Simulator:
             reuse_factor: with the direct solver, precondition CG with the previous step's factor
                 and refactor only when that CG does not converge within a few iterations (off by
                 default: on the 2-core CPU at 20K-100K tets a fresh factorisation was as fast).
+            contact: a ``wface.physics.contact.Contact`` (lips, teeth, bones, rigid obstacles) or
+                None (default: no contact, the solve is unchanged). Teeth and bone meshes follow the
+                bones implied by ``attached_positions``; contact statistics land on the result.
 
         Returns:
             ``wface.solvers.newton.Equilibrium``.
@@ -431,6 +458,7 @@ class Simulator:
             solver=solver or self.linear_solver,
             stiffness=stiffness,
             reuse_factor=reuse_factor,
+            contact=contact,
         )
         result.seconds = time.perf_counter() - start
         return result

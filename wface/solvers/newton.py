@@ -63,6 +63,11 @@ class Equilibrium:
         solver: linear engine used ("direct" or "cg").
         history: residual_rel after each iteration (first entry: the start).
         seconds: wall-clock time of the solve.
+        contact_active_nodes: with ``contact``: nodes in contact at x (0 without contact).
+        contact_max_penetration_m: deepest penetration g = gap - phi at x, metres.
+        contact_force_n: sum of the contact normal force magnitudes k g at x, newtons.
+        contact_energy: penalty energy at x, joules (included in ``energy``).
+        contact_stats: the same per contact source (``wface.physics.contact.ContactPairs.stats``).
     """
 
     x: np.ndarray
@@ -80,6 +85,11 @@ class Equilibrium:
     solver: str = "direct"
     history: list = field(default_factory=list)
     seconds: float = 0.0
+    contact_active_nodes: int = 0
+    contact_max_penetration_m: float = 0.0
+    contact_force_n: float = 0.0
+    contact_energy: float = 0.0
+    contact_stats: dict = field(default_factory=dict)
 
 
 def _free_matvec(tangent, pattern):
@@ -138,7 +148,7 @@ def solve_free(
         state["factor"] = factor
         state["factorizations"] = state.get("factorizations", 0) + 1
         return factor.solve(rhs), 0
-    if str(tangent._sim.device).startswith("cuda"):
+    if str(tangent._sim.device).startswith("cuda") and getattr(tangent, "contact", None) is None:
         from wface.solvers.warp_cg import warp_pcg
 
         X, its = warp_pcg(tangent, pattern, rhs, rtol=rtol)
@@ -164,8 +174,15 @@ def newton_quasistatic(
     stiffness: str = "auto",
     reuse_factor: bool = False,
     exact_below: float = 0.1,
+    contact=None,
 ) -> Equilibrium:
-    """Newton-Raphson for f_U(x, a) = 0 (see module docstring). ``sim`` is a ``Simulator``."""
+    """Newton-Raphson for f_U(x, a) = 0 (see module docstring). ``sim`` is a ``Simulator``.
+
+    ``contact``: an optional ``wface.physics.contact.Contact``. Its penalty energy joins the elastic
+    energy (line search), its forces the residual and its Gauss-Newton Hessian the stiffness of every
+    step (assembled and matrix-free paths); bone-following obstacles are placed from
+    ``attached_positions``. The residual scale stays the elastic one of the load on the rest shape.
+    """
     from wface.physics.simulator import count_inverted
 
     model = sim.model
@@ -178,6 +195,33 @@ def newton_quasistatic(
     pattern = sim.pattern("free")
     free = pattern.dof_nodes
     a = activations
+    if contact is not None:
+        contact.set_pose(targets)
+    state = {"pairs": None, "x": None}  # the contact pairs at the latest energy_forces point
+
+    def energy_only(y):
+        if contact is None:
+            return sim.energy(y, a)
+        return sim.energy(y, a) + contact.energy(y)
+
+    def energy_forces(y):
+        """(E, f, sum |E_element|) at y, the contact terms included."""
+        e, fy = sim.energy_and_forces(y, a)
+        e_abs = float(np.abs(sim.last_element_energies()).sum())
+        if contact is None:
+            return e, fy, e_abs
+        pairs = contact.evaluate(y)
+        state["pairs"], state["x"] = pairs, y.copy()
+        return e + pairs.energy, fy + pairs.forces(), e_abs + pairs.energy
+
+    def tangent_at(y, project=True):
+        tan = sim.tangent(y, a, project=project)
+        if contact is None:
+            return tan
+        from wface.physics.contact import ContactTangent
+
+        same = state["pairs"] is not None and np.array_equal(state["x"], y)
+        return ContactTangent(tan, state["pairs"] if same else contact.evaluate(y))
 
     x_load = rest.copy()
     x_load[fixed] = targets
@@ -194,8 +238,8 @@ def newton_quasistatic(
     dxc = targets - x[fixed]
     if fixed.size and np.any(dxc != 0.0):
         # Lift: move the attached nodes to their targets and the free ones by the linear response.
-        tan = sim.tangent(x, a)
-        f = sim.forces(x, a)
+        tan = tangent_at(x)
+        f = sim.forces(x, a) if contact is None else energy_forces(x)[1]
         v = np.zeros_like(x)
         v[fixed] = dxc
         coupling = tan.matvec(v)  # K_{., C} dx_C
@@ -207,8 +251,7 @@ def newton_quasistatic(
         x[free] += dx.reshape(-1, 3)
         iterations += 1
 
-    energy, f = sim.energy_and_forces(x, a)
-    energy_abs = float(np.abs(sim.last_element_energies()).sum())
+    energy, f, energy_abs = energy_forces(x)
     residual = float(np.linalg.norm(f[free]))
     history.append(residual / scale)
     if stiffness not in ("auto", "projected", "exact"):
@@ -222,7 +265,7 @@ def newton_quasistatic(
         dx = None
         attempted = stiffness == "exact" or (stiffness == "auto" and not skip_exact and residual / scale < exact_below)
         if attempted:
-            tan = sim.tangent(x, a, project=False)
+            tan = tangent_at(x, project=False)
             try:
                 dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta, state=linear_state)
                 cg_total += its
@@ -235,7 +278,7 @@ def newton_quasistatic(
         skip_exact = attempted and dx is None
         exact_failures += int(skip_exact)
         if dx is None:
-            tan = sim.tangent(x, a)
+            tan = tangent_at(x)
             dx, its = solve_free(tan, pattern, rhs, engine=engine, rtol=eta, state=linear_state)
             cg_total += its
             projected_steps += 1
@@ -249,20 +292,29 @@ def newton_quasistatic(
         trial = x.copy()
         for _ in range(max_line_search):
             trial[free] = x[free] + t * dx
-            e_trial = sim.energy(trial, a)
+            e_trial = energy_only(trial)
             if np.isfinite(e_trial) and e_trial <= energy - 1e-4 * t * slope + slack:
                 break
             t *= 0.5
         x = trial
         iterations += 1
-        energy, f = sim.energy_and_forces(x, a)
-        energy_abs = float(np.abs(sim.last_element_energies()).sum())
+        energy, f, energy_abs = energy_forces(x)
         residual = float(np.linalg.norm(f[free]))
         history.append(residual / scale)
 
     factorizations = linear_state.get("factorizations", 0)
     if linear_state.get("factor") is not None:
         linear_state["factor"].free()
+    extra = {}
+    if contact is not None:
+        stats = state["pairs"].stats()
+        extra = {
+            "contact_active_nodes": stats["active_nodes"],
+            "contact_max_penetration_m": stats["max_penetration_m"],
+            "contact_force_n": stats["force_n"],
+            "contact_energy": state["pairs"].energy,
+            "contact_stats": stats["sources"],
+        }
     return Equilibrium(
         x=x,
         converged=bool(residual / scale <= tol),
@@ -278,4 +330,5 @@ def newton_quasistatic(
         exact_failures=exact_failures,
         solver=engine,
         history=history,
+        **extra,
     )

@@ -29,9 +29,24 @@ class PreparedCapture:
 
 
 def prepare_capture(
-    model, positions_m: np.ndarray, marker_names: list[str], *, reference_frame: int = 0
+    model,
+    positions_m: np.ndarray,
+    marker_names: list[str],
+    *,
+    reference_frame: int = 0,
+    reference_positions_m: np.ndarray | None = None,
 ) -> PreparedCapture:
-    """Align a capture (F, k, 3) in metres to ``model`` and embed its markers in the skin."""
+    """Align a capture (F, k, 3) in metres to ``model`` and embed its markers in the skin.
+
+    Args:
+        model: the face.
+        positions_m: (F, k, 3) marker positions in metres, NaN = missing.
+        marker_names: the k marker names (names the model also has act as landmarks).
+        reference_frame: the frame of ``positions_m`` that shows the neutral face; it anchors the
+            alignment and the embedding.
+        reference_positions_m: (k, 3) neutral marker positions given directly (e.g. a frame outside
+            the tracked range); overrides ``reference_frame``.
+    """
     from scipy.spatial import cKDTree
 
     from wface.align import align_to_surface
@@ -41,9 +56,18 @@ def prepare_capture(
         raise ValueError(
             f"capture has shape {pos.shape} for {len(marker_names)} marker names; expected (frames, markers, 3)"
         )
-    ref = pos[reference_frame]
+    if reference_positions_m is not None:
+        ref = np.asarray(reference_positions_m, dtype=np.float64)
+        if ref.shape != pos.shape[1:]:
+            raise ValueError(f"reference_positions_m has shape {ref.shape}, expected {pos.shape[1:]}")
+        what = "the reference positions"
+    else:
+        if not -len(pos) <= reference_frame < len(pos):
+            raise ValueError(f"reference_frame {reference_frame} is outside the capture's {len(pos)} frames")
+        ref = pos[reference_frame]
+        what = f"frame {reference_frame} of the capture"
     if np.isfinite(ref).all(axis=1).sum() < 3:
-        raise ValueError(f"frame {reference_frame} of the capture has fewer than 3 markers present")
+        raise ValueError(f"{what} has fewer than 3 markers present")
     skin_nodes = np.unique(model.skin_triangles)
     tree = cKDTree(model.rest_positions_m[skin_nodes])
     known = dict(zip(model.marker_names, model.marker_positions_m, strict=True))

@@ -1,0 +1,257 @@
+"""Contact (wface.physics.contact): derivatives, definiteness, force balance, lips, teeth, CLI."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from wface.builtin import build_face
+from wface.mesh.signed_distance import SignedSurface, oriented_outward
+from wface.physics import Simulator
+from wface.physics.contact import Contact, HalfSpace, MeshObstacle, Sphere, parse_obstacle
+from wface.physics.testmodels import box_model
+
+_FD_RTOL = 1e-5  # central differences of a piecewise-quadratic energy in float64, step 1e-8 m
+# The lip pose of the measurements: full orbicularis oris and mentalis with the jaw closed presses the
+# lips into each other (6.5 mm of overlap without contact at 3000 tets).
+_PRESS = ("orbicularis_oris_upper", "orbicularis_oris_lower", "mentalis_l", "mentalis_r")
+
+
+@pytest.fixture(scope="module")
+def face():
+    return build_face(3000)
+
+
+@pytest.fixture(scope="module")
+def sim(face):
+    return Simulator(face)
+
+
+@pytest.fixture(scope="module")
+def pressed(face, sim):
+    """Equilibrium of the lip-pressing pose without contact."""
+    return sim.solve({m: 1.0 for m in _PRESS})
+
+
+def _lips_plate(face):
+    x = face.rest_positions_m
+    z = x[np.unique(face.surface_groups["upper_lip"]), 2].max()
+    return HalfSpace((0.0, 0.0, z - 0.004), (0.0, 0.0, -1.0))  # a plate pushing the lips 4 mm back
+
+
+def test_gradient_matches_central_differences(face, pressed):
+    contact = Contact(face, regions="lips,teeth", obstacles=[Sphere((0.03, -0.04, 0.11), 0.02)])
+    rng = np.random.default_rng(0)
+    # Off the mirror plane: a node deep inside a crease of the other lip that lies exactly on its
+    # bisector (the medial axis) has a kink in its distance, so central differences need symmetry broken.
+    x = pressed.x + 1e-5 * rng.standard_normal(pressed.x.shape)
+    pairs = contact.evaluate(x)
+    assert {"upper_lip/lower_lip", "lower_lip/upper_lip", "upper_teeth"} <= {
+        pairs.names[s] for s in np.unique(pairs.source)
+    }
+    f = pairs.forces()
+    involved = np.unique(np.concatenate([pairs.node, pairs.others.ravel()]))
+    h = 1e-8
+    for _ in range(6):
+        v = np.zeros_like(x)
+        v[involved] = rng.standard_normal((involved.size, 3))
+        fd = (contact.energy(x + h * v) - contact.energy(x - h * v)) / (2 * h)
+        assert fd == pytest.approx(-np.sum(f * v), rel=_FD_RTOL, abs=1e-9)
+
+
+def test_hessian_is_psd_and_consistent(face, sim, pressed):
+    contact = Contact(face, regions="lips,teeth")
+    pairs = contact.evaluate(pressed.x)
+    assert np.count_nonzero(pairs.tangential) > 0  # edge / vertex features are exercised
+    pattern = sim.pattern("all")
+    H = pairs.assemble(pattern)
+    v = np.random.default_rng(1).standard_normal(pressed.x.shape)
+    assert np.allclose(pairs.matvec(v).ravel(), H @ v.ravel(), rtol=1e-10, atol=1e-8)
+    assert np.allclose(pairs.diagonal().ravel(), H.diagonal())
+    dofs = np.unique(H.nonzero()[0])
+    Hd = H[dofs][:, dofs].toarray()
+    assert np.allclose(Hd, Hd.T, atol=1e-9 * np.abs(Hd).max())
+    lam = np.linalg.eigvalsh(Hd)
+    assert lam.min() >= -1e-9 * lam.max()  # PSD up to round-off
+
+
+def test_half_space_hessian_is_exact():
+    model = box_model((2, 2, 2), (0.02, 0.02, 0.02), muscles=0)
+    contact = Contact(model, obstacles=[HalfSpace((0, 0, 0.019), (0.02, 0.01, -1.0))], stiffness_n_per_m=1e4)
+    x = model.rest_positions_m
+    pairs = contact.evaluate(x)
+    assert len(pairs.node) > 0
+    H = pairs.assemble(_all_pattern(model)).toarray()
+    h = 1e-9
+    J = np.zeros_like(H)
+    for j in range(x.size):
+        d = np.zeros(x.size)
+        d[j] = h
+        J[:, j] = -(contact.forces(x + d.reshape(-1, 3)) - contact.forces(x - d.reshape(-1, 3))).ravel() / (2 * h)
+    assert np.allclose(H, J, atol=1e-6 * np.abs(H).max())
+
+
+def _all_pattern(model):
+    from wface.physics.pattern import BlockPattern
+
+    return BlockPattern(model.tets, model.n_nodes)
+
+
+def test_sphere_pressed_into_block_balances_the_support():
+    model = box_model((4, 4, 2), (0.04, 0.04, 0.02), cranium_faces=("z-",), muscles=0)
+    sim = Simulator(model)
+    indent = 0.003
+    ball = Sphere((0.02, 0.02, 0.02 + 0.01 - indent), 0.01)
+    contact = Contact(model, obstacles=[ball])
+    eq = sim.solve(contact=contact, tol=1e-9)
+    assert eq.converged and eq.inverted_elements == 0
+    assert eq.contact_active_nodes >= 1
+    # Penetration: the default stiffness (100 x E h) keeps it below 5 % of the imposed indentation.
+    assert 0 < eq.contact_max_penetration_m < 0.05 * indent
+    f_el = sim.forces(eq.x)
+    pairs = contact.evaluate(eq.x)
+    push = pairs.force_on_face()
+    assert push[2] < 0 and abs(push[2]) == pytest.approx(eq.contact_force_n, rel=0.2)
+    # Internal forces sum to zero, so the support reaction (-f_el on the fixed nodes) balances the ball.
+    reaction = -f_el[model.attached_nodes].sum(axis=0)
+    assert np.linalg.norm(reaction + push) <= 1e-6 * np.linalg.norm(push) + 10 * eq.residual_abs
+
+
+def test_no_contact_is_unchanged(face, sim, pressed):
+    again = sim.solve({m: 1.0 for m in _PRESS}, contact=None)
+    assert np.array_equal(again.x, pressed.x) and again.iterations == pressed.iterations
+    assert again.contact_active_nodes == 0 and again.contact_force_n == 0.0
+    # A contact whose obstacle never touches gives the same equilibrium bit for bit.
+    far = Contact(face, obstacles=[Sphere((0.0, 0.0, 1.0), 0.01)])
+    untouched = sim.solve({m: 1.0 for m in _PRESS}, contact=far)
+    assert np.array_equal(untouched.x, pressed.x) and untouched.contact_active_nodes == 0
+
+
+def test_lips_stop_interpenetrating(face, sim, pressed):
+    lips = Contact(face, regions="lips")
+    assert lips.penetration(face.rest_positions_m)["active_nodes"] == 0  # lips touch at rest, no force
+    before = lips.penetration(pressed.x)["max_penetration_m"]
+    assert before > 3e-3  # measured 6.5 mm
+    eq = sim.solve({m: 1.0 for m in _PRESS}, contact=lips)
+    assert eq.converged and eq.inverted_elements == 0
+    assert eq.contact_active_nodes > 0
+    assert eq.contact_max_penetration_m < 5e-5  # measured 11 micrometres
+    assert lips.penetration(eq.x)["max_penetration_m"] == pytest.approx(eq.contact_max_penetration_m)
+
+
+def test_lips_pushed_back_stay_outside_the_teeth(face, sim):
+    plate = _lips_plate(face)
+    teeth = Contact(face, regions="teeth")
+    without = sim.solve(contact=Contact(face, obstacles=[plate]))
+    assert teeth.penetration(without.x)["max_penetration_m"] > 1e-3  # measured 2.5 mm into the teeth
+    eq = sim.solve(contact=Contact(face, regions="lips,teeth", obstacles=[plate]))
+    assert eq.converged
+    pen = teeth.penetration(eq.x)
+    assert pen["sources"]["upper_teeth"]["active_nodes"] > 0
+    assert pen["max_penetration_m"] < 2e-4  # measured 0.08 mm, against 2.5 mm without
+    # Teeth follow the jaw: the lower teeth rotate with a 10 degree opening.
+    from wface.physics.bones import attached_positions, jaw_opening_affine
+
+    targets = attached_positions(face, jaw=jaw_opening_affine(face, 10.0))
+    teeth.set_pose(targets)
+    lower = teeth.rigid[[n for n, _ in teeth.rigid].index("lower_teeth")][1]
+    moved = lower.surface(teeth.bone_affines).vertices_m - lower.vertices_m
+    assert np.linalg.norm(moved, axis=1).max() > 5e-3
+
+
+def test_signed_surface_of_inconsistent_closed_mesh():
+    # A unit cube (12 triangles) with half of its faces wound the wrong way.
+    v = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=float)
+    t = np.array(
+        [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6], [0, 2, 6],
+         [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+    )  # fmt: skip
+    t[::3] = t[::3, ::-1]
+    surf = SignedSurface(v, t)
+    p = np.array([[0.5, 0.5, 0.5], [0.5, 0.5, 1.5], [1.2, 1.3, 1.4], [0.9, 0.5, 0.5], [0.5, -0.1, 0.5]])
+    hit = surf.signed(p)
+    assert np.allclose(hit.phi_m, [-0.5, 0.5, np.sqrt(0.04 + 0.09 + 0.16), -0.1, 0.1])
+    assert surf.closed and np.array_equal(oriented_outward(v, surf.triangles), surf.triangles)
+    # The mesh as a rigid obstacle, moved by an affine.
+    A = np.hstack([np.eye(3), [[1.0], [0.0], [0.0]]])
+    ob = MeshObstacle(v, t, affine=A)
+    phi, n, near, _, _ = ob.signed(np.array([[1.5, 0.5, 0.5], [0.5, 0.5, 0.5]]), {})
+    assert phi[0] == pytest.approx(-0.5) and bool(near[0]) and not near[1]
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"regions": "lips,gums"}, "unknown contact region"),
+        ({"obstacles": ["sphere:0,0,0"]}, "sphere needs 4 numbers"),
+        ({"obstacles": ["cone:0,0,0,1"]}, "unknown kind"),
+        ({"obstacles": ["sphere:0,0,nan,0.1"]}, "finite"),
+        ({"obstacles": ["sphere:0,0,0,-1"]}, "radius"),
+        ({"regions": "lips", "stiffness_n_per_m": float("nan")}, "stiffness"),
+        ({}, "nothing to do"),
+        ({"self_pairs": [("upper_lip", "nose")]}, "unknown surface group"),
+    ],
+)
+def test_bad_input_is_refused(face, kwargs, message):
+    kwargs = dict(kwargs)
+    specs = kwargs.pop("obstacles", [])
+    with pytest.raises(ValueError, match=message):
+        Contact(face, obstacles=[parse_obstacle(o) for o in specs], **kwargs)
+
+
+def test_bad_positions_are_refused(face):
+    contact = Contact(face, regions="lips")
+    x = face.rest_positions_m.copy()
+    with pytest.raises(ValueError, match="shape"):
+        contact.evaluate(x[:-1])
+    x[3, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        contact.evaluate(x)
+    box = box_model((1, 1, 1), muscles=0)
+    with pytest.raises(ValueError, match="no lip surface groups"):
+        Contact(box, regions="lips")
+    with pytest.raises(ValueError, match="no teeth mesh"):
+        Contact(box, regions="teeth")
+
+
+def test_lip_groups_survive_save_and_load(face, tmp_path):
+    from wface.model import load_model, save_model
+
+    back = load_model(save_model(face, tmp_path / "f.npz"))
+    for name in ("upper_lip", "lower_lip"):
+        assert np.array_equal(back.surface_groups[name], face.surface_groups[name])
+    assert Contact(back, regions="lips").names == Contact(face, regions="lips").names
+
+
+def _cheek_sphere(face, radius_m=0.01, indent_m=0.002) -> str:
+    """Spec of a ball pressed ``indent_m`` into the left cheek."""
+    from wface.mesh.surface import vertex_normals
+
+    x = face.rest_positions_m
+    skin = np.unique(face.skin_triangles)
+    cheek = skin[(x[skin, 0] > 0.03) & (np.abs(x[skin, 1] + 0.04) < 0.01)]
+    i = cheek[np.argmax(x[cheek, 2])]
+    c = x[i] + vertex_normals(x, face.skin_triangles)[i] * (radius_m - indent_m)
+    return "sphere:" + ",".join(f"{v:.5f}" for v in (*c, radius_m))
+
+
+def test_simulate_cli_with_contact(face, tmp_path, capsys):
+    from wface.cli import main
+    from wface.model import save_model
+
+    path = save_model(face, tmp_path / "face.npz")
+    args = ["simulate", "--model", str(path), "--out", str(tmp_path / "run"), "--json"]
+    for m in _PRESS:
+        args += ["--activation", f"{m}=1"]
+    assert main(args + ["--contact", "lips,teeth", "--obstacle", _cheek_sphere(face), "--picture"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["converged"] and summary["contact_active_nodes"] > 0
+    assert summary["contact_max_penetration_mm"] < 0.05
+    assert summary["contact_sources"]["sphere0"]["active_nodes"] > 0
+    assert (tmp_path / "run" / "lips_section.png").stat().st_size > 1000
+    assert main(args + ["--contact", "lips,tongue"]) == 1
+    assert "unknown contact region" in capsys.readouterr().err
+    assert main(args + ["--obstacle", "sphere:1,2"]) == 1
+    assert "sphere needs 4 numbers" in capsys.readouterr().err

@@ -1,0 +1,471 @@
+"""Contact for the quasistatic face: lips on lips, flesh on teeth and bones, rigid objects on the skin.
+
+One-sided quadratic penalty on the signed distance phi of surface nodes to a surface:
+
+    E_c(x) = sum_p k/2 max(0, g_p(x))^2,   g_p = gap - phi_p(x)   (penetration, metres)
+
+over contact pairs p: a surface node i against
+- a rigid obstacle (sphere, half-space, closed triangle mesh under a rigid/affine transform, the
+  model's bone and teeth meshes moving with the cranium / jaw): phi = signed distance of x_i,
+  positive outside, with outward unit gradient n (``wface.mesh.signed_distance``);
+- a triangle of another region of the same face (self-contact, node-to-triangle, both ways):
+  phi = n . (x_i - sum_j w_j x_j) with c = sum_j w_j x_j the closest point on the triangle
+  (barycentric w) and n its outward normal direction.
+
+Gradient (exact away from closest-feature switches, by the envelope theorem):
+    f_i = -dE/dx_i = k g n,   f_j = -k g w_j n   (triangle vertices; the pair's forces sum to zero).
+Hessian (positive semi-definite): k C^T Q C with C = [I, -w_1 I, -w_2 I, -w_3 I] (3 x 12) and
+Q = n n^T + c (I - n n^T - e e^T). With c = 0 this is the Gauss-Newton k J^T J, J = n^T C (Wriggers,
+"Computational Contact Mechanics", 2006, ch. 6). When a node is inside and its closest point lies on
+an edge (unit direction e) or a vertex (e = 0), the curvature of the distance to that feature is
+(I - n n^T - e e^T) / |phi|, positive for the penalty energy: c = min(1, g / |phi|) keeps it (c = 1 at
+gap 0, where k/2 g^2 is then exactly the spring k/2 |Q (x_i - c)|^2). Without it, nodes pressed on
+a mesh vertex (the coincident lip nodes of the built-in face) make Newton crawl. Derivatives of
+n, w and e with respect to the triangle's vertices are dropped.
+The active set (g > 0) and closest points are recomputed at every configuration the Newton solver
+evaluates, so the line search sees the exact, C1 contact energy.
+
+Penalty stiffness k (N/m, per node): default ``DEFAULT_STIFFNESS_FACTOR`` x the stiffness of a
+surface node of the flesh, k = 100 * E * h with E = 6 (mu10 + mu01) the small-strain Young's modulus
+of the incompressible Mooney-Rivlin flesh and h the median rest edge length of the tets. A node
+then penetrates about 1/100 of the distance it would have moved without contact (measured in
+``tests/test_contact.py``); raise it for less penetration at the price of a stiffer system.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from wface.mesh.signed_distance import SignedSurface
+from wface.mesh.surface import boundary_faces
+from wface.model import BONES, FaceModel
+from wface.physics.obstacles import (
+    HalfSpace,
+    MeshObstacle,
+    Sphere,
+    as_affine,
+    bone_affines_from_attached,
+    parse_obstacle,
+)
+
+__all__ = [
+    "DEFAULT_STIFFNESS_FACTOR",
+    "LIP_GROUPS",
+    "REGIONS",
+    "Contact",
+    "ContactPairs",
+    "ContactTangent",
+    "HalfSpace",
+    "MeshObstacle",
+    "Sphere",
+    "bone_affines_from_attached",
+    "default_contact_stiffness",
+    "parse_obstacle",
+]
+
+DEFAULT_STIFFNESS_FACTOR = 100.0
+REGIONS = ("lips", "teeth", "bones")
+_ROUND_OFF_M = 1e-12  # penetrations below this are round-off (lips coincide at rest), not contact
+# Surface groups holding the upper / lower lip contact surfaces, first match wins.
+LIP_GROUPS = (("upper_lip", "lower_lip"), ("upper_lip_contact", "lower_lip_contact"))
+
+
+def default_contact_stiffness(model: FaceModel, factor: float = DEFAULT_STIFFNESS_FACTOR) -> float:
+    """k = factor * 6 (mu10 + mu01) * h in N/m, h = median rest tet edge length (module docstring)."""
+    x, t = model.rest_positions_m, model.tets
+    edges = np.concatenate([x[t[:, a]] - x[t[:, b]] for a, b in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))])
+    h = float(np.median(np.linalg.norm(edges, axis=1)))
+    return float(factor * 6.0 * (model.material.mu10_pa + model.material.mu01_pa) * h)
+
+
+def _contact_points(tri_a: np.ndarray, tri_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Contact points of surface a against surface b: its nodes and the midpoints of its edges, as
+    (S, 2) node ids and (S, 2) weights. Points on a node shared with b (where the two surfaces are
+    joined, e.g. the mouth corners) are left out: they never separate."""
+    tri_a = np.asarray(tri_a, dtype=np.int64).reshape(-1, 3)
+    shared = np.zeros(int(max(tri_a.max(initial=0), np.max(tri_b, initial=0))) + 1, dtype=bool)
+    shared[np.asarray(tri_b).ravel()] = True
+    nodes = np.unique(tri_a)
+    nodes = nodes[~shared[nodes]]
+    edges = np.unique(np.sort(np.concatenate([tri_a[:, [0, 1]], tri_a[:, [1, 2]], tri_a[:, [2, 0]]]), axis=1), axis=0)
+    edges = edges[~shared[edges].any(axis=1)]
+    pn = np.concatenate([np.repeat(nodes[:, None], 2, axis=1), edges])
+    pw = np.concatenate([np.tile([1.0, 0.0], (len(nodes), 1)), np.full((len(edges), 2), 0.5)])
+    return pn, pw
+
+
+# ---------------------------------------------------------------------- active pairs
+@dataclass
+class ContactPairs:
+    """The active contact pairs at one configuration (g >= 0: touching pairs carry no force but join the
+    Hessian, which keeps a Newton step from driving lips that touch at rest into each other), with
+    energy, forces and Hessian.
+
+    Attributes:
+        node: (P,) contact node of each pair (the first node of its contact point).
+        point_nodes, point_weights: (P, 2) the contact point x_p = sum_k v_k x_k: a node (v = (1, 0)) or,
+            for self-contact, also the midpoint of a surface edge (v = (1/2, 1/2)), which catches lips
+            that cross edge-on between their nodes on coarse meshes.
+        others: (P, 3) triangle vertices (self-contact) or the node itself with zero weights (rigid).
+        weights: (P, 3) barycentric weights w_j of the closest point (zero for rigid obstacles).
+        normal: (P, 3) unit n (gradient of phi with respect to x_i).
+        penetration_m: (P,) g = gap - phi > 0.
+        source: (P,) index into ``names``.
+        names: labels of the contact sources (regions and obstacles).
+        stiffness_n_per_m: penalty stiffness k.
+    """
+
+    node: np.ndarray
+    others: np.ndarray
+    weights: np.ndarray
+    normal: np.ndarray
+    penetration_m: np.ndarray
+    source: np.ndarray
+    names: list
+    stiffness_n_per_m: float
+    n_nodes: int
+    tangential: np.ndarray | None = None
+    edge_direction: np.ndarray | None = None
+    point_nodes: np.ndarray | None = None
+    point_weights: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.tangential is None:
+            self.tangential = np.zeros(len(self.node))
+        if self.edge_direction is None:
+            self.edge_direction = np.zeros((len(self.node), 3))
+        if self.point_nodes is None:
+            self.point_nodes = np.repeat(np.asarray(self.node)[:, None], 2, axis=1)
+            self.point_weights = np.tile([1.0, 0.0], (len(self.node), 1))
+
+    def _projector(self) -> np.ndarray:
+        """(P, 3, 3) Q = n n^T + c (I - n n^T - e e^T) of each pair (module docstring)."""
+        n, e, c = self.normal, self.edge_direction, self.tangential
+        nn = np.einsum("pd,pe->pde", n, n)
+        tang = np.eye(3) - nn - np.einsum("pd,pe->pde", e, e)
+        return nn + c[:, None, None] * tang
+
+    @property
+    def energy(self) -> float:
+        """E_c in joules."""
+        return 0.5 * self.stiffness_n_per_m * float(np.sum(self.penetration_m**2))
+
+    def forces(self) -> np.ndarray:
+        """f = -dE_c/dx, (n, 3) newtons."""
+        f = np.zeros((self.n_nodes, 3))
+        fn = (self.stiffness_n_per_m * self.penetration_m)[:, None] * self.normal
+        nodes, coef = self._coefficients()
+        for a in range(nodes.shape[1]):
+            np.add.at(f, nodes[:, a], coef[:, a, None] * fn)
+        return f
+
+    def force_on_face(self, source: str | None = None) -> np.ndarray:
+        """Net force (3,) in newtons that the obstacles exert on the face (self-contact sums to 0)."""
+        sel = slice(None) if source is None else self.source == self.names.index(source)
+        fn = (self.stiffness_n_per_m * self.penetration_m)[sel, None] * self.normal[sel]
+        return (fn * (1.0 - self.weights[sel].sum(axis=1))[:, None]).sum(axis=0)
+
+    def _coefficients(self) -> tuple[np.ndarray, np.ndarray]:
+        nodes = np.concatenate([self.point_nodes, self.others], axis=1)  # (P, 5)
+        coef = np.concatenate([self.point_weights, -self.weights], axis=1)  # C = [v_1 I, v_2 I, -w_1 I, ...]
+        return nodes, coef
+
+    def matvec(self, v: np.ndarray) -> np.ndarray:
+        """H v with H = k J^T J (Gauss-Newton), v and the result (n, 3)."""
+        v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
+        out = np.zeros_like(v)
+        if not len(self.node):
+            return out
+        nodes, coef = self._coefficients()
+        u = np.einsum("pa,pad->pd", coef, v[nodes])
+        qu = self.stiffness_n_per_m * np.einsum("pde,pe->pd", self._projector(), u)
+        for a in range(nodes.shape[1]):
+            np.add.at(out, nodes[:, a], coef[:, a, None] * qu)
+        return out
+
+    def diagonal(self) -> np.ndarray:
+        """diag(H) as (n, 3)."""
+        out = np.zeros((self.n_nodes, 3))
+        nodes, coef = self._coefficients()
+        q = np.einsum("pdd->pd", self._projector())
+        for a in range(nodes.shape[1]):
+            np.add.at(out, nodes[:, a], self.stiffness_n_per_m * coef[:, a, None] ** 2 * q)
+        return out
+
+    def assemble(self, pattern) -> sp.csr_matrix:
+        """H restricted to the unknowns of a ``BlockPattern``, CSR (3k, 3k)."""
+        nodes, coef = self._coefficients()
+        dof = pattern.node_to_dof[nodes]  # (P, 5), -1 for Dirichlet nodes
+        nn = self.stiffness_n_per_m * self._projector()
+        blocks = coef[:, :, None, None, None] * coef[:, None, :, None, None] * nn[:, None, None]  # (P,5,5,3,3)
+        shape = (len(dof), nodes.shape[1], nodes.shape[1])
+        ra = np.broadcast_to(dof[:, :, None], shape)
+        cb = np.broadcast_to(dof[:, None, :], shape)
+        keep = (ra >= 0) & (cb >= 0) & (coef[:, :, None] * coef[:, None, :] != 0)
+        d3 = np.arange(3)
+        rows = (3 * ra[keep])[:, None, None] + d3[None, :, None]
+        cols = (3 * cb[keep])[:, None, None] + d3[None, None, :]
+        rows, cols = np.broadcast_arrays(rows, cols)
+        H = sp.coo_matrix((blocks[keep].ravel(), (rows.ravel(), cols.ravel())), shape=pattern.shape)
+        return H.tocsr()
+
+    def stats(self) -> dict:
+        """active_nodes (nodes with g > 1e-12 m: touching pairs carry no force and are not counted, nor
+        round-off on surfaces that coincide at rest),
+        max_penetration_m, force_n (sum of normal force magnitudes), per source."""
+        g = self.penetration_m
+        pressing = g > _ROUND_OFF_M
+        per = {}
+        for s, name in enumerate(self.names):
+            sel = (self.source == s) & pressing
+            per[name] = {
+                "active_nodes": int(np.unique(self.node[sel]).size),
+                "max_penetration_m": float(g[sel].max()) if sel.any() else 0.0,
+                "force_n": float(self.stiffness_n_per_m * g[sel].sum()),
+            }
+        return {
+            "active_nodes": int(np.unique(self.node[pressing]).size),
+            "max_penetration_m": float(g.max()) if g.size else 0.0,
+            "force_n": float(self.stiffness_n_per_m * g.sum()),
+            "sources": per,
+        }
+
+
+class ContactTangent:
+    """Elastic tangent + contact Gauss-Newton Hessian, with the ``Tangent`` interface used by the
+    Newton solver (``matvec``, ``diagonal``, ``assemble``)."""
+
+    def __init__(self, tangent, pairs: ContactPairs):
+        self.elastic = tangent
+        self.contact = pairs
+        self._sim = tangent._sim
+        self.projected = tangent.projected
+
+    def matvec(self, v: np.ndarray) -> np.ndarray:
+        return self.elastic.matvec(v) + self.contact.matvec(v)
+
+    def diagonal(self) -> np.ndarray:
+        return self.elastic.diagonal() + self.contact.diagonal()
+
+    def assemble(self, pattern=None) -> sp.csr_matrix:
+        pattern = pattern or self._sim.pattern(None)
+        K = self.elastic.assemble(pattern)
+        if not len(self.contact.node):
+            return K
+        K = (K + self.contact.assemble(pattern)).tocsr()
+        K.sort_indices()
+        return K
+
+
+# ---------------------------------------------------------------------- the contact model
+class Contact:
+    """Contact sources of a face for ``Simulator.solve(..., contact=...)``.
+
+    Args:
+        model: the face.
+        regions: any of ``REGIONS``: "lips" (self-contact between the upper and lower lip surface
+            groups, see ``LIP_GROUPS``), "teeth" (bone meshes whose name contains "teeth"), "bones"
+            (the other bone meshes). Teeth and bones move with their bone (cranium / jaw).
+        obstacles: user ``Sphere`` / ``HalfSpace`` / ``MeshObstacle`` objects (or spec strings,
+            see ``parse_obstacle``).
+        self_pairs: extra self-contact pairs of surface group names [(group_a, group_b)].
+        stiffness_n_per_m: penalty stiffness k (default ``default_contact_stiffness``).
+        gap_m: contact offset: nodes are pushed out to phi >= gap_m (default 0: the lips of the
+            built-in face touch at rest).
+        self_max_depth_m: self-contact pairs deeper than this are ignored (a node that far "inside"
+            the other lip's surface is on the far side of it, not in contact).
+        bone_affines: fixed world affines {"cranium": 3x4, "jaw": 3x4} of the bones; by default the
+            solver fits them to the attached-node targets of each solve.
+        nodes: node ids that may touch rigid obstacles (default: the free boundary nodes).
+    """
+
+    def __init__(
+        self,
+        model: FaceModel,
+        *,
+        regions=(),
+        obstacles=(),
+        self_pairs=(),
+        stiffness_n_per_m: float | None = None,
+        gap_m: float = 0.0,
+        self_max_depth_m: float = 0.01,
+        bone_affines: dict | None = None,
+        nodes: np.ndarray | None = None,
+    ):
+        if isinstance(regions, str):
+            regions = [r for r in (s.strip() for s in regions.split(",")) if r]
+        unknown = [r for r in regions if r not in REGIONS]
+        if unknown:
+            raise ValueError(f"unknown contact region(s) {unknown}; known: {', '.join(REGIONS)}")
+        k = default_contact_stiffness(model) if stiffness_n_per_m is None else float(stiffness_n_per_m)
+        if not (np.isfinite(k) and k > 0):
+            raise ValueError(f"contact stiffness must be finite and > 0 N/m, got {stiffness_n_per_m}")
+        if not (np.isfinite(gap_m) and gap_m >= 0):
+            raise ValueError(f"gap_m must be finite and >= 0, got {gap_m}")
+        if not (np.isfinite(self_max_depth_m) and self_max_depth_m > 0):
+            raise ValueError(f"self_max_depth_m must be finite and > 0, got {self_max_depth_m}")
+        self.model = model
+        self.regions = tuple(regions)
+        self.stiffness_n_per_m = k
+        self.gap_m = float(gap_m)
+        self.self_max_depth_m = float(self_max_depth_m)
+        self.fixed_bone_affines = None
+        if bone_affines is not None:
+            self.fixed_bone_affines = {b: as_affine(A, f"{b} affine") for b, A in bone_affines.items()}
+            bad = [b for b in self.fixed_bone_affines if b not in BONES]
+            if bad:
+                raise ValueError(f"bone_affines names unknown bone(s) {bad}; known: {BONES}")
+        self.bone_affines = dict(self.fixed_bone_affines or bone_affines_from_attached(model, None))
+
+        if nodes is None:
+            free = np.ones(model.n_nodes, dtype=bool)
+            free[model.attached_nodes] = False
+            nodes = np.unique(boundary_faces(model.tets))
+            nodes = nodes[free[nodes]]
+        nodes = np.asarray(nodes, dtype=np.int64).reshape(-1)
+        if nodes.size and (nodes.min() < 0 or nodes.max() >= model.n_nodes):
+            raise ValueError(f"contact nodes must lie in [0, {model.n_nodes})")
+        self.nodes = nodes
+
+        self.rigid: list[tuple[str, object]] = []
+        for i, ob in enumerate(obstacles):
+            ob = parse_obstacle(ob) if isinstance(ob, str) else ob
+            if not isinstance(ob, Sphere | HalfSpace | MeshObstacle):
+                raise TypeError(f"obstacle {i} is a {type(ob).__name__}; use Sphere, HalfSpace or MeshObstacle")
+            label = getattr(ob, "name", None) or type(ob).__name__.lower()
+            self.rigid.append((f"{label}{i}" if label in ("sphere", "halfspace") else label, ob))
+        for name, mesh in model.bone_meshes.items():
+            is_teeth = "teeth" in name.lower()
+            if ("teeth" in self.regions and is_teeth) or ("bones" in self.regions and not is_teeth):
+                self.rigid.append((name, MeshObstacle(mesh.vertices_m, mesh.triangles, bone=mesh.bone, name=name)))
+        if "teeth" in self.regions and not any("teeth" in n.lower() for n in model.bone_meshes):
+            raise ValueError(
+                f"contact region 'teeth': the model has no teeth mesh (bone meshes: {list(model.bone_meshes)})"
+            )
+
+        pairs = list(self_pairs)
+        if "lips" in self.regions:
+            found = [p for p in LIP_GROUPS if all(g in model.surface_groups for g in p)]
+            if not found:
+                raise ValueError(
+                    "contact region 'lips': the model has no lip surface groups "
+                    f"({' / '.join('+'.join(p) for p in LIP_GROUPS)}); it has {list(model.surface_groups)}"
+                )
+            pairs.append(found[0])
+        self.self_contact: list[tuple[str, np.ndarray, np.ndarray]] = []
+        for a, b in pairs:
+            for g in (a, b):
+                if g not in model.surface_groups:
+                    raise ValueError(f"unknown surface group {g!r}; the model has {list(model.surface_groups)}")
+            ta, tb = model.surface_groups[a], model.surface_groups[b]
+            # point-to-triangle both ways
+            self.self_contact.append((f"{a}/{b}", *_contact_points(ta, tb), tb))
+            self.self_contact.append((f"{b}/{a}", *_contact_points(tb, ta), ta))
+        self.names = [n for n, _ in self.rigid] + [n for n, *_ in self.self_contact]
+        if not self.names:
+            raise ValueError("contact has nothing to do: give regions and/or obstacles")
+
+    @classmethod
+    def from_spec(cls, model: FaceModel, regions: str = "", obstacles=(), **kwargs) -> Contact:
+        """``Contact(model, regions="lips,teeth", obstacles=["sphere:0,-0.06,0.1,0.02"])``."""
+        return cls(model, regions=regions, obstacles=[parse_obstacle(s) for s in obstacles], **kwargs)
+
+    def set_pose(self, attached_positions: np.ndarray | None) -> None:
+        """Place the bone-following meshes for a solve whose attached nodes go to ``attached_positions``
+        (ignored when fixed ``bone_affines`` were given)."""
+        if self.fixed_bone_affines is None:
+            self.bone_affines = bone_affines_from_attached(self.model, attached_positions)
+
+    def evaluate(self, x: np.ndarray) -> ContactPairs:
+        """The active pairs at positions ``x`` (n, 3)."""
+        x = np.asarray(x, dtype=np.float64)
+        if x.shape != (self.model.n_nodes, 3):
+            raise ValueError(f"positions have shape {x.shape}, expected ({self.model.n_nodes}, 3)")
+        if not np.all(np.isfinite(x)):
+            raise ValueError("contact: positions contain NaN or inf")
+        parts = []
+        p = x[self.nodes]
+        for s, (_, ob) in enumerate(self.rigid):
+            phi, n, valid, feature, e = ob.signed(p, self.bone_affines, self.gap_m)
+            act = valid & (phi <= self.gap_m)
+            m = int(act.sum())
+            node = self.nodes[act]
+            c = self._tangential(phi[act], feature[act])
+            point = (np.repeat(node[:, None], 2, 1), np.tile([1.0, 0.0], (m, 1)))
+            parts.append(
+                (
+                    node,
+                    np.repeat(node[:, None], 3, 1),
+                    np.zeros((m, 3)),
+                    n[act],
+                    self.gap_m - phi[act],
+                    s,
+                    c,
+                    e[act],
+                    *point,
+                )
+            )
+        for s, (_, pn, pw, tri) in enumerate(self.self_contact, start=len(self.rigid)):
+            if not len(pn):
+                continue
+            surf = SignedSurface(x, tri, orient=False)
+            q = np.einsum("pk,pkd->pd", pw, x[pn])
+            near = np.flatnonzero(surf.near_box(q, self.gap_m + self.self_max_depth_m))
+            if not near.size:
+                continue
+            hit = surf.signed(q[near])
+            act = ~hit.on_boundary & (hit.phi_m <= self.gap_m) & (hit.phi_m > -self.self_max_depth_m)
+            sel = near[act]
+            phi = hit.phi_m[act]
+            parts.append(
+                (
+                    pn[sel, 0],
+                    surf.triangles[hit.triangle[act]],
+                    hit.barycentric[act],
+                    hit.normal[act],
+                    self.gap_m - phi,
+                    s,
+                    self._tangential(phi, hit.feature[act]),
+                    hit.edge_direction[act],
+                    pn[sel],
+                    pw[sel],
+                )
+            )
+        cat = lambda i, shape: np.concatenate([q[i] for q in parts]) if parts else np.zeros(shape)  # noqa: E731
+        return ContactPairs(
+            node=cat(0, (0,)).astype(np.int64),
+            others=cat(1, (0, 3)).astype(np.int64).reshape(-1, 3),
+            weights=cat(2, (0, 3)).reshape(-1, 3),
+            normal=cat(3, (0, 3)).reshape(-1, 3),
+            penetration_m=cat(4, (0,)),
+            source=np.concatenate([np.full(len(q[0]), q[5]) for q in parts]) if parts else np.zeros(0, int),
+            tangential=cat(6, (0,)),
+            edge_direction=cat(7, (0, 3)).reshape(-1, 3),
+            point_nodes=cat(8, (0, 2)).astype(np.int64).reshape(-1, 2),
+            point_weights=cat(9, (0, 2)).reshape(-1, 2),
+            names=self.names,
+            stiffness_n_per_m=self.stiffness_n_per_m,
+            n_nodes=self.model.n_nodes,
+        )
+
+    def _tangential(self, phi: np.ndarray, feature: np.ndarray) -> np.ndarray:
+        """Curvature weight of the Hessian's tangential part (``ContactPairs``): min(1, g / |phi|)
+        for points inside the surface whose closest point is on an edge or vertex, else 0."""
+        g = self.gap_m - phi
+        inside = (feature > 0) & (phi < 0)
+        return np.where(inside, np.minimum(1.0, g / np.where(inside, -phi, 1.0)), 0.0)
+
+    def energy(self, x: np.ndarray) -> float:
+        """E_c(x) in joules."""
+        return self.evaluate(x).energy
+
+    def forces(self, x: np.ndarray) -> np.ndarray:
+        """-dE_c/dx, (n, 3) newtons."""
+        return self.evaluate(x).forces()
+
+    def penetration(self, x: np.ndarray) -> dict:
+        """``ContactPairs.stats`` at x: active nodes, max penetration (m), force (N), per source."""
+        return self.evaluate(x).stats()
