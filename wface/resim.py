@@ -375,9 +375,16 @@ def write_resim_npz(path: str | Path, result: ResimResult, *, reference_position
 
 # ---------------------------------------------------------------------- simulation
 def quasistatic_frames(
-    sim, activations: np.ndarray, attached_positions_m: np.ndarray, *, progress: bool = False, tol: float = 1e-6
+    sim,
+    activations: np.ndarray,
+    attached_positions_m: np.ndarray,
+    *,
+    progress: bool = False,
+    tol: float = 1e-6,
+    contact=None,
 ) -> np.ndarray:
-    """(T, n, 3) quasistatic equilibria of every frame (warm-started from the previous frame)."""
+    """(T, n, 3) quasistatic equilibria of every frame (warm-started from the previous frame),
+    with the optional ``contact`` (``wface.physics.contact.Contact``)."""
     from tqdm.auto import tqdm
 
     out, x = [], None
@@ -387,7 +394,7 @@ def quasistatic_frames(
         disable=not progress,
         unit="frame",
     ):
-        eq = sim.solve(a, xc, x, tol=tol)
+        eq = sim.solve(a, xc, x, tol=tol, contact=contact)
         x = eq.x
         out.append(x)
     return np.array(out)
@@ -409,6 +416,7 @@ def resimulate(
     x0_m: np.ndarray | None = None,
     progress: bool = False,
     on_step=None,
+    contact=None,
 ) -> ResimResult:
     """Play a take through the implicit dynamic FEM.
 
@@ -426,6 +434,8 @@ def resimulate(
         progress: show a progress bar.
         on_step: optional callable ``on_step(state)`` after every time step (``DynamicState``, in
             the simulation frame), e.g. to record peaks between frames.
+        contact: optional ``wface.physics.contact.Contact`` (lips, teeth, bones, obstacles), used by
+            the quasistatic start and every time step.
 
     Returns:
         ``ResimResult`` with world positions per frame.
@@ -445,14 +455,21 @@ def resimulate(
         frame = "world"  # no cranium motion to undo
     sim = sim or Simulator(model, solver=solver or "auto")
     dyn = DynamicSimulator(
-        sim, scheme=scheme, damping=damping, tol=tol, solver=solver, stiffness=stiffness, gravity_m_s2=gravity_m_s2
+        sim,
+        scheme=scheme,
+        damping=damping,
+        tol=tol,
+        solver=solver,
+        stiffness=stiffness,
+        gravity_m_s2=gravity_m_s2,
+        contact=contact,
     )
     acts = np.array([model.activation_vector(a) for a in take.activations])
     xc = take_attached_positions(model, take, frame=frame)
     T = take.n_frames
     t0 = time.perf_counter()
     if x0_m is None:
-        eq = sim.solve(acts[0], xc[0], tol=tol)
+        eq = sim.solve(acts[0], xc[0], tol=tol, contact=contact)
         x0, its0, res0 = eq.x, eq.iterations, eq.residual_rel
     else:
         x0, its0, res0 = x0_m, 0, 0.0

@@ -53,6 +53,7 @@ examples:
   wface resim --out open_dyn --activation orbicularis_oris_lower=0.5 --jaw-open 15 --frames 20
   wface resim --out shake --activation none --head-shake 15,3   # head shake, no muscle
   wface resim --take run1 --out run1_dyn                        # a `wface track` output dir
+  wface resim --out lips --activation orbicularis_oris_upper=1 --contact lips,teeth
   wface resim --take run1 --model face.npz --out run1_dyn --frames 0:60 --damping 5,1e-4
 """
 
@@ -99,6 +100,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="step",
         choices=["step", "linear"],
         help="synthetic: activations switch on within one time step (default) or ramp over one frame",
+    )
+    p.add_argument(
+        "--contact",
+        default="",
+        metavar="REGIONS",
+        help="penalty contact, comma-separated: lips, teeth, bones (as in `wface simulate`)",
+    )
+    p.add_argument(
+        "--obstacle",
+        action="append",
+        default=[],
+        metavar="SPEC",
+        help="rigid obstacle (repeatable), e.g. sphere:X,Y,Z,R in metres (see `wface simulate --help`)",
     )
     p.add_argument("--no-reference", action="store_true", help="skip the quasistatic reference frames")
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
@@ -248,6 +262,11 @@ def _run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     sim = Simulator(model, device=args.device, solver=args.solver)
+    contact = None
+    if args.contact or args.obstacle:
+        from wface.physics.contact import Contact
+
+        contact = Contact.from_spec(model, args.contact, args.obstacle)
     skin_nodes, _ = skin_mesh(model)
     extra: dict = {}
     reference = take.reference_positions_m
@@ -255,7 +274,12 @@ def _run(args: argparse.Namespace) -> int:
         q0 = time.perf_counter()
         frame = "world" if take.bones is None else args.frame
         reference = quasistatic_frames(
-            sim, take.activations, take_attached_positions(model, take, frame=frame), progress=True, tol=args.tol
+            sim,
+            take.activations,
+            take_attached_positions(model, take, frame=frame),
+            progress=True,
+            tol=args.tol,
+            contact=contact,
         )
         if frame == "cranium":
             from wface.resim import cranium_to_world
@@ -276,6 +300,7 @@ def _run(args: argparse.Namespace) -> int:
         tol=args.tol,
         progress=True,
         on_step=(lambda state: substep_skin.append(state.x_m[skin_nodes].copy())) if step_response else None,
+        contact=contact,
     )
     report = {
         "source": take.source,
@@ -285,6 +310,9 @@ def _run(args: argparse.Namespace) -> int:
         **result.summary(),
         **extra,
     }
+    if contact is not None:
+        report["contact_regions"] = list(contact.regions)
+        report["obstacles"] = list(args.obstacle)
     if reference is not None:
         dev = deviation_mm(result.positions_m, reference, skin_nodes)
         report["deviation_mm"] = dev.tolist()

@@ -205,6 +205,10 @@ class DynamicSimulator:
             fallback, the next step tries the exact Hessian only below a relative residual of
             0.1), "projected" (always the
             projected-definite K of Teran et al. 2005) or "exact".
+        contact: optional ``wface.physics.contact.Contact`` (lips, teeth, bones, rigid obstacles):
+            its penalty energy joins the potential, its forces the gradient and its Gauss-Newton
+            Hessian the Newton matrix, as in the quasistatic solve; bone-following obstacles are
+            placed from the attached positions at the point where the forces are evaluated.
 
     Example::
 
@@ -227,6 +231,7 @@ class DynamicSimulator:
         solver: str | None = None,
         max_line_search: int = 30,
         stiffness: str = "auto",
+        contact=None,
     ):
         from wface.solvers.linear import resolve_linear_solver
 
@@ -249,6 +254,7 @@ class DynamicSimulator:
         if not isinstance(self.damping, Damping):
             raise TypeError(f"damping must be a Damping, got {type(self.damping).__name__}")
         self.gravity_m_s2 = None if gravity_m_s2 is None else _check_array("gravity_m_s2", gravity_m_s2, (3,))
+        self.contact = contact
         self.tol = float(tol)
         self.max_iterations = int(max_iterations)
         self.max_line_search = int(max_line_search)
@@ -287,8 +293,12 @@ class DynamicSimulator:
         return self.masses_kg @ state.v_m_s
 
     def total_energy(self, state: DynamicState) -> float:
-        """Kinetic + elastic (+ gravitational, when gravity is on) energy, joules."""
+        """Kinetic + elastic (+ gravitational with gravity, + contact penalty with contact) energy, J.
+
+        With contact, the obstacles stay where the latest step placed them."""
         e = self.kinetic_energy(state) + self.sim.energy(state.x_m, state.activations)
+        if self.contact is not None:
+            e += self.contact.energy(state.x_m)
         if self.gravity_m_s2 is not None:
             e -= float(self.masses_kg[self._free] @ (state.x_m[self._free] @ self.gravity_m_s2))
         return e
@@ -415,6 +425,10 @@ class DynamicSimulator:
         if self.gravity_m_s2 is not None:
             g_force = (self.masses_kg[free, None] * self.gravity_m_s2[None, :]).reshape(-1)  # M g on free dofs
         k_n = sim.tangent(x_n, a_n) if beta > 0 else None  # projected K at the start of the step
+        contact = self.contact
+        last_pairs: dict = {}  # contact pairs at the latest point where the gradient was evaluated
+        if contact is not None:
+            contact.set_pose(y_c)
         mass_coef = kappa + delta * alpha  # diagonal mass factor of the Hessian
 
         y = y_hat.copy()
@@ -436,6 +450,10 @@ class DynamicSimulator:
         def potential_and_gradient(y_full):
             e, f = sim.energy_and_forces(y_full, a)
             e_abs = float(np.abs(sim.last_element_energies()).sum())
+            if contact is not None:
+                pairs = contact.evaluate(y_full)
+                last_pairs["x"], last_pairs["pairs"] = y_full, pairs
+                e, f, e_abs = e + pairs.energy, f + pairs.forces(), e_abs + pairs.energy
             yu = pattern.gather(y_full)
             r = yu - yhat_u
             cd_u, quad = damping_terms(y_full)
@@ -445,6 +463,15 @@ class DynamicSimulator:
                 phi -= float(g_force @ yu)
                 grad = grad - g_force
             return phi, grad, e_abs
+
+        def tangent_at(y_full, project: bool):
+            tan = sim.tangent(y_full, a, project=project)
+            if contact is None:
+                return tan
+            from wface.physics.contact import ContactTangent
+
+            same = last_pairs.get("x") is y_full
+            return ContactTangent(tan, last_pairs["pairs"] if same else contact.evaluate(y_full))
 
         phi, grad, e_abs = potential_and_gradient(y)
         residual = float(np.linalg.norm(grad))
@@ -460,9 +487,7 @@ class DynamicSimulator:
             )
             if attempted:
                 try:
-                    dx, its = self._solve(
-                        sim.tangent(y, a, project=False), k_n, mass_coef, delta * beta, -grad, rtol=eta
-                    )
+                    dx, its = self._solve(tangent_at(y, False), k_n, mass_coef, delta * beta, -grad, rtol=eta)
                     stats.cg_iterations += its
                     if not float(grad @ dx) < 0:
                         dx = None
@@ -474,7 +499,7 @@ class DynamicSimulator:
             stats.exact_failures += int(skip_exact)
             if dx is None:
                 try:
-                    dx, its = self._solve(sim.tangent(y, a), k_n, mass_coef, delta * beta, -grad, rtol=eta)
+                    dx, its = self._solve(tangent_at(y, True), k_n, mass_coef, delta * beta, -grad, rtol=eta)
                 except NotPositiveDefiniteError:  # pragma: no cover - H is SPD by construction
                     dx, its = -grad / (mass_coef * m3), 0
                 stats.cg_iterations += its
