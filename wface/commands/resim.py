@@ -35,6 +35,11 @@ rest; stiffer when muscles are active), periods of 6-10 ms. The default 16 subst
 (dt = 2.1 ms) follows them; with fewer substeps the midpoint rule stays stable but cannot resolve
 the ringing (it shows up as frame-to-frame jitter), and backward Euler damps it away.
 
+contact (--contact lips,teeth,bones, --obstacle): the penalty contact of `wface simulate` in
+every time step. Experimental in dynamics: a sudden full orbicularis oris pressing the lips
+together and onto the teeth takes ~20 Newton iterations per step and can invert a few tets (the
+quasistatic lip contact solve is slow to converge too); obstacles behave well.
+
 damping (--damping ALPHA,BETA, or none): mode f Hz gets the damping ratio
   zeta = ALPHA / (4 pi f) + pi f BETA.   Default 0,2e-4 (6 % at 100 Hz, no drag on head motion).
 
