@@ -21,6 +21,7 @@ COMMAND_MODULES = [
     "wface.commands.waters",
     "wface.commands.speech",
     "wface.commands.edit",
+    "wface.commands.resim",
 ]
 
 _EPILOG = """\
@@ -32,6 +33,7 @@ examples:
   wface waters --mesh head.obj --expression happy --au AU26=0.3 --out waters_out
   wface speech --model badin.npz --gesture closure --out closure_out
   wface edit blend --from smile --to surprise --frames 24 --out blend_out
+  wface resim --take run1 --out run1_dyn    replay a tracked take with inertia (implicit dynamic FEM)
 
 Run `wface COMMAND --help` for the options of each command.
 """

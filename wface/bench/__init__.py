@@ -9,7 +9,7 @@ import platform
 
 __all__ = ["SUITES", "machine_info"]
 
-SUITES = ("forward", "jacobian", "track", "basis", "waters", "build")
+SUITES = ("forward", "jacobian", "track", "basis", "waters", "build", "dynamic")
 
 
 def machine_info() -> dict:

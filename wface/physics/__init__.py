@@ -3,9 +3,21 @@
 Main entry point: ``Simulator(model, device="cpu", precision="float64", solver="auto")`` with
 ``energy``, ``forces``, ``muscle_forces``, ``tangent`` / ``stiffness_matvec`` /
 ``assemble_stiffness``, ``stiffness_solver`` (many right-hand sides) and ``solve``.
-Bone placement helpers are in ``wface.physics.bones``.
+Bone placement helpers are in ``wface.physics.bones``. Implicit dynamics (inertia, Rayleigh
+damping, backward Euler and implicit midpoint): ``DynamicSimulator(sim)`` in
+``wface.physics.dynamics``.
 """
 
+from wface.physics.dynamics import Damping, DynamicSimulator, DynamicState, lumped_masses
 from wface.physics.simulator import Simulator, StiffnessSolver, Tangent, count_inverted
 
-__all__ = ["Simulator", "StiffnessSolver", "Tangent", "count_inverted"]
+__all__ = [
+    "Damping",
+    "DynamicSimulator",
+    "DynamicState",
+    "Simulator",
+    "StiffnessSolver",
+    "Tangent",
+    "count_inverted",
+    "lumped_masses",
+]
