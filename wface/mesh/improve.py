@@ -21,6 +21,7 @@ edge, so the meshed domain is unchanged. The result is conforming and positively
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -101,6 +102,7 @@ class ImproveReport:
     operations: dict = field(default_factory=dict)
     added_nodes: int = 0
     moved_nodes: int = 0
+    seconds: float = 0.0
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -450,6 +452,7 @@ def improve_tets(
         int32, sources: per added node the two node ids of the edge it was inserted on (a boundary
         edge keeps the node on the segment), ImproveReport).
     """
+    start = time.perf_counter()
     x = np.asarray(x, dtype=np.float64)
     tets = np.asarray(tets)
     if x.ndim != 2 or x.shape[1] != 3 or tets.ndim != 2 or tets.shape[1] != 4:
@@ -495,5 +498,6 @@ def improve_tets(
         operations=dict(work.ops),
         added_nodes=len(mesh.sources),
         moved_nodes=len([v for v in mesh.moved if v < mesh.n_orig]),
+        seconds=time.perf_counter() - start,
     )
     return mesh.x, out, list(mesh.sources), report
