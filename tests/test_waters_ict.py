@@ -147,3 +147,28 @@ def test_sphincter_action_units_move_as_far_as_the_ict_shapes(ict, au, shape, mi
     assert agree.along_mm > min_along * agree.reference_mm, agree
     assert agree.magnitude_mm < 1.3 * agree.reference_mm, agree  # not overshooting either
     assert agree.cosine > min_cos and agree.relative_error < max_error, agree
+
+
+def test_sphincter_calibration_example_runs_tiny(tmp_path):
+    """examples/waters_sphincters_ict.py headless with tiny options: report and layout written."""
+    import importlib.util
+    from pathlib import Path
+
+    data = data_path("ict-facekit", "ict_expressions.npz").parents[1]
+    path = Path(__file__).resolve().parents[1] / "examples" / "waters_sphincters_ict.py"
+    spec = importlib.util.spec_from_file_location("waters_sphincters_ict", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    report = mod.main(["--data", str(data), "--out", str(tmp_path), "--max-evaluations", "8", "--passes", "1"])
+    assert [f["muscle"] for f in report["fits"]][:2] == ["orbicularis_oculi_l", "orbicularis_oculi_palpebral_l"]
+    assert all(f["error_after"] <= f["error_before"] for f in report["fits"])  # never worse than the start
+    assert set(report["after"]) == {"cheekSquint_L", "eyeSquint_L", "mouthPucker"}
+    assert set(load_layout(tmp_path / "waters_ict.json").muscle_names) == set(load_layout("ict").muscle_names)
+    assert json.loads((tmp_path / "report.json").read_text())["passes"] == 1
+    from dataclasses import replace
+
+    packaged = load_layout("ict")  # an older layout without the finer rings gets them placed from its landmarks
+    old = replace(
+        packaged, muscles=[m for m in packaged.muscles if "palpebral" not in m.name and "incisivus" not in m.name]
+    )
+    assert mod.add_missing_sphincters(old).muscle_names == packaged.muscle_names
