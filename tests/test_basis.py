@@ -291,3 +291,16 @@ def test_interpolate_to_mesh_rejects_unknown_metric():
     b = _grid_basis(n_elements=1)
     with pytest.raises(ValueError, match="metric"):
         interpolate_to_mesh(b, b.neutral_m[:3], np.zeros((3, 3, 1)), metric="geodesic")
+
+
+def test_surface_interpolation_of_coincident_markers_needs_smoothing():
+    b = _grid_basis(n_side=20, n_elements=1)
+    ids = np.array([50, 50, 120, 200])  # two markers on one vertex, disagreeing
+    change = np.zeros((4, 3, 1))
+    change[0, 2, 0], change[1, 2, 0] = 0.001, 0.002
+    with pytest.raises(ValueError, match="smoothing > 0"):
+        interpolate_to_mesh(b, b.neutral_m[ids], change)
+    dz = interpolate_to_mesh(b, b.neutral_m[ids], change, smoothing=1e-6).shapes_m[0, ids, 2] - b.shapes_m[0, ids, 2]
+    np.testing.assert_allclose(dz, [0.0015, 0.0015, 0.0, 0.0], atol=2e-5)  # the least-squares compromise
+    smooth = interpolate_to_mesh(b, b.neutral_m[ids], change, smoothing=1.0).shapes_m[0, ids, 2] - b.shapes_m[0, ids, 2]
+    assert smooth[0] < dz[0]  # more smoothing, less reach

@@ -234,7 +234,9 @@ def interpolate_to_mesh(
             surface metric, the surface is the basis triangles with all corners among them.
         fade_start_m, fade_end_m: fade-out distances from the nearest marker.
         smoothing: 0 interpolates exactly; > 0 smooths (RBFInterpolator smoothing for the
-            euclidean metric, the constraint softness of the biharmonic solve for the surface).
+            euclidean metric; for the surface, dimensionless, see
+            :func:`wface.mesh.surface_fields.biharmonic_interpolate`; needed for two markers at
+            one point).
         metric: "surface" or "euclidean".
 
     Returns:

@@ -17,7 +17,8 @@ minimises, here measured on the surface, so data on one lip cannot reach the oth
 around the mouth corners. Constants are reproduced exactly, affine fields only approximately
 (the natural boundary conditions of L^T M^-1 L bend them, by a few per cent of their range on
 a small sheet; the Hessian energy of Stein et al. 2018 would reproduce them exactly).
-Solved as the saddle-point system [[Q, C^T], [C, -s I]] [u; mu] = [0; d] (s = smoothing >= 0).
+Solved as the saddle-point system [[Q, C^T], [C, -s/q I]] [u; mu] = [0; d] (Q = L^T M^-1 L, q its
+mean diagonal, s = smoothing >= 0).
 """
 
 from __future__ import annotations
@@ -128,8 +129,10 @@ def biharmonic_interpolate(
         point_triangles: (k,) triangle of each data point.
         barycentric: (k, 3) weights of each point in its triangle.
         values: (k, m) data (any units); m fields are solved at once.
-        smoothing: s >= 0; 0 interpolates exactly, s > 0 trades exactness for a smaller
-            bending energy (s is in units of the energy, 1/m^2 per unit value^2).
+        smoothing: s >= 0; 0 interpolates exactly, s > 0 trades exactness for a smaller bending
+            energy: minimises u^T Q u + (q / s) |C u - d|^2 with q the mean diagonal of Q (so s is
+            dimensionless; ~1e-2 smooths noticeably). Needed when two points carry the same
+            constraint (e.g. two markers at one place).
 
     Returns:
         (n, m) vertex values.
@@ -155,11 +158,16 @@ def biharmonic_interpolate(
         shape=(k, len(ids)),
     )
     alpha = float(q.diagonal().mean()) or 1.0  # constraint rows scaled to the size of Q: better pivots
-    reg = coo_matrix((k, k)) if smoothing <= 0 else -float(smoothing) * alpha**2 * identity(k)
+    reg = coo_matrix((k, k)) if smoothing <= 0 else -float(smoothing) * alpha * identity(k)
     kkt = bmat([[q, alpha * c.T], [alpha * c, reg]], format="csc")
     rhs = np.zeros((len(ids) + k, vals.shape[1]))
     rhs[len(ids) :] = alpha * vals
-    sol = splu(kkt).solve(rhs)
+    try:
+        lu = splu(kkt)
+    except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
+        raise ValueError(f"biharmonic_interpolate: the constraints are dependent ({exc}): two data points in the "
+                         "same place, or a part of the surface without one; use smoothing > 0") from None  # fmt: skip
+    sol = lu.solve(rhs)
     out = np.zeros((n, vals.shape[1]))
     out[ids] = sol[: len(ids)]
     return out
