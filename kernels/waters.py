@@ -5,7 +5,9 @@ Linear muscle j (bony attachment V1, unit axis a, zone Omega, fall-start Rs, fal
     R = cos((1 - D/Rs) pi/2) (D <= Rs), cos((D - Rs)/(Rf - Rs) pi/2) (Rs < D <= Rf), 0 beyond;
     b_j = K (A R)^e (V1 - p)/D.
 Sphincter j (centre c, frame h, v, n, semi-axes s, tension T, e):
-    rho = |((p-c).h/s0, (p-c).v/s1, (p-c).n/s2)|; R = cos(rho pi/2) (rho <= 1); b_j = T R^e P_n (c - p).
+    rho = |((p-c).h/s0, (p-c).v/s1, (p-c).n/s2)| (s1 -> lower semi-axis where (p-c).v < 0 and it is > 0);
+    R = cos(rho pi/2) (rho <= 1);
+    b_j = R^e (T P_n (c - p) + K_n n) (K_n: protrusion, metres).
 Region factor: 1 (any), 1 - w_jaw (upper), w_jaw (lower). Sum d = sum_j c_j b_j, then the per-vertex
 limit L = min(max_displacement, overlap_factor max_j |b_j|): d <- d L/|d| where |d| > L.
 Same formulas as wface.waters.muscles / wface.waters.rig (Waters, SIGGRAPH 1987; DESIGN.md section 7).
@@ -33,6 +35,8 @@ def waters_displacement(
     fall_finish: wp.array(dtype=wp.float64),
     strength: wp.array(dtype=wp.float64),  # K in metres (linear) or tension (sphincter)
     elasticity: wp.array(dtype=wp.float64),
+    protrusion: wp.array(dtype=wp.float64),  # K_n in metres (sphincter), 0 (linear)
+    lower_semi_axis: wp.array(dtype=wp.float64),  # vertical semi-axis below the centre (0: s1)
     max_displacement: wp.float64,
     overlap_factor: wp.float64,
     # State in:
@@ -75,14 +79,19 @@ def waters_displacement(
                 rel = p - origin[j]
                 s = semi_axes[j]
                 lu = wp.dot(rel, axis[j]) / s[0]
-                lv = wp.dot(rel, vertical[j]) / s[1]
+                lv = wp.dot(rel, vertical[j])
+                if lv < zero and lower_semi_axis[j] > zero:
+                    lv = lv / lower_semi_axis[j]
+                else:
+                    lv = lv / s[1]
                 lw = wp.dot(rel, normal[j]) / s[2]
                 rho = wp.sqrt(lu * lu + lv * lv + lw * lw)
                 if rho <= one:
                     rad = wp.max(wp.cos(rho * HALF_PI), zero)
                     toward = origin[j] - p
                     in_plane = toward - wp.dot(toward, normal[j]) * normal[j]
-                    b = (strength[j] * wp.pow(rad, elasticity[j])) * in_plane
+                    fall = wp.pow(rad, elasticity[j])
+                    b = (strength[j] * fall) * in_plane + (protrusion[j] * fall) * normal[j]
             if region[j] == 1:
                 b = (one - w) * b
             elif region[j] == 2:

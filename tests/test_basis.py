@@ -207,3 +207,100 @@ def test_select_regularization_by_leave_one_take_out():
     lam, n_it, scores = select_regularization(mb0, takes, candidates=(0.01,), frame_step=1, max_iterations=4,
                                               choose_iterations=True)  # fmt: skip
     assert n_it >= 1  # refining beats the perturbed start on held-out takes
+
+
+def _slit_sheet(n_x=25, n_half=10, gap_m=0.0005, corner_m=0.03):
+    """A curved 10 x 10 cm sheet cut by a slit ('mouth') along y = 0 for |x| < corner_m.
+
+    The rows either side of the slit are ``gap_m`` apart (the lips touch); they are joined
+    by quads only beyond the corners. Returns (basis, upper row ids, lower row ids).
+    """
+    x = np.linspace(-0.05, 0.05, n_x)
+    y = np.concatenate([np.linspace(-0.05, -gap_m / 2, n_half), np.linspace(gap_m / 2, 0.05, n_half)])
+    xx, yy = np.meshgrid(x, y, indexing="ij")
+    v = np.stack([xx.ravel(), yy.ravel(), 0.01 * (xx.ravel() / 0.05) ** 2], 1)  # curved like a face
+    ny = len(y)
+    quads = []
+    for i in range(n_x - 1):
+        for j in range(ny - 1):
+            if j == n_half - 1 and abs(0.5 * (x[i] + x[i + 1])) < corner_m:
+                continue  # the slit
+            a = i * ny + j
+            quads.append([a, a + ny, a + ny + 1, a + 1])
+    quads = np.array(quads)
+    b = ActuationBasis(v, np.zeros((1, len(v), 3)), ["m0"], np.full(len(quads), 4), quads.ravel())
+    cols = np.arange(n_x)
+    return b, cols * ny + n_half, cols * ny + n_half - 1
+
+
+def test_surface_interpolation_keeps_touching_lips_apart():
+    """A change on the lower lip moves the lower lip, not the touching upper lip (old metric: it does)."""
+    b, upper_row, lower_row = _slit_sheet()
+    inner = np.abs(b.neutral_m[lower_row, 0]) < 0.015  # the middle of the mouth, far from the corners
+    lower_m, upper_m = lower_row[inner] - 2, upper_row[inner] + 2  # markers two rows (11 mm) off the slit
+    ids = np.concatenate([lower_m, upper_m])
+    change = np.zeros((len(ids), 3, 1))
+    change[: len(lower_m), 2, 0] = 0.001  # lower lip +1 mm out of the plane, upper lip markers still
+    mid = np.abs(b.neutral_m[:, 0]) < 0.01
+    moved = {}
+    for metric in ("surface", "euclidean"):
+        out = interpolate_to_mesh(b, b.neutral_m[ids], change, metric=metric)
+        dz = out.shapes_m[0, :, 2]
+        np.testing.assert_allclose(dz[ids], change[:, 2, 0], atol=1e-12)  # exact at the markers
+        moved[metric] = (np.abs(dz[upper_row[mid[upper_row]]]).max(), np.abs(dz[lower_row[mid[lower_row]]]).min())
+    up_s, low_s = moved["surface"]
+    up_e, low_e = moved["euclidean"]
+    assert low_s > 0.9e-3 and up_s < 0.1e-3  # the upper lip edge stays put (within 10 %)
+    assert up_e > 0.3e-3  # straight distances: the upper lip is dragged by a third of the change or more
+    assert up_s < 0.2 * up_e
+
+
+def test_surface_distances_go_around_the_slit():
+    from wface.mesh.surface_fields import surface_distances
+
+    b, upper_row, lower_row = _slit_sheet()
+    mid = len(upper_row) // 2
+    tri = b.triangles
+    t = np.flatnonzero((tri == lower_row[mid]).any(axis=1))[0]
+    d = surface_distances(b.neutral_m, tri, [t], (tri[t] == lower_row[mid]).astype(float)[None])
+    straight = np.linalg.norm(b.neutral_m[upper_row[mid]] - b.neutral_m[lower_row[mid]])
+    assert straight < 1e-3 and d[upper_row[mid]] > 0.055  # around a corner 3 cm away and back
+    assert d[lower_row[mid]] < 1e-14
+    edge = np.linalg.norm(b.neutral_m[lower_row[mid + 1]] - b.neutral_m[lower_row[mid]])
+    np.testing.assert_allclose(d[lower_row[mid + 1]], edge, rtol=1e-12)  # one edge along the row
+
+
+def test_biharmonic_interpolate_reproduces_affine_fields_inside_a_flat_mesh():
+    from wface.mesh.surface_fields import biharmonic_interpolate
+
+    b = _grid_basis(n_side=15)
+    flat = b.neutral_m * [1, 1, 0]
+    tri = b.triangles
+    rng = np.random.default_rng(0)
+    pt = rng.choice(len(tri), 12, replace=False)
+    bary = rng.dirichlet(np.ones(3), size=12)
+    p = np.einsum("kj,kjd->kd", bary, flat[tri[pt]])
+    f = lambda q: np.stack([np.ones(len(q)) * 0.3, 2.0 * q[:, 0] - q[:, 1]], 1)  # noqa: E731
+    u = biharmonic_interpolate(flat, tri, pt, bary, f(p))
+    np.testing.assert_allclose(u[:, 0], 0.3, atol=1e-12)  # constants exactly, everywhere
+    inside = np.abs(flat[:, :2]).max(axis=1) < 0.03
+    np.testing.assert_allclose(u[inside, 1], f(flat[inside])[:, 1], atol=0.1 * np.ptp(f(p)[:, 1]))  # bent, see module
+
+
+def test_interpolate_to_mesh_rejects_unknown_metric():
+    b = _grid_basis(n_elements=1)
+    with pytest.raises(ValueError, match="metric"):
+        interpolate_to_mesh(b, b.neutral_m[:3], np.zeros((3, 3, 1)), metric="geodesic")
+
+
+def test_surface_interpolation_of_coincident_markers_needs_smoothing():
+    b = _grid_basis(n_side=20, n_elements=1)
+    ids = np.array([50, 50, 120, 200])  # two markers on one vertex, disagreeing
+    change = np.zeros((4, 3, 1))
+    change[0, 2, 0], change[1, 2, 0] = 0.001, 0.002
+    with pytest.raises(ValueError, match="smoothing > 0"):
+        interpolate_to_mesh(b, b.neutral_m[ids], change)
+    dz = interpolate_to_mesh(b, b.neutral_m[ids], change, smoothing=1e-6).shapes_m[0, ids, 2] - b.shapes_m[0, ids, 2]
+    np.testing.assert_allclose(dz, [0.0015, 0.0015, 0.0, 0.0], atol=2e-5)  # the least-squares compromise
+    smooth = interpolate_to_mesh(b, b.neutral_m[ids], change, smoothing=1.0).shapes_m[0, ids, 2] - b.shapes_m[0, ids, 2]
+    assert smooth[0] < dz[0]  # more smoothing, less reach

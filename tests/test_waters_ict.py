@@ -104,6 +104,7 @@ _AU_MOTION = {
     "AU12": ("Mouth_Lend", 1, +1),  # lip corner up ...
     "AU15": ("Mouth_Lend", 1, -1),  # lip corner down
     "AU17": ("Chin", 1, +1),  # chin boss up
+    "AU18": ("Mouth_Up", 2, +1),  # lips pushed forward (pucker)
     "AU20": ("Mouth_Lend", 0, +1),  # lip corner out (subject's left = +x)
     "AU23": ("Mouth_Lend", 0, -1),  # lip corner in (lips tighten)
     "AU25": ("Mouth_Down", 1, -1),  # lower lip down (lips part)
@@ -123,3 +124,51 @@ def test_action_units_move_the_skin_the_facs_way(ict, au):
         assert d[0] < 0  # ... and toward the midline
     if au == "AU12":
         assert d[0] > 0  # ... and outward
+
+
+@pytest.mark.parametrize(
+    ("au", "shape", "min_along", "min_cos", "max_error"),
+    [  # measured along/ref, cosine, relative error (examples/waters_sphincters_ict.py, Nov 2026):
+        ("AU6L", "cheekSquint_L", 0.55, 0.62, 0.6),  # 2.74/4.33 mm, 0.67, 0.55 (before: 0.29 mm, 0.28, 0.92)
+        ("AU7L", "eyeSquint_L", 0.4, 0.6, 0.62),  # 1.25/2.68 mm, 0.66, 0.56 (before: 0.65 mm, 0.30, 1.29)
+        ("AU18", "mouthPucker", 0.85, 0.9, 0.18),  # 8.86/9.58 mm, 0.93, 0.13 (before: 0.51 mm, 0.27, 0.93)
+    ],
+)
+def test_sphincter_action_units_move_as_far_as_the_ict_shapes(ict, au, shape, min_along, min_cos, max_error):
+    """Where the ICT shape moves most (|ref| > half its max), the action unit moves the skin the same way by a
+    comparable amount: the mean motion along the reference direction is a large fraction of the reference's."""
+    from wface.waters.calibrate import reference_agreement
+
+    mesh, _, rig = ict
+    shapes = np.load(data_path("ict-facekit", "ict_expressions.npz"))
+    ref = np.zeros_like(mesh.vertices_m)
+    ref[:9409] = shapes["deltas"][list(shapes["names"]).index(shape)][:9409].astype(np.float64) * 0.01
+    agree = reference_agreement(rig, ref, {au: 1.0}, rows=np.arange(9409))
+    assert agree.along_mm > min_along * agree.reference_mm, agree
+    assert agree.magnitude_mm < 1.3 * agree.reference_mm, agree  # not overshooting either
+    assert agree.cosine > min_cos and agree.relative_error < max_error, agree
+
+
+def test_sphincter_calibration_example_runs_tiny(tmp_path):
+    """examples/waters_sphincters_ict.py headless with tiny options: report and layout written."""
+    import importlib.util
+    from pathlib import Path
+
+    data = data_path("ict-facekit", "ict_expressions.npz").parents[1]
+    path = Path(__file__).resolve().parents[1] / "examples" / "waters_sphincters_ict.py"
+    spec = importlib.util.spec_from_file_location("waters_sphincters_ict", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    report = mod.main(["--data", str(data), "--out", str(tmp_path), "--max-evaluations", "8", "--passes", "1"])
+    assert [f["muscle"] for f in report["fits"]][:2] == ["orbicularis_oculi_l", "orbicularis_oculi_palpebral_l"]
+    assert all(f["error_after"] <= f["error_before"] for f in report["fits"])  # never worse than the start
+    assert set(report["after"]) == {"cheekSquint_L", "eyeSquint_L", "mouthPucker"}
+    assert set(load_layout(tmp_path / "waters_ict.json").muscle_names) == set(load_layout("ict").muscle_names)
+    assert json.loads((tmp_path / "report.json").read_text())["passes"] == 1
+    from dataclasses import replace
+
+    packaged = load_layout("ict")  # an older layout without the finer rings gets them placed from its landmarks
+    old = replace(
+        packaged, muscles=[m for m in packaged.muscles if "palpebral" not in m.name and "incisivus" not in m.name]
+    )
+    assert mod.add_missing_sphincters(old).muscle_names == packaged.muscle_names

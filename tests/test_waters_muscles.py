@@ -178,3 +178,31 @@ def test_bad_inputs_name_the_problem():
         _sphincter(vertical=[2, 0, 0])
     with pytest.raises(ValueError, match="tension"):
         _sphincter(tension=1.5)
+
+
+def test_sphincter_protrusion_pushes_along_the_normal_with_the_same_falloff():
+    s = _sphincter(protrusion_m=0.006)
+    p = s.centre_m + np.array([[0.015, 0.0, 0.005], [0.0, 0.0, 0.0]])
+    rho = np.hypot(0.5, 0.25)
+    d = sphincter_muscle_displacement(p, s, 0.5)
+    r = np.cos(rho * np.pi / 2)
+    np.testing.assert_allclose(d[0], [-0.5 * 0.3 * r * 0.015, 0.0, 0.5 * 0.006 * r], atol=_TOL)
+    np.testing.assert_allclose(d[1], [0.0, 0.0, 0.5 * 0.006], atol=_TOL)  # the centre comes forward by c K_n
+    flat = sphincter_muscle_displacement(p, _sphincter(), 0.5)
+    np.testing.assert_allclose(d[:, :2], flat[:, :2], atol=_TOL)  # the in-plane part is unchanged
+
+
+def test_sphincter_lower_semi_axis_stretches_the_ring_below_the_centre_only():
+    s = _sphincter(lower_semi_axis_m=0.05)
+    assert s.reach_m == 0.05 and s.below_m == 0.05 and _sphincter().below_m == 0.02
+    above = s.centre_m + np.array([[0.0, 0.015, 0.0]])
+    below = s.centre_m + np.array([[0.0, -0.04, 0.0]])  # outside the symmetric ring, inside the egg
+    symmetric = sphincter_muscle_displacement(above, _sphincter())
+    np.testing.assert_allclose(sphincter_muscle_displacement(above, s), symmetric, atol=_TOL)
+    assert np.all(sphincter_muscle_displacement(below, _sphincter()) == 0.0)
+    d = sphincter_muscle_displacement(below, s, 1.0)[0]
+    np.testing.assert_allclose(d, [0.0, 0.3 * np.cos(0.8 * np.pi / 2) * 0.04, 0.0], atol=_TOL)  # up, toward the centre
+    with pytest.raises(ValueError, match="lower_semi_axis_m"):
+        _sphincter(lower_semi_axis_m=-0.01)
+    with pytest.raises(ValueError, match="protrusion_m"):
+        _sphincter(protrusion_m=float("nan"))

@@ -236,3 +236,16 @@ def test_given_jaw_weights_override_the_planes():
         WatersRig(_layout(), x, jaw_weights=w + 1)
     with pytest.raises(ValueError, match="jaw_weights must be"):
         WatersRig(_layout(), x, jaw_weights=w[:3])
+
+
+def test_sphincter_extensions_round_trip_and_default_to_the_classic_ring(tmp_path):
+    ring = SphincterMuscle("incisivus_labii_superioris", [0, -0.03, 0.1], [1, 0, 0], [0, 1, 0], [0.03, 0.02, 0.02],
+                           0.2, protrusion_m=0.008, lower_semi_axis_m=0.03)  # fmt: skip
+    lay = _layout(muscles=[ring])
+    again = load_layout(save_layout(lay, tmp_path / "l.json", units="cm"))
+    assert again.muscles[0].protrusion_m == pytest.approx(0.008, rel=1e-14)
+    assert again.muscles[0].lower_semi_axis_m == pytest.approx(0.03, rel=1e-14)
+    d = layout_to_dict(_layout())
+    assert all("protrusion" not in m and "lower_semi_axis" not in m for m in d["muscles"])  # old files unchanged
+    assert all(m.protrusion_m == 0 and m.lower_semi_axis_m == 0 for m in layout_from_dict(d).muscles
+               if isinstance(m, SphincterMuscle))  # fmt: skip

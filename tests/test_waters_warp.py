@@ -60,3 +60,20 @@ def test_warp_kernel_without_a_jaw_matches_the_rig(head_rig):
     c = np.full(len(lay.muscles), 0.5)
     got = WarpWaters(no_jaw, device="cpu").muscle_displacement(head.vertices_m, c)
     np.testing.assert_allclose(got, WatersRig(no_jaw, head.vertices_m).muscle_displacement(c), atol=1e-12)
+
+
+def test_warp_kernel_matches_the_rig_for_protruding_egg_shaped_rings(head_rig):
+    """AU6, AU7 and AU18 use the sphincter protrusion and lower semi-axis: the kernel has them too."""
+    from wface.waters.expressions import pose_from_action_units
+    from wface.waters.muscles import SphincterMuscle
+    from wface.waters.warp_backend import WarpWaters
+
+    lay, head, rig = head_rig
+    rings = [m for m in lay.muscles if isinstance(m, SphincterMuscle)]
+    assert any(m.protrusion_m > 0 for m in rings) and any(m.lower_semi_axis_m > 0 for m in rings)
+    pose = pose_from_action_units({"AU6": 1.0, "AU7": 1.0, "AU18": 1.0}, rig.muscle_names)
+    got = WarpWaters(lay, device="cpu").muscle_displacement(
+        head.vertices_m, pose.contractions, jaw_weights=rig.jaw_weights
+    )
+    np.testing.assert_allclose(got, rig.muscle_displacement(pose.contractions), atol=1e-12)
+    assert np.abs(got[:, 2]).max() > 1e-3  # the pucker pushes forward by millimetres

@@ -21,7 +21,9 @@ __all__ = [
     "BILATERAL_MUSCLES",
     "EXPRESSIONS",
     "MIDLINE_MUSCLES",
+    "STAND_INS",
     "ActionUnit",
+    "action_unit_muscles",
     "all_muscle_names",
     "expand_muscle",
     "expression_action_units",
@@ -36,6 +38,7 @@ BILATERAL_MUSCLES: tuple[str, ...] = (
     "frontalis_lateral",
     "corrugator",
     "orbicularis_oculi",
+    "orbicularis_oculi_palpebral",
     "levator_palpebrae",
     "nasalis",
     "levator_labii_superioris_alaeque_nasi",
@@ -51,7 +54,23 @@ BILATERAL_MUSCLES: tuple[str, ...] = (
     "platysma",
 )
 # Midline muscles: a single muscle across the midline.
-MIDLINE_MUSCLES: tuple[str, ...] = ("procerus", "orbicularis_oris_upper", "orbicularis_oris_lower")
+MIDLINE_MUSCLES: tuple[str, ...] = (
+    "procerus",
+    "orbicularis_oris_upper",
+    "orbicularis_oris_lower",
+    "incisivus_labii_superioris",
+    "incisivus_labii_inferioris",
+)
+# Finer muscles and the coarser muscle that stands in for them, at a weight factor, on a face that
+# lacks them: ``orbicularis_oculi`` is the whole ring (its orbital part, AU6) where a face has no
+# separate palpebral part (AU7, AU43); the incisivii (AU18, lip pucker; one ring per lip in the
+# vector-muscle model) fall back on orbicularis oris. Faces with only the coarse muscles get the
+# activations they had before the finer muscles existed.
+STAND_INS: dict[str, tuple[str, float]] = {
+    "orbicularis_oculi_palpebral": ("orbicularis_oculi", 1.0),
+    "incisivus_labii_superioris": ("orbicularis_oris_upper", 0.8),
+    "incisivus_labii_inferioris": ("orbicularis_oris_lower", 0.8),
+}
 
 
 def all_muscle_names() -> list[str]:
@@ -88,7 +107,7 @@ ACTION_UNITS: dict[str, ActionUnit] = {
         ActionUnit(4, "Brow lowerer", {"corrugator": 1.0, "procerus": 0.6}),
         ActionUnit(5, "Upper lid raiser", {"levator_palpebrae": 1.0}),
         ActionUnit(6, "Cheek raiser", {"orbicularis_oculi": 0.7}),
-        ActionUnit(7, "Lid tightener", {"orbicularis_oculi": 1.0}),
+        ActionUnit(7, "Lid tightener", {"orbicularis_oculi_palpebral": 1.0}),
         ActionUnit(9, "Nose wrinkler", {"levator_labii_superioris_alaeque_nasi": 1.0, "nasalis": 0.5, "procerus": 0.4}),
         ActionUnit(10, "Upper lip raiser", {"levator_labii_superioris": 1.0}),
         ActionUnit(11, "Nasolabial deepener", {"zygomaticus_minor": 1.0}),
@@ -98,7 +117,7 @@ ACTION_UNITS: dict[str, ActionUnit] = {
         ActionUnit(15, "Lip corner depressor", {"depressor_anguli_oris": 1.0}),
         ActionUnit(16, "Lower lip depressor", {"depressor_labii_inferioris": 1.0}),
         ActionUnit(17, "Chin raiser", {"mentalis": 1.0}),
-        ActionUnit(18, "Lip pucker", {"orbicularis_oris_upper": 0.8, "orbicularis_oris_lower": 0.8}),
+        ActionUnit(18, "Lip pucker", {"incisivus_labii_superioris": 1.0, "incisivus_labii_inferioris": 1.0}),
         ActionUnit(20, "Lip stretcher", {"risorius": 1.0, "platysma": 0.4}),
         ActionUnit(22, "Lip funneler", {"orbicularis_oris_upper": 0.6, "orbicularis_oris_lower": 0.6}),
         ActionUnit(23, "Lip tightener", {"orbicularis_oris_upper": 1.0, "orbicularis_oris_lower": 1.0}),
@@ -107,7 +126,7 @@ ACTION_UNITS: dict[str, ActionUnit] = {
         ActionUnit(26, "Jaw drop", {}, jaw_open_deg=12.0),
         ActionUnit(27, "Mouth stretch", {"platysma": 0.3}, jaw_open_deg=25.0),
         ActionUnit(28, "Lip suck", {"orbicularis_oris_upper": 1.0, "orbicularis_oris_lower": 1.0}),
-        ActionUnit(43, "Eyes closed", {"orbicularis_oculi": 0.5}),
+        ActionUnit(43, "Eyes closed", {"orbicularis_oculi_palpebral": 0.5}),
     )
 }
 
@@ -134,6 +153,31 @@ def parse_action_unit(key: str) -> tuple[str, str]:
     return k, side
 
 
+def action_unit_muscles(au: str, side: str = "both", *, muscle_names: Iterable[str] | None = None) -> dict[str, float]:
+    """{muscle name: weight at intensity 1} of one action unit on one side of a face.
+
+    A muscle the face lacks is replaced by its stand-in (``STAND_INS``) when the face has that,
+    else dropped; ``muscle_names=None`` keeps every canonical muscle (no stand-ins).
+
+    Args:
+        au: ``"AU7"`` (no side suffix; see :func:`parse_action_unit`).
+        side: "both", "l" or "r" (midline muscles act on both sides).
+        muscle_names: the muscles the face has.
+    """
+    keep = None if muscle_names is None else set(muscle_names)
+    out: dict[str, float] = {}
+    for base, weight in ACTION_UNITS[au].muscles.items():
+        names = expand_muscle(base, side if base not in MIDLINE_MUSCLES else "both")
+        if keep is not None and base in STAND_INS and not any(n in keep for n in names):
+            stand_in, factor = STAND_INS[base]
+            base, weight = stand_in, weight * factor
+            names = expand_muscle(base, side if base not in MIDLINE_MUSCLES else "both")
+        for name in names:
+            if keep is None or name in keep:
+                out[name] = max(out.get(name, 0.0), weight)
+    return out
+
+
 def muscle_activations(
     action_units: Mapping[str, float], *, muscle_names: Iterable[str] | None = None
 ) -> tuple[dict[str, float], float]:
@@ -143,12 +187,13 @@ def muscle_activations(
 
     Args:
         action_units: ``{"AU12": 1.0, "AU6L": 0.5, ...}``, intensities in [0, 1].
-        muscle_names: the muscles a face has; muscles it lacks are dropped. ``None`` keeps all.
+        muscle_names: the muscles a face has; muscles it lacks are dropped, or driven through
+            their stand-in (``STAND_INS``) when the face has that. ``None`` keeps all.
 
     Returns:
         (``{muscle name: activation in [0, 1]}``, jaw opening in degrees).
     """
-    keep = None if muscle_names is None else set(muscle_names)
+    names = None if muscle_names is None else list(muscle_names)
     out: dict[str, float] = {}
     jaw_deg = 0.0
     for key, value in action_units.items():
@@ -156,13 +201,9 @@ def muscle_activations(
         if not (0.0 <= v <= 1.0):
             raise ValueError(f"action unit {key!r} intensity {v} is outside [0, 1]")
         au_key, side = parse_action_unit(key)
-        au = ACTION_UNITS[au_key]
-        jaw_deg = max(jaw_deg, au.jaw_open_deg * v)
-        for base, weight in au.muscles.items():
-            for name in expand_muscle(base, side if base not in MIDLINE_MUSCLES else "both"):
-                if keep is not None and name not in keep:
-                    continue
-                out[name] = max(out.get(name, 0.0), min(1.0, weight * v))
+        jaw_deg = max(jaw_deg, ACTION_UNITS[au_key].jaw_open_deg * v)
+        for name, weight in action_unit_muscles(au_key, side, muscle_names=names).items():
+            out[name] = max(out.get(name, 0.0), min(1.0, weight * v))
     return out, jaw_deg
 
 

@@ -138,6 +138,7 @@ def refine_basis(
     rel_tol: float = 1e-3,
     support_fraction: float | None = None,
     progress: bool = False,
+    carry_metric: str = "surface",
 ) -> tuple[ActuationBasis, RefinementResult, MarkerLayout, dict]:
     """Refine a basis on training takes and carry the result to the whole mesh.
 
@@ -147,6 +148,8 @@ def refine_basis(
         regularization: ridge weight towards the initial shapes, or "auto" to pick it by
             leave-one-take-out validation (needs >= 2 takes; else 0.3).
         support_fraction: locality mask of :func:`wface.basis.refine.refine_marker_basis`.
+        carry_metric: distances of the carry-over to the mesh, see
+            :func:`wface.basis.refine.interpolate_to_mesh` ("surface" or "euclidean").
 
     Returns:
         (refined basis, refinement result, layout, info dict with the chosen regularisation).
@@ -172,5 +175,5 @@ def refine_basis(
     info["regularization"] = lam
     res = refine_marker_basis(mb, disps, upper=upper, split=sp, max_iterations=max_iterations, rel_tol=rel_tol,
                               regularization=lam, support_fraction=support_fraction, progress=progress)  # fmt: skip
-    refined = interpolate_to_mesh(basis, layout.surface_m, res.basis.shapes_m - mb.shapes_m)
+    refined = interpolate_to_mesh(basis, layout.surface_m, res.basis.shapes_m - mb.shapes_m, metric=carry_metric)
     return refined, res, layout, info

@@ -6,7 +6,9 @@ Modelling: d_j = argmin_d sum_f |d^_fj - sum_i x_fi d_ij|^2 + lambda |d_j - d_j^
 Repeat until the total analysis error stops falling (relative drop below ``rel_tol``); every
 iteration's error is kept. The refined marker shapes are carried to the whole mesh by RBF
 scattered-data interpolation of the correction d_ij - d_ij^0 over the markers' neutral surface
-points (thin-plate spline, reproducing affine fields), faded out away from the markers.
+points, faded out away from the markers: by default the thin-plate spline of the surface itself
+(biharmonic interpolation along the mesh, so touching lips do not drag each other), optionally
+the straight-distance thin-plate spline of the paper.
 """
 
 from __future__ import annotations
@@ -208,28 +210,40 @@ def interpolate_to_mesh(
     fade_start_m: float = 0.015,
     fade_end_m: float = 0.04,
     smoothing: float = 0.0,
+    metric: str = "surface",
 ) -> ActuationBasis:
-    """Carry marker shape changes to the whole mesh by RBF interpolation over the neutral.
+    """Carry marker shape changes to the whole mesh by scattered-data interpolation over the neutral.
 
-    e_i' = e_i + w(v) RBF_i(v), where RBF_i is the thin-plate-spline interpolant (with an affine
-    part) of the changes d'_ij - d_ij at the markers' neutral surface points, and w fades from 1
-    within ``fade_start_m`` of the nearest marker to 0 at ``fade_end_m`` (C1 smoothstep), so the
-    affine part never drags the back of the head.
+    e_i' = e_i + w(v) S_i(v), where S_i interpolates the changes d'_ij - d_ij at the markers' neutral
+    surface points and w fades from 1 within ``fade_start_m`` of the nearest marker to 0 at
+    ``fade_end_m`` (C1 smoothstep), so the interpolant never drags the back of the head.
+
+    ``metric="surface"`` (default) measures along the mesh: S_i is the surface thin-plate spline
+    (discrete biharmonic interpolant, :func:`wface.mesh.surface_fields.biharmonic_interpolate`),
+    exact at the markers' embedded points, and w uses graph distances along the surface. Parts
+    of the face that touch without being connected (lips across the mouth opening, eyelids) do
+    not drag each other. ``metric="euclidean"`` is the straight-distance thin-plate spline with
+    an affine part (scipy RBFInterpolator) and a straight-distance fade: a lower-lip marker moves
+    the touching upper lip as much as its own lip.
 
     Args:
         basis: the initial basis.
-        marker_points_m: (k, 3) neutral surface points of the markers.
+        marker_points_m: (k, 3) neutral surface points of the markers (NaN rows are ignored).
         shape_change_m: (k, 3, B) refined minus initial marker shapes.
-        vertices: vertex ids to move (default the basis skin vertices, else all).
+        vertices: vertex ids to move (default the basis skin vertices, else all); with the
+            surface metric, the surface is the basis triangles with all corners among them.
         fade_start_m, fade_end_m: fade-out distances from the nearest marker.
-        smoothing: RBFInterpolator smoothing (0: interpolate exactly).
+        smoothing: 0 interpolates exactly; > 0 smooths (RBFInterpolator smoothing for the
+            euclidean metric; for the surface, dimensionless, see
+            :func:`wface.mesh.surface_fields.biharmonic_interpolate`; needed for two markers at
+            one point).
+        metric: "surface" or "euclidean".
 
     Returns:
         A new :class:`ActuationBasis` with refined shapes.
     """
-    from scipy.interpolate import RBFInterpolator
-    from scipy.spatial import cKDTree
-
+    if metric not in ("surface", "euclidean"):
+        raise ValueError(f"interpolate_to_mesh: metric must be 'surface' or 'euclidean', got {metric!r}")
     pts = np.asarray(marker_points_m, dtype=np.float64)
     ch = np.asarray(shape_change_m, dtype=np.float64)
     k, _, nb = ch.shape
@@ -238,18 +252,69 @@ def interpolate_to_mesh(
         vertices = basis.skin_vertices if basis.skin_vertices is not None else np.arange(basis.n_vertices)
     vertices = np.asarray(vertices, dtype=np.int64)
     vals = ch[ok].reshape(ok.sum(), 3 * nb)
-    rbf = RBFInterpolator(pts[ok], vals, kernel="thin_plate_spline", degree=1, smoothing=smoothing)
-    where = basis.neutral_m[vertices]
-    dist = cKDTree(pts[ok]).query(where)[0]
-    t = np.clip((dist - fade_start_m) / max(fade_end_m - fade_start_m, 1e-12), 0.0, 1.0)
-    w = 1.0 - t * t * (3.0 - 2.0 * t)
-    near = w > 0
-    field_ = np.zeros((len(vertices), 3 * nb))
-    field_[near] = rbf(where[near]) * w[near, None]
+    if metric == "euclidean":
+        field_ = _euclidean_field(basis.neutral_m[vertices], pts[ok], vals, fade_start_m, fade_end_m, smoothing)
+    else:
+        field_ = _surface_field(basis, vertices, pts[ok], vals, fade_start_m, fade_end_m, smoothing)
     shapes = basis.shapes_m.copy()
     shapes[:, vertices, :] += field_.reshape(len(vertices), 3, nb).transpose(2, 0, 1)
     return ActuationBasis(basis.neutral_m, shapes, list(basis.names), basis.face_counts, basis.face_indices,
                           basis.skin_vertices, basis.source + " (refined)")  # fmt: skip
+
+
+def _fade(dist: np.ndarray, start: float, end: float) -> np.ndarray:
+    t = np.clip((dist - start) / max(end - start, 1e-12), 0.0, 1.0)
+    return 1.0 - t * t * (3.0 - 2.0 * t)
+
+
+def _euclidean_field(where, pts, vals, fade_start_m, fade_end_m, smoothing) -> np.ndarray:
+    from scipy.interpolate import RBFInterpolator
+    from scipy.spatial import cKDTree
+
+    rbf = RBFInterpolator(pts, vals, kernel="thin_plate_spline", degree=1, smoothing=smoothing)
+    w = _fade(cKDTree(pts).query(where)[0], fade_start_m, fade_end_m)
+    near = w > 0
+    out = np.zeros((len(where), vals.shape[1]))
+    out[near] = rbf(where[near]) * w[near, None]
+    return out
+
+
+def _surface_field(basis, vertices, pts, vals, fade_start_m, fade_end_m, smoothing) -> np.ndarray:
+    from wface.mesh.closest import SurfaceQuery
+    from wface.mesh.surface_fields import biharmonic_interpolate, surface_distances
+
+    mask = np.zeros(basis.n_vertices, dtype=bool)
+    mask[vertices] = True
+    tri = basis.triangles
+    tri = tri[mask[tri].all(axis=1)]
+    if len(tri) == 0:
+        raise ValueError("interpolate_to_mesh: no triangle has all corners among the vertices to move; "
+                         "use metric='euclidean' for a point set")  # fmt: skip
+    hit = SurfaceQuery(basis.neutral_m, tri).closest(pts)
+    dist = surface_distances(basis.neutral_m, tri, hit.triangle, hit.barycentric, limit_m=fade_end_m)
+    w = _fade(dist, fade_start_m, fade_end_m)  # inf (beyond the limit, other parts) -> 0
+    near_v = np.zeros(basis.n_vertices, dtype=bool)
+    near_v[w > 0] = True
+    near_v[tri[hit.triangle].ravel()] = True  # the markers' own triangles always belong to the domain
+    keep = near_v[tri].all(axis=1)
+    keep &= _joined_to(tri, keep, hit.triangle, basis.n_vertices)  # no part without a marker: singular
+    renumber = np.cumsum(keep) - 1
+    field_all = biharmonic_interpolate(basis.neutral_m, tri[keep], renumber[hit.triangle], hit.barycentric, vals,
+                                       smoothing=smoothing)  # fmt: skip
+    return field_all[vertices] * w[vertices, None]
+
+
+def _joined_to(tri: np.ndarray, keep: np.ndarray, seeds: np.ndarray, n: int) -> np.ndarray:
+    """(t,) which kept triangles share a connected part (through kept triangles) with a seed triangle."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    t = tri[keep]
+    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]]])
+    _, label = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)
+    good = np.zeros(n, dtype=bool)
+    good[np.unique(label[tri[seeds, 0]])] = True
+    return good[label[tri[:, 0]]]
 
 
 def select_regularization(

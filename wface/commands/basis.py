@@ -66,6 +66,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--support", type=float, default=None,
                    help="locality: an element may only change at markers it moves by at least this fraction "
                    "of its largest marker displacement (e.g. 0.1; default off)")  # fmt: skip
+    r.add_argument("--carry-metric", choices=("surface", "euclidean"), default="surface",
+                   help="distances of the RBF carry-over to the mesh: along the surface (default; touching "
+                   "lips and eyelids stay apart) or straight (the paper's thin-plate spline)")  # fmt: skip
     r.add_argument("--max-iterations", type=int, default=30, help="cap on refinement iterations (default 30)")
     r.add_argument("--rel-tol", type=float, default=1e-3, help="stop when the error falls less than this fraction")
     r.set_defaults(func=_refine)
@@ -166,7 +169,7 @@ def _refine(args) -> int:
     refined, res, layout, info = refine_basis(
         basis, takes, landmarks=landmarks, upper=None if args.exaggerate else 1.0, split=args.split,
         regularization=reg, max_iterations=args.max_iterations, rel_tol=args.rel_tol, support_fraction=args.support,
-        progress=not args.no_progress,
+        progress=not args.no_progress, carry_metric=args.carry_metric,
     )  # fmt: skip
     out = Path(args.out)
     refined.save(out)
@@ -177,6 +180,7 @@ def _refine(args) -> int:
         "elements": refined.n_elements,
         "error_rms_mm_per_iteration": res.errors_mm,
         "iterations": res.iterations,
+        "carry_metric": args.carry_metric,
         "seconds": time.perf_counter() - t0,
         **info,
     }

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from wface.editing.pose import Pose, Take, bone_projection_error_m, clamp_jaw, pose_from_controls
-from wface.facs import ACTION_UNITS, EXPRESSIONS, expand_muscle, expression_action_units, parse_action_unit
+from wface.facs import ACTION_UNITS, EXPRESSIONS, action_unit_muscles, expression_action_units, parse_action_unit
 from wface.model import FaceModel
 
 __all__ = ["EXPRESSION_ALIASES", "expression_names", "expression_pose", "load_take", "save_controls"]
@@ -44,12 +44,7 @@ def _au_muscles(model: FaceModel, au: str, side: str) -> dict[str, float]:
         if side != "both":
             table = {m: w for m, w in table.items() if not m.endswith(("_l", "_r")) or m.endswith("_" + side)}
         return table
-    out = {}
-    for base, w in ACTION_UNITS[au].muscles.items():
-        for name in expand_muscle(base, side):
-            if name in model.muscle_names:
-                out[name] = w
-    return out
+    return action_unit_muscles(au, side, muscle_names=model.muscle_names)
 
 
 def _parse_items(spec: str) -> tuple[str | None, list[tuple[str, float]]]:

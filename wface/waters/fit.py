@@ -5,7 +5,8 @@
    RBF of the residuals (``scipy.interpolate.RBFInterpolator``) or an affine map.
 3. Move every layout point through the warp (bones, insertions, sphincter centres, jaw pivot and
    planes); sphincter axes and jaw directions follow the warp's local linear part; lengths
-   (fall-start/finish, spring constants) scale with each muscle's length change; the per-vertex
+   (fall-start/finish, spring constants; a sphincter's protrusion with its depth semi-axis)
+   scale with each muscle's length change; the per-vertex
    cap scales with s.
 4. Snap the skin insertions to the closest point of the target surface (``wface.mesh.closest``).
 
@@ -198,6 +199,8 @@ def fit_layout(
                     tension=m.tension,
                     elasticity=m.elasticity,
                     region=m.region,
+                    protrusion_m=m.protrusion_m * depth / m.semi_axes_m[2],  # a length along the normal
+                    lower_semi_axis_m=m.lower_semi_axis_m * np.linalg.norm(v) / m.semi_axes_m[1],
                 )
             )
     jaw = None

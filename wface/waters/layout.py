@@ -18,7 +18,8 @@ File format (``"format": "wface.waters.layout"``, ``"version": 1``)::
          "elasticity": 1.0, "region": "any"},
         {"name": "orbicularis_oris_upper", "type": "sphincter", "centre": [..],
          "horizontal": [1, 0, 0], "vertical": [0, 1, 0], "semi_axes": [a, b, c],
-         "tension": 0.3, "elasticity": 1.0, "region": "upper"}
+         "tension": 0.3, "elasticity": 1.0, "region": "upper",
+         "protrusion": 0.0, "lower_semi_axis": 0.0}        # optional, see wface.waters.muscles
       ]
     }
 
@@ -223,6 +224,8 @@ def _muscle_from_dict(d: dict, scale: float) -> LinearMuscle | SphincterMuscle:
                 vertical=d.get("vertical", [0, 1, 0]),
                 semi_axes_m=_v3(f"{name}.semi_axes", d["semi_axes"]) * scale,
                 tension=float(d["tension"]),
+                protrusion_m=float(d.get("protrusion", 0.0)) * scale,
+                lower_semi_axis_m=float(d.get("lower_semi_axis", 0.0)) * scale,
                 **common,
             )
     except KeyError as exc:
@@ -313,6 +316,10 @@ def layout_to_dict(layout: MuscleLayout, *, units: str = "m") -> dict:
                     "region": m.region,
                 }
             )
+            if m.protrusion_m:
+                muscles[-1]["protrusion"] = m.protrusion_m * inv
+            if m.lower_semi_axis_m:
+                muscles[-1]["lower_semi_axis"] = m.lower_semi_axis_m * inv
     out: dict = {"format": FORMAT, "version": VERSION, "name": layout.name, "units": units}
     if layout.notes:
         out["notes"] = layout.notes

@@ -18,13 +18,19 @@ exponent is our reading of it.
 
 Sphincter muscle: a centre, two in-plane unit axes (horizontal, vertical) with semi-axes a, b, and
 a depth semi-axis c along their normal. With the elliptical radius
-rho = sqrt((u/a)^2 + (v/b)^2 + (w/c)^2) of p in that frame, there is no angular term:
+rho = sqrt((u/a)^2 + (v/b)^2 + (w/c)^2) of p in that frame (b -> b_low below the centre, v < 0,
+when a lower semi-axis is given: an egg-shaped ring such as orbicularis oculi, whose orbital part
+spreads far down over the cheek but hardly above the brow), there is no angular term:
 
-    R = cos(rho * pi/2) for rho <= 1, else 0;   p' = p + c_t * T * R^e * P (centre - p)
+    R = cos(rho * pi/2) for rho <= 1, else 0;   p' = p + c_t R^e (T P (centre - p) + K_n n)
 
 with T the tension (dimensionless: the fraction of the in-plane distance to the centre removed at
-full contraction) and P the projection onto the sphincter plane (the ring squeezes within its
-plane; it does not pull the skin into the head).
+full contraction), P the projection onto the sphincter plane (the ring squeezes within its
+plane; it does not pull the skin into the head), n the plane's unit normal (horizontal x
+vertical, out of the face) and K_n the protrusion (metres at full contraction where R = 1; 0 by
+default, Waters' in-plane ring). A ring drawn tight over a convex support (the lips over the
+teeth, the cheek over the zygoma) bunches the skin outward: a lip pucker is mostly this forward
+push (ICT-FaceKit mouthPucker: ~8.5 mm forward, ~1.5 mm in-plane), which P alone removes.
 
 Reference: K. Waters, "A muscle model for animating three-dimensional facial expression",
 SIGGRAPH 1987.
@@ -151,6 +157,10 @@ class SphincterMuscle:
         tension: T, fraction of the in-plane distance to the centre removed at full contraction.
         elasticity: exponent e on the radial factor.
         region: "any", "upper" or "lower" (an upper / lower half of orbicularis oris).
+        protrusion_m: K_n, push along the plane normal at full contraction where R = 1 (metres;
+            negative pulls inward, 0: the classic in-plane sphincter).
+        lower_semi_axis_m: b_low, the vertical semi-axis below the centre (v < 0); 0: the same as
+            ``semi_axes_m[1]`` (a symmetric ellipse).
     """
 
     name: str
@@ -161,6 +171,8 @@ class SphincterMuscle:
     tension: float = 0.3
     elasticity: float = 1.0
     region: str = "any"
+    protrusion_m: float = 0.0
+    lower_semi_axis_m: float = 0.0
     kind: str = field(default="sphincter", init=False)
 
     def __post_init__(self) -> None:
@@ -188,6 +200,10 @@ class SphincterMuscle:
         self.elasticity = _positive(f"{self.name}: elasticity", self.elasticity)
         if self.region not in REGIONS:
             raise ValueError(f"{self.name}: region must be one of {REGIONS}, got {self.region!r}")
+        self.protrusion_m = float(self.protrusion_m)
+        if not np.isfinite(self.protrusion_m):
+            raise ValueError(f"{self.name}: protrusion_m must be finite, got {self.protrusion_m!r}")
+        self.lower_semi_axis_m = _positive(f"{self.name}: lower_semi_axis_m", self.lower_semi_axis_m, allow_zero=True)
 
     @property
     def normal(self) -> np.ndarray:
@@ -195,9 +211,14 @@ class SphincterMuscle:
         return np.cross(self.horizontal, self.vertical)
 
     @property
+    def below_m(self) -> float:
+        """The vertical semi-axis below the centre (b_low, else b)."""
+        return self.lower_semi_axis_m or float(self.semi_axes_m[1])
+
+    @property
     def reach_m(self) -> float:
         """Radius of a ball about the centre outside which the muscle has no effect."""
-        return float(self.semi_axes_m.max())
+        return float(max(self.semi_axes_m.max(), self.lower_semi_axis_m))
 
 
 def linear_muscle_factors(points_m: np.ndarray, muscle: LinearMuscle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -246,8 +267,10 @@ def sphincter_radius(points_m: np.ndarray, muscle: SphincterMuscle) -> np.ndarra
     p = _points(points_m)
     rel = p - muscle.centre_m
     frame = np.stack([muscle.horizontal, muscle.vertical, muscle.normal])  # rows
-    local = rel @ frame.T / muscle.semi_axes_m
-    return np.linalg.norm(local, axis=1)
+    local = rel @ frame.T
+    axes = np.broadcast_to(muscle.semi_axes_m, local.shape).copy()
+    axes[local[:, 1] < 0, 1] = muscle.below_m
+    return np.linalg.norm(local / axes, axis=1)
 
 
 def sphincter_muscle_displacement(
@@ -255,7 +278,8 @@ def sphincter_muscle_displacement(
 ) -> np.ndarray:
     """Displacement (n, 3) in metres by one sphincter at ``contraction`` in [0, 1].
 
-    In-plane pull toward the centre, T R^e P(centre - p), R = cos(rho pi/2) inside the ellipsoid.
+    In-plane pull toward the centre plus the push along the normal, R^e (T P(centre - p) + K_n n),
+    R = cos(rho pi/2) inside the ellipsoid.
     """
     c = _contraction(muscle.name, contraction)
     rho = sphincter_radius(points_m, muscle)
@@ -263,7 +287,11 @@ def sphincter_muscle_displacement(
     toward = muscle.centre_m - np.asarray(points_m, dtype=np.float64)
     n = muscle.normal
     in_plane = toward - np.outer(toward @ n, n)
-    return (c * muscle.tension * np.maximum(radial, 0.0) ** muscle.elasticity)[:, None] * in_plane
+    fall = c * np.maximum(radial, 0.0) ** muscle.elasticity
+    out = (fall * muscle.tension)[:, None] * in_plane
+    if muscle.protrusion_m:
+        out += np.outer(fall * muscle.protrusion_m, n)
+    return out
 
 
 def _contraction(name: str, value: float) -> float:

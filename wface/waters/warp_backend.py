@@ -55,6 +55,8 @@ class WarpWaters:
             "fall_finish": (col(lambda u: u.fall_finish_m if isinstance(u, LinearMuscle) else 0.0), wp.float64),
             "strength": (col(lambda u: u.spring_constant_m if isinstance(u, LinearMuscle) else u.tension), wp.float64),
             "elasticity": (col(lambda u: u.elasticity), wp.float64),
+            "protrusion": (col(lambda u: 0.0 if isinstance(u, LinearMuscle) else u.protrusion_m), wp.float64),
+            "lower_semi_axis": (col(lambda u: 0.0 if isinstance(u, LinearMuscle) else u.lower_semi_axis_m), wp.float64),
         }
         self._model = {k: wp.array(v, dtype=t, device=self.device) for k, (v, t) in arrays.items()}
 
@@ -107,6 +109,8 @@ class WarpWaters:
                 md["fall_finish"],
                 md["strength"],
                 md["elasticity"],
+                md["protrusion"],
+                md["lower_semi_axis"],
                 float(self.layout.max_displacement_m),
                 float(self.layout.overlap_factor),
                 wp.array(c, dtype=wp.float64, device=self.device),
