@@ -189,3 +189,22 @@ def test_panel_bone_affines_compose_the_jaw_onto_the_cranium():
         bones["jaw"][:, :3] @ p + bones["jaw"][:, 3], c[:, :3] @ (j[:, :3] @ p + j[:, 3]) + c[:, 3]
     )
     np.testing.assert_allclose(bones["cranium"], c)
+
+
+def test_headless_render_prints_no_vtk_warning(tmp_path):
+    """On a machine without a display VTK logs "bad X server connection" and renders anyway;
+    wface keeps VTK's log to errors, so users see nothing (a fresh process: VTK warns once)."""
+    import subprocess
+    import sys
+
+    code = (
+        "from wface.viz.offscreen import offscreen_pyvista\n"
+        "pv = offscreen_pyvista()\n"
+        "p = pv.Plotter(off_screen=True, window_size=(32, 32))\n"
+        "p.add_mesh(pv.Sphere())\n"
+        f"p.screenshot({str(tmp_path / 's.png')!r})\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert "X server" not in run.stderr and "WARN" not in run.stderr
+    assert (tmp_path / "s.png").stat().st_size > 100

@@ -81,10 +81,9 @@ def _bone_world_affines(cranium, jaw, jaw_frame: str) -> dict[str, np.ndarray]:
 
 
 def _pv():
-    import pyvista as pv
+    from wface.viz.offscreen import offscreen_pyvista
 
-    pv.OFF_SCREEN = True
-    return pv
+    return offscreen_pyvista()
 
 
 def _check_nodes(model, x, label="node_positions_m") -> np.ndarray:

@@ -46,9 +46,9 @@ def render_mesh(
         zoom: camera zoom factor.
         bounds_m: optional (6,) box (xmin, xmax, ymin, ymax, zmin, zmax) to frame instead of the whole mesh.
     """
-    import pyvista as pv
+    from wface.viz.offscreen import offscreen_pyvista
 
-    pv.OFF_SCREEN = True
+    pv = offscreen_pyvista()
     plotter = pv.Plotter(off_screen=True, window_size=(size, size))
     mesh = _polydata(vertices_m, triangles, displacement_mm)
     if displacement_mm is not None:
@@ -113,11 +113,10 @@ def render_layout(
 ) -> Path:
     """Draw a layout's muscles over a translucent face: linear muscles as arrows from the bony
     attachment V1 (dot) to the insertion V2, sphincters as their ellipses, landmarks as small points."""
-    import pyvista as pv
-
+    from wface.viz.offscreen import offscreen_pyvista
     from wface.waters.muscles import LinearMuscle
 
-    pv.OFF_SCREEN = True
+    pv = offscreen_pyvista()
     plotter = pv.Plotter(off_screen=True, window_size=(size, size))
     plotter.add_mesh(
         _polydata(vertices_m, triangles, None), color=(0.87, 0.72, 0.62), opacity=0.55, smooth_shading=True
