@@ -126,6 +126,8 @@ class _Mesh:
         self.sources: list[tuple[int, int]] = []  # per added node: the edge it split
         self.moved: set[int] = set()
         self.quality: dict[int, float] = {}
+        self.clock = 0  # counts edits; node_clock[v]: the edit that last changed a tet at v
+        self.node_clock: dict[int, int] = {}
 
     # ---------------------------------------------------------------- topology
     def _mark_boundary(self) -> None:
@@ -193,7 +195,16 @@ class _Mesh:
         return order, closed
 
     # ---------------------------------------------------------------- edits
+    def touch(self, nodes) -> None:
+        self.clock += 1
+        for v in nodes:
+            self.node_clock[int(v)] = self.clock
+
+    def changed_since(self, ti: int, clock: int) -> bool:
+        return any(self.node_clock.get(v, 0) > clock for v in self.tets[ti])
+
     def replace(self, old: list[int], new: list[tuple[int, ...]]) -> list[int]:
+        self.touch({v for ti in old for v in self.tets[ti]} | {v for t in new for v in t})
         for ti in old:
             for v in self.tets[ti]:
                 self.node_tets[v].discard(ti)
@@ -218,6 +229,7 @@ class _Mesh:
         return i
 
     def set_position(self, v: int, p: np.ndarray) -> None:
+        self.touch({u for ti in self.node_tets[v] for u in self.tets[ti]})
         self.x[v] = p
         self.moved.add(v)
         for ti in self.node_tets[v]:
@@ -470,6 +482,7 @@ def improve_tets(
     mesh = _Mesh(x, tets, ~locked, score)
     work = _Improver(mesh, goal_deg)
     rounds = 0
+    failed: dict[int, int] = {}  # tet -> mesh.clock when no operation improved it
     for rounds in range(1, max_rounds + 1):
         mesh.fill_quality()
         bad = [ti for ti, t in enumerate(mesh.tets) if t is not None and mesh.q(ti) < goal_deg]
@@ -479,8 +492,14 @@ def improve_tets(
         bad.sort(key=mesh.q)
         changed = 0
         for ti in bad:
-            if mesh.tets[ti] is not None and mesh.q(ti) < goal_deg and work.improve_tet(ti):
+            if mesh.tets[ti] is None or mesh.q(ti) >= goal_deg:
+                continue
+            if ti in failed and not mesh.changed_since(ti, failed[ti]):
+                continue  # nothing around it changed since every operation failed on it
+            if work.improve_tet(ti):
                 changed += 1
+            else:
+                failed[ti] = mesh.clock
         if changed == 0:
             break
     out = np.array([t for t in mesh.tets if t is not None], dtype=np.int32)
