@@ -277,6 +277,8 @@ def test_muscles_mirror(model):
 def test_facs_and_markers(model):
     assert model.facs["AU12"] == {"ZYG_l": 1.0, "ZYG_r": 1.0}
     assert set(model.facs["AU23"]) == {"OOM_l", "OOM_r", "OOP_l", "OOP_r"}
+    # AU18 (pucker) names the incisivus, which Badin lacks: its stand-in, orbicularis oris, acts
+    assert set(model.facs["AU18"]) == {"OOM_l", "OOM_r", "OOP_l", "OOP_r"}
     assert model.metadata["canonical_muscles"]["RIS_r"] == ["risorius_r"]
     m = dict(zip(model.marker_names, model.marker_positions_m, strict=True))
     assert {"NoseHead", "Mouth_Up", "Mouth_Down", "Mouth_Lend", "Mouth_Rend", "Chin"} <= set(m)

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wface.facs import ACTION_UNITS
+from wface.facs import ACTION_UNITS, STAND_INS
 from wface.importers.ansys import (
     hexes_to_tets,
     read_ansys_elements,
@@ -276,15 +276,27 @@ def _default_markers(
 
 
 def _facs_table(muscle_names: list[str]) -> dict[str, dict[str, float]]:
-    """AU -> {model muscle: weight}: every model muscle whose canonical muscle the AU names."""
+    """AU -> {model muscle: weight}: every model muscle whose canonical muscle the AU names; a
+    canonical muscle the face lacks is driven through its stand-in (``wface.facs.STAND_INS``)."""
+
+    def models_of(base: str) -> list[str]:
+        out = []
+        for name in muscle_names:
+            badin = name.rsplit("_", 1)[0] if name.endswith(("_l", "_r")) else name
+            if base in CANONICAL_MUSCLES.get(badin, ()):
+                out.append(name)
+        return out
+
     table: dict[str, dict[str, float]] = {}
     for key, au in ACTION_UNITS.items():
         entry: dict[str, float] = {}
         for base, weight in au.muscles.items():
-            for name in muscle_names:
-                badin = name.rsplit("_", 1)[0] if name.endswith(("_l", "_r")) else name
-                if base in CANONICAL_MUSCLES.get(badin, ()):
-                    entry[name] = max(entry.get(name, 0.0), float(weight))
+            names = models_of(base)
+            if not names and base in STAND_INS:
+                stand_in, factor = STAND_INS[base]
+                names, weight = models_of(stand_in), weight * factor
+            for name in names:
+                entry[name] = max(entry.get(name, 0.0), float(weight))
         if entry:
             table[key] = entry
     return table
