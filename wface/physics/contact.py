@@ -64,6 +64,7 @@ __all__ = [
     "bone_affines_from_attached",
     "default_contact_stiffness",
     "parse_obstacle",
+    "penalty_profile",
 ]
 
 DEFAULT_STIFFNESS_FACTOR = 100.0
@@ -95,6 +96,28 @@ def _contact_points(tri_a: np.ndarray, tri_b: np.ndarray) -> tuple[np.ndarray, n
     pn = np.concatenate([np.repeat(nodes[:, None], 2, axis=1), edges])
     pw = np.concatenate([np.tile([1.0, 0.0], (len(nodes), 1)), np.full((len(edges), 2), 0.5)])
     return pn, pw
+
+
+def penalty_profile(g: np.ndarray, k: float, smoothing_m: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Penalty energy per pair E(g), its slope E'(g) (the normal force, N) and curvature E''(g) (N/m)
+    for penetrations g (m).
+
+    smoothing_m = 0: E = k/2 max(0, g)^2 (C1; E'' jumps from 0 to k at contact).
+    smoothing_m = d > 0: the C2 penalty of s = g + d/2: E = k s^3 / (6 d) for 0 < s < d (the stiffness
+    rises linearly from 0 at g = -d/2 to k at g = d/2), E = k/2 g^2 + k d^2/24 beyond: the same force
+    k g as the plain penalty once g >= d/2, forces starting d/2 before contact.
+    """
+    g = np.asarray(g, dtype=np.float64)
+    if smoothing_m <= 0.0:
+        gp = np.maximum(g, 0.0)
+        return 0.5 * k * gp**2, k * gp, np.where(g >= 0.0, k, 0.0)
+    d = float(smoothing_m)
+    s = np.maximum(g + 0.5 * d, 0.0)
+    ramp = s < d
+    e = np.where(ramp, k * s**3 / (6.0 * d), 0.5 * k * g**2 + k * d * d / 24.0)
+    fn = np.where(ramp, 0.5 * k * s**2 / d, k * g)
+    kn = np.where(ramp, k * s / d, k)
+    return e, fn, kn
 
 
 # ---------------------------------------------------------------------- active pairs
@@ -131,6 +154,8 @@ class ContactPairs:
     edge_direction: np.ndarray | None = None
     point_nodes: np.ndarray | None = None
     point_weights: np.ndarray | None = None
+    smoothing_m: float = 0.0
+    distance_m: np.ndarray | None = None
 
     def __post_init__(self):
         if self.tangential is None:
@@ -140,23 +165,39 @@ class ContactPairs:
         if self.point_nodes is None:
             self.point_nodes = np.repeat(np.asarray(self.node)[:, None], 2, axis=1)
             self.point_weights = np.tile([1.0, 0.0], (len(self.node), 1))
+        if self.distance_m is None:
+            self.distance_m = -np.asarray(self.penetration_m, dtype=np.float64)
+        e, fn, kn = penalty_profile(self.penetration_m, self.stiffness_n_per_m, self.smoothing_m)
+        self.pair_energy, self.force_magnitude, self.normal_stiffness = e, fn, kn
+
+    def active_key(self) -> set:
+        """The active set as a set of (contact point, source) keys, to compare configurations."""
+        return set(zip(self.point_nodes[:, 0].tolist(), self.point_nodes[:, 1].tolist(), self.source.tolist()))
 
     def _projector(self) -> np.ndarray:
-        """(P, 3, 3) Q = n n^T + c (I - n n^T - e e^T) of each pair (module docstring)."""
-        n, e, c = self.normal, self.edge_direction, self.tangential
+        """(P, 3, 3) k Q = k'' n n^T + c (I - n n^T - e e^T) of each pair in N/m (module docstring):
+        k'' = d2E/dg2 and c = min(k, E'(g) / |phi|) for points inside whose closest feature is an edge
+        or a vertex (the curvature of the distance to that feature), else 0."""
+        n, e = self.normal, self.edge_direction
         nn = np.einsum("pd,pe->pde", n, n)
         tang = np.eye(3) - nn - np.einsum("pd,pe->pde", e, e)
-        return nn + c[:, None, None] * tang
+        inside = self.tangential > 0
+        c = np.where(
+            inside,
+            np.minimum(self.stiffness_n_per_m, self.force_magnitude / np.maximum(np.abs(self.distance_m), 1e-300)),
+            0.0,
+        )
+        return self.normal_stiffness[:, None, None] * nn + c[:, None, None] * tang
 
     @property
     def energy(self) -> float:
         """E_c in joules."""
-        return 0.5 * self.stiffness_n_per_m * float(np.sum(self.penetration_m**2))
+        return float(np.sum(self.pair_energy))
 
     def forces(self) -> np.ndarray:
         """f = -dE_c/dx, (n, 3) newtons."""
         f = np.zeros((self.n_nodes, 3))
-        fn = (self.stiffness_n_per_m * self.penetration_m)[:, None] * self.normal
+        fn = self.force_magnitude[:, None] * self.normal
         nodes, coef = self._coefficients()
         for a in range(nodes.shape[1]):
             np.add.at(f, nodes[:, a], coef[:, a, None] * fn)
@@ -165,7 +206,7 @@ class ContactPairs:
     def force_on_face(self, source: str | None = None) -> np.ndarray:
         """Net force (3,) in newtons that the obstacles exert on the face (self-contact sums to 0)."""
         sel = slice(None) if source is None else self.source == self.names.index(source)
-        fn = (self.stiffness_n_per_m * self.penetration_m)[sel, None] * self.normal[sel]
+        fn = self.force_magnitude[sel, None] * self.normal[sel]
         return (fn * (1.0 - self.weights[sel].sum(axis=1))[:, None]).sum(axis=0)
 
     def _coefficients(self) -> tuple[np.ndarray, np.ndarray]:
@@ -181,7 +222,7 @@ class ContactPairs:
             return out
         nodes, coef = self._coefficients()
         u = np.einsum("pa,pad->pd", coef, v[nodes])
-        qu = self.stiffness_n_per_m * np.einsum("pde,pe->pd", self._projector(), u)
+        qu = np.einsum("pde,pe->pd", self._projector(), u)
         for a in range(nodes.shape[1]):
             np.add.at(out, nodes[:, a], coef[:, a, None] * qu)
         return out
@@ -192,14 +233,14 @@ class ContactPairs:
         nodes, coef = self._coefficients()
         q = np.einsum("pdd->pd", self._projector())
         for a in range(nodes.shape[1]):
-            np.add.at(out, nodes[:, a], self.stiffness_n_per_m * coef[:, a, None] ** 2 * q)
+            np.add.at(out, nodes[:, a], coef[:, a, None] ** 2 * q)
         return out
 
     def assemble(self, pattern) -> sp.csr_matrix:
         """H restricted to the unknowns of a ``BlockPattern``, CSR (3k, 3k)."""
         nodes, coef = self._coefficients()
         dof = pattern.node_to_dof[nodes]  # (P, 5), -1 for Dirichlet nodes
-        nn = self.stiffness_n_per_m * self._projector()
+        nn = self._projector()
         blocks = coef[:, :, None, None, None] * coef[:, None, :, None, None] * nn[:, None, None]  # (P,5,5,3,3)
         shape = (len(dof), nodes.shape[1], nodes.shape[1])
         ra = np.broadcast_to(dof[:, :, None], shape)
@@ -223,13 +264,13 @@ class ContactPairs:
             sel = (self.source == s) & pressing
             per[name] = {
                 "active_nodes": int(np.unique(self.node[sel]).size),
-                "max_penetration_m": float(g[sel].max()) if sel.any() else 0.0,
-                "force_n": float(self.stiffness_n_per_m * g[sel].sum()),
+                "max_penetration_m": max(float(g[sel].max()), 0.0) if sel.any() else 0.0,
+                "force_n": float(self.force_magnitude[sel].sum()),
             }
         return {
             "active_nodes": int(np.unique(self.node[pressing]).size),
-            "max_penetration_m": float(g.max()) if g.size else 0.0,
-            "force_n": float(self.stiffness_n_per_m * g.sum()),
+            "max_penetration_m": max(float(g.max()), 0.0) if g.size else 0.0,
+            "force_n": float(self.force_magnitude.sum()),
             "sources": per,
         }
 
@@ -291,6 +332,7 @@ class Contact:
         self_pairs=(),
         stiffness_n_per_m: float | None = None,
         gap_m: float = 0.0,
+        smoothing_m: float = 0.0,
         self_max_depth_m: float = 0.01,
         bone_affines: dict | None = None,
         nodes: np.ndarray | None = None,
@@ -305,12 +347,15 @@ class Contact:
             raise ValueError(f"contact stiffness must be finite and > 0 N/m, got {stiffness_n_per_m}")
         if not (np.isfinite(gap_m) and gap_m >= 0):
             raise ValueError(f"gap_m must be finite and >= 0, got {gap_m}")
+        if not (np.isfinite(smoothing_m) and smoothing_m >= 0):
+            raise ValueError(f"smoothing_m must be finite and >= 0, got {smoothing_m}")
         if not (np.isfinite(self_max_depth_m) and self_max_depth_m > 0):
             raise ValueError(f"self_max_depth_m must be finite and > 0, got {self_max_depth_m}")
         self.model = model
         self.regions = tuple(regions)
         self.stiffness_n_per_m = k
         self.gap_m = float(gap_m)
+        self.smoothing_m = float(smoothing_m)
         self.self_max_depth_m = float(self_max_depth_m)
         self.fixed_bone_affines = None
         if bone_affines is not None:
@@ -388,9 +433,10 @@ class Contact:
             raise ValueError("contact: positions contain NaN or inf")
         parts = []
         p = x[self.nodes]
+        reach = self.gap_m + 0.5 * self.smoothing_m  # pairs with phi <= reach carry force or stiffness
         for s, (_, ob) in enumerate(self.rigid):
-            phi, n, valid, feature, e = ob.signed(p, self.bone_affines, self.gap_m)
-            act = valid & (phi <= self.gap_m)
+            phi, n, valid, feature, e = ob.signed(p, self.bone_affines, reach)
+            act = valid & (phi <= reach)
             m = int(act.sum())
             node = self.nodes[act]
             c = self._tangential(phi[act], feature[act])
@@ -406,6 +452,7 @@ class Contact:
                     c,
                     e[act],
                     *point,
+                    phi[act],
                 )
             )
         for s, (_, pn, pw, tri) in enumerate(self.self_contact, start=len(self.rigid)):
@@ -413,11 +460,11 @@ class Contact:
                 continue
             surf = SignedSurface(x, tri, orient=False)
             q = np.einsum("pk,pkd->pd", pw, x[pn])
-            near = np.flatnonzero(surf.near_box(q, self.gap_m + self.self_max_depth_m))
+            near = np.flatnonzero(surf.near_box(q, reach + self.self_max_depth_m))
             if not near.size:
                 continue
             hit = surf.signed(q[near])
-            act = ~hit.on_boundary & (hit.phi_m <= self.gap_m) & (hit.phi_m > -self.self_max_depth_m)
+            act = ~hit.on_boundary & (hit.phi_m <= reach) & (hit.phi_m > -self.self_max_depth_m)
             sel = near[act]
             phi = hit.phi_m[act]
             parts.append(
@@ -432,6 +479,7 @@ class Contact:
                     hit.edge_direction[act],
                     pn[sel],
                     pw[sel],
+                    phi,
                 )
             )
         cat = lambda i, shape: np.concatenate([q[i] for q in parts]) if parts else np.zeros(shape)  # noqa: E731
@@ -446,17 +494,17 @@ class Contact:
             edge_direction=cat(7, (0, 3)).reshape(-1, 3),
             point_nodes=cat(8, (0, 2)).astype(np.int64).reshape(-1, 2),
             point_weights=cat(9, (0, 2)).reshape(-1, 2),
+            distance_m=cat(10, (0,)),
+            smoothing_m=self.smoothing_m,
             names=self.names,
             stiffness_n_per_m=self.stiffness_n_per_m,
             n_nodes=self.model.n_nodes,
         )
 
     def _tangential(self, phi: np.ndarray, feature: np.ndarray) -> np.ndarray:
-        """Curvature weight of the Hessian's tangential part (``ContactPairs``): min(1, g / |phi|)
-        for points inside the surface whose closest point is on an edge or vertex, else 0."""
-        g = self.gap_m - phi
-        inside = (feature > 0) & (phi < 0)
-        return np.where(inside, np.minimum(1.0, g / np.where(inside, -phi, 1.0)), 0.0)
+        """1 for points inside the surface whose closest point is on an edge or vertex (the Hessian
+        gets the curvature of the distance to that feature, ``ContactPairs._projector``), else 0."""
+        return ((feature > 0) & (phi < 0)).astype(np.float64)
 
     def energy(self, x: np.ndarray) -> float:
         """E_c(x) in joules."""

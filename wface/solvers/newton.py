@@ -62,6 +62,7 @@ class Equilibrium:
             preconditioned by the previous factor).
         solver: linear engine used ("direct" or "cg").
         history: residual_rel after each iteration (first entry: the start).
+        step_lengths: line-search step t of each Newton iteration after the lift (1 = full step).
         seconds: wall-clock time of the solve.
         contact_active_nodes: with ``contact``: nodes in contact at x (0 without contact).
         contact_max_penetration_m: deepest penetration g = gap - phi at x, metres.
@@ -84,6 +85,7 @@ class Equilibrium:
     exact_failures: int = 0
     solver: str = "direct"
     history: list = field(default_factory=list)
+    step_lengths: list = field(default_factory=list)
     seconds: float = 0.0
     contact_active_nodes: int = 0
     contact_max_penetration_m: float = 0.0
@@ -234,6 +236,7 @@ def newton_quasistatic(
     cg_total = 0
     linear_state: dict = {"precondition": bool(reuse_factor)}
     history: list[float] = []
+    steps: list[float] = []
 
     dxc = targets - x[fixed]
     if fixed.size and np.any(dxc != 0.0):
@@ -297,6 +300,7 @@ def newton_quasistatic(
                 break
             t *= 0.5
         x = trial
+        steps.append(t)
         iterations += 1
         energy, f, energy_abs = energy_forces(x)
         residual = float(np.linalg.norm(f[free]))
@@ -330,5 +334,6 @@ def newton_quasistatic(
         exact_failures=exact_failures,
         solver=engine,
         history=history,
+        step_lengths=steps,
         **extra,
     )
