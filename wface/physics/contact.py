@@ -74,11 +74,16 @@ _ROUND_OFF_M = 1e-12  # penetrations below this are round-off (lips coincide at 
 LIP_GROUPS = (("upper_lip", "lower_lip"), ("upper_lip_contact", "lower_lip_contact"))
 
 
-def default_contact_stiffness(model: FaceModel, factor: float = DEFAULT_STIFFNESS_FACTOR) -> float:
-    """k = factor * 6 (mu10 + mu01) * h in N/m, h = median rest tet edge length (module docstring)."""
+def median_edge_length(model: FaceModel) -> float:
+    """Median rest tet edge length h in metres."""
     x, t = model.rest_positions_m, model.tets
     edges = np.concatenate([x[t[:, a]] - x[t[:, b]] for a, b in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))])
-    h = float(np.median(np.linalg.norm(edges, axis=1)))
+    return float(np.median(np.linalg.norm(edges, axis=1)))
+
+
+def default_contact_stiffness(model: FaceModel, factor: float = DEFAULT_STIFFNESS_FACTOR) -> float:
+    """k = factor * 6 (mu10 + mu01) * h in N/m, h = median rest tet edge length (module docstring)."""
+    h = median_edge_length(model)
     return float(factor * 6.0 * (model.material.mu10_pa + model.material.mu01_pa) * h)
 
 
@@ -103,19 +108,19 @@ def penalty_profile(g: np.ndarray, k: float, smoothing_m: float = 0.0) -> tuple[
     for penetrations g (m).
 
     smoothing_m = 0: E = k/2 max(0, g)^2 (C1; E'' jumps from 0 to k at contact).
-    smoothing_m = d > 0: the C2 penalty of s = g + d/2: E = k s^3 / (6 d) for 0 < s < d (the stiffness
-    rises linearly from 0 at g = -d/2 to k at g = d/2), E = k/2 g^2 + k d^2/24 beyond: the same force
-    k g as the plain penalty once g >= d/2, forces starting d/2 before contact.
+    smoothing_m = d > 0: the C2 penalty E = k g^3 / (6 d) for 0 < g < d (the stiffness rises linearly
+    from 0 at contact to k at g = d), E = k/2 (g - d/2)^2 + k d^2/24 beyond (force k (g - d/2)): no
+    force before contact (surfaces that touch at rest stay at rest), about d/2 more penetration.
     """
     g = np.asarray(g, dtype=np.float64)
     if smoothing_m <= 0.0:
         gp = np.maximum(g, 0.0)
         return 0.5 * k * gp**2, k * gp, np.where(g >= 0.0, k, 0.0)
     d = float(smoothing_m)
-    s = np.maximum(g + 0.5 * d, 0.0)
+    s = np.maximum(g, 0.0)
     ramp = s < d
-    e = np.where(ramp, k * s**3 / (6.0 * d), 0.5 * k * g**2 + k * d * d / 24.0)
-    fn = np.where(ramp, 0.5 * k * s**2 / d, k * g)
+    e = np.where(ramp, k * s**3 / (6.0 * d), 0.5 * k * (s - 0.5 * d) ** 2 + k * d * d / 24.0)
+    fn = np.where(ramp, 0.5 * k * s**2 / d, k * (s - 0.5 * d))
     kn = np.where(ramp, k * s / d, k)
     return e, fn, kn
 
@@ -316,11 +321,23 @@ class Contact:
         stiffness_n_per_m: penalty stiffness k (default ``default_contact_stiffness``).
         gap_m: contact offset: nodes are pushed out to phi >= gap_m (default 0: the lips of the
             built-in face touch at rest).
+        smoothing_m: width d of the C2 penalty ramp (``penalty_profile``; default 0: the C1 penalty).
+        freeze_below: relative residual below which the Newton solver freezes the self-contact
+            features (``wface.physics.frozen``) and re-detects them only once the frozen problem has
+            converged; None (default): re-detect at every evaluation. 1.0 freezes from the start.
+        freeze_margin_m: frozen pairs include those up to this far apart (default 0.1 x the median
+            rest tet edge length).
         self_max_depth_m: self-contact pairs deeper than this are ignored (a node that far "inside"
             the other lip's surface is on the far side of it, not in contact).
         bone_affines: fixed world affines {"cranium": 3x4, "jaw": 3x4} of the bones; by default the
             solver fits them to the attached-node targets of each solve.
         nodes: node ids that may touch rigid obstacles (default: the free boundary nodes).
+        ignore_inside_at_rest: leave out, for each of the model's bone and teeth meshes, the contact
+            nodes already inside it at rest (bones at rest). The Badin face's inner (gum-side)
+            surface runs through the ArtiSynth teeth meshes by up to 8.7 mm in the source data
+            (ArtiSynth uses the teeth for display; its lip-skull contact is against the jaw and
+            maxilla): those nodes are not in contact in the rest state, which must stay an
+            equilibrium. ``ignored_at_rest`` counts them per mesh. User obstacles are never filtered.
     """
 
     def __init__(
@@ -333,9 +350,12 @@ class Contact:
         stiffness_n_per_m: float | None = None,
         gap_m: float = 0.0,
         smoothing_m: float = 0.0,
+        freeze_below: float | None = None,
+        freeze_margin_m: float | None = None,
         self_max_depth_m: float = 0.01,
         bone_affines: dict | None = None,
         nodes: np.ndarray | None = None,
+        ignore_inside_at_rest: bool = True,
     ):
         if isinstance(regions, str):
             regions = [r for r in (s.strip() for s in regions.split(",")) if r]
@@ -356,6 +376,8 @@ class Contact:
         self.stiffness_n_per_m = k
         self.gap_m = float(gap_m)
         self.smoothing_m = float(smoothing_m)
+        self.freeze_below = None if freeze_below is None else float(freeze_below)
+        self.freeze_margin_m = 0.1 * median_edge_length(model) if freeze_margin_m is None else float(freeze_margin_m)
         self.self_max_depth_m = float(self_max_depth_m)
         self.fixed_bone_affines = None
         if bone_affines is not None:
@@ -382,10 +404,23 @@ class Contact:
                 raise TypeError(f"obstacle {i} is a {type(ob).__name__}; use Sphere, HalfSpace or MeshObstacle")
             label = getattr(ob, "name", None) or type(ob).__name__.lower()
             self.rigid.append((f"{label}{i}" if label in ("sphere", "halfspace") else label, ob))
+        # Nodes that may touch each rigid source (all contact nodes; for the model's bone and teeth
+        # meshes, those already inside at rest are left out, see ``ignore_inside_at_rest``).
+        self.rigid_nodes: list[np.ndarray] = [nodes] * len(self.rigid)
+        self.ignored_at_rest: dict[str, int] = {}
+        rest_affines = bone_affines_from_attached(model, None)
         for name, mesh in model.bone_meshes.items():
             is_teeth = "teeth" in name.lower()
             if ("teeth" in self.regions and is_teeth) or ("bones" in self.regions and not is_teeth):
-                self.rigid.append((name, MeshObstacle(mesh.vertices_m, mesh.triangles, bone=mesh.bone, name=name)))
+                ob = MeshObstacle(mesh.vertices_m, mesh.triangles, bone=mesh.bone, name=name)
+                keep = nodes
+                if ignore_inside_at_rest:
+                    phi, _, valid, _, _ = ob.signed(model.rest_positions_m[nodes], rest_affines, 0.0)
+                    inside = valid & (phi < self.gap_m)
+                    keep = nodes[~inside]
+                    self.ignored_at_rest[name] = int(inside.sum())
+                self.rigid.append((name, ob))
+                self.rigid_nodes.append(keep)
         if "teeth" in self.regions and not any("teeth" in n.lower() for n in model.bone_meshes):
             raise ValueError(
                 f"contact region 'teeth': the model has no teeth mesh (bone meshes: {list(model.bone_meshes)})"
@@ -424,21 +459,26 @@ class Contact:
         if self.fixed_bone_affines is None:
             self.bone_affines = bone_affines_from_attached(self.model, attached_positions)
 
-    def evaluate(self, x: np.ndarray) -> ContactPairs:
-        """The active pairs at positions ``x`` (n, 3)."""
+    def evaluate(self, x: np.ndarray, *, margin_m: float = 0.0, self_contact: bool = True) -> ContactPairs:
+        """The active pairs at positions ``x`` (n, 3).
+
+        Args:
+            margin_m: also return pairs up to this much farther apart (no force; for freezing).
+            self_contact: include the self-contact pairs (False: rigid obstacles only).
+        """
         x = np.asarray(x, dtype=np.float64)
         if x.shape != (self.model.n_nodes, 3):
             raise ValueError(f"positions have shape {x.shape}, expected ({self.model.n_nodes}, 3)")
         if not np.all(np.isfinite(x)):
             raise ValueError("contact: positions contain NaN or inf")
         parts = []
-        p = x[self.nodes]
-        reach = self.gap_m + 0.5 * self.smoothing_m  # pairs with phi <= reach carry force or stiffness
+        reach = self.gap_m + margin_m  # pairs with phi <= reach carry force or stiffness
         for s, (_, ob) in enumerate(self.rigid):
-            phi, n, valid, feature, e = ob.signed(p, self.bone_affines, reach)
+            ids = self.rigid_nodes[s]
+            phi, n, valid, feature, e = ob.signed(x[ids], self.bone_affines, reach)
             act = valid & (phi <= reach)
             m = int(act.sum())
-            node = self.nodes[act]
+            node = ids[act]
             c = self._tangential(phi[act], feature[act])
             point = (np.repeat(node[:, None], 2, 1), np.tile([1.0, 0.0], (m, 1)))
             parts.append(
@@ -456,7 +496,7 @@ class Contact:
                 )
             )
         for s, (_, pn, pw, tri) in enumerate(self.self_contact, start=len(self.rigid)):
-            if not len(pn):
+            if not len(pn) or not self_contact:
                 continue
             surf = SignedSurface(x, tri, orient=False)
             q = np.einsum("pk,pkd->pd", pw, x[pn])
@@ -501,6 +541,22 @@ class Contact:
             n_nodes=self.model.n_nodes,
         )
 
+    def self_distance_m(self, x: np.ndarray) -> float:
+        """Smallest signed distance (m) between the self-contact surfaces at ``x``: the gap between the
+        lips where positive, minus the deepest overlap where negative (points whose closest feature
+        is on the other surface's open boundary, or deeper than ``self_max_depth_m``, are skipped).
+        NaN without self-contact."""
+        x = np.asarray(x, dtype=np.float64)
+        best = np.inf
+        for _, pn, pw, tri in self.self_contact:
+            if not len(pn):
+                continue
+            hit = SignedSurface(x, tri, orient=False).signed(np.einsum("pk,pkd->pd", pw, x[pn]))
+            ok = ~hit.on_boundary & (hit.phi_m > -self.self_max_depth_m)
+            if ok.any():
+                best = min(best, float(hit.phi_m[ok].min()))
+        return best if np.isfinite(best) else float("nan")
+
     def _tangential(self, phi: np.ndarray, feature: np.ndarray) -> np.ndarray:
         """1 for points inside the surface whose closest point is on an edge or vertex (the Hessian
         gets the curvature of the distance to that feature, ``ContactPairs._projector``), else 0."""
@@ -541,7 +597,7 @@ def _pair_distance(z: np.ndarray, v: np.ndarray, feature: np.ndarray, corner: np
     return np.where(feature == 0, face, sign * np.where(feature == 1, edge, vert))
 
 
-def exact_self_hessian(contact, pairs: ContactPairs, x: np.ndarray, pattern) -> sp.csr_matrix:
+def exact_self_hessian(contact, pairs: ContactPairs, x: np.ndarray, pattern, *, project: bool = False) -> sp.csr_matrix:
     """The contact Hessian over ``pattern``'s unknowns with the exact second derivatives of the
     self-contact pairs (closest feature fixed): k'' dg dg^T + E'(g) d2g, the derivatives of the
     normals and closest-point weights with respect to the triangle vertices included (the Newton
@@ -588,6 +644,9 @@ def exact_self_hessian(contact, pairs: ContactPairs, x: np.ndarray, pattern) -> 
     dg = (-coef[:, :, None] * pairs.normal[selfp][:, None, :]).reshape(P, 15)
     kn, fn = pairs.normal_stiffness[selfp], pairs.force_magnitude[selfp]
     blocks = kn[:, None, None] * dg[:, :, None] * dg[:, None, :] + fn[:, None, None] * d2
+    if project:  # each pair's 15 x 15 block clamped to positive semi-definite
+        lam, vec = np.linalg.eigh(0.5 * (blocks + blocks.transpose(0, 2, 1)))
+        blocks = np.einsum("pik,pk,pjk->pij", vec, np.maximum(lam, 0.0), vec)
     dof = pattern.node_to_dof[nodes]  # (P, 5)
     rows = (3 * dof[:, :, None] + np.arange(3)).reshape(P, 15)
     keep = (np.repeat(dof, 3, axis=1) >= 0) & (np.abs(coef).repeat(3, axis=1) > 0)

@@ -1,0 +1,176 @@
+"""Self-contact with frozen closest features: a smooth contact energy for Newton's last iterations.
+
+The signed distance of a contact point to the other lip's surface is only Lipschitz where its
+closest feature switches: inside the surface, at the bisector of every convex edge the closest
+face changes and the force direction jumps; across faceted (coarse) lip surfaces pressed together,
+points sit on such switches. Newton then chatters: a full step moves many points to other
+features, the line search cuts it, and the residual stalls (Badin lips: relative residual 0.2
+after 40 iterations, 0.03 with the C2 penalty).
+
+Freezing: each pair keeps its triangle and closest feature (face, edge or vertex) of the moment it
+was frozen, with the distance measured to that feature's plane, line or point as the triangle moves:
+
+    face:   phi = n . (q - x_t0),  n the unit normal of the moving triangle (its side fixed);
+    edge:   phi = +-|q - (a + s (b - a))|,  s the projection parameter on the line (a, b);
+    vertex: phi = +-|q - x_v|,
+
+each smooth (C-infinity away from phi = 0 for edges and vertices). The gradient keeps the form of
+``ContactPairs`` (envelope theorem): dphi/dx_j = -w_j n with w the (possibly out-of-triangle)
+barycentric weights of the projection. Pairs up to ``margin_m`` apart are frozen too (they carry no
+force until they touch), so points about to touch are caught. Rigid obstacles are evaluated as
+usual. The Newton solver (``wface.solvers.newton``) freezes once the residual is small, converges
+the frozen problem, re-detects the pairs and repeats until the true (re-detected) residual
+meets the tolerance (Wriggers 2006, ch. 8: active-set strategies; the frozen feature is the
+"fixed contact element" linearisation).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wface.physics.contact import Contact, ContactPairs
+
+__all__ = ["FrozenContact", "concat_pairs"]
+
+_ZERO_WEIGHT = 1e-12
+STALE_WEIGHT = 0.1  # barycentric overshoot beyond which a frozen face pair is re-detected
+
+
+def concat_pairs(parts: list[ContactPairs]) -> ContactPairs:
+    """One ``ContactPairs`` holding the pairs of several (same contact, same stiffness)."""
+    first = parts[0]
+    cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+    return ContactPairs(
+        node=cat("node"),
+        others=cat("others"),
+        weights=cat("weights"),
+        normal=cat("normal"),
+        penetration_m=cat("penetration_m"),
+        source=cat("source"),
+        names=first.names,
+        stiffness_n_per_m=first.stiffness_n_per_m,
+        n_nodes=first.n_nodes,
+        tangential=cat("tangential"),
+        edge_direction=cat("edge_direction"),
+        point_nodes=cat("point_nodes"),
+        point_weights=cat("point_weights"),
+        smoothing_m=first.smoothing_m,
+        distance_m=cat("distance_m"),
+    )
+
+
+class FrozenContact:
+    """The self-contact pairs of ``contact`` at ``x`` with their features frozen (module docstring).
+
+    Has the interface the Newton solver uses (``evaluate``, ``energy``, ``set_pose``).
+    """
+
+    def __init__(self, contact: Contact, x: np.ndarray, *, margin_m: float):
+        self.contact = contact
+        pairs = contact.evaluate(x, margin_m=margin_m)
+        sel = pairs.source >= len(contact.rigid)
+        self.n_frozen = int(sel.sum())
+        self.point_nodes = pairs.point_nodes[sel]
+        self.point_weights = pairs.point_weights[sel]
+        self.triangles = pairs.others[sel]
+        self.source = pairs.source[sel]
+        w = pairs.weights[sel]
+        zero = w <= _ZERO_WEIGHT
+        nz = zero.sum(axis=1)
+        self.feature = np.minimum(nz, 2)
+        self.corner = np.where(nz >= 2, np.argmax(w, axis=1), (np.argmax(zero, axis=1) + 1) % 3)
+        sign = np.sign(pairs.distance_m[sel])
+        sign[sign == 0] = 1.0
+        N = self._face_normals(np.asarray(x, dtype=np.float64))
+        face_side = np.sign(np.einsum("pd,pd->p", N, pairs.normal[sel]))
+        face_side[face_side == 0] = 1.0
+        self.sign = np.where(self.feature == 0, face_side, sign)
+        self._fallback_normal = pairs.normal[sel]
+        self.last_stale = 0
+
+    def set_pose(self, attached_positions) -> None:
+        """No-op: the bones were placed when the pairs were frozen."""
+
+    def _face_normals(self, x: np.ndarray) -> np.ndarray:
+        t = x[self.triangles]
+        N = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        return N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+
+    def _frozen_pairs(self, x: np.ndarray) -> ContactPairs:
+        c = self.contact
+        P = self.n_frozen
+        q = np.einsum("pk,pkd->pd", self.point_weights, x[self.point_nodes])
+        t = x[self.triangles]
+        r = np.arange(P)
+        phi = np.zeros(P)
+        normal = np.zeros((P, 3))
+        w = np.zeros((P, 3))
+        edge_dir = np.zeros((P, 3))
+        face = self.feature == 0
+        if face.any():
+            n = self.sign[face, None] * self._face_normals(x)[face]
+            tf = t[face]
+            d = np.einsum("pd,pd->p", n, q[face] - tf[:, 0])
+            proj = q[face] - d[:, None] * n
+            e1, e2, ep = tf[:, 1] - tf[:, 0], tf[:, 2] - tf[:, 0], proj - tf[:, 0]
+            d11, d12, d22 = (np.einsum("pd,pd->p", a, b) for a, b in ((e1, e1), (e1, e2), (e2, e2)))
+            p1, p2 = np.einsum("pd,pd->p", ep, e1), np.einsum("pd,pd->p", ep, e2)
+            det = d11 * d22 - d12 * d12
+            b1 = (d22 * p1 - d12 * p2) / det
+            b2 = (d11 * p2 - d12 * p1) / det
+            phi[face], normal[face] = d, n
+            w[face] = np.stack([1.0 - b1 - b2, b1, b2], axis=1)
+        edge = self.feature == 1
+        if edge.any():
+            i0, i1 = self.corner[edge], (self.corner[edge] + 1) % 3
+            a, b = t[r[edge], i0], t[r[edge], i1]
+            e = b - a
+            s = np.einsum("pd,pd->p", q[edge] - a, e) / np.einsum("pd,pd->p", e, e)
+            d = q[edge] - a - s[:, None] * e
+            w[r[edge], i0], w[r[edge], i1] = 1.0 - s, s
+            edge_dir[edge] = e / np.linalg.norm(e, axis=1, keepdims=True)
+            phi[edge], normal[edge] = self._radial(d, self.sign[edge], self._fallback_normal[edge])
+        vert = self.feature == 2
+        if vert.any():
+            d = q[vert] - t[r[vert], self.corner[vert]]
+            w[r[vert], self.corner[vert]] = 1.0
+            phi[vert], normal[vert] = self._radial(d, self.sign[vert], self._fallback_normal[vert])
+        inside = (self.feature > 0) & (phi < 0)
+        # a face pair whose projection has left its triangle measures to the triangle's plane beyond
+        # it (a "ghost" plane): the solver re-detects when such a pair carries force
+        self.last_stale = int(np.count_nonzero((w.min(axis=1) < -STALE_WEIGHT) & (c.gap_m - phi > 0)))
+        return ContactPairs(
+            node=self.point_nodes[:, 0].copy(),
+            others=self.triangles,
+            weights=w,
+            normal=normal,
+            penetration_m=c.gap_m - phi,
+            source=self.source,
+            names=c.names,
+            stiffness_n_per_m=c.stiffness_n_per_m,
+            n_nodes=c.model.n_nodes,
+            tangential=inside.astype(np.float64),
+            edge_direction=edge_dir,
+            point_nodes=self.point_nodes,
+            point_weights=self.point_weights,
+            smoothing_m=c.smoothing_m,
+            distance_m=phi,
+        )
+
+    @staticmethod
+    def _radial(d: np.ndarray, sign: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r = np.linalg.norm(d, axis=1)
+        ok = r > 1e-15
+        n = np.where(ok[:, None], sign[:, None] * d / np.where(ok, r, 1.0)[:, None], fallback)
+        return sign * r, n
+
+    def evaluate(self, x: np.ndarray) -> ContactPairs:
+        """Rigid-obstacle pairs at ``x`` plus the frozen self-contact pairs (those apart carry nothing)."""
+        x = np.asarray(x, dtype=np.float64)
+        rigid = self.contact.evaluate(x, self_contact=False)
+        if not self.n_frozen:
+            return rigid
+        return concat_pairs([rigid, self._frozen_pairs(x)])
+
+    def energy(self, x: np.ndarray) -> float:
+        return self.evaluate(x).energy
