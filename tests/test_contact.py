@@ -301,9 +301,7 @@ def test_frozen_features_match_the_contact_where_frozen(face, pressed):
 def test_freezing_reaches_the_same_equilibrium(face, sim):
     lips = Contact(face, regions="lips")
     plain = sim.solve({m: 1.0 for m in _PRESS}, contact=lips, tol=1e-8)
-    frozen = sim.solve(
-        {m: 1.0 for m in _PRESS}, contact=Contact(face, regions="lips", freeze_below=0.1), tol=1e-8
-    )
+    frozen = sim.solve({m: 1.0 for m in _PRESS}, contact=Contact(face, regions="lips", freeze_below=0.1), tol=1e-8)
     assert plain.converged and frozen.converged
     assert frozen.contact_refreezes >= 1  # the true (re-detected) residual decides convergence
     assert np.abs(frozen.x - plain.x).max() < 1e-6  # same equilibrium (measured ...)

@@ -15,7 +15,7 @@ f_c(Y) and the Jacobians follow from the implicit-function theorem with the acti
 K is the elastic tangent plus the contact Hessian H_c(Y*): k'' dg dg^T + E'(g) d2g of every active
 pair with its closest feature held fixed, the derivatives of the normals and closest-point weights
 with respect to the triangle vertices included (the Newton solves drop them;
-``wface.physics.contact.exact_self_hessian``). Obstacles that follow the jaw (the lower teeth, the
+``wface.physics.frozen.exact_self_hessian``). Obstacles that follow the jaw (the lower teeth, the
 jaw bone) add d f_c / d b_jaw = Q dc/db_jaw + E'(g) dn/db_jaw to the jaw columns (c: the closest
 point on the obstacle, moving with the jaw affine; Q: the pair's Hessian block; n turns with a face
 feature); other obstacles are fixed in the cranium frame. The Jacobian is
@@ -168,7 +168,7 @@ class FaceRig:
             self.contact.set_pose(attached_positions(self.model, b, frame="cranium"))
             pairs = self.contact.evaluate(y)
             if len(pairs.node):
-                from wface.physics.contact import exact_self_hessian
+                from wface.physics.frozen import exact_self_hessian
 
                 K = (K + exact_self_hessian(self.contact, pairs, y, self.sim.pattern("all"))).tocsr()
         K_uu = K[U][:, U]

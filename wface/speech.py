@@ -124,8 +124,8 @@ def simulate_gesture(
         contact: a ``wface.physics.contact.Contact`` used in every solve, or None.
         max_iterations: Newton iteration cap per frame.
     """
-    from wface.physics.contact import Contact
     from wface.importers.speech import map_gesture_to_model
+    from wface.physics.contact import Contact
     from wface.physics.simulator import Simulator
     from wface.tracking.sequence import embed_model_markers
 

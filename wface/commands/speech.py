@@ -245,8 +245,8 @@ def run_speech(args: argparse.Namespace) -> int:
     )
     if report.get("lip_gap_mm_min") is not None:
         print(
-            f"lip gap min {report['lip_gap_mm_min']:+.3f} mm, max penetration {report['max_penetration_mm_max']:.3f} mm "
-            f"(contact: {args.contact or 'none'})"
+            f"lip gap min {report['lip_gap_mm_min']:+.3f} mm, max penetration "
+            f"{report['max_penetration_mm_max']:.3f} mm (contact: {args.contact or 'none'})"
         )
     print(f"wrote {out / 'report.json'}")
     return 0

@@ -22,15 +22,20 @@ usual. The Newton solver (``wface.solvers.newton``) freezes once the residual is
 the frozen problem, re-detects the pairs and repeats until the true (re-detected) residual
 meets the tolerance (Wriggers 2006, ch. 8: active-set strategies; the frozen feature is the
 "fixed contact element" linearisation).
+
+``exact_self_hessian``: the full second derivatives of the self-contact energy with each pair's
+feature fixed (normal and projection derivatives with respect to the triangle vertices included),
+for the implicit-function Jacobians of ``wface.rig``.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 from wface.physics.contact import Contact, ContactPairs
 
-__all__ = ["FrozenContact", "concat_pairs"]
+__all__ = ["FrozenContact", "concat_pairs", "exact_self_hessian"]
 
 _ZERO_WEIGHT = 1e-12
 STALE_WEIGHT = 0.1  # barycentric overshoot beyond which a frozen face pair is re-detected
@@ -174,3 +179,106 @@ class FrozenContact:
 
     def energy(self, x: np.ndarray) -> float:
         return self.evaluate(x).energy
+
+
+# ---------------------------------------------------------------------- exact self-contact Hessian
+_HESS_STEP_M = 1e-5  # central second differences of the pair distance: truncation ~(h/L)^2, L ~ mm edges
+
+
+def _pair_distance(z: np.ndarray, v: np.ndarray, feature: np.ndarray, corner: np.ndarray, sign: np.ndarray):
+    """Signed distance phi of contact points to a fixed feature of their triangle, from the 15 coordinates
+    z = (x_p1, x_p2, x_t0, x_t1, x_t2) of each pair, (P, 5, 3) -> (P,). ``feature``: 0 face, 1 edge,
+    2 vertex; ``corner``: the vertex (feature 2) or the first corner of the edge (feature 1, edge to
+    corner + 1); ``sign``: +-1 (side of the surface)."""
+    q = v[:, 0, None] * z[:, 0] + v[:, 1, None] * z[:, 1]
+    t = z[:, 2:]
+    r = np.arange(len(z))
+    N = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    face = np.einsum("pd,pd->p", N / np.linalg.norm(N, axis=1, keepdims=True), q - t[:, 0])
+    a, b = t[r, corner], t[r, (corner + 1) % 3]
+    e = b - a
+    s = np.einsum("pd,pd->p", q - a, e) / np.einsum("pd,pd->p", e, e)
+    edge = np.linalg.norm(q - a - s[:, None] * e, axis=1)
+    vert = np.linalg.norm(q - t[r, corner], axis=1)
+    return np.where(feature == 0, face, sign * np.where(feature == 1, edge, vert))
+
+
+def exact_self_hessian(contact, pairs: ContactPairs, x: np.ndarray, pattern, *, project: bool = False) -> sp.csr_matrix:
+    """The contact Hessian over ``pattern``'s unknowns with the exact second derivatives of the
+    self-contact pairs (closest feature fixed): k'' dg dg^T + E'(g) d2g, the derivatives of the
+    normals and closest-point weights with respect to the triangle vertices included (the Newton
+    solves drop them). Not projected: use it where the exact tangent of the equilibrium is needed
+    (the implicit-function Jacobians of ``wface.rig``). Rigid-obstacle pairs keep ``pairs.assemble``.
+
+    d2g comes from central second differences of the pair distance with step ``_HESS_STEP_M``.
+    """
+    selfp = pairs.source >= len(contact.rigid)
+    rigid_part = _subset(pairs, ~selfp).assemble(pattern)
+    if not selfp.any():
+        return rigid_part
+    P = int(selfp.sum())
+    w = pairs.weights[selfp]
+    nodes = np.concatenate([pairs.point_nodes[selfp], pairs.others[selfp]], axis=1)  # (P, 5)
+    v = pairs.point_weights[selfp]
+    zero = w <= 1e-12
+    nz = zero.sum(axis=1)
+    feature = np.minimum(nz, 2)
+    corner = np.where(nz >= 2, np.argmax(w, axis=1), (np.argmax(zero, axis=1) + 1) % 3)
+    sign = np.sign(pairs.distance_m[selfp])
+    sign[sign == 0] = 1.0
+    z0 = np.asarray(x, dtype=np.float64)[nodes]  # (P, 5, 3)
+    if not np.allclose(_pair_distance(z0, v, feature, corner, sign), pairs.distance_m[selfp], atol=1e-9):
+        raise RuntimeError("contact: the pair distances do not match their features (stale pairs?)")
+    h = _HESS_STEP_M
+    d2 = np.zeros((P, 15, 15))
+    flat = z0.reshape(P, 15)
+
+    def phi(dz):
+        return _pair_distance((flat + dz).reshape(P, 5, 3), v, feature, corner, sign)
+
+    for i in range(15):
+        for j in range(i, 15):
+
+            def dz(a, b, i=i, j=j):
+                out = np.zeros(15)
+                out[i] += a * h
+                out[j] += b * h
+                return out
+
+            val = (phi(dz(1, 1)) - phi(dz(1, -1)) - phi(dz(-1, 1)) + phi(dz(-1, -1))) / (4 * h * h)
+            d2[:, i, j] = d2[:, j, i] = -val  # g = gap - phi
+    coef = np.concatenate([v, -w], axis=1)  # (P, 5): dg/dx_k = -coef_k n
+    dg = (-coef[:, :, None] * pairs.normal[selfp][:, None, :]).reshape(P, 15)
+    kn, fn = pairs.normal_stiffness[selfp], pairs.force_magnitude[selfp]
+    blocks = kn[:, None, None] * dg[:, :, None] * dg[:, None, :] + fn[:, None, None] * d2
+    if project:  # each pair's 15 x 15 block clamped to positive semi-definite
+        lam, vec = np.linalg.eigh(0.5 * (blocks + blocks.transpose(0, 2, 1)))
+        blocks = np.einsum("pik,pk,pjk->pij", vec, np.maximum(lam, 0.0), vec)
+    dof = pattern.node_to_dof[nodes]  # (P, 5)
+    rows = (3 * dof[:, :, None] + np.arange(3)).reshape(P, 15)
+    keep = (np.repeat(dof, 3, axis=1) >= 0) & (np.abs(coef).repeat(3, axis=1) > 0)
+    ri = np.broadcast_to(rows[:, :, None], blocks.shape)
+    ci = np.broadcast_to(rows[:, None, :], blocks.shape)
+    mask = keep[:, :, None] & keep[:, None, :]
+    H = sp.coo_matrix((blocks[mask], (ri[mask], ci[mask])), shape=pattern.shape).tocsr()
+    return (H + rigid_part).tocsr()
+
+
+def _subset(pairs: ContactPairs, sel: np.ndarray) -> ContactPairs:
+    return ContactPairs(
+        node=pairs.node[sel],
+        others=pairs.others[sel],
+        weights=pairs.weights[sel],
+        normal=pairs.normal[sel],
+        penetration_m=pairs.penetration_m[sel],
+        source=pairs.source[sel],
+        names=pairs.names,
+        stiffness_n_per_m=pairs.stiffness_n_per_m,
+        n_nodes=pairs.n_nodes,
+        tangential=pairs.tangential[sel],
+        edge_direction=pairs.edge_direction[sel],
+        point_nodes=pairs.point_nodes[sel],
+        point_weights=pairs.point_weights[sel],
+        smoothing_m=pairs.smoothing_m,
+        distance_m=pairs.distance_m[sel],
+    )
