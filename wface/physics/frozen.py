@@ -200,7 +200,7 @@ def _pair_distance(z: np.ndarray, v: np.ndarray, feature: np.ndarray, corner: np
     s = np.einsum("pd,pd->p", q - a, e) / np.einsum("pd,pd->p", e, e)
     edge = np.linalg.norm(q - a - s[:, None] * e, axis=1)
     vert = np.linalg.norm(q - t[r, corner], axis=1)
-    return np.where(feature == 0, face, sign * np.where(feature == 1, edge, vert))
+    return sign * np.where(feature == 0, face, np.where(feature == 1, edge, vert))
 
 
 def exact_self_hessian(contact, pairs: ContactPairs, x: np.ndarray, pattern, *, project: bool = False) -> sp.csr_matrix:
@@ -216,18 +216,35 @@ def exact_self_hessian(contact, pairs: ContactPairs, x: np.ndarray, pattern, *, 
     rigid_part = _subset(pairs, ~selfp).assemble(pattern)
     if not selfp.any():
         return rigid_part
-    P = int(selfp.sum())
-    w = pairs.weights[selfp]
-    nodes = np.concatenate([pairs.point_nodes[selfp], pairs.others[selfp]], axis=1)  # (P, 5)
-    v = pairs.point_weights[selfp]
-    zero = w <= 1e-12
+    feature, corner, sign = _features(pairs, selfp, x)
+    return (_fixed_feature_hessian(pairs, selfp, x, pattern, feature, corner, sign, project) + rigid_part).tocsr()
+
+
+def _features(pairs: ContactPairs, sel: np.ndarray, x: np.ndarray):
+    """Closest feature (0 face, 1 edge, 2 vertex), its corner and side (+-1) of the selected pairs,
+    read from their closest-point weights."""
+    w = pairs.weights[sel]
+    zero = w <= _ZERO_WEIGHT
     nz = zero.sum(axis=1)
     feature = np.minimum(nz, 2)
     corner = np.where(nz >= 2, np.argmax(w, axis=1), (np.argmax(zero, axis=1) + 1) % 3)
-    sign = np.sign(pairs.distance_m[selfp])
+    sign = np.sign(pairs.distance_m[sel])
+    t = np.asarray(x, dtype=np.float64)[pairs.others[sel]]
+    N = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    side = np.sign(np.einsum("pd,pd->p", N, pairs.normal[sel]))
+    sign = np.where(feature == 0, side, sign)
     sign[sign == 0] = 1.0
+    return feature, corner, sign
+
+
+def _fixed_feature_hessian(pairs, sel, x, pattern, feature, corner, sign, project: bool) -> sp.csr_matrix:
+    """k'' dg dg^T + E'(g) d2g of the selected pairs with their features fixed, over ``pattern``."""
+    P = int(sel.sum())
+    w = pairs.weights[sel]
+    nodes = np.concatenate([pairs.point_nodes[sel], pairs.others[sel]], axis=1)  # (P, 5)
+    v = pairs.point_weights[sel]
     z0 = np.asarray(x, dtype=np.float64)[nodes]  # (P, 5, 3)
-    if not np.allclose(_pair_distance(z0, v, feature, corner, sign), pairs.distance_m[selfp], atol=1e-9):
+    if not np.allclose(_pair_distance(z0, v, feature, corner, sign), pairs.distance_m[sel], atol=1e-9):
         raise RuntimeError("contact: the pair distances do not match their features (stale pairs?)")
     h = _HESS_STEP_M
     d2 = np.zeros((P, 15, 15))
@@ -248,8 +265,8 @@ def exact_self_hessian(contact, pairs: ContactPairs, x: np.ndarray, pattern, *, 
             val = (phi(dz(1, 1)) - phi(dz(1, -1)) - phi(dz(-1, 1)) + phi(dz(-1, -1))) / (4 * h * h)
             d2[:, i, j] = d2[:, j, i] = -val  # g = gap - phi
     coef = np.concatenate([v, -w], axis=1)  # (P, 5): dg/dx_k = -coef_k n
-    dg = (-coef[:, :, None] * pairs.normal[selfp][:, None, :]).reshape(P, 15)
-    kn, fn = pairs.normal_stiffness[selfp], pairs.force_magnitude[selfp]
+    dg = (-coef[:, :, None] * pairs.normal[sel][:, None, :]).reshape(P, 15)
+    kn, fn = pairs.normal_stiffness[sel], pairs.force_magnitude[sel]
     blocks = kn[:, None, None] * dg[:, :, None] * dg[:, None, :] + fn[:, None, None] * d2
     if project:  # each pair's 15 x 15 block clamped to positive semi-definite
         lam, vec = np.linalg.eigh(0.5 * (blocks + blocks.transpose(0, 2, 1)))
@@ -260,8 +277,7 @@ def exact_self_hessian(contact, pairs: ContactPairs, x: np.ndarray, pattern, *, 
     ri = np.broadcast_to(rows[:, :, None], blocks.shape)
     ci = np.broadcast_to(rows[:, None, :], blocks.shape)
     mask = keep[:, :, None] & keep[:, None, :]
-    H = sp.coo_matrix((blocks[mask], (ri[mask], ci[mask])), shape=pattern.shape).tocsr()
-    return (H + rigid_part).tocsr()
+    return sp.coo_matrix((blocks[mask], (ri[mask], ci[mask])), shape=pattern.shape).tocsr()
 
 
 def _subset(pairs: ContactPairs, sel: np.ndarray) -> ContactPairs:
