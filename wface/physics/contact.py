@@ -30,6 +30,34 @@ surface node of the flesh, k = 100 * E * h with E = 6 (mu10 + mu01) the small-st
 of the incompressible Mooney-Rivlin flesh and h the median rest edge length of the tets. A node
 then penetrates about 1/100 of the distance it would have moved without contact (measured in
 ``tests/test_contact.py``); raise it for less penetration at the price of a stiffer system.
+
+Smoothed penalty (``smoothing_m = d``, ``penalty_profile``): E = k g^3 / (6 d) for 0 < g < d, then
+k/2 (g - d/2)^2 + k d^2 / 24: C2, the normal stiffness rises from 0 at contact to k at g = d, so a
+pair entering contact no longer switches k on at once; about d/2 more penetration.
+
+Convergence on coarse lip surfaces (the ArtiSynth Badin face): with full OOP + MENT the lips overlap
+6.7 mm without contact. With the C1 penalty Newton stalls at a relative residual of 0.2 after 40
+iterations (0.018 after 80), although the overlap drops to 0.02-0.05 mm. Measured causes: (1) the
+active set chatters, about 100 of 150 pairs change at every full Newton step, and the step lengths
+fall to 1/16-1/64; (2) the signed distance to a faceted surface is not smooth for points inside it:
+at the bisector of every convex edge the closest face changes and the force direction jumps by
+the dihedral angle (median 9-12, 90th percentile 27-34 degrees on the reduced collision
+surfaces, 2.4-2.8 mm edges), a jump of force x angle, a few mN per point (contact forces of
+0.01-0.02 N) against a tolerance of 1.3 mN (1e-4 x 12.7 N); (3) the Gauss-Newton
+contact Hessian misses the derivatives of the normals (3-6 % of the contact stiffness, which is
+100 x the flesh's, so O(1) of the elastic stiffness). Neither the stiffness (k / 10), the exact
+pair Hessian (``wface.physics.frozen.exact_self_hessian``, projected), one-pass (one lip's points
+only), leaving out the edge midpoints nor a penalty gap fixed the stall by itself. What helps:
+the C2 ramp (0.1 mm: 0.019 after 40) and freezing the closest features (``freeze_below``,
+``wface.physics.frozen``) on top of it: 0.009 after 40, 0.003 after 80 (minimum 2.7e-4). The
+lips then stay 0.0-0.05 mm inside one another, which is what a speech or tracking frame needs, but
+a tolerance of 1e-4 is not reached on Badin; ``Equilibrium.residual_rel`` reports the truth.
+
+Teeth and bones of the model move with their bone. Nodes already inside one of those meshes at rest
+are left out of its contact (``ignore_inside_at_rest``): the Badin face's gum-side surface runs
+through ArtiSynth's teeth by up to 8.7 mm in the source data (winding number 1, checked in
+``tests/test_badin_contact.py``; ArtiSynth uses the teeth for display and lets the lip collision
+surfaces hit the jaw and maxilla). Closest points on an open mesh's boundary are no contact.
 """
 
 from __future__ import annotations
