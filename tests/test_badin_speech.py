@@ -152,11 +152,11 @@ def test_closure_with_lip_contact_cli(tmp_path, badin_model_path, capsys):
     assert main(args + ["--contact", "lips", "--max-iterations", "12", "--out", str(out)]) == 0
     rep = json.loads((out / "report.json").read_text())
     assert rep["contact"] == "lips" and rep["inverted_elements_max"] == 0
-    # The lips meet without passing through each other: at most the 0.1 mm penalty ramp plus a few
-    # micrometres of penalty penetration (measured: gap +0.06, +0.05, +0.05 mm -- they stop just short,
-    # the residual of the 12 Newton iterations is 1e-2).
-    assert len(rep["lip_gap_mm"]) == 3 and min(rep["lip_gap_mm"]) > -0.1
-    assert rep["max_penetration_mm_max"] < 0.1
+    # The lips meet without passing through each other, up to the penalty: half the 0.1 mm C2 ramp plus
+    # k-dependent micrometres (measured: gap +0.061, -0.044, -0.066 mm against -6 mm without contact;
+    # frames 0.5 s apart, 12 Newton iterations leave residuals of 0.15 and 0.11).
+    assert len(rep["lip_gap_mm"]) == 3 and min(rep["lip_gap_mm"]) > -0.15
+    assert rep["max_penetration_mm_max"] < 0.15
     assert "lip gap min" in capsys.readouterr().out
     assert main(args + ["--contact", "lips,gums", "--out", str(out)]) == 1
 
