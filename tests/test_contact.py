@@ -304,4 +304,4 @@ def test_freezing_reaches_the_same_equilibrium(face, sim):
     frozen = sim.solve({m: 1.0 for m in _PRESS}, contact=Contact(face, regions="lips", freeze_below=0.1), tol=1e-8)
     assert plain.converged and frozen.converged
     assert frozen.contact_refreezes >= 1  # the true (re-detected) residual decides convergence
-    assert np.abs(frozen.x - plain.x).max() < 1e-6  # same equilibrium (measured ...)
+    assert np.abs(frozen.x - plain.x).max() < 1e-9  # same equilibrium (measured 1e-14 m; 22 iterations each)
