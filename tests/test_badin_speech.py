@@ -140,6 +140,25 @@ def test_closure_closes_the_lips_cli(tmp_path, badin_model_path):
     # measured: 17.19 -> 7.70 (t = 0.5) -> 5.72 mm; the lips close steadily as OOM, MENT and RIS rise
     assert lo[1] < lo[0] - 5.0 and lo[2] < lo[1] - 1.0 and lo[2] < lo[0] - 8.0
     assert (out / "lip_opening.png").stat().st_size > 1000 and (out / "animation.usdc").stat().st_size > 1000
+    # without contact the closing lips pass through each other (measured: 6 mm at t = 1 s)
+    assert rep["contact"] is None and rep["lip_gap_mm"][0] > 0 and rep["lip_gap_mm_min"] < -3.0
+
+
+def test_closure_with_lip_contact_cli(tmp_path, badin_model_path, capsys):
+    from wface.cli import main
+
+    out = tmp_path / "closure_contact"
+    args = ["speech", "--model", str(badin_model_path), "--gesture", "closure", "--max-frames", "3", "--no-usd"]
+    assert main(args + ["--contact", "lips", "--max-iterations", "12", "--out", str(out)]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["contact"] == "lips" and rep["inverted_elements_max"] == 0
+    # The lips meet without passing through each other, up to the penalty: half the 0.1 mm C2 ramp plus
+    # k-dependent micrometres (measured: gap +0.061, -0.044, -0.066 mm against -6 mm without contact;
+    # frames 0.5 s apart, 12 Newton iterations leave residuals of 0.15 and 0.11).
+    assert len(rep["lip_gap_mm"]) == 3 and min(rep["lip_gap_mm"]) > -0.15
+    assert rep["max_penetration_mm_max"] < 0.15
+    assert "lip gap min" in capsys.readouterr().out
+    assert main(args + ["--contact", "lips,gums", "--out", str(out)]) == 1
 
 
 @pytest.mark.slow

@@ -34,6 +34,16 @@ def test_demo_writes_everything(tmp_path):
     assert header.startswith("frame,") and "jaw_opening_deg" in header
 
 
+def test_demo_with_lip_contact(tmp_path):
+    """--contact lips: ground truth and tracking both solve with lip contact (Jacobians included)."""
+    out = tmp_path / "demo_contact"
+    args = ["demo", "--out", str(out), "--tets", "1500", "--frames", "2", "--no-pictures", "--contact", "lips"]
+    assert main(args) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["contact"] == "lips" and report["frames"] == 2
+    assert report["truth_marker_rms_mm"] < 1.0 and report["inverted_elements"] == 0
+
+
 def test_track_a_csv_file(tmp_path):
     from wface.builtin import build_face
     from wface.io.mocap import MocapTake, write_mocap

@@ -14,8 +14,13 @@ the curves' timing only sets which activation each frame sees.
 Lip opening: the distance between the upper- and lower-lip midline skin markers (``Mouth_Up``,
 ``Mouth_Down``), in millimetres. It is the marker-to-marker distance across both lips' vermilion,
 not the gap between the lips, and not the original's lip-opening *area*. ``lip_vertical_mm`` is its
-signed vertical part (model +y is up): it would turn negative if the markers crossed, since the
-imported model has no lip-lip contact (the original's lip collision surfaces are not used).
+signed vertical part (model +y is up): it would turn negative if the markers crossed when the
+lips interpenetrate, which they do without contact.
+
+Contact (``contact=``, ``wface speech --contact lips``): each frame is solved with lip self-contact on
+ArtiSynth's lip collision surfaces (``wface.physics.contact``); every frame reports the smallest
+signed distance between the lip surfaces (``lip_gap_mm``: negative = overlap) and the deepest
+penetration (``max_penetration_mm``), with or without contact, so the two runs compare.
 """
 
 from __future__ import annotations
@@ -55,6 +60,9 @@ class GestureResult:
     inverted_elements: np.ndarray  # (F,)
     seconds: np.ndarray  # (F,) per-frame solve time
     mapping: dict = field(default_factory=dict)
+    lip_gap_mm: np.ndarray | None = None  # (F,) smallest signed lip-lip distance (negative: overlap)
+    max_penetration_mm: np.ndarray | None = None  # (F,) deepest lip-lip penetration
+    contact: str | None = None  # the contact regions used, or None
     notes: list[str] = field(default_factory=list)
 
 
@@ -99,6 +107,8 @@ def simulate_gesture(
     tol: float = 1e-4,
     simulator=None,
     progress: bool = False,
+    contact=None,
+    max_iterations: int = 40,
 ) -> GestureResult:
     """Drive ``model`` through ``gesture`` (a ``SpeechGesture``) at ``fps`` with warm-started equilibria.
 
@@ -111,8 +121,11 @@ def simulate_gesture(
         tol: relative force residual of each solve.
         simulator: a ``wface.physics.simulator.Simulator`` to reuse.
         progress: print one line per frame.
+        contact: a ``wface.physics.contact.Contact`` used in every solve, or None.
+        max_iterations: Newton iteration cap per frame.
     """
     from wface.importers.speech import map_gesture_to_model
+    from wface.physics.contact import Contact
     from wface.physics.simulator import Simulator
     from wface.tracking.sequence import embed_model_markers
 
@@ -132,9 +145,17 @@ def simulate_gesture(
         np.zeros(F, dtype=int),
         np.zeros(F),
     )
+    lips = None
+    if "upper_lip" in model.surface_groups and "lower_lip" in model.surface_groups:
+        lips = contact if contact is not None and contact.self_contact else Contact(model, regions="lips")
+    gap, pen = np.full(F, np.nan), np.full(F, np.nan)
     x_prev = None
     for f in range(F):
-        eq = sim.solve(activations=A[f], x0=x_prev, tol=tol)
+        kwargs = {} if contact is None else {"contact": contact}
+        eq = sim.solve(activations=A[f], x0=x_prev, tol=tol, max_iterations=max_iterations, **kwargs)
+        if lips is not None:
+            gap[f] = lips.self_distance_m(eq.x) * 1e3
+            pen[f] = max(-gap[f], 0.0)
         X[f] = eq.x
         Mk[f] = markers.positions(eq.x)
         its[f], res[f], conv[f], inv[f], secs[f] = (
@@ -148,7 +169,8 @@ def simulate_gesture(
         if progress:
             print(
                 f"{gesture.name} frame {f + 1}/{F} t={times[f]:.3f}s: {eq.iterations} Newton its, "
-                f"residual {eq.residual_rel:.1e}, {eq.seconds:.1f} s",
+                f"residual {eq.residual_rel:.1e}, {eq.seconds:.1f} s"
+                + ("" if lips is None else f", lip gap {gap[f]:+.3f} mm"),
                 flush=True,
             )
     return GestureResult(
@@ -169,6 +191,9 @@ def simulate_gesture(
         seconds=secs,
         mapping=dict(mapping.muscles),
         notes=list(mapping.notes),
+        lip_gap_mm=gap,
+        max_penetration_mm=pen,
+        contact=None if contact is None else ",".join(contact.regions) or "obstacles",
     )
 
 
@@ -200,7 +225,25 @@ def summarize(result: GestureResult) -> dict:
         "inverted_elements_max": int(result.inverted_elements.max()),
         "seconds_per_frame": result.seconds.tolist(),
         "seconds_total": float(result.seconds.sum()),
+        "contact": result.contact,
+        "lip_gap_mm": None if result.lip_gap_mm is None else [_num(v) for v in result.lip_gap_mm],
+        "lip_gap_mm_min": _num(np.nanmin(result.lip_gap_mm)) if _any(result.lip_gap_mm) else None,
+        "max_penetration_mm": None
+        if result.max_penetration_mm is None
+        else [_num(v) for v in result.max_penetration_mm],
+        "max_penetration_mm_max": _num(np.nanmax(result.max_penetration_mm))
+        if _any(result.max_penetration_mm)
+        else None,
     }
+
+
+def _any(a) -> bool:
+    return a is not None and bool(np.isfinite(a).any())
+
+
+def _num(v) -> float | None:
+    v = float(v)
+    return v if np.isfinite(v) else None
 
 
 def select_capture_markers(

@@ -23,6 +23,7 @@ examples:
   wface speech --model ../shared/data/artisynth-face --gesture closure --out closure_out
   wface speech --model badin.npz --gesture fricative --fps 25 --out fricative_out
   wface speech --model badin.npz --gesture approximant --max-frames 5 --out quick
+  wface speech --model badin.npz --gesture closure --contact lips --max-frames 6 --out closure_contact
 """
 
 
@@ -56,6 +57,26 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="whole",
         help="what the OOMl exciter drives: the whole OOM (default, approximation) or nothing",
     )
+    p.add_argument(
+        "--contact",
+        help="contact regions in every solve: lips (lip self-contact on ArtiSynth's lip collision surfaces), "
+        "teeth, bones, comma-separated (default: none); the report gives the lip gap per frame either way",
+    )
+    p.add_argument("--contact-stiffness", type=float, help="penalty stiffness k in N/m (default 100 x E x h)")
+    p.add_argument(
+        "--contact-smoothing-mm",
+        type=float,
+        default=0.1,
+        help="width of the C2 penalty ramp in mm (default 0.1; 0: the plain C1 penalty)",
+    )
+    p.add_argument(
+        "--freeze-below",
+        type=float,
+        default=1.0,
+        help="relative residual below which Newton freezes the lip contact features (default 1: always; "
+        "negative: never), see wface.physics.frozen",
+    )
+    p.add_argument("--max-iterations", type=int, default=40, help="Newton iteration cap per frame (default 40)")
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
     p.set_defaults(func=run_speech)
 
@@ -137,8 +158,27 @@ def run_speech(args: argparse.Namespace) -> int:
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
     mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
     t_load = time.perf_counter() - t_start
+    contact = None
+    if args.contact:
+        from wface.physics.contact import Contact
+
+        contact = Contact(
+            model,
+            regions=args.contact,
+            stiffness_n_per_m=args.contact_stiffness,
+            smoothing_m=args.contact_smoothing_mm * 1e-3,
+            freeze_below=None if args.freeze_below < 0 else args.freeze_below,
+        )
     result = simulate_gesture(
-        model, gesture, fps=args.fps, max_frames=args.max_frames, mapping=mapping, tol=args.tol, progress=True
+        model,
+        gesture,
+        fps=args.fps,
+        max_frames=args.max_frames,
+        mapping=mapping,
+        tol=args.tol,
+        progress=True,
+        contact=contact,
+        max_iterations=args.max_iterations,
     )
     csv, png = write_lip_opening(out, result, model)
     files = [csv.name, png.name]
@@ -180,6 +220,8 @@ def run_speech(args: argparse.Namespace) -> int:
             "unmapped_probes": mapping.unmapped,
             "interpolation": {k: c.order for k, c in gesture.curves.items()},
             "tol": args.tol,
+            "contact_stiffness_n_per_m": None if contact is None else contact.stiffness_n_per_m,
+            "contact_smoothing_m": None if contact is None else contact.smoothing_m,
             "setup_seconds": t_load,
             "wall_seconds": time.perf_counter() - t_start,
             "lip_opening_definition": "distance between the Mouth_Up and Mouth_Down skin markers (mm)",
@@ -201,5 +243,10 @@ def run_speech(args: argparse.Namespace) -> int:
         f"{result.gesture}: lip opening {lo['first']:.2f} -> {lo['last']:.2f} mm (min {lo['min']:.2f}, "
         f"max {lo['max']:.2f}) over {report['frames']} frames, {report['seconds_total']:.1f} s of solves"
     )
+    if report.get("lip_gap_mm_min") is not None:
+        print(
+            f"lip gap min {report['lip_gap_mm_min']:+.3f} mm, max penetration "
+            f"{report['max_penetration_mm_max']:.3f} mm (contact: {args.contact or 'none'})"
+        )
     print(f"wrote {out / 'report.json'}")
     return 0

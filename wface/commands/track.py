@@ -54,6 +54,20 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--temporal-weight", type=float, default=0.0, help="pull of activations toward the previous frame")
     p.add_argument("--no-movie", action="store_true", help="skip the mp4 movie")
     p.add_argument("--no-pictures", action="store_true", help="skip pictures, plots, movie and HTML")
+    p.add_argument(
+        "--contact",
+        help="contact in every equilibrium and Jacobian: lips, teeth, bones, comma-separated (default: none); "
+        "for demo also in the synthesised ground truth",
+    )
+
+
+def _contact(args, model):
+    """The ``Contact`` of --contact (C2 penalty ramp of 0.05 mm), or None."""
+    if not getattr(args, "contact", None):
+        return None
+    from wface.physics.contact import Contact
+
+    return Contact(model, regions=args.contact, smoothing_m=5e-5)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -127,6 +141,9 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rig_kwargs = {"device": args.device, "solver": args.solver, "tol": 1e-6}
+    contact = _contact(args, model)
+    if contact is not None:
+        rig_kwargs["contact"] = contact
     executor, chunk, close = _executor(args, len(targets))
     try:
         t0 = time.perf_counter()
@@ -154,6 +171,7 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         "solver": rig.sim.linear_solver,
         "wall_seconds": wall,
         "workers": args.workers if not args.scheduler else "scheduler",
+        "contact": getattr(args, "contact", None) or None,
     }
     report = build_report(
         model,
@@ -229,7 +247,7 @@ def run_demo(args: argparse.Namespace) -> int:
     from wface.tracking.synthetic import synthesize_performance
 
     model = build_face(args.tets, progress=True)
-    rig = FaceRig(model, device=args.device, solver=args.solver, tol=1e-6)
+    rig = FaceRig(model, device=args.device, solver=args.solver, tol=1e-6, contact=_contact(args, model))
     markers = embed_model_markers(model)
     perf = synthesize_performance(
         rig,

@@ -30,6 +30,34 @@ surface node of the flesh, k = 100 * E * h with E = 6 (mu10 + mu01) the small-st
 of the incompressible Mooney-Rivlin flesh and h the median rest edge length of the tets. A node
 then penetrates about 1/100 of the distance it would have moved without contact (measured in
 ``tests/test_contact.py``); raise it for less penetration at the price of a stiffer system.
+
+Smoothed penalty (``smoothing_m = d``, ``penalty_profile``): E = k g^3 / (6 d) for 0 < g < d, then
+k/2 (g - d/2)^2 + k d^2 / 24: C2, the normal stiffness rises from 0 at contact to k at g = d, so a
+pair entering contact no longer switches k on at once; about d/2 more penetration.
+
+Convergence on coarse lip surfaces (the ArtiSynth Badin face): with full OOP + MENT the lips overlap
+6.7 mm without contact. With the C1 penalty Newton stalls at a relative residual of 0.2 after 40
+iterations (0.018 after 80), although the overlap drops to 0.02-0.05 mm. Measured causes: (1) the
+active set chatters, about 100 of 150 pairs change at every full Newton step, and the step lengths
+fall to 1/16-1/64; (2) the signed distance to a faceted surface is not smooth for points inside it:
+at the bisector of every convex edge the closest face changes and the force direction jumps by
+the dihedral angle (median 9-12, 90th percentile 27-34 degrees on the reduced collision
+surfaces, 2.4-2.8 mm edges), a jump of force x angle, a few mN per point (contact forces of
+0.01-0.02 N) against a tolerance of 1.3 mN (1e-4 x 12.7 N); (3) the Gauss-Newton
+contact Hessian misses the derivatives of the normals (3-6 % of the contact stiffness, which is
+100 x the flesh's, so O(1) of the elastic stiffness). Neither the stiffness (k / 10), the exact
+pair Hessian (``wface.physics.frozen.exact_self_hessian``, projected), one-pass (one lip's points
+only), leaving out the edge midpoints nor a penalty gap fixed the stall by itself. What helps:
+the C2 ramp (0.1 mm: 0.019 after 40) and freezing the closest features (``freeze_below``,
+``wface.physics.frozen``) on top of it: 0.009 after 40, 0.003 after 80 (minimum 2.7e-4). The
+lips then stay 0.0-0.05 mm inside one another, which is what a speech or tracking frame needs, but
+a tolerance of 1e-4 is not reached on Badin; ``Equilibrium.residual_rel`` reports the truth.
+
+Teeth and bones of the model move with their bone. Nodes already inside one of those meshes at rest
+are left out of its contact (``ignore_inside_at_rest``): the Badin face's gum-side surface runs
+through ArtiSynth's teeth by up to 8.7 mm in the source data (winding number 1, checked in
+``tests/test_badin_contact.py``; ArtiSynth uses the teeth for display and lets the lip collision
+surfaces hit the jaw and maxilla). Closest points on an open mesh's boundary are no contact.
 """
 
 from __future__ import annotations
@@ -64,6 +92,7 @@ __all__ = [
     "bone_affines_from_attached",
     "default_contact_stiffness",
     "parse_obstacle",
+    "penalty_profile",
 ]
 
 DEFAULT_STIFFNESS_FACTOR = 100.0
@@ -73,11 +102,16 @@ _ROUND_OFF_M = 1e-12  # penetrations below this are round-off (lips coincide at 
 LIP_GROUPS = (("upper_lip", "lower_lip"), ("upper_lip_contact", "lower_lip_contact"))
 
 
-def default_contact_stiffness(model: FaceModel, factor: float = DEFAULT_STIFFNESS_FACTOR) -> float:
-    """k = factor * 6 (mu10 + mu01) * h in N/m, h = median rest tet edge length (module docstring)."""
+def median_edge_length(model: FaceModel) -> float:
+    """Median rest tet edge length h in metres."""
     x, t = model.rest_positions_m, model.tets
     edges = np.concatenate([x[t[:, a]] - x[t[:, b]] for a, b in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))])
-    h = float(np.median(np.linalg.norm(edges, axis=1)))
+    return float(np.median(np.linalg.norm(edges, axis=1)))
+
+
+def default_contact_stiffness(model: FaceModel, factor: float = DEFAULT_STIFFNESS_FACTOR) -> float:
+    """k = factor * 6 (mu10 + mu01) * h in N/m, h = median rest tet edge length (module docstring)."""
+    h = median_edge_length(model)
     return float(factor * 6.0 * (model.material.mu10_pa + model.material.mu01_pa) * h)
 
 
@@ -95,6 +129,28 @@ def _contact_points(tri_a: np.ndarray, tri_b: np.ndarray) -> tuple[np.ndarray, n
     pn = np.concatenate([np.repeat(nodes[:, None], 2, axis=1), edges])
     pw = np.concatenate([np.tile([1.0, 0.0], (len(nodes), 1)), np.full((len(edges), 2), 0.5)])
     return pn, pw
+
+
+def penalty_profile(g: np.ndarray, k: float, smoothing_m: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Penalty energy per pair E(g), its slope E'(g) (the normal force, N) and curvature E''(g) (N/m)
+    for penetrations g (m).
+
+    smoothing_m = 0: E = k/2 max(0, g)^2 (C1; E'' jumps from 0 to k at contact).
+    smoothing_m = d > 0: the C2 penalty E = k g^3 / (6 d) for 0 < g < d (the stiffness rises linearly
+    from 0 at contact to k at g = d), E = k/2 (g - d/2)^2 + k d^2/24 beyond (force k (g - d/2)): no
+    force before contact (surfaces that touch at rest stay at rest), about d/2 more penetration.
+    """
+    g = np.asarray(g, dtype=np.float64)
+    if smoothing_m <= 0.0:
+        gp = np.maximum(g, 0.0)
+        return 0.5 * k * gp**2, k * gp, np.where(g >= 0.0, k, 0.0)
+    d = float(smoothing_m)
+    s = np.maximum(g, 0.0)
+    ramp = s < d
+    e = np.where(ramp, k * s**3 / (6.0 * d), 0.5 * k * (s - 0.5 * d) ** 2 + k * d * d / 24.0)
+    fn = np.where(ramp, 0.5 * k * s**2 / d, k * (s - 0.5 * d))
+    kn = np.where(ramp, k * s / d, k)
+    return e, fn, kn
 
 
 # ---------------------------------------------------------------------- active pairs
@@ -131,6 +187,8 @@ class ContactPairs:
     edge_direction: np.ndarray | None = None
     point_nodes: np.ndarray | None = None
     point_weights: np.ndarray | None = None
+    smoothing_m: float = 0.0
+    distance_m: np.ndarray | None = None
 
     def __post_init__(self):
         if self.tangential is None:
@@ -140,23 +198,35 @@ class ContactPairs:
         if self.point_nodes is None:
             self.point_nodes = np.repeat(np.asarray(self.node)[:, None], 2, axis=1)
             self.point_weights = np.tile([1.0, 0.0], (len(self.node), 1))
+        if self.distance_m is None:
+            self.distance_m = -np.asarray(self.penetration_m, dtype=np.float64)
+        e, fn, kn = penalty_profile(self.penetration_m, self.stiffness_n_per_m, self.smoothing_m)
+        self.pair_energy, self.force_magnitude, self.normal_stiffness = e, fn, kn
 
     def _projector(self) -> np.ndarray:
-        """(P, 3, 3) Q = n n^T + c (I - n n^T - e e^T) of each pair (module docstring)."""
-        n, e, c = self.normal, self.edge_direction, self.tangential
+        """(P, 3, 3) k Q = k'' n n^T + c (I - n n^T - e e^T) of each pair in N/m (module docstring):
+        k'' = d2E/dg2 and c = min(k, E'(g) / |phi|) for points inside whose closest feature is an edge
+        or a vertex (the curvature of the distance to that feature), else 0."""
+        n, e = self.normal, self.edge_direction
         nn = np.einsum("pd,pe->pde", n, n)
         tang = np.eye(3) - nn - np.einsum("pd,pe->pde", e, e)
-        return nn + c[:, None, None] * tang
+        inside = self.tangential > 0
+        c = np.where(
+            inside,
+            np.minimum(self.stiffness_n_per_m, self.force_magnitude / np.maximum(np.abs(self.distance_m), 1e-300)),
+            0.0,
+        )
+        return self.normal_stiffness[:, None, None] * nn + c[:, None, None] * tang
 
     @property
     def energy(self) -> float:
         """E_c in joules."""
-        return 0.5 * self.stiffness_n_per_m * float(np.sum(self.penetration_m**2))
+        return float(np.sum(self.pair_energy))
 
     def forces(self) -> np.ndarray:
         """f = -dE_c/dx, (n, 3) newtons."""
         f = np.zeros((self.n_nodes, 3))
-        fn = (self.stiffness_n_per_m * self.penetration_m)[:, None] * self.normal
+        fn = self.force_magnitude[:, None] * self.normal
         nodes, coef = self._coefficients()
         for a in range(nodes.shape[1]):
             np.add.at(f, nodes[:, a], coef[:, a, None] * fn)
@@ -165,7 +235,7 @@ class ContactPairs:
     def force_on_face(self, source: str | None = None) -> np.ndarray:
         """Net force (3,) in newtons that the obstacles exert on the face (self-contact sums to 0)."""
         sel = slice(None) if source is None else self.source == self.names.index(source)
-        fn = (self.stiffness_n_per_m * self.penetration_m)[sel, None] * self.normal[sel]
+        fn = self.force_magnitude[sel, None] * self.normal[sel]
         return (fn * (1.0 - self.weights[sel].sum(axis=1))[:, None]).sum(axis=0)
 
     def _coefficients(self) -> tuple[np.ndarray, np.ndarray]:
@@ -181,7 +251,7 @@ class ContactPairs:
             return out
         nodes, coef = self._coefficients()
         u = np.einsum("pa,pad->pd", coef, v[nodes])
-        qu = self.stiffness_n_per_m * np.einsum("pde,pe->pd", self._projector(), u)
+        qu = np.einsum("pde,pe->pd", self._projector(), u)
         for a in range(nodes.shape[1]):
             np.add.at(out, nodes[:, a], coef[:, a, None] * qu)
         return out
@@ -192,14 +262,14 @@ class ContactPairs:
         nodes, coef = self._coefficients()
         q = np.einsum("pdd->pd", self._projector())
         for a in range(nodes.shape[1]):
-            np.add.at(out, nodes[:, a], self.stiffness_n_per_m * coef[:, a, None] ** 2 * q)
+            np.add.at(out, nodes[:, a], coef[:, a, None] ** 2 * q)
         return out
 
     def assemble(self, pattern) -> sp.csr_matrix:
         """H restricted to the unknowns of a ``BlockPattern``, CSR (3k, 3k)."""
         nodes, coef = self._coefficients()
         dof = pattern.node_to_dof[nodes]  # (P, 5), -1 for Dirichlet nodes
-        nn = self.stiffness_n_per_m * self._projector()
+        nn = self._projector()
         blocks = coef[:, :, None, None, None] * coef[:, None, :, None, None] * nn[:, None, None]  # (P,5,5,3,3)
         shape = (len(dof), nodes.shape[1], nodes.shape[1])
         ra = np.broadcast_to(dof[:, :, None], shape)
@@ -223,13 +293,13 @@ class ContactPairs:
             sel = (self.source == s) & pressing
             per[name] = {
                 "active_nodes": int(np.unique(self.node[sel]).size),
-                "max_penetration_m": float(g[sel].max()) if sel.any() else 0.0,
-                "force_n": float(self.stiffness_n_per_m * g[sel].sum()),
+                "max_penetration_m": max(float(g[sel].max()), 0.0) if sel.any() else 0.0,
+                "force_n": float(self.force_magnitude[sel].sum()),
             }
         return {
             "active_nodes": int(np.unique(self.node[pressing]).size),
-            "max_penetration_m": float(g.max()) if g.size else 0.0,
-            "force_n": float(self.stiffness_n_per_m * g.sum()),
+            "max_penetration_m": max(float(g.max()), 0.0) if g.size else 0.0,
+            "force_n": float(self.force_magnitude.sum()),
             "sources": per,
         }
 
@@ -275,11 +345,23 @@ class Contact:
         stiffness_n_per_m: penalty stiffness k (default ``default_contact_stiffness``).
         gap_m: contact offset: nodes are pushed out to phi >= gap_m (default 0: the lips of the
             built-in face touch at rest).
+        smoothing_m: width d of the C2 penalty ramp (``penalty_profile``; default 0: the C1 penalty).
+        freeze_below: relative residual below which the Newton solver freezes the self-contact
+            features (``wface.physics.frozen``) and re-detects them only once the frozen problem has
+            converged; None (default): re-detect at every evaluation. 1.0 freezes from the start.
+        freeze_margin_m: frozen pairs include those up to this far apart (default 0.1 x the median
+            rest tet edge length).
         self_max_depth_m: self-contact pairs deeper than this are ignored (a node that far "inside"
             the other lip's surface is on the far side of it, not in contact).
         bone_affines: fixed world affines {"cranium": 3x4, "jaw": 3x4} of the bones; by default the
             solver fits them to the attached-node targets of each solve.
         nodes: node ids that may touch rigid obstacles (default: the free boundary nodes).
+        ignore_inside_at_rest: leave out, for each of the model's bone and teeth meshes, the contact
+            nodes already inside it at rest (bones at rest). The Badin face's inner (gum-side)
+            surface runs through the ArtiSynth teeth meshes by up to 8.7 mm in the source data
+            (ArtiSynth uses the teeth for display; its lip-skull contact is against the jaw and
+            maxilla): those nodes are not in contact in the rest state, which must stay an
+            equilibrium. ``ignored_at_rest`` counts them per mesh. User obstacles are never filtered.
     """
 
     def __init__(
@@ -291,9 +373,13 @@ class Contact:
         self_pairs=(),
         stiffness_n_per_m: float | None = None,
         gap_m: float = 0.0,
+        smoothing_m: float = 0.0,
+        freeze_below: float | None = None,
+        freeze_margin_m: float | None = None,
         self_max_depth_m: float = 0.01,
         bone_affines: dict | None = None,
         nodes: np.ndarray | None = None,
+        ignore_inside_at_rest: bool = True,
     ):
         if isinstance(regions, str):
             regions = [r for r in (s.strip() for s in regions.split(",")) if r]
@@ -305,12 +391,17 @@ class Contact:
             raise ValueError(f"contact stiffness must be finite and > 0 N/m, got {stiffness_n_per_m}")
         if not (np.isfinite(gap_m) and gap_m >= 0):
             raise ValueError(f"gap_m must be finite and >= 0, got {gap_m}")
+        if not (np.isfinite(smoothing_m) and smoothing_m >= 0):
+            raise ValueError(f"smoothing_m must be finite and >= 0, got {smoothing_m}")
         if not (np.isfinite(self_max_depth_m) and self_max_depth_m > 0):
             raise ValueError(f"self_max_depth_m must be finite and > 0, got {self_max_depth_m}")
         self.model = model
         self.regions = tuple(regions)
         self.stiffness_n_per_m = k
         self.gap_m = float(gap_m)
+        self.smoothing_m = float(smoothing_m)
+        self.freeze_below = None if freeze_below is None else float(freeze_below)
+        self.freeze_margin_m = 0.1 * median_edge_length(model) if freeze_margin_m is None else float(freeze_margin_m)
         self.self_max_depth_m = float(self_max_depth_m)
         self.fixed_bone_affines = None
         if bone_affines is not None:
@@ -337,10 +428,23 @@ class Contact:
                 raise TypeError(f"obstacle {i} is a {type(ob).__name__}; use Sphere, HalfSpace or MeshObstacle")
             label = getattr(ob, "name", None) or type(ob).__name__.lower()
             self.rigid.append((f"{label}{i}" if label in ("sphere", "halfspace") else label, ob))
+        # Nodes that may touch each rigid source (all contact nodes; for the model's bone and teeth
+        # meshes, those already inside at rest are left out, see ``ignore_inside_at_rest``).
+        self.rigid_nodes: list[np.ndarray] = [nodes] * len(self.rigid)
+        self.ignored_at_rest: dict[str, int] = {}
+        rest_affines = bone_affines_from_attached(model, None)
         for name, mesh in model.bone_meshes.items():
             is_teeth = "teeth" in name.lower()
             if ("teeth" in self.regions and is_teeth) or ("bones" in self.regions and not is_teeth):
-                self.rigid.append((name, MeshObstacle(mesh.vertices_m, mesh.triangles, bone=mesh.bone, name=name)))
+                ob = MeshObstacle(mesh.vertices_m, mesh.triangles, bone=mesh.bone, name=name)
+                keep = nodes
+                if ignore_inside_at_rest:
+                    phi, _, valid, _, _ = ob.signed(model.rest_positions_m[nodes], rest_affines, 0.0)
+                    inside = valid & (phi < self.gap_m)
+                    keep = nodes[~inside]
+                    self.ignored_at_rest[name] = int(inside.sum())
+                self.rigid.append((name, ob))
+                self.rigid_nodes.append(keep)
         if "teeth" in self.regions and not any("teeth" in n.lower() for n in model.bone_meshes):
             raise ValueError(
                 f"contact region 'teeth': the model has no teeth mesh (bone meshes: {list(model.bone_meshes)})"
@@ -379,20 +483,26 @@ class Contact:
         if self.fixed_bone_affines is None:
             self.bone_affines = bone_affines_from_attached(self.model, attached_positions)
 
-    def evaluate(self, x: np.ndarray) -> ContactPairs:
-        """The active pairs at positions ``x`` (n, 3)."""
+    def evaluate(self, x: np.ndarray, *, margin_m: float = 0.0, self_contact: bool = True) -> ContactPairs:
+        """The active pairs at positions ``x`` (n, 3).
+
+        Args:
+            margin_m: also return pairs up to this much farther apart (no force; for freezing).
+            self_contact: include the self-contact pairs (False: rigid obstacles only).
+        """
         x = np.asarray(x, dtype=np.float64)
         if x.shape != (self.model.n_nodes, 3):
             raise ValueError(f"positions have shape {x.shape}, expected ({self.model.n_nodes}, 3)")
         if not np.all(np.isfinite(x)):
             raise ValueError("contact: positions contain NaN or inf")
         parts = []
-        p = x[self.nodes]
+        reach = self.gap_m + margin_m  # pairs with phi <= reach carry force or stiffness
         for s, (_, ob) in enumerate(self.rigid):
-            phi, n, valid, feature, e = ob.signed(p, self.bone_affines, self.gap_m)
-            act = valid & (phi <= self.gap_m)
+            ids = self.rigid_nodes[s]
+            phi, n, valid, feature, e = ob.signed(x[ids], self.bone_affines, reach)
+            act = valid & (phi <= reach)
             m = int(act.sum())
-            node = self.nodes[act]
+            node = ids[act]
             c = self._tangential(phi[act], feature[act])
             point = (np.repeat(node[:, None], 2, 1), np.tile([1.0, 0.0], (m, 1)))
             parts.append(
@@ -406,18 +516,19 @@ class Contact:
                     c,
                     e[act],
                     *point,
+                    phi[act],
                 )
             )
         for s, (_, pn, pw, tri) in enumerate(self.self_contact, start=len(self.rigid)):
-            if not len(pn):
+            if not len(pn) or not self_contact:
                 continue
             surf = SignedSurface(x, tri, orient=False)
             q = np.einsum("pk,pkd->pd", pw, x[pn])
-            near = np.flatnonzero(surf.near_box(q, self.gap_m + self.self_max_depth_m))
+            near = np.flatnonzero(surf.near_box(q, reach + self.self_max_depth_m))
             if not near.size:
                 continue
             hit = surf.signed(q[near])
-            act = ~hit.on_boundary & (hit.phi_m <= self.gap_m) & (hit.phi_m > -self.self_max_depth_m)
+            act = ~hit.on_boundary & (hit.phi_m <= reach) & (hit.phi_m > -self.self_max_depth_m)
             sel = near[act]
             phi = hit.phi_m[act]
             parts.append(
@@ -432,6 +543,7 @@ class Contact:
                     hit.edge_direction[act],
                     pn[sel],
                     pw[sel],
+                    phi,
                 )
             )
         cat = lambda i, shape: np.concatenate([q[i] for q in parts]) if parts else np.zeros(shape)  # noqa: E731
@@ -446,17 +558,33 @@ class Contact:
             edge_direction=cat(7, (0, 3)).reshape(-1, 3),
             point_nodes=cat(8, (0, 2)).astype(np.int64).reshape(-1, 2),
             point_weights=cat(9, (0, 2)).reshape(-1, 2),
+            distance_m=cat(10, (0,)),
+            smoothing_m=self.smoothing_m,
             names=self.names,
             stiffness_n_per_m=self.stiffness_n_per_m,
             n_nodes=self.model.n_nodes,
         )
 
+    def self_distance_m(self, x: np.ndarray) -> float:
+        """Smallest signed distance (m) between the self-contact surfaces at ``x``: the gap between the
+        lips where positive, minus the deepest overlap where negative (points whose closest feature
+        is on the other surface's open boundary, or deeper than ``self_max_depth_m``, are skipped).
+        NaN without self-contact."""
+        x = np.asarray(x, dtype=np.float64)
+        best = np.inf
+        for _, pn, pw, tri in self.self_contact:
+            if not len(pn):
+                continue
+            hit = SignedSurface(x, tri, orient=False).signed(np.einsum("pk,pkd->pd", pw, x[pn]))
+            ok = ~hit.on_boundary & (hit.phi_m > -self.self_max_depth_m)
+            if ok.any():
+                best = min(best, float(hit.phi_m[ok].min()))
+        return best if np.isfinite(best) else float("nan")
+
     def _tangential(self, phi: np.ndarray, feature: np.ndarray) -> np.ndarray:
-        """Curvature weight of the Hessian's tangential part (``ContactPairs``): min(1, g / |phi|)
-        for points inside the surface whose closest point is on an edge or vertex, else 0."""
-        g = self.gap_m - phi
-        inside = (feature > 0) & (phi < 0)
-        return np.where(inside, np.minimum(1.0, g / np.where(inside, -phi, 1.0)), 0.0)
+        """1 for points inside the surface whose closest point is on an edge or vertex (the Hessian
+        gets the curvature of the distance to that feature, ``ContactPairs._projector``), else 0."""
+        return ((feature > 0) & (phi < 0)).astype(np.float64)
 
     def energy(self, x: np.ndarray) -> float:
         """E_c(x) in joules."""

@@ -124,6 +124,9 @@ class MeshObstacle:
         if near.any():
             hit = surf.signed(p[near])
             phi[near], n[near], feature[near], e[near] = hit.phi_m, hit.normal, hit.feature, hit.edge_direction
+            # on an open mesh (the Badin teeth have small holes, its cranium is a partial skull) the sign
+            # at a boundary edge or vertex is meaningless: such points are not in contact
+            near[np.flatnonzero(near)[hit.on_boundary]] = False
         return phi, n, near, feature, e
 
 

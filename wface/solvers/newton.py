@@ -62,12 +62,15 @@ class Equilibrium:
             preconditioned by the previous factor).
         solver: linear engine used ("direct" or "cg").
         history: residual_rel after each iteration (first entry: the start).
+        step_lengths: line-search step t of each Newton iteration after the lift (1 = full step).
         seconds: wall-clock time of the solve.
         contact_active_nodes: with ``contact``: nodes in contact at x (0 without contact).
         contact_max_penetration_m: deepest penetration g = gap - phi at x, metres.
         contact_force_n: sum of the contact normal force magnitudes k g at x, newtons.
         contact_energy: penalty energy at x, joules (included in ``energy``).
         contact_stats: the same per contact source (``wface.physics.contact.ContactPairs.stats``).
+        contact_refreezes: times the frozen self-contact features were re-detected and frozen anew
+            (``Contact(freeze_below=...)``, ``wface.physics.frozen``).
     """
 
     x: np.ndarray
@@ -84,12 +87,14 @@ class Equilibrium:
     exact_failures: int = 0
     solver: str = "direct"
     history: list = field(default_factory=list)
+    step_lengths: list = field(default_factory=list)
     seconds: float = 0.0
     contact_active_nodes: int = 0
     contact_max_penetration_m: float = 0.0
     contact_force_n: float = 0.0
     contact_energy: float = 0.0
     contact_stats: dict = field(default_factory=dict)
+    contact_refreezes: int = 0
 
 
 def _free_matvec(tangent, pattern):
@@ -171,6 +176,7 @@ def newton_quasistatic(
     max_iterations: int = 40,
     solver: str = "auto",
     max_line_search: int = 30,
+    refreeze_every: int = 8,
     stiffness: str = "auto",
     reuse_factor: bool = False,
     exact_below: float = 0.1,
@@ -197,12 +203,14 @@ def newton_quasistatic(
     a = activations
     if contact is not None:
         contact.set_pose(targets)
-    state = {"pairs": None, "x": None}  # the contact pairs at the latest energy_forces point
+    # the contact pairs at the latest energy_forces point; "live": the contact in use (the contact, or
+    # its self-contact frozen, wface.physics.frozen)
+    state = {"pairs": None, "x": None, "live": contact}
 
     def energy_only(y):
         if contact is None:
             return sim.energy(y, a)
-        return sim.energy(y, a) + contact.energy(y)
+        return sim.energy(y, a) + state["live"].energy(y)
 
     def energy_forces(y):
         """(E, f, sum |E_element|) at y, the contact terms included."""
@@ -210,7 +218,7 @@ def newton_quasistatic(
         e_abs = float(np.abs(sim.last_element_energies()).sum())
         if contact is None:
             return e, fy, e_abs
-        pairs = contact.evaluate(y)
+        pairs = state["live"].evaluate(y)
         state["pairs"], state["x"] = pairs, y.copy()
         return e + pairs.energy, fy + pairs.forces(), e_abs + pairs.energy
 
@@ -221,7 +229,7 @@ def newton_quasistatic(
         from wface.physics.contact import ContactTangent
 
         same = state["pairs"] is not None and np.array_equal(state["x"], y)
-        return ContactTangent(tan, state["pairs"] if same else contact.evaluate(y))
+        return ContactTangent(tan, state["pairs"] if same else state["live"].evaluate(y))
 
     x_load = rest.copy()
     x_load[fixed] = targets
@@ -234,6 +242,7 @@ def newton_quasistatic(
     cg_total = 0
     linear_state: dict = {"precondition": bool(reuse_factor)}
     history: list[float] = []
+    steps: list[float] = []
 
     dxc = targets - x[fixed]
     if fixed.size and np.any(dxc != 0.0):
@@ -259,7 +268,36 @@ def newton_quasistatic(
     skip_exact = False  # after a failed exact attempt, the next step goes straight to the projected K
     exact_failures = 0
     projected_steps = 0
-    while residual / scale > tol and iterations < max_iterations:
+    freeze_below = getattr(contact, "freeze_below", None) if contact is not None else None
+    if freeze_below is not None and not contact.self_contact:
+        freeze_below = None
+    frozen_at = None  # iteration at which the current frozen features were taken
+    refreezes = 0
+
+    def freeze():
+        from wface.physics.frozen import FrozenContact
+
+        state["live"] = FrozenContact(contact, x, margin_m=contact.freeze_margin_m)
+        return energy_forces(x)
+
+    while iterations < max_iterations:
+        stale = frozen_at is not None and getattr(state["live"], "last_stale", 0) > 0
+        if frozen_at is not None and (residual / scale <= tol or stale or iterations - frozen_at >= refreeze_every):
+            # the frozen problem converged (or is taking long): re-detect the pairs at x
+            state["live"] = contact
+            energy, f, energy_abs = energy_forces(x)
+            residual = float(np.linalg.norm(f[free]))
+            history[-1] = residual / scale
+            if residual / scale <= tol:
+                frozen_at = None
+                break
+            energy, f, energy_abs = freeze()
+            frozen_at, refreezes = iterations, refreezes + 1
+        if residual / scale <= tol:
+            break
+        if freeze_below is not None and frozen_at is None and residual / scale < freeze_below:
+            energy, f, energy_abs = freeze()
+            frozen_at = iterations
         rhs = pattern.gather(f)
         eta = float(np.clip(0.1 * residual / scale, 1e-12, 1e-2))
         dx = None
@@ -297,11 +335,17 @@ def newton_quasistatic(
                 break
             t *= 0.5
         x = trial
+        steps.append(t)
         iterations += 1
         energy, f, energy_abs = energy_forces(x)
         residual = float(np.linalg.norm(f[free]))
         history.append(residual / scale)
 
+    if frozen_at is not None:  # report the true contact state
+        state["live"] = contact
+        energy, f, energy_abs = energy_forces(x)
+        residual = float(np.linalg.norm(f[free]))
+        history[-1] = residual / scale
     factorizations = linear_state.get("factorizations", 0)
     if linear_state.get("factor") is not None:
         linear_state["factor"].free()
@@ -309,6 +353,7 @@ def newton_quasistatic(
     if contact is not None:
         stats = state["pairs"].stats()
         extra = {
+            "contact_refreezes": refreezes,
             "contact_active_nodes": stats["active_nodes"],
             "contact_max_penetration_m": stats["max_penetration_m"],
             "contact_force_n": stats["force_n"],
@@ -330,5 +375,6 @@ def newton_quasistatic(
         exact_failures=exact_failures,
         solver=engine,
         history=history,
+        step_lengths=steps,
         **extra,
     )
