@@ -19,11 +19,12 @@ each smooth (C-infinity away from phi = 0 for edges and vertices). The gradient 
 ``ContactPairs`` (envelope theorem): dphi/dx_j = -w_j n with w the (possibly out-of-triangle)
 barycentric weights of the projection. Pairs up to ``margin_m`` apart are frozen too (they carry no
 force until they touch), so points about to touch are caught; a frozen face pair whose projection
-has left its triangle by more than ``STALE_WEIGHT`` (barycentric) while carrying force measures
-to a "ghost" plane and triggers re-detection. Rigid obstacles are evaluated as usual. The Newton
-solver (``wface.solvers.newton``) freezes once the residual is small, converges the frozen problem, re-detects the pairs and repeats until the true (re-detected) residual
-meets the tolerance (Wriggers 2006, ch. 8: active-set strategies; the frozen feature is the
-"fixed contact element" linearisation).
+has left its triangle by more than ``STALE_WEIGHT`` (barycentric) while carrying force measures to a
+"ghost" plane and triggers re-detection. Rigid obstacles are evaluated as usual. The Newton solver
+(``wface.solvers.newton``) freezes once the residual is small, converges the frozen problem,
+re-detects the pairs and repeats until the true (re-detected) residual meets the tolerance (Wriggers
+2006, ch. 8: active-set strategies; the frozen feature is the "fixed contact element"
+linearisation).
 
 ``exact_self_hessian``: the full second derivatives of the self-contact energy with each pair's
 feature fixed (normal and projection derivatives with respect to the triangle vertices included),
