@@ -43,6 +43,8 @@ __all__ = [
     "resimulate",
     "step_overshoot_mm",
     "take_attached_positions",
+    "take_from_drives",
+    "take_from_poses",
     "write_resim_npz",
     "write_resim_usd",
 ]
@@ -67,6 +69,12 @@ class Take:
         source: where the take came from.
         activation_ramp: how activations go from one frame to the next: "linear" (default) or
             "step" (the next frame's values from the first substep on: a sudden onset).
+        force_length_scale: (M,) per-muscle scale of the active force-length curve for the whole
+            take (``Simulator.force_length_scale``), or None (all 1). An exaggerated edit drives
+            muscles past full activation (drive e = s a > 1, ``wface.editing``); a take keeps
+            activations in [0, 1] and one scale per muscle, S = max(1, max_t e), with a = e / S,
+            so activations still interpolate linearly in drive between frames
+            (``take_from_poses``, ``load_take``).
     """
 
     activations: np.ndarray
@@ -77,6 +85,7 @@ class Take:
     reference_positions_m: np.ndarray | None = None
     source: str = ""
     activation_ramp: str = "linear"
+    force_length_scale: np.ndarray | None = None
 
     def __post_init__(self):
         if self.activation_ramp not in ("linear", "step"):
@@ -107,6 +116,13 @@ class Take:
                 raise ValueError(
                     f"reference_positions_m must have shape ({T}, n, 3), got {self.reference_positions_m.shape}"
                 )
+        if self.force_length_scale is not None:
+            s = np.asarray(self.force_length_scale, dtype=np.float64)
+            if s.shape != (self.activations.shape[1],) or not np.all(np.isfinite(s)) or np.any(s < 0):
+                raise ValueError(
+                    f"force_length_scale must be ({self.activations.shape[1]},) finite and >= 0, got shape {s.shape}"
+                )
+            self.force_length_scale = None if np.all(s == 1.0) else s
         for name in ("activations", "bones", "attached_positions_m"):
             value = getattr(self, name)
             if value is not None and not np.all(np.isfinite(value)):
@@ -205,6 +221,36 @@ def take_attached_positions(model, take: Take, *, frame: str = "world") -> np.nd
     return np.stack([attached_positions(model, b, frame=frame) for b in take.bones])
 
 
+def _split_take_drives(drives: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """(T, M) drives e = s a >= 0 -> (activations e / S in [0, 1], per-muscle S = max(1, max_t e) or None)."""
+    e = np.asarray(drives, dtype=np.float64)
+    S = np.maximum(1.0, e.max(axis=0, initial=0.0))
+    return np.clip(e / S, 0.0, 1.0), (None if np.all(S == 1.0) else S)
+
+
+def take_from_drives(drives: np.ndarray, fps: float, **kwargs) -> Take:
+    """A ``Take`` from (T, M) muscle drives e = s a (activations times force-length scales, may
+    exceed 1): activations e / S and one force-length scale S = max(1, max_t e) per muscle.
+    Keyword arguments go to ``Take`` (bones, frames, source, ...)."""
+    acts, scale = _split_take_drives(drives)
+    return Take(activations=acts, fps=fps, force_length_scale=scale, **kwargs)
+
+
+def take_from_poses(model, take, *, reference_positions_m: np.ndarray | None = None) -> Take:
+    """The dynamic-simulation ``Take`` of an edited take (``wface.editing.Take``: a list of poses).
+
+    Activations and per-frame force-length scales become drives (``take_from_drives``), so an
+    exaggerated edit keeps its exaggeration; bones are the poses' 24 parameters (jaw clamped into
+    the joint, as ``wface.editing.simulate_poses`` simulates them).
+    """
+    if list(take.muscle_names) != list(model.muscle_names):
+        raise ValueError("the take's muscles are not the model's")
+    bones = np.stack([p.bones(model.jaw_joint) for p in take.poses])
+    return take_from_drives(
+        take.drives, take.fps, bones=bones, reference_positions_m=reference_positions_m, source=take.source
+    )
+
+
 def _polar(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """M = R P with R a rotation and P symmetric (None for R when det M <= 0)."""
     U, S, Vt = np.linalg.svd(M)
@@ -274,9 +320,12 @@ def load_take(
 
         numbers = [int(p.stem.split("_")[1]) for p in frame_files]
         records = load_frame_records(path, numbers)
+    scale = None
     if controls.exists():
         with np.load(controls) as d:
             acts, bones, numbers = d["activations"], d["bones"], d["frames"]
+            if "force_length_scale" in d.files:  # written by `wface edit` (exaggeration past full activation)
+                scale = np.asarray(d["force_length_scale"], dtype=np.float64)
             if "muscle_names" in d.files and list(d["muscle_names"]) != list(model.muscle_names):
                 raise ValueError(f"{controls}: muscle names differ from the model's (was it tracked on another face?)")
     elif records:
@@ -300,8 +349,11 @@ def load_take(
     if fps is None:
         fps = _usd_fps(path / "animation.usdc") or 30.0
     sl = frames or slice(None)
+    acts = np.clip(acts[sl], 0.0, 1.0)  # tracked activations may overshoot [0, 1] by round-off
+    acts, flscale = (acts, None) if scale is None else _split_take_drives(acts * scale[sl])
     return Take(
-        activations=np.clip(acts[sl], 0.0, 1.0),  # tracked activations may overshoot [0, 1] by round-off
+        activations=acts,
+        force_length_scale=flscale,
         fps=fps,
         bones=bones[sl],
         frames=np.asarray(numbers)[sl],
@@ -454,6 +506,9 @@ def resimulate(
     if frame == "cranium" and take.bones is None:
         frame = "world"  # no cranium motion to undo
     sim = sim or Simulator(model, solver=solver or "auto")
+    saved_scale = sim.force_length_scale
+    if take.force_length_scale is not None:
+        sim.force_length_scale = take.force_length_scale
     dyn = DynamicSimulator(
         sim,
         scheme=scheme,
@@ -508,6 +563,7 @@ def resimulate(
     finally:
         bar.close()
         dyn.free()
+        sim.force_length_scale = saved_scale
     if frame == "cranium":
         positions = cranium_to_world(take, positions)
     return ResimResult(

@@ -267,6 +267,8 @@ def _run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     sim = Simulator(model, device=args.device, solver=args.solver)
+    if take.force_length_scale is not None:  # an exaggerated `wface edit` take: the reference sees it too
+        sim.force_length_scale = take.force_length_scale
     contact = None
     if args.contact or args.obstacle:
         from wface.physics.contact import Contact
