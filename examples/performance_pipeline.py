@@ -125,7 +125,7 @@ def track(args, model, out: Path):
         out_dir=out / "tracked",
         progress=True,
     )
-    write_controls(out / "tracked", model, records)
+    write_controls(out / "tracked", model, records, fps=fps)
     err_mm = np.array([r.marker_error_m for r in records]) * 1e3
     info["marker_rms_mm"] = float(np.sqrt(np.nanmean(err_mm**2)))
     info["marker_rms_mm_per_frame"] = np.sqrt(np.nanmean(err_mm**2, axis=1)).tolist()

@@ -303,8 +303,8 @@ def load_take(
     Args:
         path: the tracking output directory.
         model: the face the take was tracked on (muscle count and node count are checked).
-        fps: frame rate; default: ``timeCodesPerSecond`` of ``path/animation.usdc`` when readable,
-            else 30.
+        fps: frame rate; default: the ``fps`` stored in controls.npz, else ``timeCodesPerSecond``
+            of ``path/animation.usdc`` when readable, else 30.
         frames: optional slice of the take's frames (e.g. ``slice(0, 60)``).
         reference: also read the tracked positions (T x n x 3 floats; False skips them when
             controls.npz is there).
@@ -320,10 +320,12 @@ def load_take(
 
         numbers = [int(p.stem.split("_")[1]) for p in frame_files]
         records = load_frame_records(path, numbers)
-    scale = None
+    scale, stored_fps = None, None
     if controls.exists():
         with np.load(controls) as d:
             acts, bones, numbers = d["activations"], d["bones"], d["frames"]
+            if "fps" in d.files:  # written by `wface track` / `wface edit`
+                stored_fps = float(d["fps"])
             if "force_length_scale" in d.files:  # written by `wface edit` (exaggeration past full activation)
                 scale = np.asarray(d["force_length_scale"], dtype=np.float64)
             if "muscle_names" in d.files and list(d["muscle_names"]) != list(model.muscle_names):
@@ -347,7 +349,7 @@ def load_take(
                 f"{path}: tracked frames have {tracked.shape[1]} nodes, the model {model.n_nodes}: wrong model?"
             )
     if fps is None:
-        fps = _usd_fps(path / "animation.usdc") or 30.0
+        fps = stored_fps or _usd_fps(path / "animation.usdc") or 30.0
     sl = frames or slice(None)
     acts = np.clip(acts[sl], 0.0, 1.0)  # tracked activations may overshoot [0, 1] by round-off
     acts, flscale = (acts, None) if scale is None else _split_take_drives(acts * scale[sl])

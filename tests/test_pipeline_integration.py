@@ -1,0 +1,75 @@
+"""Regressions found by chaining track -> edit -> resim -> USD (examples/performance_pipeline.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+_SOLVE_TOL_M = 1e-5  # two Newton solves at relative residual 1e-6 agree to ~1e-6 m on the 2K face
+
+
+@pytest.fixture(scope="module")
+def model():
+    from wface.builtin import build_face
+
+    return build_face(2000)
+
+
+@pytest.fixture(scope="module")
+def exaggerated(model):
+    """A two-frame edited take: rest, then a smile exaggerated x2 (zygomatici past full activation)."""
+    from wface.editing import Take, exaggerate, expression_pose, rest_pose
+
+    big = exaggerate(expression_pose(model, "smile"), 2.0, joint=model.jaw_joint)
+    assert big.force_length_scale is not None and big.drive.max() > 1.0
+    return Take([rest_pose(model.n_muscles), big], 30.0, list(model.muscle_names), "smile x2")
+
+
+def test_edited_take_keeps_its_exaggeration_in_dynamics(model, exaggerated):
+    """Bug: wface.resim.Take had no force-length scale, so an exaggerated edit (drives > 1) was
+    re-simulated with its activations clipped at 1: the dynamic pass lost the exaggeration."""
+    from wface.editing import simulate_poses
+    from wface.physics import Damping
+    from wface.resim import Take, resimulate, take_from_poses
+
+    take = take_from_poses(model, exaggerated)
+    assert take.activations.max() <= 1.0 and take.force_length_scale.max() > 1.0
+    np.testing.assert_allclose(take.activations * take.force_length_scale, exaggerated.drives, atol=1e-12)
+    quasistatic = simulate_poses(model, exaggerated).x_m[1]
+    # start from the exaggerated frame, heavily damped: stays at its quasistatic equilibrium
+    held = Take(take.activations[[1, 1]], 30.0, bones=take.bones[[1, 1]], force_length_scale=take.force_length_scale)
+    dyn = resimulate(model, held, substeps=1, damping=Damping(0.0, 1e-2))
+    np.testing.assert_allclose(dyn.positions_m[0], quasistatic, atol=_SOLVE_TOL_M)
+    np.testing.assert_allclose(dyn.positions_m[1], quasistatic, atol=_SOLVE_TOL_M)
+    clipped = Take(np.tile(exaggerated.activations[1], (2, 1)), 30.0, bones=take.bones[[1, 1]])  # no scale
+    clipped = resimulate(model, clipped, substeps=1)
+    assert np.linalg.norm(clipped.positions_m[0] - quasistatic, axis=1).max() > 1e-3  # what the bug gave
+
+
+def test_resim_load_take_reads_an_edits_force_length_scale(model, exaggerated, tmp_path):
+    """`wface edit exaggerate` writes force_length_scale into controls.npz; `wface resim --take`
+    must replay the drives, not the clipped activations."""
+    from wface.editing import save_controls
+    from wface.resim import load_take
+
+    save_controls(tmp_path, model, exaggerated)
+    take = load_take(tmp_path, model)
+    np.testing.assert_allclose(take.activations * take.force_length_scale, exaggerated.drives, atol=1e-12)
+    assert take.activations.max() <= 1.0
+
+
+def test_tracked_take_keeps_its_frame_rate_without_usd(model, tmp_path):
+    """Bug: controls.npz of `wface track` had no fps, so with --no-pictures (no animation.usdc) a
+    60 fps capture was edited and re-simulated at 30 fps (half speed, wrong inertia)."""
+    from wface.editing import load_take as load_edit_take
+    from wface.resim import load_take as load_resim_take
+    from wface.rig import FaceRig
+    from wface.tracking.report import write_controls
+    from wface.tracking.sequence import FrameRecord
+
+    c = FaceRig(model).rest_controls()
+    n = model.n_nodes
+    recs = [FrameRecord(f, c, np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((0, 3)), np.zeros(0), {}) for f in (0, 1)]
+    write_controls(tmp_path, model, recs, fps=60.0)
+    assert load_resim_take(tmp_path, model, reference=False).fps == 60.0
+    assert load_edit_take(tmp_path, model).fps == 60.0
