@@ -8,7 +8,8 @@ Four stages on the built-in face (``wface.builtin.build_face``), each one a publ
 pipeline would make:
 
 1. **Track** (``wface.tracking``). The capture is ``JawMoCap.c3d`` of the AnimFace set when it is
-   found (``--mocap``, default ``../shared/data/animface/JawMoCap.c3d``), else a synthetic take
+   found (``--mocap``, default ``$WFACE_DATA/animface/JawMoCap.c3d``, ``WFACE_DATA`` defaulting
+   to ``../shared/data``), else a synthetic take
    whose activations are known (``wface.tracking.synthetic.synthesize_performance``, corrupted
    with 0.3 mm of noise). ``prepare_capture`` aligns the capture to the skin and embeds its
    markers using the *neutral frame* (``--neutral-frame``, default file frame 0, which may lie
@@ -43,12 +44,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
 import numpy as np
 
-DEFAULT_MOCAP = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "animface" / "JawMoCap.c3d"
+DATA_DIR = Path(os.environ.get("WFACE_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
+DEFAULT_MOCAP = DATA_DIR / "animface" / "JawMoCap.c3d"
 MOUTH_CORNER = "Mouth_Lend"  # the AnimFace name of the left mouth corner (the built-in face has it)
 
 
@@ -139,6 +142,7 @@ def track(args, model, out: Path):
 # ---------------------------------------------------------------------- stage 2: editing
 def edit(args, model, records, fps):
     from wface.editing import Take, exaggerate, expression_pose, layer, pose_from_controls, simulate_poses
+    from wface.physics import Simulator
 
     joint = model.jaw_joint
     tracked = Take([pose_from_controls(model, r.controls) for r in records], fps, list(model.muscle_names), "tracked")
@@ -148,7 +152,9 @@ def edit(args, model, records, fps):
     envelope = args.smile * np.sin(np.pi * s) ** 2 * ((s > 0) & (s < 1))
     edited = layer(big, expression_pose(model, "smile"), envelope, joint=joint)
     edited = Take(edited.poses, fps, list(model.muscle_names), f"tracked x{args.exaggerate:g} + smile")
-    return simulate_poses(model, edited, progress=True), envelope
+    sim = Simulator(model)
+    # the exaggeration alone too, to see what each edit does to the mouth corner
+    return simulate_poses(model, edited, simulator=sim, progress=True), simulate_poses(model, big, simulator=sim), envelope
 
 
 # ---------------------------------------------------------------------- stage 3: dynamics
@@ -207,7 +213,7 @@ def _corner_mm(model, positions_m, cranium_affines):
     return np.array([np.linalg.norm(markers.positions(x)[i] - rest) for x in local]) * 1e3
 
 
-def _plot(path: Path, fps: float, curves: dict) -> str | None:
+def _plot(path: Path, fps: float, curves: dict, exaggerated_mm: np.ndarray, factor: float) -> str | None:
     try:
         import matplotlib
 
@@ -220,7 +226,9 @@ def _plot(path: Path, fps: float, curves: dict) -> str | None:
     t = np.arange(len(next(iter(curves.values())))) / fps
     for ax, (name, y) in zip(axes, curves.items(), strict=True):
         ax.plot(t, curves["tracked"], color="0.6", lw=1, label="tracked" if name != "tracked" else None)
-        ax.plot(t, y, lw=2, label=name)
+        if name == "edited":
+            ax.plot(t, exaggerated_mm, color="C1", ls="--", lw=1, label=f"x{factor:g} only")
+        ax.plot(t, y, color="C0", lw=2, label=name)
         ax.set_title(name)
         ax.set_xlabel("time (s)")
         ax.legend(loc="upper left", fontsize=8)
@@ -252,7 +260,7 @@ def main(argv=None) -> int:
     seconds["track"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    edit_result, envelope = edit(args, model, records, fps)
+    edit_result, exaggerated, envelope = edit(args, model, records, fps)
     seconds["edit"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -291,9 +299,15 @@ def main(argv=None) -> int:
         "edited": _corner_mm(model, edit_result.x_m, edited_cranium),
         "dynamic": _corner_mm(model, dyn.positions_m, edited_cranium),
     }
-    table = np.column_stack([np.arange(len(records)) / fps, *curves.values(), envelope])
-    np.savetxt(out / "mouth_corner.csv", table, delimiter=",", header="t_s,tracked_mm,edited_mm,dynamic_mm,smile_w")
-    plot = _plot(out / "mouth_corner.png", fps, curves)
+    exaggerated_mm = _corner_mm(model, exaggerated.x_m, edited_cranium)
+    table = np.column_stack([np.arange(len(records)) / fps, *curves.values(), exaggerated_mm, envelope])
+    np.savetxt(
+        out / "mouth_corner.csv",
+        table,
+        delimiter=",",
+        header="t_s,tracked_mm,edited_mm,dynamic_mm,exaggerated_only_mm,smile_weight",
+    )
+    plot = _plot(out / "mouth_corner.png", fps, curves, exaggerated_mm, args.exaggerate)
     skin, _ = skin_mesh(model)
     dev = deviation_mm(dyn.positions_m, reference, skin)
     over = curves["dynamic"] - curves["edited"]
@@ -312,7 +326,10 @@ def main(argv=None) -> int:
             "edited_drive_max": float(take.drives.max()),
             "scaled_muscles": edit_report["scaled_muscles"],
         },
-        "mouth_corner_peak_mm": {k: float(v.max()) for k, v in curves.items()},
+        "mouth_corner_peak_mm": {
+            **{k: float(v.max()) for k, v in curves.items()},
+            "exaggerated_only": float(exaggerated_mm.max()),
+        },
         "dynamic": {
             "scheme": dyn.scheme,
             "substeps": dyn.substeps,
