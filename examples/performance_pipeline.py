@@ -29,13 +29,17 @@ pipeline would make:
    exaggeration (per-muscle force-length scales). Lip contact (``wface.physics.contact``, lips
    against lips) is tried unless ``--no-contact``; when a contact step fails to converge the
    dynamic pass is redone without contact and the output says so (``contact`` in summary.json).
-4. **Export**: one USD stage per stage, each with one time sample per frame (``tracked.usdc``:
-   skin, captured and simulated markers, bones, activations; ``edited.usdc``: skin, bones,
-   activations; ``dynamic.usdc``: the skin), each checked with ``wface.io.usd.assert_stage_valid``;
+4. **Export**: one directory per stage, as the commands write them (``tracked/``: controls.npz,
+   frames/; ``edited/``: controls.npz with the force-length scales, report.json; ``dynamic/``:
+   resim.npz with the quasistatic reference), each with one USD stage ``animation.usdc`` holding a
+   time sample per frame (tracked: skin, captured and simulated markers, bones, activations;
+   edited: skin, bones, activations; dynamic: the skin), checked with
+   ``wface.io.usd.assert_stage_valid``. So ``wface edit exaggerate --take OUT/tracked`` or
+   ``wface resim --take OUT/edited`` pick up where the script stops. Next to them:
    ``mouth_corner.png`` (the left mouth corner's displacement from rest in the cranium frame,
-   three stages side by side; ``mouth_corner.csv`` holds the numbers) and ``summary.json``: marker
-   RMS of the tracking (mm), activation ranges, overshoot and deviation of the dynamic pass from
-   the quasistatic edited frames (mm), seconds per stage.
+   three stages side by side; numbers in ``mouth_corner.csv``) and ``summary.json``: marker RMS of
+   the tracking (mm), activation ranges, overshoot and deviation of the dynamic pass from the
+   quasistatic edited frames (mm), whether contact was used, seconds per stage.
 
 Everything runs headless on the CPU; a test runs it with tiny options (``tests/test_pipeline_example.py``).
 """
@@ -115,7 +119,7 @@ def _capture(args, model):
 
 
 def track(args, model, out: Path):
-    from wface.tracking.report import write_controls
+    from wface.tracking.report import write_controls, write_report
     from wface.tracking.sequence import track_sequence
 
     targets, names, markers, fps, info, truth = _capture(args, model)
@@ -136,6 +140,9 @@ def track(args, model, out: Path):
         M = model.n_muscles
         dA = np.array([r.controls[:M] for r in records]) - truth.activations
         info["activation_rms_error"] = float(np.sqrt(np.mean(dA**2)))
+    # the keys `wface edit` / `wface resim` check when they read the directory back
+    meta = {"frames": len(records), "tets": model.n_tets, "nodes": model.n_nodes, "fps": fps, **info}
+    write_report(out / "tracked", meta)
     return records, targets, names, fps, info
 
 
@@ -244,7 +251,7 @@ def main(argv=None) -> int:
     from wface.controls import bone_affines
     from wface.editing import write_edit
     from wface.io.usd import assert_stage_valid, write_take
-    from wface.resim import deviation_mm, skin_mesh, write_resim_usd
+    from wface.resim import deviation_mm, skin_mesh, write_resim_npz, write_resim_usd
 
     args = _parse(argv)
     out = Path(args.out)
@@ -272,9 +279,11 @@ def main(argv=None) -> int:
     C = np.array([r.controls for r in records])
     tracked_x = np.array([r.x_m for r in records])
     cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(c[M:]) for c in C), strict=True))
+    # one directory per stage, laid out as `wface track` / `wface edit` / `wface resim` write them,
+    # so each can be fed to the next command (`wface edit ... --take OUT/tracked`, `wface resim --take OUT/edited`)
     stages = {
         "tracked": write_take(
-            out / "tracked.usdc",
+            out / "tracked" / "animation.usdc",
             model=model,
             node_positions_m=tracked_x,
             fps=fps,
@@ -285,11 +294,11 @@ def main(argv=None) -> int:
             jaw_affines=jaw,
             activations=C[:, :M],
         ),
-        "edited": out / "edited.usdc",
-        "dynamic": write_resim_usd(out / "dynamic.usdc", model, dyn.positions_m, fps),
+        "edited": out / "edited" / "animation.usdc",
+        "dynamic": write_resim_usd(out / "dynamic" / "animation.usdc", model, dyn.positions_m, fps),
     }
     edit_report = write_edit(out / "edited", model, edit_result, info={"edit": "exaggerate + layer smile"})
-    (out / "edited" / edit_report["usd"]).replace(stages["edited"])
+    write_resim_npz(out / "dynamic" / "resim.npz", dyn, reference_positions_m=reference)
     for path in stages.values():
         assert_stage_valid(path)
 
@@ -341,7 +350,7 @@ def main(argv=None) -> int:
             "mouth_corner_overshoot_mm_per_frame": over.tolist(),
             "contact": contact_note,
         },
-        "usd": {k: Path(v).name for k, v in stages.items()},
+        "usd": {k: str(Path(v).relative_to(out)) for k, v in stages.items()},
         "plot": plot,
         "seconds": seconds,
     }

@@ -33,7 +33,7 @@ def _check_outputs(out: Path, frames: int, *, near_mm: float | None = None) -> d
 
     summary = json.loads((out / "summary.json").read_text())
     assert summary["frames"] == frames
-    for stage_name in ("tracked", "edited", "dynamic"):
+    for stage_name in ("tracked", "edited", "dynamic"):  # one directory per stage, as the commands write them
         path = out / summary["usd"][stage_name]
         assert_stage_valid(path)
         stage = Usd.Stage.Open(str(path))
