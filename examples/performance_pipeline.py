@@ -170,19 +170,22 @@ def dynamics(args, model, edit_result):
     from wface.physics import Simulator
     from wface.resim import quasistatic_frames, resimulate, take_attached_positions, take_from_poses
 
+    from wface.physics.contact import Contact
+
     take = take_from_poses(model, edit_result.take)
     sim = Simulator(model)
-    note = {"requested": not args.no_contact}
+    lips = Contact.from_spec(model, "lips")  # also measures how far the lips overlap without contact
+    note = {"requested": not args.no_contact, "lip_overlap_mm_without_contact": _lip_overlap_mm(lips, edit_result.y_m)}
     if not args.no_contact:
-        from wface.physics.contact import Contact
-
-        contact = Contact.from_spec(model, "lips")
+        contact = lips
         try:
             result = resimulate(model, take, substeps=args.substeps, sim=sim, contact=contact, progress=True)
         except (FloatingPointError, np.linalg.LinAlgError, RuntimeError) as exc:
             result, note["error"] = None, f"{type(exc).__name__}: {exc}"
         if result is not None and result.converged.all():
             note["used"] = True
+            note["lip_overlap_mm_dynamic"] = _lip_overlap_mm(lips, result.positions_m)
+            note["inverted_elements_max"] = int(result.inverted_elements.max())
             sim.force_length_scale = 1.0 if take.force_length_scale is None else take.force_length_scale
             reference = quasistatic_frames(
                 sim, take.activations, take_attached_positions(model, take, frame="cranium"), contact=contact
@@ -198,6 +201,11 @@ def dynamics(args, model, edit_result):
         print(f"lip contact in dynamics did not converge on this face ({note['error']}); redoing without contact")
     result = resimulate(model, take, substeps=args.substeps, sim=sim, progress=True)
     return result, edit_result.x_m, note
+
+
+def _lip_overlap_mm(lips, positions_m) -> float:
+    """Deepest lip-through-lip penetration over the frames, mm (0: the lips never overlap)."""
+    return max(lips.penetration(x)["max_penetration_m"] for x in positions_m) * 1e3
 
 
 # ---------------------------------------------------------------------- stage 4: output
@@ -360,7 +368,8 @@ def main(argv=None) -> int:
         f"mouth corner peak {summary['mouth_corner_peak_mm']['tracked']:.2f} -> "
         f"{summary['mouth_corner_peak_mm']['edited']:.2f} mm edited, dynamic overshoot {over.max():+.2f} mm, "
         f"max deviation from quasistatic {dev.max():.2f} mm; "
-        f"contact: {'on' if contact_note.get('used') else 'off'}"
+        f"lip contact: {'on' if contact_note.get('used') else 'off'} (lips overlap "
+        f"{contact_note['lip_overlap_mm_without_contact']:.2f} mm without it)"
     )
     print("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in seconds.items()))
     print(f"wrote {out}")
