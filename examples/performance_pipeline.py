@@ -111,9 +111,7 @@ def _capture(args, model):
         rig, embed_model_markers(model), frames=args.frames, rate_hz=30.0, seed=args.seed, noise_mm=0.3
     )
     # the rest face is this actor's neutral frame: it anchors the embedding exactly as for a capture
-    cap = prepare_capture(
-        model, truth.markers_m, truth.marker_names, reference_positions_m=model.marker_positions_m
-    )
+    cap = prepare_capture(model, truth.markers_m, truth.marker_names, reference_positions_m=model.marker_positions_m)
     info = {"source": "synthetic", "seed": args.seed, "noise_mm": 0.3, "alignment_rms_mm": cap.alignment_rms_mm}
     return cap.targets_m, truth.marker_names, cap.markers, 30.0, info, truth
 
@@ -161,16 +159,19 @@ def edit(args, model, records, fps):
     edited = Take(edited.poses, fps, list(model.muscle_names), f"tracked x{args.exaggerate:g} + smile")
     sim = Simulator(model)
     # the exaggeration alone too, to see what each edit does to the mouth corner
-    return simulate_poses(model, edited, simulator=sim, progress=True), simulate_poses(model, big, simulator=sim), envelope
+    return (
+        simulate_poses(model, edited, simulator=sim, progress=True),
+        simulate_poses(model, big, simulator=sim),
+        envelope,
+    )
 
 
 # ---------------------------------------------------------------------- stage 3: dynamics
 def dynamics(args, model, edit_result):
-    """(ResimResult, quasistatic reference (F, n, 3), contact note)."""
+    """(ResimResult, the re-simulated wface.resim.Take, quasistatic reference (F, n, 3), contact note)."""
     from wface.physics import Simulator
-    from wface.resim import quasistatic_frames, resimulate, take_attached_positions, take_from_poses
-
     from wface.physics.contact import Contact
+    from wface.resim import quasistatic_frames, resimulate, take_attached_positions, take_from_poses
 
     take = take_from_poses(model, edit_result.take)
     sim = Simulator(model)
@@ -193,14 +194,14 @@ def dynamics(args, model, edit_result):
             sim.force_length_scale = 1.0
             from wface.resim import cranium_to_world
 
-            return result, cranium_to_world(take, reference), note
+            return result, take, cranium_to_world(take, reference), note
         if result is not None:
             bad = np.flatnonzero(~result.converged).tolist()
             note["error"] = f"Newton did not converge in frames {bad} (residual {result.residual_rel.max():.2e})"
         note["used"] = False
         print(f"lip contact in dynamics did not converge on this face ({note['error']}); redoing without contact")
     result = resimulate(model, take, substeps=args.substeps, sim=sim, progress=True)
-    return result, edit_result.x_m, note
+    return result, take, edit_result.x_m, note
 
 
 def _lip_overlap_mm(lips, positions_m) -> float:
@@ -279,7 +280,7 @@ def main(argv=None) -> int:
     seconds["edit"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    dyn, reference, contact_note = dynamics(args, model, edit_result)
+    dyn, dyn_take, reference, contact_note = dynamics(args, model, edit_result)
     seconds["dynamic"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -303,7 +304,7 @@ def main(argv=None) -> int:
             activations=C[:, :M],
         ),
         "edited": out / "edited" / "animation.usdc",
-        "dynamic": write_resim_usd(out / "dynamic" / "animation.usdc", model, dyn.positions_m, fps),
+        "dynamic": write_resim_usd(out / "dynamic" / "animation.usdc", model, dyn.positions_m, fps, take=dyn_take),
     }
     edit_report = write_edit(out / "edited", model, edit_result, info={"edit": "exaggerate + layer smile"})
     write_resim_npz(out / "dynamic" / "resim.npz", dyn, reference_positions_m=reference)

@@ -73,3 +73,21 @@ def test_tracked_take_keeps_its_frame_rate_without_usd(model, tmp_path):
     write_controls(tmp_path, model, recs, fps=60.0)
     assert load_resim_take(tmp_path, model, reference=False).fps == 60.0
     assert load_edit_take(tmp_path, model).fps == 60.0
+
+
+def test_resim_stage_lines_up_with_the_tracked_and_edited_stages(model, exaggerated, tmp_path):
+    """Bug: `wface resim` wrote its skin as a bare /Face/Mesh without node ids, bones or activations,
+    unlike the /Face/Skin take stages of `wface track` / `wface edit`: read_take refused it and the
+    three stages of one performance did not line up in a DCC."""
+    from wface.io.usd import assert_stage_valid, read_take
+    from wface.resim import take_from_poses, write_resim_usd
+
+    take = take_from_poses(model, exaggerated)
+    x = np.stack([model.rest_positions_m, model.rest_positions_m + 1e-3])
+    path = write_resim_usd(tmp_path / "dyn.usda", model, x, take.fps, take=take)
+    assert_stage_valid(path)
+    back = read_take(path)
+    assert back["n_frames"] == 2 and back["fps"] == 30.0
+    np.testing.assert_allclose(back["skin_points_m"][1], x[1][back["skin_node_ids"]], atol=1e-6)  # float32
+    np.testing.assert_allclose(back["activations"], take.activations, atol=1e-6)
+    assert back["cranium_affines"].shape == (2, 3, 4) and back["metadata"]["dynamic"] is True

@@ -386,20 +386,53 @@ def skin_mesh(model) -> tuple[np.ndarray, np.ndarray]:
     return nodes, local.reshape(-1, 3).astype(np.int32)
 
 
-def write_resim_usd(path: str | Path, model, positions_m: np.ndarray, fps: float, *, name: str = "Face") -> Path:
-    """The skin of a re-simulated take as one animated USD mesh (time code f = frame f).
+def write_resim_usd(
+    path: str | Path, model, positions_m: np.ndarray, fps: float, *, name: str = "Face", take: Take | None = None
+) -> Path:
+    """The skin of a re-simulated take as an animated USD stage (time code f = frame f).
+
+    Without ``take``: one animated mesh ``/<name>/Mesh`` (``wface.io.usd.write_mesh_animation``).
+    With ``take`` (the ``Take`` that was re-simulated) and a model with skin triangles: the layout
+    of ``wface.io.usd.write_take``, as ``wface track`` and ``wface edit`` write it (``/<name>/Skin``
+    with model node ids, ``Bones/Cranium`` and ``Bones/Cranium/Jaw`` from the take's bones, the
+    ``Muscles`` activations), so ``wface.io.usd.read_take`` reads it back and the tracked, edited
+    and dynamic stages of one take line up prim for prim.
 
     Args:
         path: ``.usdc`` (binary) or ``.usda`` (text).
         model: the face.
         positions_m: (T, n, 3) node positions, metres.
         fps: frame rate (the stage's timeCodesPerSecond).
+        take: optional, the re-simulated take (T frames).
     """
     from wface.io.usd import write_mesh_animation
 
     positions_m = np.asarray(positions_m)
     if positions_m.ndim != 3 or positions_m.shape[1:] != (model.n_nodes, 3):
         raise ValueError(f"positions_m must have shape (frames, {model.n_nodes}, 3), got {positions_m.shape}")
+    if take is not None and model.skin_triangles.size:
+        from wface.controls import bone_affines
+        from wface.io.usd import write_take
+
+        if take.n_frames != positions_m.shape[0]:
+            raise ValueError(f"take has {take.n_frames} frames, positions_m {positions_m.shape[0]}")
+        affines = {}
+        if take.bones is not None:
+            cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(b) for b in take.bones), strict=True))
+            affines = {"cranium_affines": cranium, "jaw_affines": jaw}
+        meta = {"dynamic": True, "source": take.source}
+        if take.force_length_scale is not None:
+            meta["force_length_scale"] = take.force_length_scale.tolist()
+        return write_take(
+            path,
+            model=model,
+            node_positions_m=positions_m,
+            fps=fps,
+            activations=take.activations,
+            name=name,
+            metadata=meta,
+            **affines,
+        )
     nodes, tri = skin_mesh(model)
     return write_mesh_animation(
         path, points_m=positions_m[:, nodes], face_vertex_counts=None, face_vertex_indices=tri, fps=fps, name=name
