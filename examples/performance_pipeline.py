@@ -62,12 +62,14 @@ MOUTH_CORNER = "Mouth_Lend"  # the AnimFace name of the left mouth corner (the b
 def _parse(argv):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tets", type=int, default=5000, help="size of the built-in face in tetrahedra (default 5000)")
-    ap.add_argument("--frames", type=int, default=20, help="frames to track (default 20)")
+    ap.add_argument("--frames", type=int, default=24, help="frames to track (default 24)")
     ap.add_argument("--out", default="out/performance_pipeline", help="output directory")
     ap.add_argument("--no-contact", action="store_true", help="dynamic pass without lip contact")
     ap.add_argument("--mocap", default=str(DEFAULT_MOCAP), help="C3D/TRC/CSV take (default: AnimFace JawMoCap.c3d)")
     ap.add_argument("--synthetic", action="store_true", help="use a synthetic take even when the capture exists")
-    ap.add_argument("--start", type=int, default=330, help="capture: first file frame tracked (default 330: jaw opens)")
+    ap.add_argument(
+        "--start", type=int, default=326, help="capture: first file frame tracked (default 326: the jaw opens at 332)"
+    )
     ap.add_argument("--stride", type=int, default=2, help="capture: keep every N-th frame (default 2: 60 -> 30 fps)")
     ap.add_argument("--neutral-frame", type=int, default=0, help="capture: file frame with the neutral face")
     ap.add_argument("--exaggerate", type=float, default=1.5, help="exaggeration factor (default 1.5)")

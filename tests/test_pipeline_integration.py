@@ -91,3 +91,31 @@ def test_resim_stage_lines_up_with_the_tracked_and_edited_stages(model, exaggera
     np.testing.assert_allclose(back["skin_points_m"][1], x[1][back["skin_node_ids"]], atol=1e-6)  # float32
     np.testing.assert_allclose(back["activations"], take.activations, atol=1e-6)
     assert back["cranium_affines"].shape == (2, 3, 4) and back["metadata"]["dynamic"] is True
+
+
+def test_neutral_frame_of_the_models_own_markers_aligns_to_the_identity(model):
+    """Bug: prepare_capture pulled each named marker to the skin *node* nearest the model's marker,
+    so even the model's own neutral markers were aligned with a similarity 0.2-2.8 % off scale and
+    moved up to 2.6 mm (on 2K-5K tets): the neutral frame anchored a biased embedding and every
+    tracked frame was scaled with it. Landmarks are now the model's marker positions themselves."""
+    from wface.tracking.capture import prepare_capture
+
+    ref = model.marker_positions_m
+    cap = prepare_capture(model, np.stack([ref, ref + 1e-3]), model.marker_names, reference_positions_m=ref)
+    _EXACT = 1e-9  # metres; the similarity fit of exact data is exact up to float64 round-off
+    assert abs(cap.scale - 1.0) < 1e-9 and cap.alignment_rms_mm < _EXACT * 1e3
+    np.testing.assert_allclose(cap.targets_m[0], ref, atol=_EXACT)
+    np.testing.assert_allclose(cap.markers.positions(model.rest_positions_m), ref, atol=_EXACT)
+
+
+def test_align_to_surface_takes_landmark_points(model):
+    from wface.align import Similarity, align_to_surface
+
+    skin = model.skin_triangles
+    ref = model.marker_positions_m
+    rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    moved = Similarity(1.3, rot, np.array([0.1, 0.2, 0.3])).apply(ref)
+    res = align_to_surface(moved, model.rest_positions_m, skin, landmark_points_m=ref, landmark_weight=1.0)
+    np.testing.assert_allclose(res.aligned_m, ref, atol=1e-9)
+    with pytest.raises(ValueError, match="not both"):
+        align_to_surface(moved, model.rest_positions_m, skin, landmark_vertices=[0] * len(ref), landmark_points_m=ref)
