@@ -29,7 +29,7 @@ def test_edited_take_keeps_its_exaggeration_in_dynamics(model, exaggerated):
     """Bug: wface.resim.Take had no force-length scale, so an exaggerated edit (drives > 1) was
     re-simulated with its activations clipped at 1: the dynamic pass lost the exaggeration."""
     from wface.editing import simulate_poses
-    from wface.physics import Damping
+    from wface.physics import Damping, Simulator
     from wface.resim import Take, resimulate, take_from_poses
 
     take = take_from_poses(model, exaggerated)
@@ -38,7 +38,9 @@ def test_edited_take_keeps_its_exaggeration_in_dynamics(model, exaggerated):
     quasistatic = simulate_poses(model, exaggerated).x_m[1]
     # start from the exaggerated frame, heavily damped: stays at its quasistatic equilibrium
     held = Take(take.activations[[1, 1]], 30.0, bones=take.bones[[1, 1]], force_length_scale=take.force_length_scale)
-    dyn = resimulate(model, held, substeps=1, damping=Damping(0.0, 1e-2))
+    sim = Simulator(model)
+    dyn = resimulate(model, held, substeps=1, damping=Damping(0.0, 1e-2), sim=sim)
+    assert sim.force_length_scale == 1.0  # the caller's simulator is given back as it was
     np.testing.assert_allclose(dyn.positions_m[0], quasistatic, atol=_SOLVE_TOL_M)
     np.testing.assert_allclose(dyn.positions_m[1], quasistatic, atol=_SOLVE_TOL_M)
     clipped = Take(np.tile(exaggerated.activations[1], (2, 1)), 30.0, bones=take.bones[[1, 1]])  # no scale

@@ -541,9 +541,6 @@ def resimulate(
     if frame == "cranium" and take.bones is None:
         frame = "world"  # no cranium motion to undo
     sim = sim or Simulator(model, solver=solver or "auto")
-    saved_scale = sim.force_length_scale
-    if take.force_length_scale is not None:
-        sim.force_length_scale = take.force_length_scale
     dyn = DynamicSimulator(
         sim,
         scheme=scheme,
@@ -557,24 +554,32 @@ def resimulate(
     acts = np.array([model.activation_vector(a) for a in take.activations])
     xc = take_attached_positions(model, take, frame=frame)
     T = take.n_frames
-    t0 = time.perf_counter()
-    if x0_m is None:
-        eq = sim.solve(acts[0], xc[0], tol=tol, contact=contact)
-        x0, its0, res0 = eq.x, eq.iterations, eq.residual_rel
-    else:
-        x0, its0, res0 = x0_m, 0, 0.0
-    state = dyn.initial_state(x0, None, acts[0])
-    positions = np.empty((T, model.n_nodes, 3))
-    positions[0] = state.x_m
     from wface.physics.simulator import count_inverted
 
-    first = StepStats(
-        newton_iterations=its0,
-        residual_rel=res0,
-        elastic_energy_j=sim.energy(x0, acts[0]),
-        inverted_elements=count_inverted(model, x0),
-        seconds=time.perf_counter() - t0,
-    )
+    saved_scale = sim.force_length_scale  # restored below, also when a solve fails
+    if take.force_length_scale is not None:
+        sim.force_length_scale = take.force_length_scale
+    t0 = time.perf_counter()
+    try:
+        if x0_m is None:
+            eq = sim.solve(acts[0], xc[0], tol=tol, contact=contact)
+            x0, its0, res0 = eq.x, eq.iterations, eq.residual_rel
+        else:
+            x0, its0, res0 = x0_m, 0, 0.0
+        state = dyn.initial_state(x0, None, acts[0])
+        first = StepStats(
+            newton_iterations=its0,
+            residual_rel=res0,
+            elastic_energy_j=sim.energy(x0, acts[0]),
+            inverted_elements=count_inverted(model, x0),
+            seconds=time.perf_counter() - t0,
+        )
+    except BaseException:
+        dyn.free()
+        sim.force_length_scale = saved_scale
+        raise
+    positions = np.empty((T, model.n_nodes, 3))
+    positions[0] = state.x_m
     stats = [first]
     bar = tqdm(total=T - 1, desc=f"resim {scheme}", disable=not progress, unit="frame")
     try:
