@@ -395,8 +395,9 @@ def write_resim_usd(
     With ``take`` (the ``Take`` that was re-simulated) and a model with skin triangles: the layout
     of ``wface.io.usd.write_take``, as ``wface track`` and ``wface edit`` write it (``/<name>/Skin``
     with model node ids, ``Bones/Cranium`` and ``Bones/Cranium/Jaw`` from the take's bones, the
-    ``Muscles`` activations), so ``wface.io.usd.read_take`` reads it back and the tracked, edited
-    and dynamic stages of one take line up prim for prim.
+    ``Muscles`` activations, min(drive, 1) as in ``wface edit`` stages, the take's force-length
+    scales in the layer metadata), so ``wface.io.usd.read_take`` reads it back and the tracked,
+    edited and dynamic stages of one take line up prim for prim.
 
     Args:
         path: ``.usdc`` (binary) or ``.usda`` (text).
@@ -421,14 +422,17 @@ def write_resim_usd(
             cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(b) for b in take.bones), strict=True))
             affines = {"cranium_affines": cranium, "jaw_affines": jaw}
         meta = {"dynamic": True, "source": take.source}
+        acts = take.activations
         if take.force_length_scale is not None:
             meta["force_length_scale"] = take.force_length_scale.tolist()
+            # activation curves as `wface edit` writes them, min(drive, 1), so the stages compare
+            acts = np.minimum(acts * take.force_length_scale, 1.0)
         return write_take(
             path,
             model=model,
             node_positions_m=positions_m,
             fps=fps,
-            activations=take.activations,
+            activations=acts,
             name=name,
             metadata=meta,
             **affines,
