@@ -36,8 +36,9 @@ pipeline would make:
    edited: skin, bones, activations; dynamic: the skin), checked with
    ``wface.io.usd.assert_stage_valid``. So ``wface edit exaggerate --take OUT/tracked`` or
    ``wface resim --take OUT/edited`` pick up where the script stops. Next to them:
-   ``mouth_corner.png`` (the left mouth corner's displacement from rest in the cranium frame,
-   three stages side by side; numbers in ``mouth_corner.csv``) and ``summary.json``: marker RMS of
+   ``mouth_corner.png`` (the displacement from rest of the left mouth-corner marker, as embedded at
+   the neutral frame, in the cranium frame: the capture and the three stages side by side;
+   numbers in ``mouth_corner.csv``) and ``summary.json``: marker RMS of
    the tracking (mm), activation ranges, overshoot and deviation of the dynamic pass from the
    quasistatic edited frames (mm), whether contact was used, seconds per stage.
 
@@ -143,7 +144,7 @@ def track(args, model, out: Path):
     # the keys `wface edit` / `wface resim` check when they read the directory back
     meta = {"frames": len(records), "tets": model.n_tets, "nodes": model.n_nodes, "fps": fps, **info}
     write_report(out / "tracked", meta)
-    return records, targets, names, fps, info
+    return records, targets, names, markers, fps, info
 
 
 # ---------------------------------------------------------------------- stage 2: editing
@@ -220,18 +221,15 @@ def _cranium_frame(positions_m, cranium_affines):
     return out
 
 
-def _corner_mm(model, positions_m, cranium_affines):
-    """(F,) displacement of the mouth-corner marker from rest in the cranium frame, mm."""
-    from wface.tracking.sequence import embed_model_markers
-
-    markers = embed_model_markers(model)
-    i = model.marker_names.index(MOUTH_CORNER)
+def _corner_mm(markers, i: int, positions_m, cranium_affines):
+    """(F,) displacement from rest of marker ``i`` of ``markers`` (the capture's corner marker as
+    embedded at the neutral frame) in the cranium frame, mm."""
     local = _cranium_frame(np.asarray(positions_m), cranium_affines)
-    rest = markers.positions(model.rest_positions_m)[i]
+    rest = markers.positions(markers.model.rest_positions_m)[i]
     return np.array([np.linalg.norm(markers.positions(x)[i] - rest) for x in local]) * 1e3
 
 
-def _plot(path: Path, fps: float, curves: dict, exaggerated_mm: np.ndarray, factor: float) -> str | None:
+def _plot(path: Path, fps: float, curves: dict, captured_mm, exaggerated_mm, factor: float) -> str | None:
     try:
         import matplotlib
 
@@ -243,7 +241,10 @@ def _plot(path: Path, fps: float, curves: dict, exaggerated_mm: np.ndarray, fact
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.4), sharey=True)
     t = np.arange(len(next(iter(curves.values())))) / fps
     for ax, (name, y) in zip(axes, curves.items(), strict=True):
-        ax.plot(t, curves["tracked"], color="0.6", lw=1, label="tracked" if name != "tracked" else None)
+        if name == "tracked":
+            ax.plot(t, captured_mm, "o", color="C3", ms=3, label="captured marker")
+        else:
+            ax.plot(t, curves["tracked"], color="0.6", lw=1, label="tracked")
         if name == "edited":
             ax.plot(t, exaggerated_mm, color="C1", ls="--", lw=1, label=f"x{factor:g} only")
         ax.plot(t, y, color="C0", lw=2, label=name)
@@ -274,7 +275,7 @@ def main(argv=None) -> int:
     seconds["build"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    records, targets, names, fps, track_info = track(args, model, out)
+    records, targets, names, markers, fps, track_info = track(args, model, out)
     seconds["track"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -314,20 +315,25 @@ def main(argv=None) -> int:
         assert_stage_valid(path)
 
     edited_cranium = np.stack([bone_affines(p.bones(model.jaw_joint))[0] for p in edit_result.take.poses])
+    # the corner as the capture sees it: its marker embedded at the neutral frame
+    i = list(names).index(MOUTH_CORNER)
     curves = {
-        "tracked": _corner_mm(model, tracked_x, cranium),
-        "edited": _corner_mm(model, edit_result.x_m, edited_cranium),
-        "dynamic": _corner_mm(model, dyn.positions_m, edited_cranium),
+        "tracked": _corner_mm(markers, i, tracked_x, cranium),
+        "edited": _corner_mm(markers, i, edit_result.x_m, edited_cranium),
+        "dynamic": _corner_mm(markers, i, dyn.positions_m, edited_cranium),
     }
-    exaggerated_mm = _corner_mm(model, exaggerated.x_m, edited_cranium)
-    table = np.column_stack([np.arange(len(records)) / fps, *curves.values(), exaggerated_mm, envelope])
+    exaggerated_mm = _corner_mm(markers, i, exaggerated.x_m, edited_cranium)
+    rest_corner = markers.positions(model.rest_positions_m)[i]
+    captured_local = [np.linalg.solve(A[:, :3], p - A[:, 3]) for A, p in zip(cranium, targets[:, i], strict=True)]
+    captured_mm = np.linalg.norm(np.array(captured_local) - rest_corner, axis=1) * 1e3  # NaN where missing
+    table = np.column_stack([np.arange(len(records)) / fps, captured_mm, *curves.values(), exaggerated_mm, envelope])
     np.savetxt(
         out / "mouth_corner.csv",
         table,
         delimiter=",",
-        header="t_s,tracked_mm,edited_mm,dynamic_mm,exaggerated_only_mm,smile_weight",
+        header="t_s,captured_mm,tracked_mm,edited_mm,dynamic_mm,exaggerated_only_mm,smile_weight",
     )
-    plot = _plot(out / "mouth_corner.png", fps, curves, exaggerated_mm, args.exaggerate)
+    plot = _plot(out / "mouth_corner.png", fps, curves, captured_mm, exaggerated_mm, args.exaggerate)
     skin, _ = skin_mesh(model)
     dev = deviation_mm(dyn.positions_m, reference, skin)
     over = curves["dynamic"] - curves["edited"]
@@ -342,6 +348,10 @@ def main(argv=None) -> int:
         "tracking": track_info,
         "activation_range": {
             "tracked": [float(C[:, :M].min()), float(C[:, :M].max())],
+            # muscles the tracker drove to full activation: often a misfit it cannot explain otherwise
+            "tracked_saturated_muscles": [
+                n for n, a in zip(model.muscle_names, C[:, :M].max(axis=0), strict=True) if a >= 0.999
+            ],
             "edited": [float(take.activations.min()), float(take.activations.max())],
             "edited_drive_max": float(take.drives.max()),
             "scaled_muscles": edit_report["scaled_muscles"],

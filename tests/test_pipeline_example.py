@@ -43,7 +43,7 @@ def _check_outputs(out: Path, frames: int, *, near_mm: float | None = None) -> d
         animated = [m for m in meshes if m.GetPointsAttr().GetNumTimeSamples() == frames]
         assert animated, f"{stage_name}: no mesh with one time sample per frame"
     table = np.loadtxt(out / "mouth_corner.csv", delimiter=",")
-    assert table.shape == (frames, 6) and np.all(np.isfinite(table))
+    assert table.shape == (frames, 7) and np.all(np.isfinite(table[:, 2:]))
     peaks = summary["mouth_corner_peak_mm"]
     assert peaks["exaggerated_only"] > peaks["tracked"] > 0  # x1.5 moves the corner more
     assert peaks["edited"] > peaks["tracked"]
