@@ -42,6 +42,16 @@ pipeline would make:
    the tracking (mm), activation ranges, overshoot and deviation of the dynamic pass from the
    quasistatic edited frames (mm), whether contact was used, seconds per stage.
 
+What to expect from the default run (5,000 tets, JawMoCap file frames 326-372 at 30 fps, 2 CPU
+cores, about 65 s: track 10 s, edit 5.5 s, dynamic 46 s with lip contact): 2.6 mm marker RMS
+(the procedural face is not the actor: the neutral frame fits the skin to 5.8 mm RMS), the
+corner marker moves 16.2 mm tracked and 23.6 mm edited; the tracker drives corrugator_r and
+depressor_labii_inferioris_r to full activation, so x1.5 scales their force-length curves by 1.5.
+The dynamic pass stays within 0.01 mm of the quasistatic edited frames (no overshoot): a jaw
+opening over 0.4 s is slow against the face's 100-155 Hz modes; faster takes lag and overshoot
+(the 3-frame synthetic take of the test: 0.9-3 mm). The lips never touch in this window (0.00 mm
+overlap without contact), so contact converges but has nothing to do here.
+
 Everything runs headless on the CPU; a test runs it with tiny options (``tests/test_pipeline_example.py``).
 """
 
