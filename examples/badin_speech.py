@@ -168,7 +168,7 @@ def track_take(
     }
     rep["capture_scale"], rep["capture_rest_fit_mm"] = cap.scale, cap.alignment_rms_mm
     write_report(out, rep)
-    write_controls(out, model, recs)
+    write_controls(out, model, recs, fps=take.rate_hz / step)
     return rep
 
 

@@ -237,11 +237,12 @@ def _principal_frame(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def _initial_guesses(markers: np.ndarray, vertices: np.ndarray, landmarks: np.ndarray | None) -> list[Similarity]:
+    """Start transforms; ``landmarks``: (k, 3) target point per marker, NaN where unknown."""
     ok = np.isfinite(markers).all(axis=1)
     if landmarks is not None:
-        use = ok & (landmarks >= 0)
+        use = ok & np.isfinite(landmarks).all(axis=1)
         if use.sum() >= 3:
-            return [umeyama(markers[use], vertices[landmarks[use]])]
+            return [umeyama(markers[use], landmarks[use])]
     # Centroid and principal axes; axis signs are ambiguous, so try the four proper flips.
     mu_m, ax_m, r_m = _principal_frame(markers[ok])
     mu_v, ax_v, r_v = _principal_frame(vertices)
@@ -261,6 +262,7 @@ def align_to_surface(
     triangles: np.ndarray,
     *,
     landmark_vertices: np.ndarray | Sequence[int] | None = None,
+    landmark_points_m: np.ndarray | None = None,
     with_scale: bool = True,
     iterations: int = 30,
     tolerance_m: float = 1e-7,
@@ -275,6 +277,10 @@ def align_to_surface(
         triangles: (t, 3) surface triangles.
         landmark_vertices: (k,) vertex id per marker, -1 where unknown; gives the start
             transform and, with ``landmark_weight`` > 0, keeps pulling towards the landmarks.
+        landmark_points_m: (k, 3) landmark position per marker (e.g. the model's own marker,
+            which lies between vertices), NaN rows where unknown; instead of ``landmark_vertices``
+            (a marker pulled to its nearest vertex is pulled off its true place by up to half an
+            edge, which biases the similarity on a coarse mesh).
         with_scale: fit a similarity (True) or a rigid transform.
         iterations: maximum projection / refit rounds.
         tolerance_m: stop once the RMS distance falls by less than this.
@@ -293,13 +299,20 @@ def align_to_surface(
     ok = np.isfinite(m).all(axis=1)
     if ok.sum() < 3:
         raise ValueError(f"align_to_surface: needs at least 3 present markers, got {int(ok.sum())}")
-    lm = None
+    lm = None  # (k, 3) landmark target per marker, NaN where unknown
+    if landmark_vertices is not None and landmark_points_m is not None:
+        raise ValueError("align_to_surface: give landmark_vertices or landmark_points_m, not both")
     if landmark_vertices is not None:
-        lm = np.asarray(landmark_vertices, dtype=np.int64).reshape(-1)
-        if lm.shape != (len(m),):
-            raise ValueError(f"align_to_surface: landmark_vertices has {lm.shape[0]} entries for {len(m)} markers")
-        if lm.max(initial=-1) >= len(v):
+        ids = np.asarray(landmark_vertices, dtype=np.int64).reshape(-1)
+        if ids.shape != (len(m),):
+            raise ValueError(f"align_to_surface: landmark_vertices has {ids.shape[0]} entries for {len(m)} markers")
+        if ids.max(initial=-1) >= len(v):
             raise ValueError("align_to_surface: a landmark vertex id is out of range")
+        lm = np.where((ids >= 0)[:, None], v[np.maximum(ids, 0)], np.nan)
+    if landmark_points_m is not None:
+        lm = np.asarray(landmark_points_m, dtype=np.float64)
+        if lm.shape != (len(m), 3):
+            raise ValueError(f"align_to_surface: landmark_points_m has shape {lm.shape}, expected ({len(m)}, 3)")
     query = SurfaceQuery(v, tris)
     best = None
     for start in _initial_guesses(m, v, lm):
@@ -318,9 +331,9 @@ def align_to_surface(
                 w[hit.distance_m > cut] = 0.0
             src, dst = m[ok], hit.point_m
             if lm is not None and landmark_weight > 0:
-                use = lm[ok] >= 0
+                use = np.isfinite(lm[ok]).all(axis=1)
                 src = np.vstack([src, m[ok][use]])
-                dst = np.vstack([dst, v[lm[ok][use]]])
+                dst = np.vstack([dst, lm[ok][use]])
                 w = np.concatenate([w, np.full(use.sum(), landmark_weight)])
             tf = umeyama(src, dst, weights=w, with_scale=with_scale)
         if best is None or history[-1] < best[1][-1]:
@@ -332,8 +345,8 @@ def align_to_surface(
     dist[ok] = query.closest(aligned[ok]).distance_m
     lres = np.full(len(m), np.nan)
     if lm is not None:
-        use = ok & (lm >= 0)
-        lres[use] = np.linalg.norm(aligned[use] - v[lm[use]], axis=1)
+        use = ok & np.isfinite(lm).all(axis=1)
+        lres[use] = np.linalg.norm(aligned[use] - lm[use], axis=1)
     return SurfaceAlignment(tf, emb, aligned, dist, history, lres)
 
 

@@ -43,6 +43,8 @@ __all__ = [
     "resimulate",
     "step_overshoot_mm",
     "take_attached_positions",
+    "take_from_drives",
+    "take_from_poses",
     "write_resim_npz",
     "write_resim_usd",
 ]
@@ -67,6 +69,12 @@ class Take:
         source: where the take came from.
         activation_ramp: how activations go from one frame to the next: "linear" (default) or
             "step" (the next frame's values from the first substep on: a sudden onset).
+        force_length_scale: (M,) per-muscle scale of the active force-length curve for the whole
+            take (``Simulator.force_length_scale``), or None (all 1). An exaggerated edit drives
+            muscles past full activation (drive e = s a > 1, ``wface.editing``); a take keeps
+            activations in [0, 1] and one scale per muscle, S = max(1, max_t e), with a = e / S,
+            so activations still interpolate linearly in drive between frames
+            (``take_from_poses``, ``load_take``).
     """
 
     activations: np.ndarray
@@ -77,6 +85,7 @@ class Take:
     reference_positions_m: np.ndarray | None = None
     source: str = ""
     activation_ramp: str = "linear"
+    force_length_scale: np.ndarray | None = None
 
     def __post_init__(self):
         if self.activation_ramp not in ("linear", "step"):
@@ -107,6 +116,13 @@ class Take:
                 raise ValueError(
                     f"reference_positions_m must have shape ({T}, n, 3), got {self.reference_positions_m.shape}"
                 )
+        if self.force_length_scale is not None:
+            s = np.asarray(self.force_length_scale, dtype=np.float64)
+            if s.shape != (self.activations.shape[1],) or not np.all(np.isfinite(s)) or np.any(s < 0):
+                raise ValueError(
+                    f"force_length_scale must be ({self.activations.shape[1]},) finite and >= 0, got shape {s.shape}"
+                )
+            self.force_length_scale = None if np.all(s == 1.0) else s
         for name in ("activations", "bones", "attached_positions_m"):
             value = getattr(self, name)
             if value is not None and not np.all(np.isfinite(value)):
@@ -205,6 +221,36 @@ def take_attached_positions(model, take: Take, *, frame: str = "world") -> np.nd
     return np.stack([attached_positions(model, b, frame=frame) for b in take.bones])
 
 
+def _split_take_drives(drives: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """(T, M) drives e = s a >= 0 -> (activations e / S in [0, 1], per-muscle S = max(1, max_t e) or None)."""
+    e = np.asarray(drives, dtype=np.float64)
+    S = np.maximum(1.0, e.max(axis=0, initial=0.0))
+    return np.clip(e / S, 0.0, 1.0), (None if np.all(S == 1.0) else S)
+
+
+def take_from_drives(drives: np.ndarray, fps: float, **kwargs) -> Take:
+    """A ``Take`` from (T, M) muscle drives e = s a (activations times force-length scales, may
+    exceed 1): activations e / S and one force-length scale S = max(1, max_t e) per muscle.
+    Keyword arguments go to ``Take`` (bones, frames, source, ...)."""
+    acts, scale = _split_take_drives(drives)
+    return Take(activations=acts, fps=fps, force_length_scale=scale, **kwargs)
+
+
+def take_from_poses(model, take, *, reference_positions_m: np.ndarray | None = None) -> Take:
+    """The dynamic-simulation ``Take`` of an edited take (``wface.editing.Take``: a list of poses).
+
+    Activations and per-frame force-length scales become drives (``take_from_drives``), so an
+    exaggerated edit keeps its exaggeration; bones are the poses' 24 parameters (jaw clamped into
+    the joint, as ``wface.editing.simulate_poses`` simulates them).
+    """
+    if list(take.muscle_names) != list(model.muscle_names):
+        raise ValueError("the take's muscles are not the model's")
+    bones = np.stack([p.bones(model.jaw_joint) for p in take.poses])
+    return take_from_drives(
+        take.drives, take.fps, bones=bones, reference_positions_m=reference_positions_m, source=take.source
+    )
+
+
 def _polar(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """M = R P with R a rotation and P symmetric (None for R when det M <= 0)."""
     U, S, Vt = np.linalg.svd(M)
@@ -257,8 +303,8 @@ def load_take(
     Args:
         path: the tracking output directory.
         model: the face the take was tracked on (muscle count and node count are checked).
-        fps: frame rate; default: ``timeCodesPerSecond`` of ``path/animation.usdc`` when readable,
-            else 30.
+        fps: frame rate; default: the ``fps`` stored in controls.npz, else ``timeCodesPerSecond``
+            of ``path/animation.usdc`` when readable, else 30.
         frames: optional slice of the take's frames (e.g. ``slice(0, 60)``).
         reference: also read the tracked positions (T x n x 3 floats; False skips them when
             controls.npz is there).
@@ -274,9 +320,14 @@ def load_take(
 
         numbers = [int(p.stem.split("_")[1]) for p in frame_files]
         records = load_frame_records(path, numbers)
+    scale, stored_fps = None, None
     if controls.exists():
         with np.load(controls) as d:
             acts, bones, numbers = d["activations"], d["bones"], d["frames"]
+            if "fps" in d.files:  # written by `wface track` / `wface edit`
+                stored_fps = float(d["fps"])
+            if "force_length_scale" in d.files:  # written by `wface edit` (exaggeration past full activation)
+                scale = np.asarray(d["force_length_scale"], dtype=np.float64)
             if "muscle_names" in d.files and list(d["muscle_names"]) != list(model.muscle_names):
                 raise ValueError(f"{controls}: muscle names differ from the model's (was it tracked on another face?)")
     elif records:
@@ -298,10 +349,13 @@ def load_take(
                 f"{path}: tracked frames have {tracked.shape[1]} nodes, the model {model.n_nodes}: wrong model?"
             )
     if fps is None:
-        fps = _usd_fps(path / "animation.usdc") or 30.0
+        fps = stored_fps or _usd_fps(path / "animation.usdc") or 30.0
     sl = frames or slice(None)
+    acts = np.clip(acts[sl], 0.0, 1.0)  # tracked activations may overshoot [0, 1] by round-off
+    acts, flscale = (acts, None) if scale is None else _split_take_drives(acts * scale[sl])
     return Take(
-        activations=np.clip(acts[sl], 0.0, 1.0),  # tracked activations may overshoot [0, 1] by round-off
+        activations=acts,
+        force_length_scale=flscale,
         fps=fps,
         bones=bones[sl],
         frames=np.asarray(numbers)[sl],
@@ -332,20 +386,57 @@ def skin_mesh(model) -> tuple[np.ndarray, np.ndarray]:
     return nodes, local.reshape(-1, 3).astype(np.int32)
 
 
-def write_resim_usd(path: str | Path, model, positions_m: np.ndarray, fps: float, *, name: str = "Face") -> Path:
-    """The skin of a re-simulated take as one animated USD mesh (time code f = frame f).
+def write_resim_usd(
+    path: str | Path, model, positions_m: np.ndarray, fps: float, *, name: str = "Face", take: Take | None = None
+) -> Path:
+    """The skin of a re-simulated take as an animated USD stage (time code f = frame f).
+
+    Without ``take``: one animated mesh ``/<name>/Mesh`` (``wface.io.usd.write_mesh_animation``).
+    With ``take`` (the ``Take`` that was re-simulated) and a model with skin triangles: the layout
+    of ``wface.io.usd.write_take``, as ``wface track`` and ``wface edit`` write it (``/<name>/Skin``
+    with model node ids, ``Bones/Cranium`` and ``Bones/Cranium/Jaw`` from the take's bones, the
+    ``Muscles`` activations, min(drive, 1) as in ``wface edit`` stages, the take's force-length
+    scales in the layer metadata), so ``wface.io.usd.read_take`` reads it back and the tracked,
+    edited and dynamic stages of one take line up prim for prim.
 
     Args:
         path: ``.usdc`` (binary) or ``.usda`` (text).
         model: the face.
         positions_m: (T, n, 3) node positions, metres.
         fps: frame rate (the stage's timeCodesPerSecond).
+        take: optional, the re-simulated take (T frames).
     """
     from wface.io.usd import write_mesh_animation
 
     positions_m = np.asarray(positions_m)
     if positions_m.ndim != 3 or positions_m.shape[1:] != (model.n_nodes, 3):
         raise ValueError(f"positions_m must have shape (frames, {model.n_nodes}, 3), got {positions_m.shape}")
+    if take is not None and model.skin_triangles.size:
+        from wface.controls import bone_affines
+        from wface.io.usd import write_take
+
+        if take.n_frames != positions_m.shape[0]:
+            raise ValueError(f"take has {take.n_frames} frames, positions_m {positions_m.shape[0]}")
+        affines = {}
+        if take.bones is not None:
+            cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(b) for b in take.bones), strict=True))
+            affines = {"cranium_affines": cranium, "jaw_affines": jaw}
+        meta = {"dynamic": True, "source": take.source}
+        acts = take.activations
+        if take.force_length_scale is not None:
+            meta["force_length_scale"] = take.force_length_scale.tolist()
+            # activation curves as `wface edit` writes them, min(drive, 1), so the stages compare
+            acts = np.minimum(acts * take.force_length_scale, 1.0)
+        return write_take(
+            path,
+            model=model,
+            node_positions_m=positions_m,
+            fps=fps,
+            activations=acts,
+            name=name,
+            metadata=meta,
+            **affines,
+        )
     nodes, tri = skin_mesh(model)
     return write_mesh_animation(
         path, points_m=positions_m[:, nodes], face_vertex_counts=None, face_vertex_indices=tri, fps=fps, name=name
@@ -467,24 +558,32 @@ def resimulate(
     acts = np.array([model.activation_vector(a) for a in take.activations])
     xc = take_attached_positions(model, take, frame=frame)
     T = take.n_frames
-    t0 = time.perf_counter()
-    if x0_m is None:
-        eq = sim.solve(acts[0], xc[0], tol=tol, contact=contact)
-        x0, its0, res0 = eq.x, eq.iterations, eq.residual_rel
-    else:
-        x0, its0, res0 = x0_m, 0, 0.0
-    state = dyn.initial_state(x0, None, acts[0])
-    positions = np.empty((T, model.n_nodes, 3))
-    positions[0] = state.x_m
     from wface.physics.simulator import count_inverted
 
-    first = StepStats(
-        newton_iterations=its0,
-        residual_rel=res0,
-        elastic_energy_j=sim.energy(x0, acts[0]),
-        inverted_elements=count_inverted(model, x0),
-        seconds=time.perf_counter() - t0,
-    )
+    saved_scale = sim.force_length_scale  # restored below, also when a solve fails
+    if take.force_length_scale is not None:
+        sim.force_length_scale = take.force_length_scale
+    t0 = time.perf_counter()
+    try:
+        if x0_m is None:
+            eq = sim.solve(acts[0], xc[0], tol=tol, contact=contact)
+            x0, its0, res0 = eq.x, eq.iterations, eq.residual_rel
+        else:
+            x0, its0, res0 = x0_m, 0, 0.0
+        state = dyn.initial_state(x0, None, acts[0])
+        first = StepStats(
+            newton_iterations=its0,
+            residual_rel=res0,
+            elastic_energy_j=sim.energy(x0, acts[0]),
+            inverted_elements=count_inverted(model, x0),
+            seconds=time.perf_counter() - t0,
+        )
+    except BaseException:
+        dyn.free()
+        sim.force_length_scale = saved_scale
+        raise
+    positions = np.empty((T, model.n_nodes, 3))
+    positions[0] = state.x_m
     stats = [first]
     bar = tqdm(total=T - 1, desc=f"resim {scheme}", disable=not progress, unit="frame")
     try:
@@ -508,6 +607,7 @@ def resimulate(
     finally:
         bar.close()
         dyn.free()
+        sim.force_length_scale = saved_scale
     if frame == "cranium":
         positions = cranium_to_world(take, positions)
     return ResimResult(

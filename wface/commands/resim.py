@@ -50,7 +50,9 @@ outputs in --out:
                   overshoot_mm (peak excursion past the quasistatic target of the skin node that
                   moves most, over all time steps), overshoot_mm_at_frames (sampled at frames)
   resim.npz       positions_m (T, n, 3), per-frame stats, reference_positions_m (quasistatic)
-  animation.usdc  the skin, animated (time code f = frame f, timeCodesPerSecond = fps)
+  animation.usdc  time code f = frame f, timeCodesPerSecond = fps; on a face with skin triangles
+                  the stage layout of `wface track` / `wface edit` (/Face/Skin, Bones, Muscles),
+                  else the boundary as /Face/Mesh
 
 examples:
   wface resim --out smile_dyn                                   # sudden smile, 5000 tets
@@ -267,6 +269,8 @@ def _run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     sim = Simulator(model, device=args.device, solver=args.solver)
+    if take.force_length_scale is not None:  # an exaggerated `wface edit` take: the reference sees it too
+        sim.force_length_scale = take.force_length_scale
     contact = None
     if args.contact or args.obstacle:
         from wface.physics.contact import Contact
@@ -337,7 +341,7 @@ def _run(args: argparse.Namespace) -> int:
     report["kinetic_energy_peak_j"] = float(result.kinetic_energy_j.max())
     write_resim_npz(out / "resim.npz", result, reference_positions_m=reference)
     if not args.no_usd:
-        write_resim_usd(out / "animation.usdc", model, result.positions_m, take.fps)
+        write_resim_usd(out / "animation.usdc", model, result.positions_m, take.fps, take=take)
     report["seconds"] = time.perf_counter() - start
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     if args.json:

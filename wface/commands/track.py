@@ -182,7 +182,7 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         identifiability_mm=ident,
         truth=truth,
     )
-    write_controls(out, model, records)
+    write_controls(out, model, records, fps=fps)
     write_report(out, report)
     if not args.no_pictures:
         _pictures(args, out, model, records, targets, fps, report, truth)

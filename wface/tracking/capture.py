@@ -47,8 +47,6 @@ def prepare_capture(
         reference_positions_m: (k, 3) neutral marker positions given directly (e.g. a frame outside
             the tracked range); overrides ``reference_frame``.
     """
-    from scipy.spatial import cKDTree
-
     from wface.align import align_to_surface
 
     pos = np.asarray(positions_m, dtype=np.float64)
@@ -68,20 +66,18 @@ def prepare_capture(
         what = f"frame {reference_frame} of the capture"
     if np.isfinite(ref).all(axis=1).sum() < 3:
         raise ValueError(f"{what} has fewer than 3 markers present")
-    skin_nodes = np.unique(model.skin_triangles)
-    tree = cKDTree(model.rest_positions_m[skin_nodes])
     known = dict(zip(model.marker_names, model.marker_positions_m, strict=True))
-    landmarks = np.full(len(marker_names), -1, dtype=np.int64)
+    landmarks = np.full((len(marker_names), 3), np.nan)  # the model's own marker, not its nearest node
     matched = []
     for i, name in enumerate(marker_names):
         if name in known:
-            landmarks[i] = skin_nodes[tree.query(known[name])[1]]
+            landmarks[i] = known[name]
             matched.append(name)
     al = align_to_surface(
         ref,
         model.rest_positions_m,
         model.skin_triangles,
-        landmark_vertices=landmarks if matched else None,
+        landmark_points_m=landmarks if matched else None,
         with_scale=True,
         landmark_weight=1.0 if matched else 0.0,
         trim_fraction=0.1,

@@ -72,15 +72,21 @@ def build_report(
     return rep
 
 
-def write_controls(out_dir: Path, model, records) -> tuple[Path, Path]:
-    """controls.npz and controls.csv: per-frame activations, bone parameters and jaw pose."""
+def write_controls(out_dir: Path, model, records, *, fps: float | None = None) -> tuple[Path, Path]:
+    """controls.npz and controls.csv: per-frame activations, bone parameters and jaw pose.
+
+    ``fps`` (the take's frame rate) is stored in controls.npz, so ``wface edit`` and ``wface resim``
+    replay the take at its own rate even when no animation.usdc was written (``--no-pictures``).
+    """
     M = model.n_muscles
     frames = np.array([r.frame for r in records])
     C = np.array([r.controls for r in records])
     jaw = [jaw_to_intuitive(model.jaw_joint, c[M + 12 :]) for c in C]
     npz = out_dir / "controls.npz"
+    extra = {} if fps is None else {"fps": np.float64(fps)}
     np.savez(
         npz,
+        **extra,
         frames=frames,
         activations=C[:, :M],
         bones=C[:, M:],
