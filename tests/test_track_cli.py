@@ -126,3 +126,17 @@ def test_real_jaw_capture_on_the_builtin_face(tmp_path):
     assert report["markers"] == 41 and report["frames"] == 4
     assert report["marker_rms_mm_mean"] < 6.0  # a different person's face: shape mismatch remains
     assert np.all(np.isfinite(report["jaw_opening_deg"])) and report["inverted_elements"] == 0
+
+
+def test_per_marker_rms_skips_missing_samples_and_never_seen_markers():
+    """A marker missing in every frame gets null (valid JSON), not NaN and a numpy warning."""
+    import warnings
+
+    from wface.tracking.report import _per_marker_rms_mm
+
+    err = np.array([[1.0, np.nan, 2.0], [3.0, np.nan, np.nan]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rms = _per_marker_rms_mm(err, ["a", "b", "c"])
+    assert rms == {"a": pytest.approx(np.sqrt(5.0)), "b": None, "c": pytest.approx(2.0)}
+    json.dumps(rms, allow_nan=False)

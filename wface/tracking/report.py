@@ -14,6 +14,15 @@ from wface.tracking.identifiability import OBSERVABLE_MM
 __all__ = ["build_report", "write_controls"]
 
 
+def _per_marker_rms_mm(err_mm: np.ndarray, marker_names) -> dict:
+    """{marker: RMS error over the frames it was seen in, mm}; None for a marker never seen."""
+    seen = np.isfinite(err_mm)
+    sq = np.where(seen, err_mm, 0.0) ** 2
+    count = seen.sum(axis=0)
+    rms = np.sqrt(sq.sum(axis=0) / np.maximum(count, 1))
+    return {n: (float(r) if c else None) for n, r, c in zip(marker_names, rms, count, strict=True)}
+
+
 def _jaw_deg(model, bones: np.ndarray) -> np.ndarray:
     return np.array([jaw_to_intuitive(model.jaw_joint, b[12:])["opening_deg"] for b in bones])
 
@@ -39,7 +48,7 @@ def build_report(
         "marker_rms_mm": per_frame.tolist(),
         "marker_rms_mm_mean": float(np.mean(per_frame)),
         "marker_max_mm": float(np.nanmax(err)),
-        "marker_rms_mm_per_marker": dict(zip(marker_names, np.sqrt(np.nanmean(err**2, axis=0)).tolist(), strict=True)),
+        "marker_rms_mm_per_marker": _per_marker_rms_mm(err, marker_names),
         "seconds_per_frame": secs.tolist(),
         "seconds_per_frame_median": float(np.median(secs)),
         "seconds_breakdown_median": {
