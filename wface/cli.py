@@ -32,6 +32,7 @@ examples:
   wface bench --suite forward --tets 20000 --json
   wface waters --mesh head.obj --expression happy --au AU26=0.3 --out waters_out
   wface speech --model badin.npz --gesture closure --out closure_out
+  wface simulate --model face.npz --activation orbicularis_oris_upper=1 --contact lips,teeth --out lips_out
   wface edit blend --from smile --to surprise --frames 24 --out blend_out
   wface resim --take run1 --out run1_dyn    replay a tracked take with inertia (implicit dynamic FEM)
 
