@@ -271,9 +271,8 @@ def _compass_search(
 
 
 class _Improver:
-    def __init__(self, mesh: _Mesh, goal_deg: float):
+    def __init__(self, mesh: _Mesh):
         self.m = mesh
-        self.goal = goal_deg
         self.ops = {"edge_removal": 0, "flip23": 0, "smooth": 0, "split": 0}
 
     def quality_of(self, tets: list[tuple[int, ...]]) -> float:
@@ -337,7 +336,7 @@ class _Improver:
         return True
 
     # ---------------------------------------------------------------- 2-3 flip
-    def try_flip23(self, ti: int, face: tuple[int, int, int]) -> bool:
+    def try_flip23(self, face: tuple[int, int, int]) -> bool:
         m = self.m
         both = m.face_tets(*face)
         if len(both) != 2:
@@ -427,7 +426,7 @@ class _Improver:
             if self.try_edge_removal(a, b):
                 return True
         for f in ((t[1], t[2], t[3]), (t[0], t[2], t[3]), (t[0], t[1], t[3]), (t[0], t[1], t[2])):
-            if self.try_flip23(ti, f):
+            if self.try_flip23(f):
                 return True
         for v in t:
             if self.try_smooth(v):
@@ -480,7 +479,7 @@ def improve_tets(
     if np.any(q0 < 0):
         raise ValueError(f"{int(np.sum(q0 < 0))} tets are flat or inverted (e.g. tet {int(np.argmin(q0))})")
     mesh = _Mesh(x, tets, ~locked, score)
-    work = _Improver(mesh, goal_deg)
+    work = _Improver(mesh)
     rounds = 0
     failed: dict[int, int] = {}  # tet -> mesh.clock when no operation improved it
     for rounds in range(1, max_rounds + 1):
