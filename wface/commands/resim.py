@@ -7,6 +7,8 @@ import json
 import time
 from pathlib import Path
 
+from wface.commands.contact_args import add_contact_arguments, contact_from_args
+
 _DESCRIPTION = """\
 Dynamic re-simulation: the activations and bone motion of a take drive an implicit dynamic FEM
 (M x'' + C x' + f_int(x, a(t)) = 0, lumped mass from the material density, Rayleigh damping
@@ -108,19 +110,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=["step", "linear"],
         help="synthetic: activations switch on within one time step (default) or ramp over one frame",
     )
-    p.add_argument(
-        "--contact",
-        default="",
-        metavar="REGIONS",
-        help="penalty contact, comma-separated: lips, teeth, bones (as in `wface simulate`)",
-    )
-    p.add_argument(
-        "--obstacle",
-        action="append",
-        default=[],
-        metavar="SPEC",
-        help="rigid obstacle (repeatable), e.g. sphere:X,Y,Z,R in metres (see `wface simulate --help`)",
-    )
+    add_contact_arguments(p, where="every time step and reference frame")
     p.add_argument("--no-reference", action="store_true", help="skip the quasistatic reference frames")
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
     p.add_argument("--tol", type=float, default=1e-6, help="relative Newton tolerance per step (default 1e-6)")
@@ -271,11 +261,7 @@ def _run(args: argparse.Namespace) -> int:
     sim = Simulator(model, device=args.device, solver=args.solver)
     if take.force_length_scale is not None:  # an exaggerated `wface edit` take: the reference sees it too
         sim.force_length_scale = take.force_length_scale
-    contact = None
-    if args.contact or args.obstacle:
-        from wface.physics.contact import Contact
-
-        contact = Contact.from_spec(model, args.contact, args.obstacle)
+    contact = contact_from_args(args, model)
     skin_nodes, _ = skin_mesh(model)
     extra: dict = {}
     reference = take.reference_positions_m

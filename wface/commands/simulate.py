@@ -7,6 +7,8 @@ import json
 import time
 from pathlib import Path
 
+from wface.commands.contact_args import add_contact_arguments, contact_from_args
+
 _EPILOG = """\
 Writes DIR/equilibrium.npz (positions_m (n, 3), rest_positions_m, activations, muscle_names) and
 DIR/summary.json (newton_iterations, residual_rel, converged, max_displacement_mm,
@@ -42,28 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="muscle activation in [0, 1] (repeatable)",
     )
     p.add_argument("--jaw-open", type=float, default=0.0, metavar="DEG", help="jaw opening angle in degrees")
-    p.add_argument(
-        "--contact",
-        default="",
-        metavar="REGIONS",
-        help="comma-separated contact regions: lips (upper vs lower lip self-contact), teeth (flesh against "
-        "the teeth meshes), bones (against the cranium and jaw meshes); teeth and bones move with the jaw",
-    )
-    p.add_argument(
-        "--obstacle",
-        action="append",
-        default=[],
-        metavar="SPEC",
-        help="rigid obstacle pressed into the face (repeatable), metres: sphere:X,Y,Z,R (ball of radius R at "
-        "X,Y,Z) or plane:PX,PY,PZ,NX,NY,NZ (solid half-space through P, outward normal N toward the face)",
-    )
-    p.add_argument(
-        "--contact-stiffness",
-        type=float,
-        default=None,
-        metavar="N_PER_M",
-        help="contact penalty stiffness in N/m (default: 100 x flesh Young's modulus x median edge length)",
-    )
+    add_contact_arguments(p)
     p.add_argument(
         "--picture",
         action="store_true",
@@ -127,13 +108,7 @@ def _run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     model = load_model(args.model)
     activations = model.activation_vector(parse_activations(args.activation))  # clear KeyError / ValueError
-    contact = None
-    if args.contact or args.obstacle:
-        from wface.physics.contact import Contact
-
-        contact = Contact.from_spec(
-            model, args.contact, args.obstacle, stiffness_n_per_m=args.contact_stiffness
-        )  # clear ValueError for unknown regions / bad specs
+    contact = contact_from_args(args, model)  # clear ValueError for unknown regions / bad specs
     sim = Simulator(model, device=args.device, solver=args.solver)
     targets = attached_positions(model, jaw=jaw_opening_affine(model, args.jaw_open))
     eq = sim.solve(activations, targets, tol=args.tol, max_iterations=args.max_iterations, contact=contact)

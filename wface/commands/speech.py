@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.commands.contact_args import add_contact_arguments, contact_from_args
+
 _EPILOG = """\
 The gesture folders (speech/closure, speech/fricative, speech/approximant of the ArtiSynth face
 data) hold one excitation curve per muscle and 0probes.art, which names the muscle each curve
@@ -57,25 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="whole",
         help="what the OOMl exciter drives: the whole OOM (default, approximation) or nothing",
     )
-    p.add_argument(
-        "--contact",
-        help="contact regions in every solve: lips (lip self-contact on ArtiSynth's lip collision surfaces), "
-        "teeth, bones, comma-separated (default: none); the report gives the lip gap per frame either way",
-    )
-    p.add_argument("--contact-stiffness", type=float, help="penalty stiffness k in N/m (default 100 x E x h)")
-    p.add_argument(
-        "--contact-smoothing-mm",
-        type=float,
-        default=0.1,
-        help="width of the C2 penalty ramp in mm (default 0.1; 0: the plain C1 penalty)",
-    )
-    p.add_argument(
-        "--freeze-below",
-        type=float,
-        default=1.0,
-        help="relative residual below which Newton freezes the lip contact features (default 1: always; "
-        "negative: never), see wface.physics.frozen",
-    )
+    add_contact_arguments(p, smoothing_mm=0.1, freeze_below=1.0, obstacles=False, where="every frame's solve")
     p.add_argument("--max-iterations", type=int, default=40, help="Newton iteration cap per frame (default 40)")
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
     p.set_defaults(func=run_speech)
@@ -158,17 +142,7 @@ def run_speech(args: argparse.Namespace) -> int:
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
     mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
     t_load = time.perf_counter() - t_start
-    contact = None
-    if args.contact:
-        from wface.physics.contact import Contact
-
-        contact = Contact(
-            model,
-            regions=args.contact,
-            stiffness_n_per_m=args.contact_stiffness,
-            smoothing_m=args.contact_smoothing_mm * 1e-3,
-            freeze_below=None if args.freeze_below < 0 else args.freeze_below,
-        )
+    contact = contact_from_args(args, model)
     result = simulate_gesture(
         model,
         gesture,

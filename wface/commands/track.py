@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.commands.contact_args import add_contact_arguments, contact_from_args
+
 _DEMO_EPILOG = """\
 The main job on the built-in face: build the face, synthesise a performance with known
 activations, jaw and head motion (forward quasistatic FEM), corrupt the markers like real capture
@@ -54,20 +56,14 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--temporal-weight", type=float, default=0.0, help="pull of activations toward the previous frame")
     p.add_argument("--no-movie", action="store_true", help="skip the mp4 movie")
     p.add_argument("--no-pictures", action="store_true", help="skip pictures, plots, movie and HTML")
-    p.add_argument(
-        "--contact",
-        help="contact in every equilibrium and Jacobian: lips, teeth, bones, comma-separated (default: none); "
-        "for demo also in the synthesised ground truth",
+    add_contact_arguments(
+        p, smoothing_mm=0.05, obstacles=False, where="every equilibrium and Jacobian (for demo also the ground truth)"
     )
 
 
 def _contact(args, model):
-    """The ``Contact`` of --contact (C2 penalty ramp of 0.05 mm), or None."""
-    if not getattr(args, "contact", None):
-        return None
-    from wface.physics.contact import Contact
-
-    return Contact(model, regions=args.contact, smoothing_m=5e-5)
+    """The ``Contact`` of the contact options (a 0.05 mm C2 ramp by default, for smooth Jacobians)."""
+    return contact_from_args(args, model)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -1,0 +1,41 @@
+"""The contact flags mean the same in every command; each keeps its measured defaults."""
+
+from __future__ import annotations
+
+import pytest
+
+from wface.cli import build_parser
+
+FLAGS = ("--contact", "--contact-stiffness", "--contact-smoothing-mm", "--freeze-below")
+
+
+def _options(command: str) -> set[str]:
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    return {s for a in sub.choices[command]._actions for s in a.option_strings}
+
+
+@pytest.mark.parametrize("command", ["simulate", "resim", "speech", "track", "demo"])
+def test_every_command_has_the_contact_flags(command):
+    assert set(FLAGS) <= _options(command)
+
+
+def test_defaults_and_the_contact_they_build():
+    from wface.builtin import build_face
+    from wface.commands.contact_args import contact_from_args
+
+    parser = build_parser()
+    model = build_face(1000)
+    sim = parser.parse_args(["simulate", "--model", "m.npz", "--out", "o", "--contact", "lips"])
+    speech = parser.parse_args(
+        ["speech", "--model", "m.npz", "--gesture", "closure", "--out", "o", "--contact", "lips"]
+    )
+    track = parser.parse_args(["track", "--mocap", "t.c3d", "--out", "o", "--contact", "lips"])
+    c_sim, c_speech, c_track = (contact_from_args(a, model) for a in (sim, speech, track))
+    assert c_sim.smoothing_m == 0.0 and c_sim.freeze_below is None  # the plain penalty
+    assert c_speech.smoothing_m == pytest.approx(1e-4) and c_speech.freeze_below == 1.0
+    assert c_track.smoothing_m == pytest.approx(5e-5) and c_track.freeze_below is None
+    assert contact_from_args(parser.parse_args(["simulate", "--model", "m", "--out", "o"]), model) is None
+    bad = parser.parse_args(["simulate", "--model", "m", "--out", "o", "--contact", "gums"])
+    with pytest.raises(ValueError, match="gums"):
+        contact_from_args(bad, model)
