@@ -11,25 +11,34 @@ import numpy as np
 
 from wface.model import BONES, FaceModel
 
-__all__ = ["IDENTITY_AFFINE", "apply_affine", "attached_positions", "jaw_opening_affine", "rotation_about_axis"]
+__all__ = [
+    "IDENTITY_AFFINE",
+    "apply_affine",
+    "as_affine",
+    "attached_positions",
+    "jaw_opening_affine",
+    "rotation_about_axis",
+]
 
 IDENTITY_AFFINE = np.hstack([np.eye(3), np.zeros((3, 1))])
 
 
-def _as_affine(affine: np.ndarray | None, name: str) -> np.ndarray:
+def as_affine(affine: np.ndarray | None, what: str) -> np.ndarray:
+    """A finite 3x4 [M | t] affine from a 3x4 or 4x4 matrix (None: the identity); ``what`` names it
+    in the error."""
     if affine is None:
         return IDENTITY_AFFINE
     A = np.asarray(affine, dtype=np.float64)
     if A.shape == (4, 4):
         A = A[:3]
     if A.shape != (3, 4) or not np.all(np.isfinite(A)):
-        raise ValueError(f"{name} affine must be a finite 3x4 [M | t] matrix, got shape {A.shape}")
+        raise ValueError(f"{what} must be a finite 3x4 [M | t] (or 4x4) matrix, got shape {A.shape}")
     return A
 
 
 def apply_affine(affine: np.ndarray, points: np.ndarray) -> np.ndarray:
     """M p + t for points (k, 3) and a 3x4 affine [M | t]."""
-    A = _as_affine(affine, "the")
+    A = as_affine(affine, "affine")
     return np.asarray(points, dtype=np.float64) @ A[:, :3].T + A[:, 3]
 
 
@@ -46,7 +55,7 @@ def attached_positions(
     Returns:
         (a, 3) float64 metres, in the order of ``model.attached_nodes``.
     """
-    Ac, Am = _as_affine(cranium, "cranium"), _as_affine(jaw, "jaw")
+    Ac, Am = as_affine(cranium, "cranium affine"), as_affine(jaw, "jaw affine")
     X0 = model.rest_positions_m[model.attached_nodes]
     out = np.empty_like(X0)
     on_jaw = model.attached_bone == BONES.index("jaw")

@@ -14,6 +14,7 @@ import numpy as np
 
 from wface.mesh.signed_distance import SignedSurface, oriented_outward
 from wface.model import BONES, FaceModel
+from wface.physics.bones import as_affine
 
 __all__ = ["HalfSpace", "MeshObstacle", "Sphere", "as_affine", "bone_affines_from_attached", "parse_obstacle"]
 
@@ -27,15 +28,6 @@ def _vec3(value, what: str) -> np.ndarray:
     if v.shape != (3,) or not np.all(np.isfinite(v)):
         raise ValueError(f"{what} must be 3 finite numbers, got {value!r}")
     return v
-
-
-def as_affine(value, what: str) -> np.ndarray:
-    A = np.asarray(value, dtype=np.float64)
-    if A.shape == (4, 4):
-        A = A[:3]
-    if A.shape != (3, 4) or not np.all(np.isfinite(A)):
-        raise ValueError(f"{what} must be a finite 3x4 [M | t] (or 4x4) matrix, got shape {A.shape}")
-    return A
 
 
 # ---------------------------------------------------------------------- rigid obstacles
@@ -101,7 +93,7 @@ class MeshObstacle:
         if bone is not None and bone not in BONES:
             raise ValueError(f"obstacle {name!r}: unknown bone {bone!r}; known: {BONES}")
         self.vertices_m, self.triangles = v, oriented_outward(v, t)
-        self.affine = as_affine(np.hstack([np.eye(3), np.zeros((3, 1))]) if affine is None else affine, "affine")
+        self.affine = as_affine(affine, "affine")
         self.bone, self.name = bone, name
         self._cache: tuple[bytes, SignedSurface] | None = None
 
