@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wface.importers import import_artisynth
+from wface.faces import import_artisynth
 from wface.model import load_model, save_model
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "artisynth-face"

@@ -37,20 +37,16 @@ def run(
     model_path: Path | None = None,
 ) -> dict:
     """Play ``gestures``; returns {gesture: summary} and writes the outputs under ``out``."""
-    import numpy as np
-
-    from wface.commands.speech import write_lip_opening
-    from wface.importers.speech import map_gesture_to_model, read_gesture
-    from wface.io.usd import write_take
     from wface.physics.simulator import Simulator
-    from wface.speech import simulate_gesture, summarize
+    from wface.speech import map_gesture_to_model, read_gesture, simulate_gesture, summarize
+    from wface.speech.output import write_gesture_usd, write_lip_opening
 
     if model_path is not None:
         from wface.model import load_model
 
         model = load_model(model_path)
     else:
-        from wface.importers.artisynth import import_artisynth
+        from wface.faces.artisynth import import_artisynth
 
         model = import_artisynth(data, progress=False)
     sim = Simulator(model)  # one simulator (kernels, sparsity pattern) for all gestures
@@ -70,18 +66,7 @@ def run(
         d = out / name
         d.mkdir(exist_ok=True)
         write_lip_opening(d, res, model)
-        eye = np.tile(np.hstack([np.eye(3), np.zeros((3, 1))]), (len(res.times_s), 1, 1))
-        write_take(
-            d / "animation.usdc",
-            model=model,
-            node_positions_m=res.node_positions_m,
-            fps=fps,
-            simulated_markers_m=res.markers_m,
-            cranium_affines=eye,
-            jaw_affines=eye,
-            activations=res.activations,
-            metadata={"gesture": name},
-        )
+        write_gesture_usd(d / "animation.usdc", res, model, fps=fps, source=str(data / "speech" / name))
         summaries[name] = summarize(res)
         (d / "report.json").write_text(json.dumps(summaries[name], indent=2))
         results[name] = res
@@ -116,11 +101,12 @@ def track_take(
     import numpy as np
 
     from wface.io.mocap import read_mocap
-    from wface.rig import FaceRig
-    from wface.speech import select_capture_markers
+    from wface.speech.playback import select_capture_markers
+    from wface.takes.store import take_from_records, write_controls, write_report
     from wface.tracking.capture import prepare_capture
     from wface.tracking.identifiability import rig_identifiability_mm
-    from wface.tracking.report import build_report, write_controls, write_report
+    from wface.tracking.report import build_report
+    from wface.tracking.rig import FaceRig
     from wface.tracking.sequence import track_sequence
 
     if model_path is not None:
@@ -128,7 +114,7 @@ def track_take(
 
         model = load_model(model_path)
     else:
-        from wface.importers.artisynth import import_artisynth
+        from wface.faces.artisynth import import_artisynth
 
         model = import_artisynth(data, progress=False)
     a, b, step = (list(map(int, frames.split(":"))) + [1])[:3]
@@ -168,7 +154,7 @@ def track_take(
     }
     rep["capture_scale"], rep["capture_rest_fit_mm"] = cap.scale, cap.alignment_rms_mm
     write_report(out, rep)
-    write_controls(out, model, recs, fps=take.rate_hz / step)
+    write_controls(out, model, take_from_records(model, recs, fps=take.rate_hz / step))
     return rep
 
 

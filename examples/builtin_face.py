@@ -51,7 +51,7 @@ def render_face(model, path: Path, *, size=(1200, 900), show_muscles=True) -> Pa
 
 
 def main(argv=None) -> int:
-    from wface.builtin import build_face
+    from wface.faces.builtin import build_face
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tets", type=int, default=20000, help="mesh size in tetrahedra")

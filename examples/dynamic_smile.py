@@ -18,9 +18,9 @@ import numpy as np
 
 
 def main(argv=None) -> int:
-    from wface.builtin import build_face
+    from wface.faces.builtin import build_face
     from wface.physics import Damping, DynamicSimulator, Simulator
-    from wface.resim import skin_mesh, write_resim_usd
+    from wface.takes.usd import skin_mesh, write_take_usd
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tets", type=int, default=5000, help="size of the built-in face in tetrahedra")
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     table = np.column_stack([times, excursion_mm["midpoint"], excursion_mm["be"], np.full_like(times, static_mm)])
     np.savetxt(out / "trajectory.csv", table, delimiter=",", header="t_s,midpoint_mm,be_mm,quasistatic_mm")
-    write_resim_usd(out / "smile.usdc", model, np.array(frames), fps=1.0 / (4 * args.dt))
+    write_take_usd(out / "smile.usdc", model, np.array(frames), fps=1.0 / (4 * args.dt))
     try:
         import matplotlib
 

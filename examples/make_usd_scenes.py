@@ -6,7 +6,7 @@
 
 Scenes (each a .usda text file under 1 MB, so that diffs stay readable):
 
-- synthetic_take: a tracked take of a small synthetic face (``wface.viz.synthetic``): skin with
+- synthetic_take: a tracked take of a small synthetic face (``wface.testing.synthetic_face``): skin with
   an activation heat map, captured (red) and simulated (green) markers, cranium and jaw moving,
   per-muscle activation curves, and an actuation basis as UsdSkel blend shapes.
 - synthetic_tracked_take: the same performance tracked from its noisy captured markers with the
@@ -15,7 +15,7 @@ Scenes (each a .usda text file under 1 MB, so that diffs stay readable):
   ``wface.basis``).
 - synthetic_basis: that basis alone, as blend shapes animated by per-frame weights (what
   Blender's USD importer turns into shape keys).
-- builtin_face: the built-in face (``wface.builtin``, coarse) at rest with the smile muscles
+- builtin_face: the built-in face (``wface.faces.builtin``, coarse) at rest with the smile muscles
   active: skin heat map and markers (bone meshes left out: they would triple the file).
 - waters_expression: a Waters vector-muscle expression on the synthetic head, blended in from
   neutral (needs ``wface.waters``; skipped with a note when it is absent).
@@ -49,7 +49,7 @@ class SceneUnavailable(RuntimeError):
 
 def synthetic_take(path: Path) -> Path:
     from wface.io.usd import write_take
-    from wface.viz.synthetic import synthetic_face, synthetic_take
+    from wface.testing.synthetic_face import synthetic_face, synthetic_take
 
     model = synthetic_face(nx=10, ny=10, nz=2)
     take = synthetic_take(model, n_frames=20, fps=24.0)
@@ -75,7 +75,7 @@ def synthetic_tracked_take(path: Path) -> Path:
     except ImportError as exc:  # the basis tracker lives on main
         raise SceneUnavailable(f"wface.basis is not available ({exc})") from exc
     from wface.io.usd import write_take
-    from wface.viz.synthetic import rotation_about, synthetic_face, synthetic_take
+    from wface.testing.synthetic_face import rotation_about, synthetic_face, synthetic_take
 
     model = synthetic_face(nx=10, ny=10, nz=2)
     take = synthetic_take(model, n_frames=20, fps=24.0)
@@ -120,7 +120,7 @@ def synthetic_tracked_take(path: Path) -> Path:
 
 def synthetic_basis(path: Path) -> Path:
     from wface.io.usd import write_blendshape_basis
-    from wface.viz.synthetic import synthetic_face, synthetic_take
+    from wface.testing.synthetic_face import synthetic_face, synthetic_take
 
     model = synthetic_face(nx=10, ny=10, nz=2)
     take = synthetic_take(model, n_frames=20, fps=24.0)
@@ -139,9 +139,9 @@ def synthetic_basis(path: Path) -> Path:
 
 def builtin_face(path: Path) -> Path:
     try:
-        from wface.builtin import build_face
+        from wface.faces.builtin import build_face
     except ImportError as exc:  # the built-in face lives on main
-        raise SceneUnavailable(f"wface.builtin is not available ({exc})") from exc
+        raise SceneUnavailable(f"wface.faces.builtin is not available ({exc})") from exc
     from wface.io.usd import write_take
 
     model = build_face(target_tets=4000)
@@ -162,11 +162,11 @@ def builtin_face(path: Path) -> Path:
 
 def waters_expression(path: Path) -> Path:
     try:
+        from wface.testing.synthetic_head import synthetic_head, synthetic_landmarks
         from wface.waters.expressions import interpolate_poses
         from wface.waters.fit import fit_layout
         from wface.waters.layout import load_layout
         from wface.waters.rig import WatersRig
-        from wface.waters.synthetic import synthetic_head, synthetic_landmarks
     except ImportError as exc:  # wface.waters lands from the waters branch
         raise SceneUnavailable(f"wface.waters is not available ({exc})") from exc
     from wface.io.usd import write_mesh_animation
@@ -197,12 +197,13 @@ def waters_expression(path: Path) -> Path:
 
 
 def fem_tracked_take(path: Path) -> Path:
-    """The FEM tracker (seed 000) on the built-in face: a 3-frame synthetic performance tracked from
+    """The FEM tracker (Sifakis et al. 2005) on the built-in face: a 3-frame synthetic performance tracked from
     its markers (noise-free, so the result converges to the truth and the scene is reproducible);
     the skin is the tracked equilibrium, captured markers red, tracked green."""
-    from wface.builtin import build_face
-    from wface.io.usd import write_take
-    from wface.rig import FaceRig
+    from wface.faces.builtin import build_face
+    from wface.takes.store import take_from_records
+    from wface.takes.usd import write_take_usd
+    from wface.tracking.rig import FaceRig
     from wface.tracking.sequence import embed_model_markers, track_sequence
     from wface.tracking.synthetic import synthesize_performance
 
@@ -210,24 +211,16 @@ def fem_tracked_take(path: Path) -> Path:
     markers = embed_model_markers(model)
     perf = synthesize_performance(FaceRig(model), markers, frames=3, seed=11, head_motion=False)
     recs = track_sequence(model, perf.markers_m, marker_names=model.marker_names, markers=markers)
-    M = model.n_muscles
-    C = np.array([r.controls for r in recs])
-    from wface.controls import bone_affines
-
-    cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(c[M:]) for c in C), strict=True))
     rms = float(np.sqrt(np.nanmean(np.array([r.marker_error_m for r in recs]) ** 2)) * 1e3)
-    return write_take(
+    return write_take_usd(
         path,
-        model=model,
-        node_positions_m=np.array([r.x_m for r in recs]),
-        fps=30.0,
+        model,
+        np.array([r.x_m for r in recs]),
+        take=take_from_records(model, recs, fps=30.0, source="examples/make_usd_scenes.py fem_tracked_take"),
         captured_markers_m=perf.markers_m,
         simulated_markers_m=np.array([r.markers_m for r in recs]),
-        cranium_affines=cranium,
-        jaw_affines=jaw,
-        activations=C[:, :M],
         bone_meshes={},
-        metadata={"source": "examples/make_usd_scenes.py fem_tracked_take", "marker_rms_mm": round(rms, 3)},
+        metadata={"marker_rms_mm": round(rms, 3)},
     )
 
 

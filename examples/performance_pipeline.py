@@ -4,7 +4,7 @@
     python examples/performance_pipeline.py --out out/pipeline --synthetic     # a take with known truth
     python examples/performance_pipeline.py --tets 2000 --frames 4 --no-contact --out /tmp/p   # seconds
 
-Four stages on the built-in face (``wface.builtin.build_face``), each one a public API call a
+Four stages on the built-in face (``wface.faces.builtin.build_face``), each one a public API call a
 pipeline would make:
 
 1. **Track** (``wface.tracking``). The capture is ``JawMoCap.c3d`` of the AnimFace set when it is
@@ -18,15 +18,15 @@ pipeline would make:
    per frame, warm-started frame to frame. The tracked take is written the way ``wface track``
    writes it (``tracked/controls.npz``, ``tracked/frames/``), so ``wface edit`` and
    ``wface resim --take`` can read it too.
-2. **Edit** in activation space (``wface.editing``): ``exaggerate`` x1.5 (``--exaggerate``) about
+2. **Edit** in activation space (``wface.takes``): ``exaggerate`` x1.5 (``--exaggerate``) about
    the rest pose (drives past full activation become force-length scales, never activations
    above 1), then ``layer`` a smile (``expression_pose(model, "smile")``) with a sin^2 envelope
    over the middle half of the take (``--smile``, its peak weight). ``simulate_poses`` solves the
    quasistatic equilibrium of every edited frame.
-3. **Re-simulate** the edited take dynamically (``wface.resim.resimulate``, implicit midpoint,
+3. **Re-simulate** the edited take dynamically (``wface.takes.dynamic.resimulate``, implicit midpoint,
    ``--substeps`` per frame): inertia, overshoot, secondary motion from the head motion. The
-   edited take goes to the dynamic solver with ``wface.resim.take_from_poses``, which keeps the
-   exaggeration (per-muscle force-length scales). Lip contact (``wface.physics.contact``, lips
+   edited take is the same ``wface.takes.Take`` type, so its exaggeration (per-muscle
+   force-length scales) goes to the dynamic solver as it is. Lip contact (``wface.physics.contact``, lips
    against lips) is tried unless ``--no-contact``; when a contact step fails to converge the
    dynamic pass is redone without contact and the output says so (``contact`` in summary.json).
 4. **Export**: one directory per stage, as the commands write them (``tracked/``: controls.npz,
@@ -115,7 +115,7 @@ def _capture(args, model):
             "matched_markers": len(cap.matched_names),
         }
         return cap.targets_m, clip.marker_names, cap.markers, clip.rate_hz, info, None
-    from wface.rig import FaceRig
+    from wface.tracking.rig import FaceRig
     from wface.tracking.sequence import embed_model_markers
     from wface.tracking.synthetic import synthesize_performance
 
@@ -130,7 +130,7 @@ def _capture(args, model):
 
 
 def track(args, model, out: Path):
-    from wface.tracking.report import write_controls, write_report
+    from wface.takes.store import take_from_records, write_controls, write_report
     from wface.tracking.sequence import track_sequence
 
     targets, names, markers, fps, info, truth = _capture(args, model)
@@ -143,7 +143,7 @@ def track(args, model, out: Path):
         out_dir=out / "tracked",
         progress=True,
     )
-    write_controls(out / "tracked", model, records, fps=fps)
+    write_controls(out / "tracked", model, take_from_records(model, records, fps=fps))
     err_mm = np.array([r.marker_error_m for r in records]) * 1e3
     info["marker_rms_mm"] = float(np.sqrt(np.nanmean(err_mm**2)))
     info["marker_rms_mm_per_frame"] = np.sqrt(np.nanmean(err_mm**2, axis=1)).tolist()
@@ -159,17 +159,18 @@ def track(args, model, out: Path):
 
 # ---------------------------------------------------------------------- stage 2: editing
 def edit(args, model, records, fps):
-    from wface.editing import Take, exaggerate, expression_pose, layer, pose_from_controls, simulate_poses
     from wface.physics import Simulator
+    from wface.takes import exaggerate, expression_pose, layer, simulate_poses
+    from wface.takes.store import take_from_records
 
     joint = model.jaw_joint
-    tracked = Take([pose_from_controls(model, r.controls) for r in records], fps, list(model.muscle_names), "tracked")
+    tracked = take_from_records(model, records, fps=fps)
     big = tracked.with_poses([exaggerate(p, args.exaggerate, joint=joint) for p in tracked.poses])
     F = len(big)
     s = np.clip((np.arange(F) - F / 4) / max(F / 2, 1), 0.0, 1.0)  # the middle half of the take
     envelope = args.smile * np.sin(np.pi * s) ** 2 * ((s > 0) & (s < 1))
     edited = layer(big, expression_pose(model, "smile"), envelope, joint=joint)
-    edited = Take(edited.poses, fps, list(model.muscle_names), f"tracked x{args.exaggerate:g} + smile")
+    edited = edited.with_poses(edited.poses, source=f"tracked x{args.exaggerate:g} + smile")
     sim = Simulator(model)
     # the exaggeration alone too, to see what each edit does to the mouth corner
     return (
@@ -181,12 +182,12 @@ def edit(args, model, records, fps):
 
 # ---------------------------------------------------------------------- stage 3: dynamics
 def dynamics(args, model, edit_result):
-    """(ResimResult, the re-simulated wface.resim.Take, quasistatic reference (F, n, 3), contact note)."""
+    """(ResimResult, the re-simulated take, quasistatic reference (F, n, 3), contact note)."""
     from wface.physics import Simulator
     from wface.physics.contact import Contact
-    from wface.resim import quasistatic_frames, resimulate, take_attached_positions, take_from_poses
+    from wface.takes.dynamic import quasistatic_reference, resimulate
 
-    take = take_from_poses(model, edit_result.take)
+    take = edit_result.take
     sim = Simulator(model)
     lips = Contact.from_spec(model, "lips")  # also measures how far the lips overlap without contact
     note = {"requested": not args.no_contact, "lip_overlap_mm_without_contact": _lip_overlap_mm(lips, edit_result.y_m)}
@@ -200,14 +201,8 @@ def dynamics(args, model, edit_result):
             note["used"] = True
             note["lip_overlap_mm_dynamic"] = _lip_overlap_mm(lips, result.positions_m)
             note["inverted_elements_max"] = int(result.inverted_elements.max())
-            sim.force_length_scale = 1.0 if take.force_length_scale is None else take.force_length_scale
-            reference = quasistatic_frames(
-                sim, take.activations, take_attached_positions(model, take, frame="cranium"), contact=contact
-            )
-            sim.force_length_scale = 1.0
-            from wface.resim import cranium_to_world
-
-            return result, take, cranium_to_world(take, reference), note
+            reference = quasistatic_reference(sim, model, take, frame="cranium", contact=contact)
+            return result, take, reference, note
         if result is not None:
             bad = np.flatnonzero(~result.converged).tolist()
             note["error"] = f"Newton did not converge in frames {bad} (residual {result.residual_rel.max():.2e})"
@@ -269,11 +264,13 @@ def _plot(path: Path, fps: float, curves: dict, captured_mm, exaggerated_mm, fac
 
 
 def main(argv=None) -> int:
-    from wface.builtin import build_face
     from wface.controls import bone_affines
-    from wface.editing import write_edit
-    from wface.io.usd import assert_stage_valid, write_take
-    from wface.resim import deviation_mm, skin_mesh, write_resim_npz, write_resim_usd
+    from wface.faces.builtin import build_face
+    from wface.io.usd import assert_stage_valid
+    from wface.takes import write_edit
+    from wface.takes.dynamic import deviation_mm, write_resim_npz
+    from wface.takes.store import take_from_records
+    from wface.takes.usd import skin_mesh, write_take_usd
 
     args = _parse(argv)
     out = Path(args.out)
@@ -304,20 +301,19 @@ def main(argv=None) -> int:
     # one directory per stage, laid out as `wface track` / `wface edit` / `wface resim` write them,
     # so each can be fed to the next command (`wface edit ... --take OUT/tracked`, `wface resim --take OUT/edited`)
     stages = {
-        "tracked": write_take(
+        "tracked": write_take_usd(
             out / "tracked" / "animation.usdc",
-            model=model,
-            node_positions_m=tracked_x,
-            fps=fps,
+            model,
+            tracked_x,
+            take=take_from_records(model, records, fps=fps),
             captured_markers_m=targets,
             simulated_markers_m=np.array([r.markers_m for r in records]),
             marker_names=list(names),
-            cranium_affines=cranium,
-            jaw_affines=jaw,
-            activations=C[:, :M],
         ),
         "edited": out / "edited" / "animation.usdc",
-        "dynamic": write_resim_usd(out / "dynamic" / "animation.usdc", model, dyn.positions_m, fps, take=dyn_take),
+        "dynamic": write_take_usd(
+            out / "dynamic" / "animation.usdc", model, dyn.positions_m, take=dyn_take, metadata={"dynamic": True}
+        ),
     }
     edit_report = write_edit(out / "edited", model, edit_result, info={"edit": "exaggerate + layer smile"})
     write_resim_npz(out / "dynamic" / "resim.npz", dyn, reference_positions_m=reference)

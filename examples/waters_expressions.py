@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from wface.facs import EXPRESSIONS
+from wface.testing.synthetic_head import synthetic_head, synthetic_landmarks
 from wface.waters.expressions import interpolate_poses
 from wface.waters.fit import fit_layout
 from wface.waters.layout import load_layout
@@ -29,7 +30,6 @@ from wface.waters.pipeline import pose_mesh
 from wface.waters.render import render_grid, render_layout
 from wface.waters.rig import WatersRig
 from wface.waters.surface import read_surface, write_usd
-from wface.waters.synthetic import synthetic_head, synthetic_landmarks
 
 DEFAULT_DATA = Path(os.environ.get("WFACE_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> dict:
     layout = load_layout("ict")
     rig = None
     if args.face == "builtin":
-        from wface.builtin import build_face
+        from wface.faces.builtin import build_face
         from wface.waters.face_model import face_model_rig
 
         rig, mesh, _ = face_model_rig(build_face(args.tets))

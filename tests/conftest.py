@@ -29,7 +29,7 @@ def shared_data_dir() -> Path:
 @pytest.fixture(scope="session")
 def badin_model():
     """The ArtiSynth Badin face imported once per test session (the import takes ~10-20 s)."""
-    from wface.importers.artisynth import import_artisynth
+    from wface.faces.artisynth import import_artisynth
 
     return import_artisynth(data_path("artisynth-face"), progress=False)
 

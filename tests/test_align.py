@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from tests.conftest import data_path
-from wface.align import Similarity, align_to_surface, embed_markers, remove_head_motion, umeyama
+from wface.mesh.align import Similarity, align_to_surface, embed_markers, remove_head_motion, umeyama
 
 _EXACT = 1e-9  # float64 round-off on O(1) coordinates
 

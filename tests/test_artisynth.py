@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from tests.conftest import data_path
-from wface.importers.ansys import hexes_to_tets, read_ansys_elements, read_ansys_nodes, read_apdl_fibres, read_int_list
-from wface.importers.artisynth import BADIN_TO_WFACE, import_artisynth, read_badin_fibres
+from wface.faces.ansys import hexes_to_tets, read_ansys_elements, read_ansys_nodes, read_apdl_fibres, read_int_list
+from wface.faces.artisynth import BADIN_TO_WFACE, import_artisynth, read_badin_fibres
 from wface.mesh.closest import SurfaceQuery
 from wface.mesh.quality import dihedral_angles_deg, signed_volumes
 from wface.mesh.surface import boundary_faces
@@ -66,7 +66,7 @@ def test_jaw_list_holds_zero_based_positions(raw, data_dir):
     """Jaw attachments read as 0-based positions lie on the jaw; read as node numbers they do not."""
     _, xb, hexes = raw
     lst = read_int_list(data_dir / "face_jaw_attachments.txt")
-    from wface.importers.ansys import read_obj
+    from wface.faces.ansys import read_obj
 
     q = [SurfaceQuery(*read_obj(data_dir / f)) for f in ("badinjaw.obj", "lowerteeth.obj")]
 
@@ -130,7 +130,7 @@ def test_no_slivers_and_the_boundary_stays_put(model, raw):
     """The sliver removal leaves no tet below 5 deg. It moves only interior nodes that no boundary
     condition names, and inserts nodes on edges: on a boundary edge such a node lies on the edge, so
     the skin and inner surfaces are where the source mesh put them."""
-    from wface.importers.artisynth import badin_to_wface
+    from wface.faces.artisynth import badin_to_wface
 
     x, t = model.rest_positions_m, model.tets
     dih = dihedral_angles_deg(x, t)
@@ -323,7 +323,7 @@ def test_import_is_deterministic(model, data_dir):
 
 def test_fibre_radius_controls_the_muscle_volume(model):
     """A thinner tube fills less; the volume of a tube of radius r around a long fibre ~ pi r^2 L."""
-    from wface.importers.fibres import embed_fibres
+    from wface.faces.fibres import embed_fibres
 
     fibres = [np.asarray(f) for f in model.metadata["muscle_fibres_m"]["RIS_l"]]
     length = sum(np.linalg.norm(np.diff(f, axis=0), axis=1).sum() for f in fibres)
@@ -369,7 +369,7 @@ def test_skin_is_a_connected_surface_without_holes_from_the_split(model):
 
 # ---------------------------------------------------------------------------- readers (no data needed)
 def test_readers_on_small_files(tmp_path):
-    from wface.importers.ansys import read_obj
+    from wface.faces.ansys import read_obj
 
     (tmp_path / "a.node").write_text("       1    0.5   -1.0E-03  2.0\n    1204-0.3651439041000E-05  78.8  -67.8\n")
     num, xyz = read_ansys_nodes(tmp_path / "a.node")

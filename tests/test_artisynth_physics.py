@@ -34,11 +34,11 @@ def setup(badin_model):
 
 
 def _solve(setup, muscle=None, jaw_deg=0.0):
-    from wface.physics.bones import attached_positions, jaw_opening_affine
+    from wface.controls import attached_positions_from_affines, jaw_opening_affine
 
     model, sim, markers = setup
     acts = {n: 1.0 for n in model.muscle_names if muscle and n.rsplit("_", 1)[0] == muscle}
-    targets = attached_positions(model, jaw=jaw_opening_affine(model, jaw_deg)) if jaw_deg else None
+    targets = attached_positions_from_affines(model, jaw=jaw_opening_affine(model, jaw_deg)) if jaw_deg else None
     res = sim.solve(activations=acts, attached_positions=targets, tol=TOL)
     assert res.converged and res.inverted_elements == 0, (muscle, jaw_deg, res.residual_rel, res.inverted_elements)
     rest, moved = markers(model.rest_positions_m), markers(res.x)

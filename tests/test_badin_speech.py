@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 
 from tests.conftest import data_path
-from wface.importers.speech import (
+from wface.speech.gestures import (
     interpolate,
     map_gesture_to_model,
     read_excitation_curve,
     read_gesture,
     read_probes,
 )
-from wface.speech import gesture_times, lip_opening_mm
+from wface.speech.playback import gesture_times, lip_opening_mm
 
 _EXACT = 1e-12  # float64 round-off of a few operations
 

@@ -23,7 +23,7 @@ PERFORMANCE_MUSCLES = tuple(f"{b}_{s}" for b in ("OOP", "MENT", "RIS", "LLS", "D
 @pytest.fixture(scope="module")
 def setup(badin_model):
     from wface.io.mocap import read_mocap
-    from wface.speech import select_capture_markers
+    from wface.speech.playback import select_capture_markers
 
     model = badin_model
     take = read_mocap(data_path("animface", "JawMoCap.c3d"))
@@ -46,9 +46,9 @@ def test_capture_markers_on_the_badin_skin(setup):
 
 def test_synthetic_performance_is_recovered(setup):
     from wface.controls import jaw_to_intuitive
-    from wface.rig import FaceRig
-    from wface.speech import performance_controls, simulate_controls
+    from wface.speech.playback import performance_controls, simulate_controls
     from wface.tracking.capture import prepare_capture
+    from wface.tracking.rig import FaceRig
     from wface.tracking.sequence import track_sequence
 
     model, take, sel = setup

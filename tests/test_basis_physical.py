@@ -8,7 +8,7 @@ import pytest
 from wface.basis.analysis import MarkerBasis, analyze
 from wface.basis.physical import basis_from_face
 from wface.basis.retarget import retarget
-from wface.builtin import build_face
+from wface.faces.builtin import build_face
 
 MUSCLES = ["zygomaticus_major_l", "zygomaticus_major_r", "orbicularis_oris_lower", "frontalis_medial_l", "mentalis_l"]
 

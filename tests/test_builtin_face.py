@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from wface import facs
-from wface.builtin import build_face
-from wface.builtin.shape import THETA_MOUTH, Y_MOUTH, FaceShape
+from wface.faces.builtin import build_face
+from wface.faces.builtin.shape import THETA_MOUTH, Y_MOUTH, FaceShape
 from wface.mesh.closest import SurfaceQuery
 from wface.mesh.quality import quality_report
 

@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from wface.builtin import build_face
+from wface.faces.builtin import build_face
 from wface.mesh.signed_distance import SignedSurface, oriented_outward
 from wface.physics import Simulator
 from wface.physics.contact import Contact, HalfSpace, MeshObstacle, Sphere, parse_obstacle
-from wface.physics.testmodels import box_model
+from wface.testing.models import box_model
 
 _FD_RTOL = 1e-5  # central differences of a piecewise-quadratic energy in float64, step 1e-8 m
 # The lip pose of the measurements: full orbicularis oris and mentalis with the jaw closed presses the
@@ -94,7 +94,7 @@ def test_half_space_hessian_is_exact():
 
 
 def _all_pattern(model):
-    from wface.physics.pattern import BlockPattern
+    from wface.solvers.pattern import BlockPattern
 
     return BlockPattern(model.tets, model.n_nodes)
 
@@ -152,9 +152,9 @@ def test_lips_pushed_back_stay_outside_the_teeth(face, sim):
     assert pen["sources"]["upper_teeth"]["active_nodes"] > 0
     assert pen["max_penetration_m"] < 2e-4  # measured 0.08 mm, against 2.5 mm without
     # Teeth follow the jaw: the lower teeth rotate with a 10 degree opening.
-    from wface.physics.bones import attached_positions, jaw_opening_affine
+    from wface.controls import attached_positions_from_affines, jaw_opening_affine
 
-    targets = attached_positions(face, jaw=jaw_opening_affine(face, 10.0))
+    targets = attached_positions_from_affines(face, jaw=jaw_opening_affine(face, 10.0))
     teeth.set_pose(targets)
     lower = teeth.rigid[[n for n, _ in teeth.rigid].index("lower_teeth")][1]
     moved = lower.surface(teeth.bone_affines).vertices_m - lower.vertices_m

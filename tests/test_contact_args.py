@@ -21,8 +21,8 @@ def test_every_command_has_the_contact_flags(command):
 
 
 def test_defaults_and_the_contact_they_build():
-    from wface.builtin import build_face
-    from wface.commands.contact_args import contact_from_args
+    from wface.cli.contact_args import contact_from_args
+    from wface.faces.builtin import build_face
 
     parser = build_parser()
     model = build_face(1000)

@@ -7,7 +7,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wface.builtin.face import JAW_JOINT
 from wface.controls import (
     IDENTITY_BONES,
     activation_penalty,
@@ -19,6 +18,7 @@ from wface.controls import (
     jaw_to_intuitive,
     rigidity_penalty,
 )
+from wface.faces.builtin.face import JAW_JOINT
 
 _FD_TOL = 1e-6  # central differences with h = 1e-6 on quartic/quadratic functions: O(h^2) + round-off
 

@@ -1,4 +1,4 @@
-"""Implicit dynamics (``wface.physics.dynamics``) and take re-simulation (``wface.resim``).
+"""Implicit dynamics (``wface.physics.dynamics``) and take re-simulation (``wface.takes.dynamic``).
 
 Small float64 box meshes (96-144 tets); every reference value comes from an independent
 computation: momentum conservation, the quasistatic solver, the generalized eigenproblem
@@ -16,7 +16,7 @@ from scipy.sparse.linalg import eigsh
 
 from wface.physics import Simulator
 from wface.physics.dynamics import Damping, DynamicSimulator, lumped_masses
-from wface.physics.testmodels import box_model
+from wface.testing.models import box_model
 
 _MOMENTUM_TOL = 1e-12  # relative to the initial momentum scale: float64 round-off of a few hundred sums
 _PERIOD_TOL = 0.01  # implicit midpoint at 40 steps per period: relative period error (h omega)^2 / 12 = 0.2 %
@@ -184,7 +184,7 @@ def jaw_box():
 
 def _ramp_take(model, frames: int = 6, fps: float = 30.0):
     from wface.controls import IDENTITY_BONES
-    from wface.resim import Take
+    from wface.takes.take import Take
 
     s = np.linspace(0.0, 1.0, frames)
     bones = np.tile(IDENTITY_BONES, (frames, 1))
@@ -193,7 +193,8 @@ def _ramp_take(model, frames: int = 6, fps: float = 30.0):
 
 
 def test_heavily_damped_resimulation_reproduces_the_quasistatic_frames(jaw_box):
-    from wface.resim import deviation_mm, quasistatic_frames, resimulate, take_attached_positions
+    from wface.takes.dynamic import deviation_mm, resimulate, take_attached_positions
+    from wface.takes.quasistatic import quasistatic_frames
 
     model = jaw_box
     take = _ramp_take(model)
@@ -212,7 +213,8 @@ def test_heavily_damped_resimulation_reproduces_the_quasistatic_frames(jaw_box):
 
 
 def test_undamped_midpoint_resimulation_shows_inertia(jaw_box):
-    from wface.resim import deviation_mm, quasistatic_frames, resimulate, take_attached_positions
+    from wface.takes.dynamic import deviation_mm, resimulate, take_attached_positions
+    from wface.takes.quasistatic import quasistatic_frames
 
     model = jaw_box
     take = _ramp_take(model)
@@ -227,15 +229,16 @@ def test_undamped_midpoint_resimulation_shows_inertia(jaw_box):
 
 
 def test_load_take_from_a_tracking_directory_and_write_usd(jaw_box, tmp_path):
-    from wface.resim import load_take, resimulate, write_resim_npz, write_resim_usd
-    from wface.tracking.sequence import FrameRecord, _write_frame
+    from wface.takes.dynamic import resimulate, write_resim_npz
+    from wface.takes.store import FrameRecord, load_take, write_frame
+    from wface.takes.usd import write_take_usd
 
     model = jaw_box
     take = _ramp_take(model, frames=4)
     for f in range(4):  # what `wface track` writes per frame, with fake equilibria
         c = np.concatenate([take.activations[f], take.bones[f]])
         x = model.rest_positions_m + 1e-4 * f
-        _write_frame(tmp_path, FrameRecord(f, c, x, x, np.zeros((0, 3)), np.zeros(0), {}))
+        write_frame(tmp_path, FrameRecord(f, c, x, x, np.zeros((0, 3)), np.zeros(0), {}))
     loaded = load_take(tmp_path, model, fps=24.0)
     assert loaded.fps == 24.0 and loaded.n_frames == 4
     np.testing.assert_array_equal(loaded.activations, take.activations)
@@ -252,7 +255,7 @@ def test_load_take_from_a_tracking_directory_and_write_usd(jaw_box, tmp_path):
     assert part.fps == 30.0 and part.n_frames == 2 and list(part.frames) == [1, 2]
 
     result = resimulate(model, part, scheme="be", substeps=2)
-    usd = write_resim_usd(tmp_path / "anim.usda", model, result.positions_m, part.fps)
+    usd = write_take_usd(tmp_path / "anim.usda", model, result.positions_m, fps=part.fps)
     npz = write_resim_npz(tmp_path / "resim.npz", result, reference_positions_m=part.reference_positions_m)
     from pxr import Usd, UsdGeom
 
@@ -274,7 +277,7 @@ def test_load_take_from_a_tracking_directory_and_write_usd(jaw_box, tmp_path):
 
 
 def test_take_validation(jaw_box):
-    from wface.resim import Take
+    from wface.takes.take import Take
 
     with pytest.raises(ValueError, match="fps"):
         Take(np.zeros((3, 1)), fps=0.0)
@@ -379,9 +382,7 @@ def test_dynamic_smile_example_runs(tmp_path, capsys):
 
 
 def test_bone_interpolation_keeps_rotations_rigid():
-    from wface.controls import IDENTITY_BONES, params_from_affine
-    from wface.physics.bones import rotation_about_axis
-    from wface.resim import interpolate_bones
+    from wface.controls import IDENTITY_BONES, interpolate_bones, params_from_affine, rotation_about_axis
 
     def bones(deg):
         b = IDENTITY_BONES.copy()

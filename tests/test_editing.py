@@ -1,4 +1,4 @@
-"""Expression editing in activation space (wface.editing, ``wface edit``) on a tiny built-in face, float64."""
+"""Expression editing in activation space (wface.takes, ``wface edit``) on a tiny built-in face, float64."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from wface.controls import jaw_joint_values, jaw_limits
-from wface.editing import (
+from wface.takes import (
     Pose,
     Take,
     blend,
@@ -28,7 +28,7 @@ _SOLVE_M = 1e-9  # two solves of the same pose from the same start agree far bel
 
 @pytest.fixture(scope="module")
 def model():
-    from wface.builtin import build_face
+    from wface.faces.builtin import build_face
 
     return build_face(3000)
 
@@ -173,7 +173,7 @@ def test_exaggerated_smile_moves_the_mouth_corner_further(model, smile):
 
 def test_per_muscle_force_length_scale_matches_scaled_activations():
     from wface.physics import Simulator
-    from wface.physics.testmodels import box_model
+    from wface.testing.models import box_model
 
     model = box_model((3, 2, 2), muscles=2)
     x = model.rest_positions_m + 0.002 * np.random.default_rng(3).normal(size=model.rest_positions_m.shape)
@@ -195,7 +195,7 @@ def _take(model, smile, surprise, n=24) -> Take:
     a = _moved(smile, [0.0, 0.0, 0.0], [0, 0, 0], (0.0, 0.0, 0.0))
     b = _moved(surprise, [0.1, 0.3, 0.0], [0.0, 0.01, 0.0], (15.0, 0.004, 2.0))
     poses = [interpolate(a, b, t, joint=model.jaw_joint) for t in np.linspace(0, 1, n) ** 2]
-    return Take(poses, 30.0, list(model.muscle_names), "test")
+    return Take.from_poses(poses, 30.0, list(model.muscle_names), model.jaw_joint, source="test")
 
 
 def test_retime_speed_one_is_identity_and_speed_two_halves_the_frames(model, smile, surprise):
@@ -236,8 +236,7 @@ def test_layer_adds_within_bounds(model, smile, surprise):
 
 # ---------------------------------------------------------------------- tracked takes on disk
 def test_load_take_reads_tracking_outputs(model, smile, surprise, tmp_path):
-    from wface.tracking.report import write_controls
-    from wface.tracking.sequence import FrameRecord, _write_frame
+    from wface.takes.store import FrameRecord, take_from_records, write_controls, write_frame
 
     M = model.n_muscles
     take = _take(model, smile, surprise, n=3)
@@ -250,9 +249,9 @@ def test_load_take_reads_tracking_outputs(model, smile, surprise, tmp_path):
         for f, c in enumerate(C)
     ]
     (tmp_path / "npz").mkdir()
-    write_controls(tmp_path / "npz", model, recs)
+    write_controls(tmp_path / "npz", model, take_from_records(model, recs))
     for rec in recs:
-        _write_frame(tmp_path / "frames_only", rec)
+        write_frame(tmp_path / "frames_only", rec)
     for d in ("npz", "frames_only"):
         got = load_take(tmp_path / d, model)
         assert len(got) == 3 and got.fps == 30.0
@@ -316,14 +315,14 @@ def test_cli_errors_are_one_line(model_path, tmp_path, capsys, argv, message):
 
 def test_unedited_take_resimulates_to_the_rig_equilibria(model, smile, surprise, tmp_path):
     """Loading a take and re-simulating it unchanged gives the tracker's rig positions (same conventions)."""
-    from wface.rig import FaceRig
-    from wface.tracking.sequence import FrameRecord, _write_frame
+    from wface.takes.store import FrameRecord, write_frame
+    from wface.tracking.rig import FaceRig
 
     rig = FaceRig(model)
     take = _take(model, smile, surprise, n=3)
     for f, pose in enumerate(take.poses):
         state = rig.equilibrium(pose.controls(model))
-        _write_frame(tmp_path, FrameRecord(f, state.controls, state.x_m, state.y_m, np.zeros((0, 3)), np.zeros(0), {}))
+        write_frame(tmp_path, FrameRecord(f, state.controls, state.x_m, state.y_m, np.zeros((0, 3)), np.zeros(0), {}))
     loaded = load_take(tmp_path, model)
     res = simulate_poses(model, loaded.with_poses([exaggerate(p, 1.0) for p in loaded.poses]))
     ref = np.stack([np.load(tmp_path / "frames" / f"frame_{f:06d}.npz")["x_m"] for f in range(3)])

@@ -9,7 +9,7 @@ import pytest
 
 from wface.model import Material
 from wface.physics import Simulator
-from wface.physics.testmodels import box_model, single_tet_model
+from wface.testing.models import box_model, single_tet_model
 
 _ROUNDOFF = 1e-12  # float64 round-off relative to the force scale of an element
 _FD_REL = 2e-6  # central differences with h = 1e-6 edge: O(h^2) truncation + O(eps/h) round-off

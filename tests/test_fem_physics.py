@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from wface.controls import attached_positions_from_affines, jaw_opening_affine, rotation_about_axis
 from wface.model import Material
 from wface.physics import Simulator, count_inverted
-from wface.physics.bones import attached_positions, jaw_opening_affine, rotation_about_axis
-from wface.physics.testmodels import box_model
+from wface.testing.models import box_model
 
 MAT = Material()
 
@@ -143,16 +143,16 @@ def test_solution_does_not_depend_on_the_linear_solver_or_stiffness_choice():
 def test_attached_positions_compose_cranium_and_jaw():
     model = box_model((2, 2, 2), cranium_faces=("x-",), jaw_faces=("x+",), muscles=0)
     X0 = model.rest_positions_m[model.attached_nodes]
-    np.testing.assert_array_equal(attached_positions(model), X0)
+    np.testing.assert_array_equal(attached_positions_from_affines(model), X0)
     rng = np.random.default_rng(0)
     Ac, Am = rng.normal(size=(3, 4)), rng.normal(size=(3, 4))
-    got = attached_positions(model, cranium=Ac, jaw=Am)
+    got = attached_positions_from_affines(model, cranium=Ac, jaw=Am)
     on_jaw = model.attached_bone == 1
     Mc, tc, Mm, tm = Ac[:, :3], Ac[:, 3], Am[:, :3], Am[:, 3]
     np.testing.assert_allclose(got[~on_jaw], X0[~on_jaw] @ Mc.T + tc, atol=1e-14)
     np.testing.assert_allclose(got[on_jaw], (X0[on_jaw] @ Mm.T + tm) @ Mc.T + tc, atol=1e-14)
     with pytest.raises(ValueError):
-        attached_positions(model, jaw=np.eye(3))
+        attached_positions_from_affines(model, jaw=np.eye(3))
 
 
 def test_jaw_opening_rotates_about_the_condyle_axis_and_lowers_the_chin():
@@ -175,7 +175,7 @@ def test_jaw_opening_rotates_about_the_condyle_axis_and_lowers_the_chin():
 # ---------------------------------------------------------------------- anatomy of the built-in face
 @pytest.fixture(scope="module")
 def face():
-    from wface.builtin import build_face
+    from wface.faces.builtin import build_face
 
     model = build_face(3000)
     X = model.rest_positions_m
@@ -188,7 +188,7 @@ def face():
 
 def _marker_motion_mm(face, activations, jaw_deg=0.0):
     model, sim, nearest = face
-    eq = sim.solve(activations, attached_positions(model, jaw=jaw_opening_affine(model, jaw_deg)))
+    eq = sim.solve(activations, attached_positions_from_affines(model, jaw=jaw_opening_affine(model, jaw_deg)))
     assert eq.converged and eq.inverted_elements == 0, (eq.residual_rel, eq.inverted_elements)
     d = (eq.x - model.rest_positions_m) * 1e3
     return {name: d[i] for name, i in nearest.items()}

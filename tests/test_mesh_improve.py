@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wface.mesh.box import box_tet_mesh
 from wface.mesh.improve import improve_tets, tet_min_dihedral_deg, tet_sine_quality_deg
 from wface.mesh.quality import dihedral_angles_deg, signed_volumes
 from wface.mesh.surface import boundary_faces
+from wface.testing.box import box_tet_mesh
 
 _EXACT = 1e-12  # float64 round-off on unit-sized meshes
 

@@ -17,7 +17,7 @@ REGULAR = np.array([[1, 1, 1], [-1, 1, -1], [1, -1, -1], [-1, -1, 1]], dtype=flo
 
 def _box(n=3):
     """Kuhn-split unit cube grid, positively oriented."""
-    from wface.builtin.grid import build_grid
+    from wface.faces.builtin.grid import build_grid
 
     g = build_grid(np.linspace(0.5, 1.5, n + 1), np.linspace(0, 1, n + 1), n, theta_mouth=0.0, y_mouth=-1.0)
     x = np.stack([g.theta, g.y, g.w], axis=1)

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from wface.builtin import build_face
+from wface.faces.builtin import build_face
 from wface.model import FORMAT_VERSION, FaceModel, JawJoint, ModelError, load_model, save_model
 
 

@@ -10,7 +10,7 @@ _SOLVE_TOL_M = 1e-5  # two Newton solves at relative residual 1e-6 agree to ~1e-
 
 @pytest.fixture(scope="module")
 def model():
-    from wface.builtin import build_face
+    from wface.faces.builtin import build_face
 
     return build_face(2000)
 
@@ -18,26 +18,29 @@ def model():
 @pytest.fixture(scope="module")
 def exaggerated(model):
     """A two-frame edited take: rest, then a smile exaggerated x2 (zygomatici past full activation)."""
-    from wface.editing import Take, exaggerate, expression_pose, rest_pose
+    from wface.takes import Take, exaggerate, expression_pose, rest_pose
 
     big = exaggerate(expression_pose(model, "smile"), 2.0, joint=model.jaw_joint)
     assert big.force_length_scale is not None and big.drive.max() > 1.0
-    return Take([rest_pose(model.n_muscles), big], 30.0, list(model.muscle_names), "smile x2")
+    return Take.from_poses(
+        [rest_pose(model.n_muscles), big], 30.0, list(model.muscle_names), model.jaw_joint, source="smile x2"
+    )
 
 
 def test_edited_take_keeps_its_exaggeration_in_dynamics(model, exaggerated):
-    """Bug: wface.resim.Take had no force-length scale, so an exaggerated edit (drives > 1) was
+    """Bug: wface.takes.dynamic.Take had no force-length scale, so an exaggerated edit (drives > 1) was
     re-simulated with its activations clipped at 1: the dynamic pass lost the exaggeration."""
-    from wface.editing import simulate_poses
     from wface.physics import Damping, Simulator
-    from wface.resim import Take, resimulate, take_from_poses
+    from wface.takes import Take, resimulate, simulate_poses
 
-    take = take_from_poses(model, exaggerated)
+    take = exaggerated
     assert take.activations.max() <= 1.0 and take.force_length_scale.max() > 1.0
     np.testing.assert_allclose(take.activations * take.force_length_scale, exaggerated.drives, atol=1e-12)
     quasistatic = simulate_poses(model, exaggerated).x_m[1]
     # start from the exaggerated frame, heavily damped: stays at its quasistatic equilibrium
-    held = Take(take.activations[[1, 1]], 30.0, bones=take.bones[[1, 1]], force_length_scale=take.force_length_scale)
+    held = Take(
+        take.activations[[1, 1]], 30.0, bones=take.bones[[1, 1]], force_length_scale=take.force_length_scale[[1, 1]]
+    )
     sim = Simulator(model)
     dyn = resimulate(model, held, substeps=1, damping=Damping(0.0, 1e-2), sim=sim)
     assert sim.force_length_scale == 1.0  # the caller's simulator is given back as it was
@@ -51,10 +54,9 @@ def test_edited_take_keeps_its_exaggeration_in_dynamics(model, exaggerated):
 def test_resim_load_take_reads_an_edits_force_length_scale(model, exaggerated, tmp_path):
     """`wface edit exaggerate` writes force_length_scale into controls.npz; `wface resim --take`
     must replay the drives, not the clipped activations."""
-    from wface.editing import save_controls
-    from wface.resim import load_take
+    from wface.takes import load_take, write_controls
 
-    save_controls(tmp_path, model, exaggerated)
+    write_controls(tmp_path, model, exaggerated)
     take = load_take(tmp_path, model)
     np.testing.assert_allclose(take.activations * take.force_length_scale, exaggerated.drives, atol=1e-12)
     assert take.activations.max() <= 1.0
@@ -63,18 +65,16 @@ def test_resim_load_take_reads_an_edits_force_length_scale(model, exaggerated, t
 def test_tracked_take_keeps_its_frame_rate_without_usd(model, tmp_path):
     """Bug: controls.npz of `wface track` had no fps, so with --no-pictures (no animation.usdc) a
     60 fps capture was edited and re-simulated at 30 fps (half speed, wrong inertia)."""
-    from wface.editing import load_take as load_edit_take
-    from wface.resim import load_take as load_resim_take
-    from wface.rig import FaceRig
-    from wface.tracking.report import write_controls
-    from wface.tracking.sequence import FrameRecord
+    from wface.takes import load_take
+    from wface.takes.store import FrameRecord, take_from_records, write_controls
+    from wface.tracking.rig import FaceRig
 
     c = FaceRig(model).rest_controls()
     n = model.n_nodes
     recs = [FrameRecord(f, c, np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((0, 3)), np.zeros(0), {}) for f in (0, 1)]
-    write_controls(tmp_path, model, recs, fps=60.0)
-    assert load_resim_take(tmp_path, model, reference=False).fps == 60.0
-    assert load_edit_take(tmp_path, model).fps == 60.0
+    write_controls(tmp_path, model, take_from_records(model, recs, fps=60.0))
+    assert load_take(tmp_path, model, reference=False).fps == 60.0
+    assert load_take(tmp_path, model).fps == 60.0
 
 
 def test_resim_stage_lines_up_with_the_tracked_and_edited_stages(model, exaggerated, tmp_path):
@@ -82,11 +82,11 @@ def test_resim_stage_lines_up_with_the_tracked_and_edited_stages(model, exaggera
     unlike the /Face/Skin take stages of `wface track` / `wface edit`: read_take refused it and the
     three stages of one performance did not line up in a DCC."""
     from wface.io.usd import assert_stage_valid, read_take
-    from wface.resim import take_from_poses, write_resim_usd
+    from wface.takes.usd import write_take_usd
 
-    take = take_from_poses(model, exaggerated)
+    take = exaggerated
     x = np.stack([model.rest_positions_m, model.rest_positions_m + 1e-3])
-    path = write_resim_usd(tmp_path / "dyn.usda", model, x, take.fps, take=take)
+    path = write_take_usd(tmp_path / "dyn.usda", model, x, take=take, metadata={"dynamic": True})
     assert_stage_valid(path)
     back = read_take(path)
     assert back["n_frames"] == 2 and back["fps"] == 30.0
@@ -111,7 +111,7 @@ def test_neutral_frame_of_the_models_own_markers_aligns_to_the_identity(model):
 
 
 def test_align_to_surface_takes_landmark_points(model):
-    from wface.align import Similarity, align_to_surface
+    from wface.mesh.align import Similarity, align_to_surface
 
     skin = model.skin_triangles
     ref = model.marker_positions_m

@@ -1,13 +1,13 @@
-"""Jacobians of equilibria with contact (wface.rig with ``contact=``) against central differences."""
+"""Jacobians of equilibria with contact (wface.tracking.rig with ``contact=``) against central differences."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from wface.builtin import build_face
+from wface.faces.builtin import build_face
 from wface.physics.contact import Contact
-from wface.rig import FaceRig
+from wface.tracking.rig import FaceRig
 
 # Equilibria solved to a relative residual of 1e-11, central differences h = 1e-4 (activations) /
 # 1e-5 (jaw): truncation ~1e-8 relative; the exact pair Hessian uses second differences with

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wface.builtin import build_face
 from wface.controls import attached_positions, jaw_from_intuitive, params_from_affine
-from wface.rig import FaceRig
+from wface.faces.builtin import build_face
+from wface.tracking.rig import FaceRig
 
 # Central differences with h = 1e-4 (activations) / 1e-5 (jaw parameters) of equilibria solved to
 # a relative residual of 1e-11: truncation O(h^2) ~ 1e-8 relative, solver error ~ 1e-9.

@@ -13,7 +13,7 @@ from wface.model import save_model
 
 @pytest.fixture(scope="module")
 def model_path(tmp_path_factory):
-    from wface.builtin import build_face
+    from wface.faces.builtin import build_face
 
     path = tmp_path_factory.mktemp("model") / "face.npz"
     save_model(build_face(3000), path)

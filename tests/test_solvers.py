@@ -11,7 +11,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from wface.physics import Simulator
-from wface.physics.testmodels import box_model
 from wface.solvers import linear
 from wface.solvers.linear import (
     DirectFactor,
@@ -22,6 +21,7 @@ from wface.solvers.linear import (
     pcg,
     resolve_linear_solver,
 )
+from wface.testing.models import box_model
 
 needs_direct = pytest.mark.skipif(direct_backend() is None, reason="no sparse direct backend installed")
 

@@ -45,9 +45,9 @@ def test_demo_with_lip_contact(tmp_path):
 
 
 def test_track_a_csv_file(tmp_path):
-    from wface.builtin import build_face
+    from wface.faces.builtin import build_face
     from wface.io.mocap import MocapTake, write_mocap
-    from wface.rig import FaceRig
+    from wface.tracking.rig import FaceRig
     from wface.tracking.sequence import embed_model_markers
     from wface.tracking.synthetic import synthesize_performance
 
@@ -83,9 +83,9 @@ def test_track_a_csv_file(tmp_path):
 def test_neutral_frame_outside_the_range_anchors_the_embedding(tmp_path, capsys):
     """Tracking frames 1:3 of a take whose neutral face is frame 0: with --neutral-frame 0 the
     activations come back; embedding at frame 1 instead reads frame 1 as the neutral face."""
-    from wface.builtin import build_face
+    from wface.faces.builtin import build_face
     from wface.io.mocap import MocapTake, write_mocap
-    from wface.rig import FaceRig
+    from wface.tracking.rig import FaceRig
     from wface.tracking.sequence import embed_model_markers
     from wface.tracking.synthetic import synthesize_performance
 

@@ -8,10 +8,10 @@ import os
 import numpy as np
 import pytest
 
-from wface.builtin import build_face
-from wface.rig import FaceRig
+from wface.faces.builtin import build_face
 from wface.tracking.estimator import TrackOptions
 from wface.tracking.identifiability import muscle_identifiability_mm
+from wface.tracking.rig import FaceRig
 from wface.tracking.sequence import embed_model_markers, track_sequence
 from wface.tracking.synthetic import corrupt_markers, synthesize_performance
 

@@ -8,7 +8,7 @@ import pytest
 pytest.importorskip("pxr")
 
 from wface.io import usd  # noqa: E402
-from wface.viz.synthetic import synthetic_face, synthetic_take  # noqa: E402
+from wface.testing.synthetic_face import synthetic_face, synthetic_take  # noqa: E402
 
 _F32 = 2e-7  # float32 storage of ~0.1 m coordinates: relative round-off 6e-8, a few ulps
 

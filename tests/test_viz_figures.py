@@ -25,8 +25,8 @@ def _can_render_off_screen() -> bool:
 
 
 pytestmark = pytest.mark.skipif(not _can_render_off_screen(), reason="VTK cannot render off-screen here")
+from wface.testing.synthetic_face import synthetic_face, synthetic_take  # noqa: E402
 from wface.viz.report import write_html_report  # noqa: E402
-from wface.viz.synthetic import synthetic_face, synthetic_take  # noqa: E402
 
 
 def test_take_figures_and_report(tmp_path):

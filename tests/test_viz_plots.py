@@ -7,8 +7,8 @@ import pytest
 
 pytest.importorskip("matplotlib")
 
+from wface.testing.synthetic_face import rotation_about  # noqa: E402
 from wface.viz import plots  # noqa: E402
-from wface.viz.synthetic import rotation_about  # noqa: E402
 
 
 def test_marker_errors_mm_with_missing_markers():

@@ -23,7 +23,7 @@ def _can_render_off_screen() -> bool:
 
 
 pytestmark = pytest.mark.skipif(not _can_render_off_screen(), reason="VTK cannot render off-screen here")
-from wface.viz.synthetic import synthetic_face, synthetic_take  # noqa: E402
+from wface.testing.synthetic_face import synthetic_face, synthetic_take  # noqa: E402
 
 _SIZE = (320, 360)
 
@@ -155,7 +155,7 @@ def test_render_errors(tmp_path, face, take):
 
 @pytest.mark.parametrize("style", ["skin", "muscles"])
 def test_builtin_face_is_framed_whole(tmp_path, style):
-    builtin = pytest.importorskip("wface.builtin")
+    builtin = pytest.importorskip("wface.faces.builtin")
     model = builtin.build_face(target_tets=2000)
     a = np.zeros(model.n_muscles)
     a[[i for i, n in enumerate(model.muscle_names) if n.startswith("zygomaticus_major")]] = 1.0
@@ -179,7 +179,7 @@ def test_builtin_face_is_framed_whole(tmp_path, style):
 
 
 def test_panel_bone_affines_compose_the_jaw_onto_the_cranium():
-    from wface.viz.synthetic import rotation_about
+    from wface.testing.synthetic_face import rotation_about
 
     c = np.hstack([rotation_about((0, 1, 0), 0.3), [[0.01], [0.02], [0.0]]])
     j = np.hstack([rotation_about((1, 0, 0), 0.2), [[0.0], [-0.005], [0.001]]])

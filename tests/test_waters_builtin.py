@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wface.builtin import build_face
+from wface.faces.builtin import build_face
 from wface.facs import EXPRESSIONS
 from wface.waters.expressions import expression_pose
 from wface.waters.face_model import builtin_face_layout, face_model_rig, harmonic_jaw_weights

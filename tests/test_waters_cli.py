@@ -14,8 +14,8 @@ import pytest
 from conftest import REPO_ROOT, data_path
 
 from wface.cli import main
+from wface.testing.synthetic_head import synthetic_head
 from wface.waters.surface import SurfaceMesh, read_surface, write_obj
-from wface.waters.synthetic import synthetic_head
 
 
 def _env() -> dict:
@@ -71,8 +71,8 @@ def test_cli_poses_the_ict_head(tmp_path, capsys):
 
 
 def test_cli_fits_the_layout_to_another_mesh_by_landmarks(tmp_path):
+    from wface.testing.synthetic_head import synthetic_landmarks
     from wface.waters.layout import load_layout
-    from wface.waters.synthetic import synthetic_landmarks
 
     head = synthetic_head(40, 80)
     write_obj(tmp_path / "head.obj", head)
@@ -199,9 +199,9 @@ def test_bench_json_on_stdout_is_clean(tmp_path):
 
 
 def test_cli_with_a_layout_file(tmp_path):
+    from wface.testing.synthetic_head import synthetic_landmarks
     from wface.waters.fit import fit_layout
     from wface.waters.layout import load_layout, save_layout
-    from wface.waters.synthetic import synthetic_landmarks
 
     head = synthetic_head(30, 60)
     write_obj(tmp_path / "head.obj", head)

@@ -9,12 +9,12 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from wface.facs import EXPRESSIONS
+from wface.testing.synthetic_head import synthetic_head, synthetic_landmarks
 from wface.waters.expressions import expression_pose, interpolate_poses, parse_au_assignments, pose_from_action_units
 from wface.waters.fit import fit_layout, landmark_warp, similarity_transform
 from wface.waters.layout import layout_to_dict, load_layout
 from wface.waters.muscles import LinearMuscle
 from wface.waters.rig import WatersRig
-from wface.waters.synthetic import synthetic_head, synthetic_landmarks
 
 S, R, T = 1.37, Rotation.from_rotvec([0.3, -0.5, 0.2]).as_matrix(), np.array([0.12, -0.4, 0.05])
 

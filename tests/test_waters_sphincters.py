@@ -14,12 +14,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from wface.testing.synthetic_head import synthetic_head, synthetic_landmarks
 from wface.waters.expressions import pose_from_action_units
 from wface.waters.fit import fit_layout
 from wface.waters.layout import load_layout
 from wface.waters.muscles import SphincterMuscle
 from wface.waters.rig import WatersRig
-from wface.waters.synthetic import synthetic_head, synthetic_landmarks
 
 
 @pytest.fixture(scope="module")

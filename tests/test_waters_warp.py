@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from wface.testing.synthetic_head import synthetic_head, synthetic_landmarks
 from wface.waters.expressions import expression_pose
 from wface.waters.fit import fit_layout
 from wface.waters.layout import load_layout
 from wface.waters.rig import WatersRig
-from wface.waters.synthetic import synthetic_head, synthetic_landmarks
 
 pytest.importorskip("warp")
 

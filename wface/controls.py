@@ -1,4 +1,4 @@
-"""Controls of the face, c = (a, b): muscle activations and bone kinematics (seed 000, sections 5-7).
+"""Controls of the face, c = (a, b): muscle activations and bone kinematics (Sifakis et al. 2005, sections 5-8).
 
 b holds 24 numbers: the cranium affine (Mc, tc) and the jaw affine (Mm, tm) *relative to the
 cranium*. Parameter order: b[0:9] = Mc row-major, b[9:12] = tc, b[12:21] = Mm row-major,
@@ -9,7 +9,7 @@ rotation invariant), and it makes a pure cranium motion move every node rigidly.
 Penalties phi_p (all with analytic gradient and Hessian):
 - activation bounds: sum_i (min{0, a_i, 1 - a_i})^2;
 - rigidity: ||M^T M - I||_F^2 for Mc and Mm (Hessian projected to PSD);
-- jaw joint (DESIGN.md section 4): psi1 = w.Mm u = 0; psi2 = w.(Mm m + tm - m) = 0;
+- jaw joint (docs/design.md, "Controls and the jaw joint"): psi1 = w.Mm u = 0; psi2 = w.(Mm m + tm - m) = 0;
   psi3 = u.(Mm m + tm - m) = 0; psi4 = v.[Mm (m - l/2 u) + tm - m] in [0, d];
   psi5 = v.[Mm (m + l/2 u) + tm - m] in [0, d]; psi6 = w.Mm v in [-s, 0]; squared, one-sided for ranges.
   Each psi is linear in (Mm, tm), so its Hessian is constant.
@@ -20,12 +20,22 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from wface.model import BONES, FaceModel, JawJoint
 
 __all__ = [
     "N_BONE_PARAMS",
+    "IDENTITY_AFFINE",
     "IDENTITY_BONES",
+    "apply_affine",
+    "as_affine",
+    "attached_positions_from_affines",
+    "interpolate_bones",
+    "jaw_opening_affine",
+    "nearest_rotation",
+    "polar_decomposition",
+    "rotation_about_axis",
     "Penalty",
     "activation_penalty",
     "attached_positions",
@@ -43,6 +53,71 @@ __all__ = [
 
 N_BONE_PARAMS = 24
 IDENTITY_BONES = np.concatenate([np.eye(3).ravel(), np.zeros(3), np.eye(3).ravel(), np.zeros(3)])
+IDENTITY_AFFINE = np.hstack([np.eye(3), np.zeros((3, 1))])
+
+
+# ---------------------------------------------------------------------- affines and rotations
+def as_affine(affine: np.ndarray | None, what: str) -> np.ndarray:
+    """A finite 3x4 [M | t] affine from a 3x4 or 4x4 matrix (None: the identity); ``what`` names it
+    in the error."""
+    if affine is None:
+        return IDENTITY_AFFINE
+    A = np.asarray(affine, dtype=np.float64)
+    if A.shape == (4, 4):
+        A = A[:3]
+    if A.shape != (3, 4) or not np.all(np.isfinite(A)):
+        raise ValueError(f"{what} must be a finite 3x4 [M | t] (or 4x4) matrix, got shape {A.shape}")
+    return A
+
+
+def apply_affine(affine: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """M p + t for points (k, 3) and a 3x4 affine [M | t]."""
+    A = as_affine(affine, "affine")
+    return np.asarray(points, dtype=np.float64) @ A[:, :3].T + A[:, 3]
+
+
+def rotation_about_axis(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+    """Right-handed rotation matrix (Rodrigues) about a unit axis."""
+    u = np.asarray(axis, dtype=np.float64)
+    u = u / np.linalg.norm(u)
+    K = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
+    return np.eye(3) + np.sin(angle_rad) * K + (1.0 - np.cos(angle_rad)) * (K @ K)
+
+
+def polar_decomposition(M: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+    """M = R P with R orthogonal and P symmetric positive semi-definite (SVD M = U S V^T: R = U V^T,
+    P = V S V^T). R is None when det M <= 0 (an improper or singular matrix has no rotation factor)."""
+    U, S, Vt = np.linalg.svd(np.asarray(M, dtype=np.float64))
+    R = U @ Vt
+    if np.linalg.det(R) <= 0:
+        return None, M
+    return R, Vt.T @ np.diag(S) @ Vt
+
+
+def nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation closest to a 3x3 matrix in the Frobenius norm (the rotation factor of the polar
+    decomposition, with the sign of the smallest singular direction flipped when det M < 0)."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, dtype=np.float64))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    return U @ D @ Vt
+
+
+def interpolate_bones(b0: np.ndarray, b1: np.ndarray, s: float) -> np.ndarray:
+    """Bone controls (24,) at the fraction ``s`` of the way from ``b0`` to ``b1``.
+
+    Each 3x3 part M = R P (``polar_decomposition``) has its rotation R interpolated by slerp and its
+    stretch P and the translation linearly, so a rigid bone stays rigid between frames (a linear
+    blend of positions or matrices would shrink it along the chord of each rotation).
+    """
+    out = (1.0 - s) * b0 + s * b1
+    for off in (0, 12):
+        R0, P0 = polar_decomposition(b0[off : off + 9].reshape(3, 3))
+        R1, P1 = polar_decomposition(b1[off : off + 9].reshape(3, 3))
+        if R0 is None or R1 is None:
+            continue  # an improper matrix: keep the linear blend
+        R = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([R0, R1])))([s]).as_matrix()[0]
+        out[off : off + 9] = (R @ ((1.0 - s) * P0 + s * P1)).ravel()
+    return out
 
 
 def affine_from_params(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -56,6 +131,47 @@ def params_from_affine(M: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- constrained nodes X_C(b)
+def attached_positions_from_affines(
+    model: FaceModel, cranium: np.ndarray | None = None, jaw: np.ndarray | None = None
+) -> np.ndarray:
+    """Positions (a, 3) of ``model.attached_nodes`` for the given bone affines.
+
+    A cranium node goes to Mc X0 + tc, a jaw node to Mc (Mm X0 + tm) + tc (Sifakis et al. 2005,
+    section 8). Axes: +x is the subject's left, +y up, +z forward.
+
+    Args:
+        model: the face.
+        cranium: 3x4 affine [Mc | tc] of the cranium (default identity).
+        jaw: 3x4 affine [Mm | tm] of the jaw relative to the cranium (default identity).
+
+    Returns:
+        (a, 3) float64 metres, in the order of ``model.attached_nodes``.
+    """
+    Ac, Am = as_affine(cranium, "cranium affine"), as_affine(jaw, "jaw affine")
+    X0 = model.rest_positions_m[model.attached_nodes]
+    out = np.empty_like(X0)
+    on_jaw = model.attached_bone == BONES.index("jaw")
+    out[~on_jaw] = apply_affine(Ac, X0[~on_jaw])
+    out[on_jaw] = apply_affine(Ac, apply_affine(Am, X0[on_jaw]))
+    return out
+
+
+def jaw_opening_affine(model: FaceModel, opening_deg: float) -> np.ndarray:
+    """Jaw affine (relative to the cranium) for a pure rotation about the condyle axis.
+
+    Rotation by ``opening_deg`` about the joint axis u (right -> left condyle) through the condyle
+    midpoint m. Positive opens the mouth: with u = +x (the subject's left), a right-handed rotation
+    by a positive angle moves points in front of the axis (+z) downwards (-y).
+
+    Returns:
+        3x4 affine [R | m - R m].
+    """
+    jj = model.jaw_joint
+    R = rotation_about_axis(np.asarray(jj.u), np.deg2rad(opening_deg))
+    m = np.asarray(jj.midpoint_m, dtype=np.float64)
+    return np.hstack([R, (m - R @ m)[:, None]])
+
+
 def bone_affines(b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(cranium, jaw) 3x4 affines [M | t] from the 24 bone parameters (the jaw relative to the cranium)."""
     b = _check_b(b)
@@ -74,12 +190,10 @@ def attached_positions(model: FaceModel, b: np.ndarray, *, frame: str = "cranium
         frame: "cranium" (cranium nodes at rest, jaw nodes at Mm X + tm: what the simulator solves)
             or "world" (everything mapped by Mc, tc).
     """
-    from wface.physics import bones
-
     cranium, jaw = bone_affines(b)
     if frame not in ("cranium", "world"):
         raise ValueError(f"frame must be 'cranium' or 'world', got {frame!r}")
-    return bones.attached_positions(model, cranium if frame == "world" else None, jaw)
+    return attached_positions_from_affines(model, cranium if frame == "world" else None, jaw)
 
 
 def attached_positions_jacobian(model: FaceModel) -> np.ndarray:
@@ -205,12 +319,6 @@ def bone_penalty(joint: JawJoint, b: np.ndarray) -> Penalty:
 
 
 # ---------------------------------------------------------------------- intuitive jaw controls
-def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
-    from wface.physics.bones import rotation_about_axis
-
-    return rotation_about_axis(axis, angle)
-
-
 def jaw_limits(joint: JawJoint) -> dict:
     """Largest opening (deg), protrusion range (m) and yaw (deg) allowed by the joint."""
     return {
@@ -261,7 +369,7 @@ def jaw_params_unchecked(joint: JawJoint, opening_rad: float, protrusion_m: floa
     w = np.cross(v, u)
     m = np.asarray(joint.midpoint_m, float)
     # Opening: rotate about u by +alpha (the forward track direction v tips down, toward -w); yaw about w.
-    Mm = _rotation(w, lateral_rad) @ _rotation(u, opening_rad)
+    Mm = rotation_about_axis(w, lateral_rad) @ rotation_about_axis(u, opening_rad)
     tm = m - Mm @ m + protrusion_m * v
     return params_from_affine(Mm, tm)
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["init_warp", "kernel_cache_dir", "resolve_device"]
+__all__ = ["init_warp", "kernel_cache_dir", "quiet_warp", "resolve_device"]
 
 _initialised = False
 
@@ -39,6 +39,13 @@ def init_warp(*, quiet: bool = True) -> None:
         wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
     wp.init()
     _initialised = True
+
+
+def quiet_warp() -> None:
+    """Keep Warp's per-module load messages off stdout (Warp 1.19 logs them at INFO level)."""
+    import warp as wp
+
+    wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
 
 
 def resolve_device(device: str | None = None) -> str:

@@ -18,7 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wface.align import (
+from wface.basis.analysis import MarkerBasis
+from wface.basis.core import ActuationBasis
+from wface.mesh.align import (
     STABLE_MARKERS,
     MarkerEmbedding,
     Similarity,
@@ -27,8 +29,6 @@ from wface.align import (
     remove_head_motion,
     umeyama,
 )
-from wface.basis.analysis import MarkerBasis
-from wface.basis.core import ActuationBasis
 
 __all__ = ["CaptureOnBasis", "MarkerLayout", "prepare_capture"]
 

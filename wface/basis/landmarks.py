@@ -18,6 +18,8 @@ from importlib import resources
 
 import numpy as np
 
+from wface.mesh.align import align_to_surface, landmark_array
+
 __all__ = ["ANIMFACE_DLIB_SEEDS", "derive_landmarks", "load_ict_animface_landmarks"]
 
 #: AnimFace marker -> index into the dlib-68 landmark list of ICT's vertex_indices.json
@@ -56,7 +58,6 @@ def derive_landmarks(
     Returns:
         ({name: vertex}, (k,) marker-to-surface distance in metres after alignment).
     """
-    from wface.align import align_to_surface, landmark_array
 
     lm = landmark_array(marker_names, seed_vertices)
     res = align_to_surface(markers_m, vertices_m, triangles, landmark_vertices=lm)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from wface.basis.core import ActuationBasis
+from wface.physics.simulator import Simulator
 
 __all__ = ["basis_from_face"]
 
@@ -20,8 +21,6 @@ def basis_from_face(
 ) -> ActuationBasis:
     """Basis of a ``FaceModel``'s skin with one element per muscle (all muscles by default)."""
     from tqdm.auto import tqdm
-
-    from wface.physics.simulator import Simulator
 
     if not (0.0 < activation <= 1.0):
         raise ValueError(f"activation must be in (0, 1], got {activation}")

@@ -17,6 +17,8 @@ import numpy as np
 from wface.basis.analysis import Analysis, FaceSplit, analyze, default_face_split
 from wface.basis.capture import CaptureOnBasis, MarkerLayout, prepare_capture
 from wface.basis.core import ActuationBasis
+from wface.basis.landmarks import load_ict_animface_landmarks
+from wface.basis.plots import plot_analysis
 from wface.basis.refine import RefinementResult, interpolate_to_mesh, refine_marker_basis, select_regularization
 
 __all__ = ["TakeAnalysis", "analyze_take", "default_landmarks", "refine_basis", "write_analysis"]
@@ -28,7 +30,6 @@ def default_landmarks(basis: ActuationBasis, marker_names: Sequence[str]) -> dic
     """The built-in AnimFace->ICT landmarks when the basis is the ICT face and the names match."""
     if basis.n_vertices != _ICT_VERTEX_COUNT:
         return None
-    from wface.basis.landmarks import load_ict_animface_landmarks
 
     lm = load_ict_animface_landmarks()
     hits = {n: lm[n] for n in marker_names if n in lm}
@@ -118,8 +119,6 @@ def write_analysis(out_dir: str | Path, result: TakeAnalysis, *, extra: dict | N
     if extra:
         report.update(extra)
     if plot:
-        from wface.basis.plots import plot_analysis
-
         plot_analysis(an, out / "analysis.png", rate_hz=cap.rate_hz, title=Path(cap.source).name)
         report["plot"] = "analysis.png"
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")

@@ -20,6 +20,8 @@ import numpy as np
 
 from wface.basis.analysis import Analysis, FaceSplit, MarkerBasis, analyze
 from wface.basis.core import ActuationBasis
+from wface.mesh.closest import SurfaceQuery
+from wface.mesh.surface_fields import biharmonic_interpolate, surface_distances
 
 __all__ = [
     "RefinementResult",
@@ -280,8 +282,6 @@ def _euclidean_field(where, pts, vals, fade_start_m, fade_end_m, smoothing) -> n
 
 
 def _surface_field(basis, vertices, pts, vals, fade_start_m, fade_end_m, smoothing) -> np.ndarray:
-    from wface.mesh.closest import SurfaceQuery
-    from wface.mesh.surface_fields import biharmonic_interpolate, surface_distances
 
     mask = np.zeros(basis.n_vertices, dtype=bool)
     mask[vertices] = True

@@ -14,6 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.basis import MarkerBasis, MarkerLayout, analyze, load_basis, prepare_capture
+from wface.basis.landmarks import load_ict_animface_landmarks
+from wface.basis.refine import model_marker_shapes
+from wface.io.mocap import read_c3d
+
 __all__ = ["run"]
 
 
@@ -23,9 +28,6 @@ def _data_dir() -> Path:
 
 
 def _real():
-    from wface.basis import MarkerLayout, load_basis, prepare_capture
-    from wface.basis.landmarks import load_ict_animface_landmarks
-    from wface.io.mocap import read_c3d
 
     d = _data_dir()
     ict, jaw, cheeks = (
@@ -45,7 +47,6 @@ def _real():
 
 
 def _synthetic(frames=1590, markers=41, elements=57, seed=0):
-    from wface.basis import MarkerBasis
 
     rng = np.random.default_rng(seed)
     pos = rng.normal(scale=0.04, size=(markers, 3))
@@ -65,8 +66,6 @@ def _synthetic(frames=1590, markers=41, elements=57, seed=0):
 
 
 def run(args) -> dict:
-    from wface.basis import analyze
-    from wface.basis.refine import model_marker_shapes
 
     repeat = max(1, int(getattr(args, "repeat", 3) or 3))
     real = _real()

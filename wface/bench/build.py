@@ -13,6 +13,10 @@ import os
 import time
 from pathlib import Path
 
+from wface.faces.artisynth import import_artisynth
+from wface.faces.builtin import build_face
+from wface.mesh.quality import quality_report
+
 __all__ = ["add_arguments", "run"]
 
 
@@ -26,8 +30,6 @@ def _artisynth_dir() -> Path:
 
 
 def run(args: argparse.Namespace) -> dict:
-    from wface.builtin import build_face
-    from wface.mesh.quality import quality_report
 
     sizes = args.tets or [5_000, 20_000]
     builtin = []
@@ -51,7 +53,6 @@ def run(args: argparse.Namespace) -> dict:
     if not (data / "badinface_oop_csa_midsagittal.node").exists():
         result["artisynth"] = f"skipped: no ArtiSynth face data at {data}"
         return result
-    from wface.importers.artisynth import import_artisynth
 
     start = time.perf_counter()
     model = import_artisynth(data, progress=False)

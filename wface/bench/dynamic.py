@@ -16,6 +16,11 @@ import time
 
 import numpy as np
 
+from wface.faces.builtin import build_face
+from wface.physics import Simulator
+from wface.physics.dynamics import DynamicSimulator
+from wface.warp_runtime import init_warp, resolve_device
+
 __all__ = ["run", "DEFAULT_TETS", "bench_size"]
 
 DEFAULT_TETS = (5_000, 20_000)
@@ -24,9 +29,6 @@ SCHEMES = ("midpoint", "be")
 
 def bench_size(target_tets: int, *, device: str = "cpu", steps: int = 12, dt_s: float = 1.0 / 480.0) -> dict:
     """Timings for one mesh size (see module docstring)."""
-    from wface.builtin import build_face
-    from wface.physics import Simulator
-    from wface.physics.dynamics import DynamicSimulator
 
     model = build_face(target_tets)
     sim = Simulator(model, device=device)
@@ -68,8 +70,6 @@ def bench_size(target_tets: int, *, device: str = "cpu", steps: int = 12, dt_s: 
 def run(args) -> dict:
     """Entry point of ``wface bench --suite dynamic``: {"sizes": [...per size...]}."""
     import warp as wp
-
-    from wface.warp_runtime import init_warp, resolve_device
 
     wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # no banner on stdout (--json)
     init_warp()

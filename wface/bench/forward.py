@@ -17,6 +17,12 @@ import time
 
 import numpy as np
 
+from wface.controls import attached_positions_from_affines, jaw_opening_affine
+from wface.faces.builtin import build_face
+from wface.physics import Simulator
+from wface.solvers.linear import DirectFactor, JacobiPreconditioner, direct_backend, pcg
+from wface.warp_runtime import init_warp, resolve_device
+
 __all__ = ["run", "DEFAULT_TETS"]
 
 DEFAULT_TETS = (20_000, 100_000, 400_000)
@@ -36,11 +42,6 @@ def _median_time(fn, repeat: int, sync) -> float:
 def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_maxiter: int = 3000) -> dict:
     """Timings for one mesh size (see module docstring)."""
     import warp as wp
-
-    from wface.builtin import build_face
-    from wface.physics import Simulator
-    from wface.physics.bones import attached_positions, jaw_opening_affine
-    from wface.solvers.linear import DirectFactor, JacobiPreconditioner, direct_backend, pcg
 
     out: dict = {}
     t0 = time.perf_counter()
@@ -150,7 +151,7 @@ def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_max
     out["cg_converged"] = res.converged
     out["cg_seconds_per_iteration"] = out["cg_seconds"] / max(res.iterations, 1)
 
-    targets = attached_positions(model, jaw=jaw_opening_affine(model, 5.0))
+    targets = attached_positions_from_affines(model, jaw=jaw_opening_affine(model, 5.0))
     eq = sim.solve(a, targets)
     out["quasistatic_seconds"] = eq.seconds
     out["quasistatic_newton_iterations"] = eq.iterations
@@ -167,8 +168,6 @@ def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_max
 def run(args) -> dict:
     """Entry point of ``wface bench --suite forward``: {"sizes": [...per size...]}."""
     import warp as wp
-
-    from wface.warp_runtime import init_warp, resolve_device
 
     wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # before init: no banner on stdout (--json)
     init_warp()

@@ -10,13 +10,14 @@ import time
 
 import numpy as np
 
+from wface.controls import jaw_from_intuitive
+from wface.faces.builtin import build_face
+from wface.tracking.rig import FaceRig
+
 DEFAULT_TETS = (20_000, 100_000)
 
 
 def _one(n_tets: int, device: str, repeat: int) -> dict:
-    from wface.builtin import build_face
-    from wface.controls import jaw_from_intuitive
-    from wface.rig import FaceRig
 
     model = build_face(n_tets)
     rig = FaceRig(model, device="cpu" if device == "auto" else device, tol=1e-6)

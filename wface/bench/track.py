@@ -7,14 +7,15 @@ import time
 
 import numpy as np
 
+from wface.faces.builtin import build_face
+from wface.tracking.rig import FaceRig
+from wface.tracking.sequence import embed_model_markers, track_sequence
+from wface.tracking.synthetic import synthesize_performance
+
 DEFAULT_TETS = (20_000, 100_000)
 
 
 def _one(n_tets: int, device: str, frames: int) -> dict:
-    from wface.builtin import build_face
-    from wface.rig import FaceRig
-    from wface.tracking.sequence import embed_model_markers, track_sequence
-    from wface.tracking.synthetic import synthesize_performance
 
     model = build_face(n_tets)
     kwargs = {"device": "cpu" if device == "auto" else device, "tol": 1e-6}

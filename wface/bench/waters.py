@@ -17,6 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.facs import EXPRESSIONS
+from wface.testing.synthetic_head import synthetic_head, synthetic_landmarks
+from wface.waters.expressions import interpolate_poses
+from wface.waters.fit import fit_layout
+from wface.waters.layout import load_layout
+from wface.waters.rig import WatersRig, direct_displacement
+from wface.waters.surface import read_surface
+from wface.waters.warp_backend import WarpWaters
+
 __all__ = ["add_arguments", "run"]
 
 
@@ -30,13 +39,6 @@ def _ict_mesh_path() -> Path:
 
 
 def run(args: argparse.Namespace) -> dict:
-    from wface.facs import EXPRESSIONS
-    from wface.waters.expressions import interpolate_poses
-    from wface.waters.fit import fit_layout
-    from wface.waters.layout import load_layout
-    from wface.waters.rig import WatersRig, direct_displacement
-    from wface.waters.surface import read_surface
-    from wface.waters.synthetic import synthetic_head, synthetic_landmarks
 
     repeat = max(1, int(getattr(args, "repeat", 3) or 3))
     layout = load_layout("ict")
@@ -87,8 +89,6 @@ def run(args: argparse.Namespace) -> dict:
 
     warp_s = None
     try:
-        from wface.waters.warp_backend import WarpWaters
-
         ww = WarpWaters(layout, device=getattr(args, "device", None) or "auto")
         c = rig.contraction_vector(pose.contractions)
         ww.muscle_displacement(mesh.vertices_m, c, jaw_weights=rig.jaw_weights)  # compile / load the kernel

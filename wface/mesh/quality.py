@@ -11,7 +11,14 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["QualityReport", "dihedral_angles_deg", "quality_report", "signed_volumes", "volume_ratio_quality"]
+__all__ = [
+    "QualityReport",
+    "count_inverted",
+    "dihedral_angles_deg",
+    "quality_report",
+    "signed_volumes",
+    "volume_ratio_quality",
+]
 
 _EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
 # For edge (i, j), the two other vertices (k, l).
@@ -22,6 +29,14 @@ def signed_volumes(x: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """(m,) signed tet volumes; positive for positively oriented tets."""
     p = x[tets]
     return np.einsum("ij,ij->i", p[:, 1] - p[:, 0], np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0])) / 6.0
+
+
+def count_inverted(model, x: np.ndarray) -> int:
+    """Number of tets of ``model`` (anything with ``tets`` (m, 4), e.g. a ``FaceModel``) with
+    det F <= 0 at positions ``x`` (n, 3): the inverted and the degenerate ones."""
+    p = np.asarray(x, dtype=np.float64)[model.tets]
+    e1, e2, e3 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]
+    return int(np.count_nonzero(np.einsum("ij,ij->i", e1, np.cross(e2, e3)) <= 0.0))
 
 
 def dihedral_angles_deg(x: np.ndarray, tets: np.ndarray, *, chunk: int = 200_000) -> np.ndarray:

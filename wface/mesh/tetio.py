@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.mesh.quality import signed_volumes
+
 __all__ = ["read_tet_mesh", "write_tet_mesh", "model_cell_data"]
 
 
@@ -76,7 +78,6 @@ def read_tet_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray, dict]:
         raise ValueError(f"{path}: no tetrahedra in the file (cell types: {types})")
     tets = np.concatenate([mesh.cells[i].data for i in blocks]).astype(np.int32)
     x = np.asarray(mesh.points, dtype=np.float64)[:, :3]
-    from wface.mesh.quality import signed_volumes
 
     neg = signed_volumes(x, tets) < 0
     tets[neg] = tets[neg][:, [0, 2, 1, 3]]

@@ -43,7 +43,7 @@ against 6-9 with the projected K), falling back to the projected K when the fact
 it is indefinite (large dt with strongly active muscles).
 
 Convergence: ||grad_U Phi|| <= tol * max(||grad_U Phi(y_0)||, f_floor), y_0 the predictor,
-f_floor = 1e-3 (mu10 + mu01) V^(2/3) as in ``wface.solvers.newton`` (``StepStats.residual_rel``).
+f_floor = 1e-3 (mu10 + mu01) V^(2/3) as in ``wface.physics.newton`` (``StepStats.residual_rel``).
 """
 
 from __future__ import annotations
@@ -52,6 +52,10 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+
+from wface.mesh.quality import count_inverted
+from wface.physics.contact import ContactTangent
+from wface.solvers import LinearSolver, NotPositiveDefiniteError
 
 __all__ = [
     "SCHEMES",
@@ -233,8 +237,6 @@ class DynamicSimulator:
         stiffness: str = "auto",
         contact=None,
     ):
-        from wface.solvers.linear import resolve_linear_solver
-
         if scheme not in SCHEMES:
             raise ValueError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
         if not (np.isfinite(tol) and tol > 0):
@@ -258,7 +260,9 @@ class DynamicSimulator:
         self.tol = float(tol)
         self.max_iterations = int(max_iterations)
         self.max_line_search = int(max_line_search)
-        self.engine = resolve_linear_solver(solver, sim.device) if solver else sim.linear_solver
+        # PARDISO keeps its symbolic analysis from step to step (numeric refactorisation only)
+        self._linear = LinearSolver(solver or sim.linear_solver, sim.device, keep_factor=True)
+        self.engine = self._linear.engine
         self.masses_kg = lumped_masses(self.model)
         self._pattern = sim.pattern("free")
         self._free = self._pattern.dof_nodes
@@ -269,7 +273,6 @@ class DynamicSimulator:
         self._floor = 1e-3 * (mat.mu10_pa + mat.mu01_pa) * volume ** (2.0 / 3.0)
         stress = mat.mu10_pa + mat.mu01_pa + mat.sigma_max_pa * float(np.max(self.model.muscle_strength, initial=1.0))
         self._energy_noise = 64 * np.finfo(np.float64).eps * 3.0 * stress * volume
-        self._linear_state: dict = {}
         self._diag_positions = None
         self._kn_csr = None  # (tangent, CSR) of the damping stiffness K_n of the current step
 
@@ -350,8 +353,6 @@ class DynamicSimulator:
             v_new = 4.0 * (y - x_n) / h - v_n
             v_new[fixed] = (xc_next - x_n[fixed]) / h
         new = DynamicState(state.t_s + h, x_new, v_new, np.array(a_next, dtype=np.float64))
-        from wface.physics.simulator import count_inverted
-
         stats.kinetic_energy_j = self.kinetic_energy(new)
         stats.elastic_energy_j = self.sim.energy(x_new, a_next)
         stats.inverted_elements = count_inverted(self.model, x_new)
@@ -416,8 +417,6 @@ class DynamicSimulator:
     # ------------------------------------------------------------------ the Newton solve of one step
     def _minimise(self, x_n, a_n, y_hat, y_c, a, kappa, delta):
         """argmin over free nodes of Phi (module docstring); returns (y (n, 3), StepStats)."""
-        from wface.solvers.linear import NotPositiveDefiniteError
-
         sim, free, fixed, pattern = self.sim, self._free, self._fixed, self._pattern
         m3 = self._m_free3
         alpha, beta = self.damping.alpha_per_s, self.damping.beta_s
@@ -468,8 +467,6 @@ class DynamicSimulator:
             tan = sim.tangent(y_full, a, project=project)
             if contact is None:
                 return tan
-            from wface.physics.contact import ContactTangent
-
             same = last_pairs.get("x") is y_full
             return ContactTangent(tan, last_pairs["pairs"] if same else contact.evaluate(y_full))
 
@@ -477,7 +474,7 @@ class DynamicSimulator:
         residual = float(np.linalg.norm(grad))
         scale = max(residual, self._floor)
         stats = StepStats()
-        factorizations0 = self._linear_state.get("factorizations", 0)
+        factorizations0 = self._linear.factorizations
         skip_exact = False  # after a rejected exact Hessian, the next iteration goes straight to the projected K
         while residual > self.tol * scale and stats.newton_iterations < self.max_iterations:
             dx = None
@@ -532,56 +529,15 @@ class DynamicSimulator:
         stats.residual_rel = residual / scale
         stats.converged = bool(residual <= self.tol * scale)
         self._exact_below = 0.1 if stats.exact_failures else 1.0
-        stats.factorizations = self._linear_state.get("factorizations", 0) - factorizations0
+        stats.factorizations = self._linear.factorizations - factorizations0
         return y, stats
 
     def _solve(self, tangent, k_n, mass_coef: float, damp_coef: float, rhs: np.ndarray, rtol: float = 1e-10):
         """Solve (mass_coef M + damp_coef K_n + K) dx = rhs over the free dofs; returns (dx, cg its)."""
-        from wface.solvers.linear import (
-            DirectFactor,
-            JacobiPreconditioner,
-            NotPositiveDefiniteError,
-            pcg,
-        )
-
-        pattern, m3 = self._pattern, self._m_free3
-        if self.engine == "direct":
-            H = tangent.assemble(pattern)
-            if k_n is not None and damp_coef > 0:
-                if self._kn_csr is None or self._kn_csr[0] is not k_n:
-                    self._kn_csr = (k_n, k_n.assemble(pattern))  # constant over the step: assemble once
-                Kn = self._kn_csr[1]
-                if np.array_equal(Kn.indptr, H.indptr) and np.array_equal(Kn.indices, H.indices):
-                    H.data += damp_coef * Kn.data  # same block pattern: add values in place
-                else:  # pragma: no cover - defensive
-                    H = (H + damp_coef * Kn).tocsr()
-                    H.sort_indices()
-            H.data[self._diagonal_positions(H)] += mass_coef * m3
-            old = self._linear_state.pop("factor", None)
-            factor = DirectFactor(H, reuse=old)  # keeps PARDISO's analysis between steps
-            if old is not None:
-                old.free()
-            self._linear_state["factor"] = factor
-            self._linear_state["factorizations"] = self._linear_state.get("factorizations", 0) + 1
-            return factor.solve(rhs), 0
-
-        diag = pattern.gather(tangent.diagonal()) + mass_coef * m3
-        if k_n is not None and damp_coef > 0:
-            diag = diag + damp_coef * pattern.gather(k_n.diagonal())
-
-        def matvec(u):
-            if u.ndim == 2:
-                return np.stack([matvec(u[:, j]) for j in range(u.shape[1])], axis=1)
-            full = pattern.scatter(u)
-            out = pattern.gather(tangent.matvec(full)) + mass_coef * m3 * u
-            if k_n is not None and damp_coef > 0:
-                out = out + damp_coef * pattern.gather(k_n.matvec(full))
-            return out
-
-        res = pcg(matvec, rhs, preconditioner=JacobiPreconditioner(diag), rtol=rtol, maxiter=20 * rhs.shape[0])
-        if res.indefinite:  # pragma: no cover - H is SPD by construction
-            raise NotPositiveDefiniteError("CG met a direction of non-positive curvature")
-        return res.x, res.iterations
+        before = self._linear.cg_iterations
+        operator = _StepOperator(self, tangent, k_n, mass_coef, damp_coef)
+        dx = self._linear.solve(operator, self._pattern, rhs, rtol=rtol)
+        return dx, self._linear.cg_iterations - before
 
     def _diagonal_positions(self, H) -> np.ndarray:
         """Positions of the diagonal entries in the CSR data of the (fixed) free-node pattern."""
@@ -595,12 +551,49 @@ class DynamicSimulator:
 
     def free(self) -> None:
         """Release the kept factorisation now."""
-        factor = self._linear_state.pop("factor", None)
-        if factor is not None:
-            factor.free()
+        self._linear.free()
 
     def __repr__(self) -> str:
         return (
             f"DynamicSimulator(scheme={self.scheme!r}, damping={self.damping}, engine={self.engine!r}, "
             f"tets={self.model.n_tets})"
         )
+
+
+class _StepOperator:
+    """The Newton matrix of one time step, H = K + damp_coef K_n + mass_coef M (lumped M), as an
+    operator on nodal fields for ``wface.solvers.LinearSolver``."""
+
+    def __init__(self, dyn: DynamicSimulator, tangent, k_n, mass_coef: float, damp_coef: float):
+        self.dyn = dyn
+        self.tangent = tangent
+        self.k_n = k_n if (k_n is not None and damp_coef > 0) else None
+        self.mass_coef = float(mass_coef)
+        self.damp_coef = float(damp_coef)
+
+    def matvec(self, v: np.ndarray) -> np.ndarray:
+        out = self.tangent.matvec(v) + self.mass_coef * self.dyn.masses_kg[:, None] * v
+        if self.k_n is not None:
+            out = out + self.damp_coef * self.k_n.matvec(v)
+        return out
+
+    def diagonal(self) -> np.ndarray:
+        diag = self.tangent.diagonal() + self.mass_coef * self.dyn.masses_kg[:, None]
+        if self.k_n is not None:
+            diag = diag + self.damp_coef * self.k_n.diagonal()
+        return diag
+
+    def assemble(self, pattern):
+        dyn = self.dyn
+        H = self.tangent.assemble(pattern)
+        if self.k_n is not None:
+            if dyn._kn_csr is None or dyn._kn_csr[0] is not self.k_n:
+                dyn._kn_csr = (self.k_n, self.k_n.assemble(pattern))  # constant over the step: assemble once
+            Kn = dyn._kn_csr[1]
+            if np.array_equal(Kn.indptr, H.indptr) and np.array_equal(Kn.indices, H.indices):
+                H.data += self.damp_coef * Kn.data  # same block pattern: add values in place
+            else:  # pragma: no cover - defensive
+                H = (H + self.damp_coef * Kn).tocsr()
+                H.sort_indices()
+        H.data[dyn._diagonal_positions(H)] += self.mass_coef * np.repeat(dyn.masses_kg[pattern.dof_nodes], 3)
+        return H

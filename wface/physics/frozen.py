@@ -21,14 +21,14 @@ barycentric weights of the projection. Pairs up to ``margin_m`` apart are frozen
 force until they touch), so points about to touch are caught; a frozen face pair whose projection
 has left its triangle by more than ``STALE_WEIGHT`` (barycentric) while carrying force measures to a
 "ghost" plane and triggers re-detection. Rigid obstacles are evaluated as usual. The Newton solver
-(``wface.solvers.newton``) freezes once the residual is small, converges the frozen problem,
+(``wface.physics.newton``) freezes once the residual is small, converges the frozen problem,
 re-detects the pairs and repeats until the true (re-detected) residual meets the tolerance (Wriggers
 2006, ch. 8: active-set strategies; the frozen feature is the "fixed contact element"
 linearisation).
 
 ``exact_self_hessian``: the full second derivatives of the self-contact energy with each pair's
 feature fixed (normal and projection derivatives with respect to the triangle vertices included),
-for the implicit-function Jacobians of ``wface.rig``.
+for the implicit-function Jacobians of ``wface.tracking.rig``.
 """
 
 from __future__ import annotations
@@ -211,7 +211,7 @@ def exact_self_hessian(contact, pairs: ContactPairs, x: np.ndarray, pattern, *, 
     self-contact pairs (closest feature fixed): k'' dg dg^T + E'(g) d2g, the derivatives of the
     normals and closest-point weights with respect to the triangle vertices included (the Newton
     solves drop them). Not projected: use it where the exact tangent of the equilibrium is needed
-    (the implicit-function Jacobians of ``wface.rig``). Rigid-obstacle pairs keep ``pairs.assemble``.
+    (the implicit-function Jacobians of ``wface.tracking.rig``). Rigid-obstacle pairs keep ``pairs.assemble``.
 
     d2g comes from central second differences of the pair distance with step ``_HESS_STEP_M``.
     """

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wface.controls import as_affine
 from wface.mesh.signed_distance import SignedSurface, oriented_outward
 from wface.model import BONES, FaceModel
-from wface.physics.bones import as_affine
 
 __all__ = ["HalfSpace", "MeshObstacle", "Sphere", "as_affine", "bone_affines_from_attached", "parse_obstacle"]
 
@@ -152,7 +152,7 @@ def parse_obstacle(spec: str):
 def bone_affines_from_attached(model: FaceModel, attached_positions: np.ndarray | None) -> dict[str, np.ndarray]:
     """World affines (3x4) of cranium and jaw that best map the rest positions of their attached
     nodes onto ``attached_positions`` (least squares; exact for positions from
-    ``wface.physics.bones.attached_positions``). A bone whose nodes do not span 3D gets the best
+    ``wface.controls.attached_positions_from_affines``). A bone whose nodes do not span 3D gets the best
     rigid fit (Kabsch); a bone with fewer than 3 nodes keeps the identity."""
     out = {}
     for b, bone in enumerate(BONES):

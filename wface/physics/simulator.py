@@ -21,19 +21,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from wface.model import FaceModel
-from wface.physics.pattern import BlockPattern
+from wface.physics.newton import Equilibrium, newton_quasistatic
+from wface.solvers import BlockPattern, LinearSolver, resolve_linear_solver
 from wface.warp_runtime import init_warp, resolve_device
 
-__all__ = ["Simulator", "StiffnessSolver", "Tangent", "count_inverted"]
+__all__ = ["Simulator", "StiffnessSolver", "Tangent"]
 
 PRECISIONS = ("float64", "float32")
-
-
-def count_inverted(model: FaceModel, x: np.ndarray) -> int:
-    """Number of tets with det F <= 0 at positions ``x`` (n, 3)."""
-    p = np.asarray(x, dtype=np.float64)[model.tets]
-    e1, e2, e3 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]
-    return int(np.count_nonzero(np.einsum("ij,ij->i", e1, np.cross(e2, e3)) <= 0.0))
 
 
 class Tangent:
@@ -49,6 +43,15 @@ class Tangent:
         self._sim = sim
         self.element_tangents = tangent_wp  # wp.array of packed symmetric 9x9 (45 values), one per tet
         self.projected = projected
+        self.device = sim.device
+        self.n_nodes = sim.model.n_nodes
+        self.dtype = sim._np_dtype  # the precision of the element tangents (``device_matvec``)
+
+    def device_matvec(self, x, out) -> None:
+        """out += K x on Warp arrays of vec3 on ``device`` (out zeroed by the caller): one launch."""
+        s = self._sim
+        inputs = [s._tets, s._dm_inv, self.element_tangents, x, out]
+        s._wp.launch(s._k.tangent_matvec, s.model.n_tets, inputs=inputs, device=s.device)
 
     def matvec(self, v: np.ndarray) -> np.ndarray:
         """K v for v of shape (n, 3) (or flat 3n); returns (n, 3) float64."""
@@ -80,8 +83,9 @@ class Tangent:
 
 
 class StiffnessSolver:
-    """K_UU X = B for many right-hand sides at one configuration (the Jacobian solves, DESIGN.md
-    section 4): factored once with the direct backend, or Jacobi-preconditioned CG per column.
+    """K_UU X = B for many right-hand sides at one configuration (the Jacobian solves, docs/design.md
+    "Linear solvers"): factored once with the direct backend, or Jacobi-preconditioned CG per column,
+    through ``wface.solvers.LinearSolver``.
 
     Right-hand sides live on the unknowns of ``pattern`` (``pattern.gather`` / ``pattern.scatter``
     convert from / to nodal (n, 3) arrays); ``solve_nodal`` does that for you.
@@ -91,22 +95,17 @@ class StiffnessSolver:
         self.tangent = tangent
         self.pattern = pattern
         self.engine = engine
-        self.cg_iterations = 0
-        self._factor = None
-        if engine == "direct":
-            from wface.solvers.linear import DirectFactor
+        self._linear = LinearSolver(engine, tangent.device)
+        self._bound = self._linear.bind(tangent, pattern)
 
-            self._factor = DirectFactor(tangent.assemble(pattern))
+    @property
+    def cg_iterations(self) -> int:
+        """CG iterations over all ``solve`` calls (0 with the direct engine)."""
+        return self._linear.cg_iterations
 
     def solve(self, B: np.ndarray, *, rtol: float = 1e-10) -> np.ndarray:
         """X = K_UU^-1 B for B of shape (3k,) or (3k, c)."""
-        if self._factor is not None:
-            return self._factor.solve(B)
-        from wface.solvers.newton import solve_free
-
-        X, its = solve_free(self.tangent, self.pattern, np.asarray(B, dtype=np.float64), engine="cg", rtol=rtol)
-        self.cg_iterations += its
-        return X
+        return self._bound.solve(np.asarray(B, dtype=np.float64), rtol=rtol)
 
     def solve_nodal(self, F: np.ndarray, *, rtol: float = 1e-10) -> np.ndarray:
         """Nodal right-hand sides (n, 3) or (c, n, 3) -> nodal solutions, zero on Dirichlet nodes."""
@@ -118,9 +117,7 @@ class StiffnessSolver:
 
     def free(self) -> None:
         """Release the factorisation now."""
-        if self._factor is not None:
-            self._factor.free()
-            self._factor = None
+        self._bound.free()
 
 
 class Simulator:
@@ -135,7 +132,7 @@ class Simulator:
         force_length_scale: exaggeration beyond physical limits (seed 000, section 9): scales the
             whole active force-length curve, T = k (s a f_L + f_P), so activations stay in [0, 1].
             A scalar (every muscle) or an (M,) array (one scale per muscle, as
-            ``wface.editing.exaggerate`` produces). Also a mutable, validated attribute.
+            ``wface.takes.exaggerate`` produces). Also a mutable, validated attribute.
     """
 
     def __init__(
@@ -151,7 +148,6 @@ class Simulator:
         import warp as wp
 
         from wface.kernels.fem import fem_kernels
-        from wface.solvers.linear import resolve_linear_solver
 
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
@@ -384,8 +380,6 @@ class Simulator:
         Example (activation Jacobian, seed 000 eq. 5): ``dX = sim.stiffness_solver(x, a)
         .solve_nodal(sim.muscle_forces(x))`` gives dX_U/da_i for every muscle i, shape (M, n, 3).
         """
-        from wface.solvers.linear import resolve_linear_solver
-
         engine = resolve_linear_solver(solver, self.device) if solver else self.linear_solver
         return StiffnessSolver(self.tangent(x, activations, project=project), self.pattern(nodes), engine)
 
@@ -421,20 +415,20 @@ class Simulator:
         stiffness: str = "auto",
         reuse_factor: bool = False,
         contact=None,
-    ):
+    ) -> Equilibrium:
         """Quasistatic equilibrium f_U(x, a) = 0 with attached nodes at ``attached_positions``.
 
         Args:
             activations: dict {muscle: value}, (M,) array, or None (all zero).
             attached_positions: (a, 3) positions of ``model.attached_nodes`` (default: rest), e.g.
-                from ``wface.physics.bones.attached_positions``.
+                from ``wface.controls.attached_positions_from_affines``.
             x0: warm start (n, 3); its attached nodes are replaced by the targets through one
                 linearised "lift" step. Default: rest positions.
             tol: convergence on the relative residual (see ``Equilibrium``).
             max_iterations: Newton iteration cap.
             solver: override of the simulator's linear solver ("auto" | "cg" | "direct").
             stiffness: "auto" (exact Hessian when definite, else projected), "projected" or "exact";
-                see ``wface.solvers.newton``.
+                see ``wface.physics.newton``.
             reuse_factor: with the direct solver, precondition CG with the previous step's factor
                 and refactor only when that CG does not converge within a few iterations (off by
                 default: on the 2-core CPU at 20K-100K tets a fresh factorisation was as fast).
@@ -443,10 +437,8 @@ class Simulator:
                 bones implied by ``attached_positions``; contact statistics land on the result.
 
         Returns:
-            ``wface.solvers.newton.Equilibrium``.
+            ``wface.physics.newton.Equilibrium``.
         """
-        from wface.solvers.newton import newton_quasistatic
-
         start = time.perf_counter()
         result = newton_quasistatic(
             self,

@@ -1,4 +1,5 @@
-"""Solvers: sparse direct / conjugate-gradient linear solvers and the quasistatic Newton method."""
+"""Generic linear algebra: sparse direct / conjugate-gradient solvers of SPD systems, the block
+sparsity pattern of a tet mesh's stiffness, and ``LinearSolver``, the one place that picks the engine."""
 
 from wface.solvers.linear import (
     SOLVERS,
@@ -11,9 +12,15 @@ from wface.solvers.linear import (
     pcg,
     resolve_linear_solver,
 )
+from wface.solvers.pattern import BlockPattern
+from wface.solvers.solver import BoundSolve, LinearSolver, MatrixOperator
 
 __all__ = [
     "SOLVERS",
+    "BlockPattern",
+    "BoundSolve",
+    "LinearSolver",
+    "MatrixOperator",
     "CGResult",
     "DirectFactor",
     "FactorPreconditioner",

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wface.mesh.align import align_to_surface
 from wface.tracking.estimator import MarkerMap
 
 __all__ = ["PreparedCapture", "prepare_capture"]
@@ -47,7 +48,6 @@ def prepare_capture(
         reference_positions_m: (k, 3) neutral marker positions given directly (e.g. a frame outside
             the tracked range); overrides ``reference_frame``.
     """
-    from wface.align import align_to_surface
 
     pos = np.asarray(positions_m, dtype=np.float64)
     if pos.ndim != 3 or pos.shape[2] != 3 or pos.shape[1] != len(marker_names):

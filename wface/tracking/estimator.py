@@ -35,8 +35,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from wface.controls import activation_penalty, bone_penalty
-from wface.rig import FaceRig, RigState
+from wface.controls import (
+    _joint_rows,
+    activation_penalty,
+    bone_penalty,
+    jaw_from_intuitive,
+    jaw_to_intuitive,
+    params_from_affine,
+)
+from wface.tracking.rig import FaceRig, RigState
 
 __all__ = ["TrackOptions", "FrameResult", "FrameEstimator", "MarkerMap"]
 
@@ -283,8 +290,6 @@ class FrameEstimator:
         if not hasattr(self, "_T"):
             from scipy.linalg import null_space
 
-            from wface.controls import _joint_rows
-
             A, _, lo, hi = _joint_rows(self.rig.model.jaw_joint)
             N = null_space(A[lo == hi])  # (12, 9)
             p = self.M + 24
@@ -374,7 +379,6 @@ class FrameEstimator:
     def retract(self, c: np.ndarray) -> np.ndarray:
         """Project controls onto valid ones: activations into [0, 1], the cranium onto the nearest
         rotation (polar decomposition), the jaw onto a rigid pose inside the joint limits."""
-        from wface.controls import jaw_from_intuitive, jaw_to_intuitive, params_from_affine
 
         M = self.M
         out = np.array(c, dtype=np.float64)

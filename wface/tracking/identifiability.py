@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from wface.controls import jaw_params_unchecked, jaw_to_intuitive
+
 __all__ = ["OBSERVABLE_MM", "bone_motion_basis", "muscle_identifiability_mm", "rig_identifiability_mm"]
 
 OBSERVABLE_MM = 1.0
@@ -44,7 +46,6 @@ def muscle_identifiability_mm(J: np.ndarray, n_muscles: int, *, bone_basis: np.n
 
 def bone_motion_basis(joint, b: np.ndarray) -> np.ndarray:
     """(24, 9) directions of valid bone motion at bone parameters b: rigid cranium (6), jaw (3)."""
-    from wface.controls import jaw_params_unchecked, jaw_to_intuitive
 
     T = np.zeros((24, 9))
     Mc = b[:9].reshape(3, 3)

@@ -1,17 +1,14 @@
-"""report.json of a tracked take (keys of DESIGN.md section 9) and the per-frame controls files."""
+"""report.json of a tracked take: the keys listed in the README ("Tracking outputs"); the files are
+written by ``wface.takes.store``."""
 
 from __future__ import annotations
-
-import csv
-import json
-from pathlib import Path
 
 import numpy as np
 
 from wface.controls import jaw_to_intuitive
 from wface.tracking.identifiability import OBSERVABLE_MM
 
-__all__ = ["build_report", "write_controls"]
+__all__ = ["build_report"]
 
 
 def _per_marker_rms_mm(err_mm: np.ndarray, marker_names) -> dict:
@@ -79,59 +76,3 @@ def build_report(
         noise = np.linalg.norm(truth.markers_m - truth.clean_markers_m, axis=2)[: len(records)]
         rep["input_noise_rms_mm"] = float(np.sqrt(np.nanmean(noise[~truth.outlier_mask[: len(records)]] ** 2)) * 1e3)
     return rep
-
-
-def write_controls(out_dir: Path, model, records, *, fps: float | None = None) -> tuple[Path, Path]:
-    """controls.npz and controls.csv: per-frame activations, bone parameters and jaw pose.
-
-    ``fps`` (the take's frame rate) is stored in controls.npz, so ``wface edit`` and ``wface resim``
-    replay the take at its own rate even when no animation.usdc was written (``--no-pictures``).
-    """
-    M = model.n_muscles
-    frames = np.array([r.frame for r in records])
-    C = np.array([r.controls for r in records])
-    jaw = [jaw_to_intuitive(model.jaw_joint, c[M + 12 :]) for c in C]
-    npz = out_dir / "controls.npz"
-    extra = {} if fps is None else {"fps": np.float64(fps)}
-    np.savez(
-        npz,
-        **extra,
-        frames=frames,
-        activations=C[:, :M],
-        bones=C[:, M:],
-        muscle_names=np.array(model.muscle_names),
-        jaw_opening_deg=np.array([j["opening_deg"] for j in jaw]),
-        jaw_protrusion_m=np.array([j["protrusion_m"] for j in jaw]),
-        jaw_lateral_deg=np.array([j["lateral_deg"] for j in jaw]),
-    )
-    path = out_dir / "controls.csv"
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(
-            [
-                "frame",
-                *model.muscle_names,
-                "jaw_opening_deg",
-                "jaw_protrusion_mm",
-                "jaw_lateral_deg",
-                *[f"cranium_{k}" for k in range(12)],
-            ]
-        )
-        for fr, c, j in zip(frames, C, jaw, strict=True):
-            w.writerow(
-                [
-                    int(fr),
-                    *np.round(c[:M], 6),
-                    round(j["opening_deg"], 4),
-                    round(j["protrusion_m"] * 1e3, 4),
-                    round(j["lateral_deg"], 4),
-                    *np.round(c[M : M + 12], 6),
-                ]
-            )
-    return npz, path
-
-
-def write_report(out_dir: Path, report: dict) -> Path:
-    path = out_dir / "report.json"
-    path.write_text(json.dumps(report, indent=2) + "\n")
-    return path

@@ -1,56 +1,41 @@
 """Tracking a whole take: frames in order with warm starts, split into chunks for parallel workers.
 
-Frames are independent given a start guess (seed 000, section 9), so a take splits into chunks
+Frames are independent given a start guess (Sifakis et al. 2005, section 9), so a take splits into chunks
 of consecutive frames; each chunk starts cold (rest controls, cranium from a rigid fit of the
 stable markers, more Gauss-Newton steps) and warm-starts frame to frame inside. Chunks run on any
 ``concurrent.futures``-style executor (``submit`` returning futures), e.g. a process pool or a
 Dask ``Client.get_executor()``. With ``out_dir``, each frame is written to
-``out_dir/frames/frame_NNNNNN.npz`` as soon as it is done (atomically), and ``resume=True``
-skips frames already on disk, so an interrupted run loses nothing.
+``out_dir/frames/frame_NNNNNN.npz`` as soon as it is done (atomically, ``wface.takes.store``), and
+``resume=True`` skips frames already on disk, so an interrupted run loses nothing.
 """
 
 from __future__ import annotations
 
-import json
-import os
-from dataclasses import dataclass
+import math
 from pathlib import Path
 
 import numpy as np
+from tqdm.auto import tqdm
 
+from wface.controls import params_from_affine
+from wface.mesh.align import embed_markers, umeyama
+from wface.takes.store import FrameRecord, load_frame_records, write_frame
 from wface.tracking.estimator import FrameEstimator, MarkerMap, TrackOptions
+from wface.tracking.rig import FaceRig
 
-__all__ = ["FrameRecord", "track_sequence", "embed_model_markers", "initial_controls", "load_frame_records"]
+__all__ = ["dask_executor", "embed_model_markers", "initial_controls", "track_sequence"]
 
 STABLE_MARKERS = ("ForeHead_L", "ForeHead_M", "ForeHead_R", "NoseTop", "Eyebrow_Center")
 
 
-@dataclass
-class FrameRecord:
-    """What is kept of a tracked frame (also what a frame file holds)."""
-
-    frame: int
-    controls: np.ndarray
-    x_m: np.ndarray  # (n, 3) world positions
-    y_m: np.ndarray  # (n, 3) cranium-frame equilibrium
-    markers_m: np.ndarray  # (k, 3)
-    marker_error_m: np.ndarray  # (k,)
-    stats: dict
-
-
 def embed_model_markers(model, markers_rest_m: np.ndarray | None = None):
     """Embed markers (default: the model's own) in the skin; returns a ``MarkerMap``."""
-    from wface.align import embed_markers
-
     pts = model.marker_positions_m if markers_rest_m is None else markers_rest_m
     return MarkerMap(model, embed_markers(pts, model.rest_positions_m, model.skin_triangles))
 
 
 def initial_controls(rig, markers: MarkerMap, target_m: np.ndarray, marker_names) -> np.ndarray:
     """Rest controls with the cranium set by a rigid fit of the stable markers (all markers if too few)."""
-    from wface.align import umeyama
-    from wface.controls import params_from_affine
-
     c = rig.rest_controls()
     rest = markers.positions(rig.model.rest_positions_m)
     idx = [i for i, n in enumerate(marker_names) if n in STABLE_MARKERS]
@@ -63,60 +48,8 @@ def initial_controls(rig, markers: MarkerMap, target_m: np.ndarray, marker_names
     return c
 
 
-def _frame_path(out_dir: Path, frame: int) -> Path:
-    return out_dir / "frames" / f"frame_{frame:06d}.npz"
-
-
-def _write_frame(out_dir: Path, rec: FrameRecord) -> None:
-    path = _frame_path(out_dir, rec.frame)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".part.npz")
-    np.savez(
-        tmp,
-        frame=rec.frame,
-        controls=rec.controls,
-        x_m=rec.x_m,
-        y_m=rec.y_m,
-        markers_m=rec.markers_m,
-        marker_error_m=rec.marker_error_m,
-        stats_json=np.frombuffer(json.dumps(rec.stats).encode(), dtype=np.uint8),
-    )
-    os.replace(tmp, path)
-
-
-def _read_frame(path: Path) -> FrameRecord:
-    with np.load(path) as d:
-        return FrameRecord(
-            int(d["frame"]),
-            d["controls"],
-            d["x_m"],
-            d["y_m"],
-            d["markers_m"],
-            d["marker_error_m"],
-            json.loads(bytes(d["stats_json"]).decode()),
-        )
-
-
-def load_frame_records(out_dir: str | Path, frames) -> dict[int, FrameRecord]:
-    """Frame records already written under ``out_dir`` for the given frame numbers."""
-    out_dir = Path(out_dir)
-    found = {}
-    for f in frames:
-        p = _frame_path(out_dir, int(f))
-        if p.exists():
-            try:
-                found[int(f)] = _read_frame(p)
-            except Exception:  # noqa: BLE001 - a torn file is simply redone
-                continue
-    return found
-
-
 def _track_chunk(model, embedding, targets, frames, marker_names, options, rig_kwargs, out_dir, resume, progress):
     """Track consecutive frames (runs in a worker). Returns the list of FrameRecords."""
-    from tqdm.auto import tqdm
-
-    from wface.rig import FaceRig
-
     rig = FaceRig(model, **rig_kwargs)
     markers = MarkerMap(model, embedding)
     est = FrameEstimator(rig, markers, options)
@@ -154,7 +87,7 @@ def _track_chunk(model, embedding, targets, frames, marker_names, options, rig_k
         }
         rec = FrameRecord(int(f), res.controls, res.state.x_m, res.state.y_m, res.markers_m, res.marker_error_m, stats)
         if out_dir is not None:
-            _write_frame(out_dir, rec)
+            write_frame(out_dir, rec)
         out.append(rec)
     return out
 
@@ -222,3 +155,23 @@ def track_sequence(
         futures = [executor.submit(_track_chunk, *a, False) for a in args]
         results = [fut.result() for fut in futures]
     return [rec for chunk in results for rec in chunk]
+
+
+def dask_executor(*, workers: int = 1, scheduler: str | None = None, n_frames: int, chunk_size: int | None = None):
+    """(executor, chunk_size, close) for ``track_sequence``: a Dask executor on a running scheduler
+    (``scheduler`` address) or on a local cluster of ``workers`` processes, or (None, chunk_size,
+    no-op) to run in-process. The default chunk size splits the take evenly over the workers."""
+    if not (scheduler or workers > 1):
+        return None, chunk_size, lambda: None
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        client = Client(scheduler)
+        workers = max(1, len(client.scheduler_info()["workers"]))
+        closers = [client.close]
+    else:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        client = Client(cluster)
+        closers = [client.close, cluster.close]
+    chunk = chunk_size or math.ceil(n_frames / workers)
+    return client.get_executor(pure=False), chunk, lambda: [c() for c in closers]

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.viz import plots, render
+
 __all__ = ["peak_frame", "write_take_figures"]
 
 
@@ -67,7 +69,6 @@ def write_take_figures(
     Returns:
         caption -> path, in display order (pass to ``write_html_report``).
     """
-    from wface.viz import plots, render
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from wface.viz.muscles import ACTIVE_RGB, INACTIVE_RGB, SKIN_RGB, activation_colors, skin_muscle_influence
+from wface.viz.offscreen import offscreen_pyvista
 
 __all__ = [
     "CAPTURED_RGB",
@@ -81,7 +82,6 @@ def _bone_world_affines(cranium, jaw, jaw_frame: str) -> dict[str, np.ndarray]:
 
 
 def _pv():
-    from wface.viz.offscreen import offscreen_pyvista
 
     return offscreen_pyvista()
 

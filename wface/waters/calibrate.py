@@ -20,6 +20,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from wface.mesh.closest import SurfaceQuery
+from wface.waters.expressions import pose_from_action_units
 from wface.waters.layout import MuscleLayout
 from wface.waters.muscles import LinearMuscle
 from wface.waters.rig import WatersRig
@@ -104,7 +106,6 @@ def reference_agreement(
         rows: vertices compared (default all; e.g. the ICT face region 0-9408).
         jaw_open_deg: jaw angle (default the action units' own).
     """
-    from wface.waters.expressions import pose_from_action_units
 
     pose = pose_from_action_units(action_units, rig.muscle_names)
     jaw = pose.jaw_open_deg if jaw_open_deg is None else jaw_open_deg
@@ -194,8 +195,6 @@ def calibrate_muscle(
     """
     from scipy.optimize import minimize
 
-    from wface.waters.expressions import pose_from_action_units
-
     x = np.asarray(rest_positions_m, dtype=np.float64)
     ref = np.asarray(reference_m, dtype=np.float64)
     if ref.shape != x.shape:
@@ -214,8 +213,6 @@ def calibrate_muscle(
         raise ValueError(f"bounds_from has {muscle!r} as a different kind of muscle")
     query = None
     if surface is not None:
-        from wface.mesh.closest import SurfaceQuery
-
         query = SurfaceQuery(*surface)
 
     if isinstance(m0, LinearMuscle):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from wface.faces.builtin import build_face
 from wface.waters.fit import fit_layout
 from wface.waters.layout import JawRegion, MuscleLayout, load_layout
 from wface.waters.rig import WatersRig
@@ -109,13 +110,12 @@ def builtin_face_layout(target_tets: int = BUILTIN_LAYOUT_TETS) -> MuscleLayout:
 
         save_layout(builtin_face_layout(), "wface/data/waters_builtin.json")
     """
-    from wface.builtin import build_face
 
     lay = fit_layout_to_face_model(build_face(target_tets))
     lay.name = "builtin"
     lay.notes = (
         "The packaged ICT layout (waters_ict.json) fitted to wface's built-in face "
-        f"(wface.builtin.build_face({target_tets})) by its AnimFace markers: similarity + thin-plate RBF warp, "
+        f"(wface.faces.builtin.build_face({target_tets})) by its AnimFace markers: similarity + thin-plate RBF warp, "
         "insertions snapped to the skin, jaw pivot/axis from the model's jaw joint. Regenerate with "
         "wface.waters.face_model.builtin_face_layout()."
     )

@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from wface.mesh.closest import SurfaceQuery
 from wface.waters.layout import JawPlane, JawRegion, MuscleLayout
 from wface.waters.muscles import LinearMuscle, SphincterMuscle
 
@@ -158,7 +159,6 @@ def fit_layout(
     if snap:
         if target_vertices_m is None or target_triangles is None:
             raise ValueError("snap=True needs target_vertices_m and target_triangles")
-        from wface.mesh.closest import SurfaceQuery
 
         query = SurfaceQuery(target_vertices_m, target_triangles)
 

@@ -12,6 +12,7 @@ import numpy as np
 from wface.waters.expressions import expression_pose
 from wface.waters.fit import fit_layout
 from wface.waters.layout import MuscleLayout, load_layout
+from wface.waters.render import render_mesh
 from wface.waters.rig import WatersRig
 from wface.waters.surface import SurfaceMesh, read_surface, write_obj, write_usd
 
@@ -95,8 +96,6 @@ def pose_mesh(
     }
     disp_mm = np.linalg.norm(x - mesh.vertices_m, axis=1) * 1e3
     if render:
-        from wface.waters.render import render_mesh
-
         tri = mesh.triangles()
         box = None  # frame the face: the layout's landmarks, else the muscles' reach
         marks = np.array(list(rig.layout.landmarks_m.values())).reshape(-1, 3)

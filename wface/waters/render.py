@@ -6,6 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.viz.offscreen import offscreen_pyvista
+from wface.waters.muscles import LinearMuscle
+
 __all__ = ["render_grid", "render_layout", "render_mesh"]
 
 
@@ -46,7 +49,6 @@ def render_mesh(
         zoom: camera zoom factor.
         bounds_m: optional (6,) box (xmin, xmax, ymin, ymax, zmin, zmax) to frame instead of the whole mesh.
     """
-    from wface.viz.offscreen import offscreen_pyvista
 
     pv = offscreen_pyvista()
     plotter = pv.Plotter(off_screen=True, window_size=(size, size))
@@ -113,8 +115,6 @@ def render_layout(
 ) -> Path:
     """Draw a layout's muscles over a translucent face: linear muscles as arrows from the bony
     attachment V1 (dot) to the insertion V2, sphincters as their ellipses, landmarks as small points."""
-    from wface.viz.offscreen import offscreen_pyvista
-    from wface.waters.muscles import LinearMuscle
 
     pv = offscreen_pyvista()
     plotter = pv.Plotter(off_screen=True, window_size=(size, size))

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.io.usd import write_mesh_animation
+
 __all__ = ["SurfaceMesh", "guess_units", "read_surface", "write_obj", "write_usd"]
 
 _UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
@@ -133,7 +135,6 @@ def write_obj(path: str | Path, mesh: SurfaceMesh) -> Path:
 
 def write_usd(path: str | Path, mesh: SurfaceMesh, *, frames_m: np.ndarray | None = None, fps: float = 24.0) -> Path:
     """Write the mesh (or an animation, ``frames_m`` (F, n, 3)) to USD via ``wface.io.usd``."""
-    from wface.io.usd import write_mesh_animation
 
     points = mesh.vertices_m if frames_m is None else np.asarray(frames_m, dtype=np.float64)
     return write_mesh_animation(

@@ -9,6 +9,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from wface.warp_runtime import resolve_device
 from wface.waters.layout import MuscleLayout
 from wface.waters.muscles import LinearMuscle
 
@@ -27,8 +28,6 @@ class WarpWaters:
 
     def __init__(self, layout: MuscleLayout, *, device: str | None = None):
         import warp as wp
-
-        from wface.warp_runtime import resolve_device
 
         # keep Warp's start-up banner and module-load messages off stdout (JSON output goes there)
         wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)

@@ -25,6 +25,7 @@ from wface.io.usd._common import (
     as_polygons,
 )
 from wface.io.usd.skel import BlendShapeBasis, _write_blendshapes
+from wface.viz.muscles import SKIN_RGB, activation_colors, skin_muscle_influence
 
 __all__ = ["write_take"]
 
@@ -137,8 +138,6 @@ def write_take(
         UsdWriteError: a shape, frame count or value is wrong; the message names it.
     """
     from pxr import Sdf, UsdGeom, Vt
-
-    from wface.viz.muscles import SKIN_RGB, activation_colors, skin_muscle_influence
 
     path = _check_path(path)
     x = np.asarray(node_positions_m, dtype=np.float64)

@@ -1,5 +1,0 @@
-"""The built-in face: a procedurally generated anatomical face model at any resolution."""
-
-from wface.builtin.face import build_face
-
-__all__ = ["build_face"]

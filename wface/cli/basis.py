@@ -1,0 +1,197 @@
+"""``wface basis``: analyse motion capture into actuation-basis contractions, refine a basis.
+
+Units: basis files in metres (an ICT-FaceKit ``ict_expressions.npz`` in centimetres is converted
+on load); C3D/TRC/CSV takes in their declared units (converted to metres); reports in mm.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from wface.basis.core import load_basis
+from wface.basis.physical import basis_from_face
+from wface.basis.pipeline import analyze_take, refine_basis, write_analysis
+from wface.faces.builtin import build_face
+from wface.io.mocap import read_mocap
+from wface.model import load_model
+
+__all__ = ["register"]
+
+_EPILOG = """\
+examples:
+  wface basis analyze --basis ../shared/data/ict-facekit/ict_expressions.npz \\
+      --mocap ../shared/data/animface/JawMoCap.c3d --out jaw_analysis
+  wface basis refine --basis ict_expressions.npz --train Jaw.c3d Cheeks.c3d Nose.c3d --out refined.npz
+  wface basis analyze --basis refined.npz --mocap Eyebrows.c3d --out brows
+  wface basis info refined.npz
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "basis",
+        help="linear actuation basis (Choe & Ko 2001): analyse mocap, refine, inspect",
+        description="Linear actuation basis: E = E0 + sum_i x_i e_i. Analysis finds bounded contractions x per "
+        "frame from marker displacements; refinement improves the element shapes from training takes.",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    bsub = p.add_subparsers(dest="basis_command", metavar="ACTION")
+
+    def common(q):
+        q.add_argument("--basis", required=True, help="basis .npz (wface format) or an ICT-FaceKit ict_expressions.npz")
+        q.add_argument("--landmarks", help="JSON {marker name: basis vertex} for the initial alignment "
+                       "(default: built-in AnimFace->ICT landmarks when the basis is the ICT face)")  # fmt: skip
+        q.add_argument("--exaggerate", action="store_true", help="allow contractions above 1 (x >= 0 only)")
+        q.add_argument("--split", action="store_true", help="solve upper and lower face separately")
+        q.add_argument("--frames", help="frame slice START:STOP[:STEP] of every take (default all)")
+        q.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+    raw = argparse.RawDescriptionHelpFormatter
+    a = bsub.add_parser("analyze", help="contractions per frame of one take", formatter_class=raw,
+                        description="Align a take to the basis neutral, remove head motion, and solve the bounded "
+                        "least squares per frame. Writes contractions.npz/.csv, marker_error_mm.csv, report.json, "
+                        "analysis.png.")  # fmt: skip
+    common(a)
+    a.add_argument("--mocap", required=True, help="take: .c3d, .trc or .csv")
+    a.add_argument("--out", required=True, help="output directory")
+    a.add_argument("--no-plot", action="store_true", help="skip analysis.png")
+    a.add_argument("--json", action="store_true", help="print report.json (without per-frame lists) to stdout")
+    a.set_defaults(func=_analyze)
+
+    r = bsub.add_parser("refine", help="refine a basis on training takes", formatter_class=raw,
+                        description="Fixed-point refinement (analysis <-> per-marker least squares) until the "
+                        "training error saturates, then RBF interpolation to the whole mesh. Writes the refined "
+                        "basis (.npz) and PATH.report.json with the error of every iteration.")  # fmt: skip
+    common(r)
+    r.add_argument("--train", required=True, nargs="+", help="training takes (.c3d/.trc/.csv)")
+    r.add_argument("--out", required=True, help="refined basis .npz")
+    r.add_argument("--regularization", default="auto",
+                   help="ridge weight towards the initial shapes, or 'auto' (leave-one-take-out; default)")  # fmt: skip
+    r.add_argument("--support", type=float, default=None,
+                   help="locality: an element may only change at markers it moves by at least this fraction "
+                   "of its largest marker displacement (e.g. 0.1; default off)")  # fmt: skip
+    r.add_argument("--carry-metric", choices=("surface", "euclidean"), default="surface",
+                   help="distances of the RBF carry-over to the mesh: along the surface (default; touching "
+                   "lips and eyelids stay apart) or straight (the paper's thin-plate spline)")  # fmt: skip
+    r.add_argument("--max-iterations", type=int, default=30, help="cap on refinement iterations (default 30)")
+    r.add_argument("--rel-tol", type=float, default=1e-3, help="stop when the error falls less than this fraction")
+    r.set_defaults(func=_refine)
+
+    i = bsub.add_parser("info", help="summarise a basis file")
+    i.add_argument("path", help="basis .npz")
+    i.set_defaults(func=_info)
+    f = bsub.add_parser(
+        "from-face",
+        help="physically derived basis: each muscle of an FEM face activated alone",
+        description="Build an actuation basis from an FEM face: element i is the skin displacement with muscle i "
+        "alone at --activation (quasistatic solve). Element names are the muscle names.",
+    )
+    f.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
+    f.add_argument("--tets", type=int, default=5000, help="size of the built-in face when --model is not given")
+    f.add_argument("--activation", type=float, default=1.0, help="activation of each muscle (default 1)")
+    f.add_argument("--out", required=True, help="basis file to write (.npz)")
+    f.set_defaults(func=_from_face)
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+
+
+def _from_face(args) -> int:
+
+    if args.model:
+        model = load_model(args.model)
+    else:
+        model = build_face(args.tets, progress=True)
+    basis = basis_from_face(model, activation=args.activation, progress=True)
+    basis.save(args.out)
+    print(f"wrote {args.out}: {basis.n_elements} elements on {basis.n_vertices} skin vertices")
+    return 0
+
+
+def _load(args):
+
+    basis = load_basis(args.basis)
+    landmarks = None
+    if args.landmarks:
+        path = Path(args.landmarks)
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: no such landmark file")
+        landmarks = {str(k): int(v) for k, v in json.loads(path.read_text()).items()}
+    return basis, landmarks
+
+
+def _read(path: str, frames: str | None):
+
+    take = read_mocap(path)
+    if frames:
+        parts = [int(v) if v else None for v in frames.split(":")]
+        if not 2 <= len(parts) <= 3:
+            raise ValueError(f"--frames {frames!r}: expected START:STOP[:STEP]")
+        take = take.frames(parts[0], parts[1], parts[2] if len(parts) == 3 and parts[2] else 1)
+    return take
+
+
+def _analyze(args) -> int:
+    import time
+
+    basis, landmarks = _load(args)
+    take = _read(args.mocap, args.frames)
+    t0 = time.perf_counter()
+    res = analyze_take(basis, take, landmarks=landmarks, upper=None if args.exaggerate else 1.0, split=args.split,
+                       progress=not args.no_progress)  # fmt: skip
+    seconds = time.perf_counter() - t0
+    report = write_analysis(
+        args.out, res, plot=not args.no_plot,
+        extra={"basis": str(args.basis), "seconds": seconds, "seconds_per_frame": seconds / take.n_frames,
+               "bounds": "x >= 0" if args.exaggerate else "0 <= x <= 1", "split": bool(args.split)},
+    )  # fmt: skip
+    if args.json:
+        print(json.dumps({k: v for k, v in report.items() if not isinstance(v, list | dict)}, indent=2))
+    else:
+        print(f"{report['frames']} frames, {report['markers']} markers, {report['elements']} elements: marker RMS "
+              f"{report['marker_rms_mm_mean']:.3f} mm (mean over frames), displacement RMS "
+              f"{report['displacement_rms_mm']:.3f} mm; wrote {args.out}/")  # fmt: skip
+    return 0
+
+
+def _refine(args) -> int:
+    import time
+
+    basis, landmarks = _load(args)
+    takes = [_read(p, args.frames) for p in args.train]
+    reg = args.regularization if args.regularization == "auto" else float(args.regularization)
+    t0 = time.perf_counter()
+    refined, res, layout, info = refine_basis(
+        basis, takes, landmarks=landmarks, upper=None if args.exaggerate else 1.0, split=args.split,
+        regularization=reg, max_iterations=args.max_iterations, rel_tol=args.rel_tol, support_fraction=args.support,
+        progress=not args.no_progress, carry_metric=args.carry_metric,
+    )  # fmt: skip
+    out = Path(args.out)
+    refined.save(out)
+    report = {
+        "train": [str(p) for p in args.train],
+        "frames": int(sum(t.n_frames for t in takes)),
+        "markers": len(layout.marker_names),
+        "elements": refined.n_elements,
+        "error_rms_mm_per_iteration": res.errors_mm,
+        "iterations": res.iterations,
+        "carry_metric": args.carry_metric,
+        "seconds": time.perf_counter() - t0,
+        **info,
+    }
+    report_path = out.with_name(out.name + ".report.json")
+    report_path.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"training RMS {res.errors_mm[0]:.3f} -> {min(res.errors_mm):.3f} mm in {res.iterations} iterations "
+          f"(regularization {info['regularization']}); wrote {out} and {report_path}")  # fmt: skip
+    return 0
+
+
+def _info(args) -> int:
+
+    b = load_basis(args.path)
+    mags = [float(abs(s).max()) * 1e3 for s in b.shapes_m]
+    print(json.dumps({"source": b.source, "vertices": b.n_vertices, "elements": b.n_elements,
+                      "polygons": len(b.face_counts), "names": b.names,
+                      "max_displacement_mm": dict(zip(b.names, mags, strict=False))}, indent=2))  # fmt: skip
+    return 0

@@ -1,0 +1,93 @@
+"""The contact options every command shares (``--contact``, ``--obstacle``, ``--contact-stiffness``,
+``--contact-smoothing-mm``, ``--freeze-below``) and the ``Contact`` they describe.
+
+The flags mean the same in every command; each command keeps the smoothing and freezing defaults
+its tests measured (and says them in its ``--help``).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from wface.physics.contact import Contact
+
+__all__ = ["add_contact_arguments", "contact_from_args"]
+
+
+def add_contact_arguments(
+    p: argparse.ArgumentParser,
+    *,
+    smoothing_mm: float = 0.0,
+    freeze_below: float | None = None,
+    obstacles: bool = True,
+    where: str = "every solve",
+) -> None:
+    """Add the contact options to a sub-command parser.
+
+    Args:
+        p: the sub-command's parser.
+        smoothing_mm: default width of the C2 penalty ramp in mm (0: the plain penalty).
+        freeze_below: default relative residual below which Newton freezes the self-contact
+            features (``wface.physics.frozen``); None: never.
+        obstacles: also offer ``--obstacle``.
+        where: what the contact applies to, for the help text.
+    """
+    p.add_argument(
+        "--contact",
+        default="",
+        metavar="REGIONS",
+        help=f"contact in {where}, comma-separated: lips (upper vs lower lip self-contact), teeth (flesh "
+        "against the teeth meshes), bones (against the cranium and jaw meshes); teeth and bones move with "
+        "their bone (default: none)",
+    )
+    if obstacles:
+        p.add_argument(
+            "--obstacle",
+            action="append",
+            default=[],
+            metavar="SPEC",
+            help="rigid obstacle pressed into the face (repeatable), metres: sphere:X,Y,Z,R (ball of radius R "
+            "at X,Y,Z) or plane:PX,PY,PZ,NX,NY,NZ (solid half-space through P, outward normal N toward the face)",
+        )
+    p.add_argument(
+        "--contact-stiffness",
+        type=float,
+        default=None,
+        metavar="N_PER_M",
+        help="contact penalty stiffness in N/m (default: 100 x flesh Young's modulus x median edge length)",
+    )
+    p.add_argument(
+        "--contact-smoothing-mm",
+        type=float,
+        default=smoothing_mm,
+        metavar="MM",
+        help=f"width of the C2 penalty ramp in mm (default {smoothing_mm:g}; 0: the plain penalty)",
+    )
+    p.add_argument(
+        "--freeze-below",
+        type=float,
+        default=-1.0 if freeze_below is None else freeze_below,
+        metavar="R",
+        help="relative residual below which Newton freezes the lip contact features "
+        f"(default {'never' if freeze_below is None else f'{freeze_below:g}'}; 1: always; negative: never; "
+        "see wface.physics.frozen)",
+    )
+
+
+def contact_from_args(args: argparse.Namespace, model):
+    """The ``wface.physics.contact.Contact`` the parsed options describe, or None without any.
+
+    Unknown regions and malformed obstacle specs raise ValueError with the offending text."""
+    regions = getattr(args, "contact", "") or ""
+    specs = getattr(args, "obstacle", []) or []
+    if not regions and not specs:
+        return None
+
+    return Contact.from_spec(
+        model,
+        regions,
+        specs,
+        stiffness_n_per_m=args.contact_stiffness,
+        smoothing_m=args.contact_smoothing_mm * 1e-3,
+        freeze_below=None if args.freeze_below < 0 else args.freeze_below,
+    )

@@ -1,1 +1,0 @@
-"""Sub-commands of the ``wface`` CLI, one module each (see ``wface.cli``)."""

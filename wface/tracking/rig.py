@@ -1,0 +1,255 @@
+"""The face as a function of its controls, X(c), and its Jacobian dX/dc (seed 000, sections 5-8).
+
+c = (a, b): M activations then the 24 bone parameters of ``wface.controls``. The equilibrium is
+solved in the cranium frame, Y(a, Mm, tm); world positions are X = Mc Y + tc.
+
+Jacobians at an equilibrium Y* (K = -df/dx, the exact tangent at Y*):
+- activations (eq. 5):   K_UU dY_U/da_i = f_i(Y*)_U          (f_i: muscle i at full activation)
+- jaw parameters (eq. 6): K_UU dY_U/db_j = -K_UC dX_C/db_j
+- cranium parameters:     dX/dMc_rc = e_r Y_c,  dX/dtc = I    (analytic)
+and dX/da = Mc dY/da, dX/db_jaw = Mc dY/db_jaw. All M + 12 solved columns share one
+factorisation of K_UU (multi right-hand side), or one preconditioner when no direct solver exists.
+
+With contact (``FaceRig(model, contact=Contact(...))``) the equilibria include the penalty forces
+f_c(Y) and the Jacobians follow from the implicit-function theorem with the active set fixed:
+K is the elastic tangent plus the contact Hessian H_c(Y*): k'' dg dg^T + E'(g) d2g of every active
+pair with its closest feature held fixed, the derivatives of the normals and closest-point weights
+with respect to the triangle vertices included (the Newton solves drop them;
+``wface.physics.frozen.exact_self_hessian``). Obstacles that follow the jaw (the lower teeth, the
+jaw bone) add d f_c / d b_jaw = Q dc/db_jaw + E'(g) dn/db_jaw to the jaw columns (c: the closest
+point on the obstacle, moving with the jaw affine; Q: the pair's Hessian block; n turns with a face
+feature); other obstacles are fixed in the cranium frame. The Jacobian is
+exact where no pair enters or leaves contact for small control changes (pairs at exactly zero
+penetration are a kink of the C1 penalty: ``Contact(smoothing_m=...)`` makes it C2).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wface.controls import IDENTITY_BONES, affine_from_params, attached_positions, attached_positions_jacobian
+from wface.model import FaceModel
+from wface.physics.frozen import exact_self_hessian
+from wface.physics.simulator import Simulator
+from wface.solvers import LinearSolver, MatrixOperator, NotPositiveDefiniteError
+
+__all__ = ["FaceRig", "RigState"]
+
+
+@dataclass
+class RigState:
+    """An equilibrium of the rig for controls c."""
+
+    controls: np.ndarray  # (M + 24,)
+    y_m: np.ndarray  # (n, 3) equilibrium in the cranium frame
+    x_m: np.ndarray  # (n, 3) world positions
+    newton_iterations: int = 0
+    residual_rel: float = 0.0
+    converged: bool = True
+    inverted_elements: int = 0
+    seconds: float = 0.0
+    stats: dict = field(default_factory=dict)
+
+
+class FaceRig:
+    """Forward model X(c) and Jacobians of a face model.
+
+    Args:
+        model: the face.
+        device, precision, solver: passed to ``wface.physics.simulator.Simulator``.
+        tol: relative residual of the quasistatic solves.
+        contact: a ``wface.physics.contact.Contact`` used in every equilibrium and Jacobian (module
+            docstring), or None (default: no contact, results unchanged).
+        max_iterations: Newton iteration cap of each equilibrium.
+    """
+
+    def __init__(
+        self,
+        model: FaceModel,
+        *,
+        device: str = "cpu",
+        precision: str = "float64",
+        solver: str = "auto",
+        tol: float = 1e-6,
+        simulator=None,
+        contact=None,
+        max_iterations: int = 40,
+    ):
+        self.model = model
+        self.sim = simulator or Simulator(model, device=device, precision=precision, solver=solver)
+        self._linear = LinearSolver(self.sim.linear_solver, self.sim.device)  # the Jacobian solves
+        self.tol = tol
+        self.contact = contact
+        self.max_iterations = int(max_iterations)
+        self.n_muscles = model.n_muscles
+        self.n_controls = model.n_muscles + 24
+        self._dxc_djaw = attached_positions_jacobian(model).reshape(-1, 12)  # (3a, 12)
+        n = model.n_nodes
+        free = model.free_nodes
+        fixed = model.attached_nodes
+        self._free_dofs = (3 * free[:, None] + np.arange(3)).ravel()
+        self._fixed_dofs = (3 * fixed[:, None] + np.arange(3)).ravel()
+        self._n = n
+        self.counters = {"quasistatic_solves": 0, "linear_solves": 0, "newton_iterations": 0, "cg_iterations": 0}
+
+    # ------------------------------------------------------------------ controls
+    def rest_controls(self) -> np.ndarray:
+        return np.concatenate([np.zeros(self.n_muscles), IDENTITY_BONES])
+
+    def split(self, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        c = np.asarray(c, dtype=np.float64)
+        if c.shape != (self.n_controls,):
+            raise ValueError(f"controls have shape {c.shape}, expected ({self.n_controls},)")
+        return c[: self.n_muscles], c[self.n_muscles :]
+
+    # ------------------------------------------------------------------ forward model
+    def equilibrium(self, c: np.ndarray, y0: np.ndarray | None = None) -> RigState:
+        """Solve the quasistatic equilibrium for controls c, warm-started from y0 (cranium frame)."""
+        a, b = self.split(c)
+        # Activations slightly outside [0, 1] can occur inside a penalty method: the physics
+        # sees them clipped (the penalty keeps them near the box).
+        a_phys = np.clip(a, 0.0, 1.0)
+        t0 = time.perf_counter()
+        kwargs = {} if self.contact is None else {"contact": self.contact}
+        eq = self.sim.solve(
+            a_phys,
+            attached_positions(self.model, b, frame="cranium"),
+            y0,
+            tol=self.tol,
+            max_iterations=self.max_iterations,
+            **kwargs,
+        )
+        self.counters["quasistatic_solves"] += 1
+        self.counters["newton_iterations"] += eq.iterations
+        self.counters["cg_iterations"] += getattr(eq, "cg_iterations", 0)
+        if not eq.converged:
+            warnings.warn(
+                f"quasistatic solve stopped at residual {eq.residual_rel:.2e} (tol {self.tol:g})", stacklevel=2
+            )
+        Mc, tc = affine_from_params(b[:12])
+        stats = {}
+        if self.contact is not None:
+            stats = {
+                "contact_active_nodes": eq.contact_active_nodes,
+                "contact_max_penetration_m": eq.contact_max_penetration_m,
+                "contact_force_n": eq.contact_force_n,
+            }
+        return RigState(
+            np.array(c, dtype=np.float64),
+            eq.x,
+            eq.x @ Mc.T + tc,
+            eq.iterations,
+            eq.residual_rel,
+            eq.converged,
+            eq.inverted_elements,
+            time.perf_counter() - t0,
+            stats,
+        )
+
+    def predict_y(self, state: RigState, dy_dc: np.ndarray, dc: np.ndarray) -> np.ndarray:
+        """Linearised equilibrium Y(c + dc) ~ Y + dY/dc dc in the cranium frame (a warm start)."""
+        return state.y_m + (dy_dc @ dc).reshape(-1, 3)
+
+    # ------------------------------------------------------------------ Jacobians
+    def jacobian_y(self, state: RigState) -> np.ndarray:
+        """dY/d(a, b_jaw) in the cranium frame: (3n, M + 12) for all nodes."""
+        a, b = self.split(state.controls)
+        a = np.clip(a, 0.0, 1.0)
+        y = state.y_m
+        U, C = self._free_dofs, self._fixed_dofs
+        M = self.n_muscles
+        K = self.sim.assemble_stiffness(y, a, project=False).tocsr()
+        pairs = None
+        if self.contact is not None:
+            self.contact.set_pose(attached_positions(self.model, b, frame="cranium"))
+            pairs = self.contact.evaluate(y)
+            if len(pairs.node):
+                K = (K + exact_self_hessian(self.contact, pairs, y, self.sim.pattern("all"))).tocsr()
+        K_uc = K[U][:, C]
+        rhs = np.empty((len(U), M + 12))
+        if M:
+            f = self.sim.muscle_forces(y).reshape(M, -1)  # (M, 3n)
+            rhs[:, :M] = f[:, U].T
+        rhs[:, M:] = -(K_uc @ self._dxc_djaw)
+        if pairs is not None and len(pairs.node):
+            rhs[:, M:] += self._contact_jaw_rhs(pairs, y)[U]
+        sol = self._solve_many(K, y, a, rhs, pairs)
+        self.counters["linear_solves"] += rhs.shape[1]
+        J = np.zeros((3 * self._n, M + 12))
+        J[U] = sol
+        J[C, M:] = self._dxc_djaw
+        return J
+
+    def _contact_jaw_rhs(self, pairs, y: np.ndarray) -> np.ndarray:
+        """(3n, 12) d f_c / d b_jaw of the pairs on obstacles that follow the jaw (module docstring)."""
+        out = np.zeros((self._n, 3, 12))
+        if self.contact.fixed_bone_affines is not None:
+            return out.reshape(-1, 12)
+        jaw_sources = [s for s, (_, ob) in enumerate(self.contact.rigid) if getattr(ob, "bone", None) == "jaw"]
+        sel = np.flatnonzero(np.isin(pairs.source, jaw_sources))
+        if not sel.size:
+            return out.reshape(-1, 12)
+        A = self.contact.bone_affines["jaw"]
+        n, node = pairs.normal[sel], pairs.node[sel]
+        c = y[node] - pairs.distance_m[sel, None] * n  # closest point on the obstacle (x - c = phi n)
+        c_rest = np.linalg.solve(A[:, :3], (c - A[:, 3]).T).T  # in the jaw's rest frame
+        dc = np.zeros((sel.size, 3, 12))  # d(M c_rest + t)/d b_jaw, b_jaw = (M row-major, t)
+        for r in range(3):
+            dc[:, r, 3 * r : 3 * r + 3] = c_rest
+            dc[:, r, 9 + r] = 1.0
+        Q = pairs._projector()[sel]  # k'' n n^T (+ the curvature of an edge / vertex feature)
+        df = np.einsum("pde,pec->pdc", Q, dc)
+        # a face feature turns with the jaw: n ~ M^-T n_rest, dn = -(I - n n^T) M^-T dM^T n
+        face = pairs.tangential[sel] == 0
+        Minv_T = np.linalg.inv(A[:, :3]).T
+        for r in range(3):
+            for col in range(3):
+                dM = np.zeros((3, 3))
+                dM[r, col] = 1.0
+                u = (Minv_T @ dM.T @ n.T).T
+                dn = -(u - np.einsum("pd,pd->p", u, n)[:, None] * n)
+                df[:, :, 3 * r + col] += (face * pairs.force_magnitude[sel])[:, None] * dn
+        np.add.at(out, node, df)
+        return out.reshape(-1, 12)
+
+    def _solve_many(self, K, y, a, rhs, pairs=None):
+        """K_UU X = rhs with the exact tangent K (all nodes, CSR); the projected tangent (plus the
+        contact Gauss-Newton Hessian) when the exact one is not positive definite here."""
+        pattern = self.sim.pattern("free")
+        try:
+            return self._linear.solve(MatrixOperator(K), pattern, rhs, rtol=1e-10)
+        except NotPositiveDefiniteError:
+            warnings.warn(
+                "exact tangent not positive definite at this equilibrium; Jacobians use the projected tangent",
+                stacklevel=3,
+            )
+            Kp = self.sim.assemble_stiffness(y, a, project=True).tocsr()
+            if pairs is not None and len(pairs.node):
+                Kp = (Kp + pairs.assemble(self.sim.pattern("all"))).tocsr()
+            return self._linear.solve(MatrixOperator(Kp), pattern, rhs, rtol=1e-10)
+
+    def jacobian(self, state: RigState, nodes: np.ndarray | None = None) -> np.ndarray:
+        """World dX/dc for the given nodes (default all): (len(nodes), 3, M + 24)."""
+        nodes = np.arange(self._n) if nodes is None else np.asarray(nodes, dtype=np.int64)
+        Jy = self.jacobian_y(state).reshape(self._n, 3, -1)[nodes]  # (k, 3, M + 12)
+        return self.world_jacobian(state, Jy, nodes)
+
+    def world_jacobian(self, state: RigState, jy_nodes: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+        """Assemble world dX/dc (k, 3, M + 24) from cranium-frame dY/d(a, b_jaw) of k nodes."""
+        M = self.n_muscles
+        _, b = self.split(state.controls)
+        Mc, _ = affine_from_params(b[:12])
+        y = state.y_m[nodes]
+        k = len(nodes)
+        J = np.zeros((k, 3, M + 24))
+        moved = np.einsum("rs,ksc->krc", Mc, jy_nodes)
+        J[:, :, :M] = moved[:, :, :M]
+        J[:, :, M + 12 :] = moved[:, :, M:]
+        for r in range(3):
+            J[:, r, M + 3 * r : M + 3 * r + 3] = y  # dX_r/dMc_rc = Y_c
+            J[:, r, M + 9 + r] = 1.0
+        return J
