@@ -37,6 +37,23 @@ LAYERS: list[tuple[str, ...]] = [
 LAYER_OF = {unit: k for k, units in enumerate(LAYERS) for unit in units}
 # Device code imports warp at import time, so it may be imported where a kernel is first needed.
 LAZY_OK = ("wface.kernels",)
+# Heavy or optional third-party packages, imported inside the functions that need them (a missing
+# optional extra fails only the feature that needs it, and `import wface.x` stays fast).
+LAZY_THIRD_PARTY = {
+    "warp",
+    "pxr",
+    "pyvista",
+    "vtk",
+    "vtkmodules",
+    "matplotlib",
+    "imageio",
+    "imageio_ffmpeg",
+    "ezc3d",
+    "dask",
+    "distributed",
+    "pypardiso",
+    "sksparse",
+}
 
 
 def _module_name(path: Path) -> str:
@@ -154,6 +171,26 @@ def test_own_modules_are_imported_at_module_top():
     assert not lazy, "import these at module top (only heavy optional third-party packages load lazily):\n" + "\n".join(
         lazy
     )
+
+
+def test_only_heavy_optional_packages_load_lazily():
+    lazy = []
+    for path in _modules().values():
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for node in ast.walk(tree):
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for inner in ast.walk(node):
+                names = []
+                if isinstance(inner, ast.Import):
+                    names = [a.name for a in inner.names]
+                elif isinstance(inner, ast.ImportFrom) and inner.level == 0:
+                    names = [inner.module or ""]
+                for name in names:
+                    top = name.split(".")[0]
+                    if top != "wface" and top not in LAZY_THIRD_PARTY:
+                        lazy.append(f"{path.relative_to(ROOT)}:{inner.lineno}: {name}")
+    assert not lazy, "import these at module top:\n" + "\n".join(sorted(set(lazy)))
 
 
 @pytest.mark.parametrize("rule", ["layers", "cycle"])

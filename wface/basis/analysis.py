@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from wface.basis.bvls import bounded_lstsq, bounded_qp
 
@@ -165,8 +166,6 @@ def analyze(
     present = np.isfinite(d).all(axis=2)
     frames = range(n_frames)
     if progress:
-        from tqdm.auto import tqdm
-
         frames = tqdm(frames, desc="analysis", unit="frame", leave=False)
     # Elements that (nearly) do not move any marker of their group are unobservable: they stay 0
     # (e.g. ICT's eyeLook*/PupilDilate* shapes move only the eyeballs).

@@ -9,6 +9,7 @@ table share, so contractions analysed on one face retarget to another by name.
 from __future__ import annotations
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from wface.basis.core import ActuationBasis
 from wface.physics.simulator import Simulator
@@ -20,7 +21,6 @@ def basis_from_face(
     model, *, muscles=None, activation: float = 1.0, simulator=None, progress: bool = False
 ) -> ActuationBasis:
     """Basis of a ``FaceModel``'s skin with one element per muscle (all muscles by default)."""
-    from tqdm.auto import tqdm
 
     if not (0.0 < activation <= 1.0):
         raise ValueError(f"activation must be in (0, 1], got {activation}")

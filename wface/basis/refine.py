@@ -17,6 +17,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.interpolate import RBFInterpolator
+from scipy.linalg import cho_factor, cho_solve
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+from tqdm.auto import tqdm
 
 from wface.basis.analysis import Analysis, FaceSplit, MarkerBasis, analyze
 from wface.basis.core import ActuationBasis
@@ -122,8 +128,6 @@ def model_marker_shapes(
 
 def _solve_change(x: np.ndarray, r: np.ndarray, lam: float) -> np.ndarray:
     if lam > 0:
-        from scipy.linalg import cho_factor, cho_solve
-
         # (X^T X + lambda I) delta = X^T r: SPD, well conditioned for lambda > 0.
         gram = x.T @ x + lam * np.eye(x.shape[1])
         return cho_solve(cho_factor(gram), x.T @ r)
@@ -171,8 +175,6 @@ def refine_marker_basis(
     best = (np.inf, basis, [])
     steps = range(max_iterations + 1)
     if progress:
-        from tqdm.auto import tqdm
-
         steps = tqdm(steps, desc="refinement", unit="iter")
     support = None
     if support_fraction is not None:
@@ -270,8 +272,6 @@ def _fade(dist: np.ndarray, start: float, end: float) -> np.ndarray:
 
 
 def _euclidean_field(where, pts, vals, fade_start_m, fade_end_m, smoothing) -> np.ndarray:
-    from scipy.interpolate import RBFInterpolator
-    from scipy.spatial import cKDTree
 
     rbf = RBFInterpolator(pts, vals, kernel="thin_plate_spline", degree=1, smoothing=smoothing)
     w = _fade(cKDTree(pts).query(where)[0], fade_start_m, fade_end_m)
@@ -306,8 +306,6 @@ def _surface_field(basis, vertices, pts, vals, fade_start_m, fade_end_m, smoothi
 
 def _joined_to(tri: np.ndarray, keep: np.ndarray, seeds: np.ndarray, n: int) -> np.ndarray:
     """(t,) which kept triangles share a connected part (through kept triangles) with a seed triangle."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
 
     t = tri[keep]
     e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]]])

@@ -5,7 +5,10 @@
 
 from __future__ import annotations
 
+import os
 import platform
+
+import numpy as np
 
 __all__ = ["SUITES", "machine_info"]
 
@@ -14,9 +17,6 @@ SUITES = ("forward", "jacobian", "track", "basis", "waters", "build", "dynamic")
 
 def machine_info() -> dict:
     """Where a benchmark ran: CPU, core count, Warp device, versions."""
-    import os
-
-    import numpy as np
 
     info = {
         "python": platform.python_version(),

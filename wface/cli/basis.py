@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 from pathlib import Path
 
 from wface.basis.core import load_basis
@@ -133,7 +134,6 @@ def _read(path: str, frames: str | None):
 
 
 def _analyze(args) -> int:
-    import time
 
     basis, landmarks = _load(args)
     take = _read(args.mocap, args.frames)
@@ -156,7 +156,6 @@ def _analyze(args) -> int:
 
 
 def _refine(args) -> int:
-    import time
 
     basis, landmarks = _load(args)
     takes = [_read(p, args.frames) for p in args.train]

@@ -7,6 +7,8 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
+
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.controls import attached_positions_from_affines, jaw_opening_affine
 from wface.model import load_model
@@ -95,7 +97,6 @@ def _lip_picture(model, x, targets, path: Path) -> Path:
 
 
 def _run(args: argparse.Namespace) -> int:
-    import numpy as np
 
     quiet_warp()
     start = time.perf_counter()

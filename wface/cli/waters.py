@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
+
+import numpy as np
 
 from wface.faces.builtin import build_face
 from wface.facs import ACTION_UNITS, EXPRESSIONS
@@ -82,9 +85,6 @@ def _run(args: argparse.Namespace) -> int:
 
 def _blend(args: argparse.Namespace, summary: dict, rig, mesh):
     """Write OUT/<expression>_to_<blend_to>.usdc: a linear blend in action-unit space."""
-    from pathlib import Path
-
-    import numpy as np
 
     start = summary["action_units"]
     frames = []

@@ -35,7 +35,9 @@ import sys
 import time
 from pathlib import Path
 
+import meshio
 import numpy as np
+from scipy.spatial import cKDTree
 
 from wface.faces.ansys import (
     hexes_to_tets,
@@ -175,8 +177,6 @@ def _classify_boundary(tris: np.ndarray, external: np.ndarray, internal: np.ndar
 def _surface_on_nodes(path: Path, x: np.ndarray, boundary: np.ndarray, tol_m: float = 1e-5) -> np.ndarray:
     """Triangles (t, 3) of a surface file whose vertices are mesh nodes, as node ids, each wound to face
     the same way as the mesh's outward boundary at its nodes (for ``wface.physics.contact``)."""
-    import meshio
-    from scipy.spatial import cKDTree
 
     mesh = meshio.read(path)
     tri = mesh.cells_dict.get("triangle")

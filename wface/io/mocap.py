@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import math
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -192,7 +193,6 @@ def _check_c3d_size(c, path: Path) -> None:
     ezc3d reads a truncated file without complaint (and rewrites its frame counts to what it
     found), so the declared first/last frame are read from the 512-byte header here.
     """
-    import struct
 
     with path.open("rb") as fh:
         head = fh.read(512)

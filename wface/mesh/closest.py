@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 __all__ = ["ClosestHit", "SurfaceQuery", "closest_point_on_triangles"]
 
@@ -78,7 +79,6 @@ class SurfaceQuery:
     """
 
     def __init__(self, vertices_m: np.ndarray, triangles: np.ndarray, *, k_candidates: int = 8):
-        from scipy.spatial import cKDTree
 
         self.vertices_m = np.asarray(vertices_m, dtype=np.float64)
         self.triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)

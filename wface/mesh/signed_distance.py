@@ -16,6 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from wface.mesh.closest import SurfaceQuery
 
@@ -53,8 +55,6 @@ class SignedHit:
 def oriented_outward(vertices_m: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Triangles rewound consistently (neighbours across a manifold edge traverse it in opposite
     directions), each connected piece facing outward (positive enclosed volume from its centroid)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_order, connected_components
 
     t = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
     nt = len(t)

@@ -24,13 +24,15 @@ mean diagonal, s = smoothing >= 0).
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse import bmat, coo_matrix, diags, identity
+from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.linalg import splu
 
 __all__ = ["biharmonic_interpolate", "cotangent_laplacian", "edge_graph", "surface_distances"]
 
 
 def edge_graph(vertices_m: np.ndarray, triangles: np.ndarray):
     """Symmetric sparse (n, n) CSR matrix of edge lengths of the triangles' edges."""
-    from scipy.sparse import coo_matrix
 
     x = np.asarray(vertices_m, dtype=np.float64)
     tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
@@ -64,8 +66,6 @@ def surface_distances(
     Returns:
         (n,) or (k, n) distances in metres (inf: farther than ``limit_m`` or not connected).
     """
-    from scipy.sparse import bmat, coo_matrix
-    from scipy.sparse.csgraph import dijkstra
 
     x = np.asarray(vertices_m, dtype=np.float64)
     tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
@@ -89,7 +89,6 @@ def cotangent_laplacian(vertices_m: np.ndarray, triangles: np.ndarray) -> tuple:
         (L, areas): L sparse (n, n) CSR with L 1 = 0; areas (n,) one third of the adjacent
         triangle areas (m^2), floored so that isolated vertices do not divide by zero.
     """
-    from scipy.sparse import coo_matrix
 
     x = np.asarray(vertices_m, dtype=np.float64)
     tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
@@ -137,8 +136,6 @@ def biharmonic_interpolate(
     Returns:
         (n, m) vertex values.
     """
-    from scipy.sparse import bmat, coo_matrix, diags, identity
-    from scipy.sparse.linalg import splu
 
     x = np.asarray(vertices_m, dtype=np.float64)
     tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)

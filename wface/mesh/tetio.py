@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import meshio
 import numpy as np
 
 from wface.mesh.quality import signed_volumes
@@ -42,7 +43,6 @@ def write_tet_mesh(
     file_format: str | None = None,
 ) -> Path:
     """Write a tet mesh; the format follows the suffix (.vtu, .msh, ...) unless ``file_format`` is given."""
-    import meshio
 
     path = Path(path)
     mesh = meshio.Mesh(
@@ -66,7 +66,6 @@ def read_tet_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray, dict]:
 
     Tets are re-oriented to positive volume. Raises ValueError naming the file if it holds no tets.
     """
-    import meshio
 
     path = Path(path)
     if not path.exists():

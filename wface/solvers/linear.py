@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import ctypes
 import os
 import platform
 import warnings
@@ -92,7 +93,6 @@ def _reproducible_iparm(solver) -> None:
     """PARDISO's defaults for a real SPD matrix (``pardisoinit``), then conditional numerical
     reproducibility: sequential METIS ordering (the parallel one, iparm[1] = 3, rules CNR out) and
     iparm[33] = the thread count. PARDISO ignores iparm[1..63] unless iparm[0] = 1."""
-    import ctypes
 
     init = solver.libmkl.pardisoinit
     init.argtypes = [ctypes.POINTER(solver._pt_type[0]), ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_int32)]

@@ -25,9 +25,11 @@ penetration (``max_penetration_mm``), with or without contact, so the two runs c
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from wface.controls import IDENTITY_BONES, jaw_from_intuitive
 from wface.mesh.align import align_to_surface
@@ -278,7 +280,6 @@ def select_capture_markers(
         dict with ``indices`` (kept, ascending), ``names`` (kept), ``distance_mm`` (k,) of every
         marker, ``landmarks`` (names used for the alignment), ``scale`` and ``landmark_rms_mm``.
     """
-    from scipy.spatial import cKDTree
 
     names = list(marker_names)
     ref = np.asarray(positions_m, dtype=np.float64)[reference_frame]
@@ -356,7 +357,6 @@ def simulate_controls(rig, markers, controls: np.ndarray, *, substeps: int = 3, 
         dict with ``x_m`` (F, n, 3), ``markers_m`` (F, k, 3), ``converged`` (F,), ``residual_rel`` (F,)
         and ``seconds`` (F,).
     """
-    import time
 
     C = np.asarray(controls, dtype=np.float64)
     F = len(C)

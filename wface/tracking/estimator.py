@@ -34,6 +34,8 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg import null_space
+from scipy.optimize import lsq_linear
 
 from wface.controls import (
     _joint_rows,
@@ -269,7 +271,6 @@ class FrameEstimator:
         null space (dc = T z, T = blockdiag(I, N_jaw)), which leaves the activation box a box, and
         the reduced problem is a bounded least squares on the Cholesky factor (BVLS).
         """
-        from scipy.optimize import lsq_linear
 
         T = self._step_basis
         Hz = T.T @ (0.5 * (H + H.T)) @ T
@@ -288,8 +289,6 @@ class FrameEstimator:
     @property
     def _step_basis(self) -> np.ndarray:
         if not hasattr(self, "_T"):
-            from scipy.linalg import null_space
-
             A, _, lo, hi = _joint_rows(self.rig.model.jaw_joint)
             N = null_space(A[lo == hi])  # (12, 9)
             p = self.M + 24

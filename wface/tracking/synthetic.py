@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from wface.controls import IDENTITY_BONES, jaw_from_intuitive, params_from_affine
 
@@ -97,7 +98,6 @@ def synthesize_performance(
     progress: bool = False,
 ) -> SyntheticPerformance:
     """Generate, simulate and corrupt a performance on ``rig`` (a ``FaceRig``) with ``markers`` (a ``MarkerMap``)."""
-    from tqdm.auto import tqdm
 
     model = rig.model
     rng = np.random.default_rng(seed)

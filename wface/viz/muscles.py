@@ -11,6 +11,7 @@ Pure numpy + scipy: usable by both the USD writer (``displayColor``) and the pyv
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 __all__ = [
     "ACTIVE_RGB",
@@ -55,7 +56,6 @@ def skin_muscle_influence(model, vertices: np.ndarray | None = None, *, radius_m
         (v, M) float64 in [0, 1]; column m is exp(-(max(d_m - D_m, 0) / r)^2), 0 for a muscle
         without tets. The depth D_m is measured over the model's skin vertices (not only ``vertices``).
     """
-    from scipy.spatial import cKDTree
 
     if vertices is None:
         vertices = np.unique(model.skin_triangles)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
 
 from wface.viz.muscles import ACTIVE_RGB, INACTIVE_RGB, SKIN_RGB, activation_colors, skin_muscle_influence
 from wface.viz.offscreen import offscreen_pyvista
@@ -103,7 +104,6 @@ def _tri_polydata(pv, points, triangles):
 
 def _uniform_laplacian(surf):
     """Sparse uniform Laplacian L = D^-1 A - I of a triangle surface (pyvista PolyData)."""
-    import scipy.sparse as sp
 
     tri = np.asarray(surf.faces).reshape(-1, 4)[:, 1:]
     i = np.concatenate([tri[:, 0], tri[:, 1], tri[:, 2], tri[:, 1], tri[:, 2], tri[:, 0]])

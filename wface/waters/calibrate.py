@@ -19,6 +19,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.optimize import minimize
 
 from wface.mesh.closest import SurfaceQuery
 from wface.waters.expressions import pose_from_action_units
@@ -193,7 +194,6 @@ def calibrate_muscle(
             repeated calibrations (restarts) then stay within one set of bounds instead of
             compounding them.
     """
-    from scipy.optimize import minimize
 
     x = np.asarray(rest_positions_m, dtype=np.float64)
     ref = np.asarray(reference_m, dtype=np.float64)

@@ -11,6 +11,8 @@ Skin nodes attached to a bone (the patch border) are not moved by muscles.
 from __future__ import annotations
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse.linalg import spsolve
 
 from wface.faces.builtin import build_face
 from wface.waters.fit import fit_layout
@@ -32,8 +34,6 @@ def skin_surface(model) -> tuple[SurfaceMesh, np.ndarray]:
 
 def harmonic_jaw_weights(model) -> np.ndarray:
     """(n_nodes,) jaw weight per model node: harmonic on the tet edge graph, 1 on the jaw, 0 on the cranium."""
-    from scipy import sparse
-    from scipy.sparse.linalg import spsolve
 
     n = model.n_nodes
     jaw, cranium = model.nodes_of_bone("jaw"), model.nodes_of_bone("cranium")

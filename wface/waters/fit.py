@@ -19,6 +19,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.interpolate import RBFInterpolator
 
 from wface.mesh.closest import SurfaceQuery
 from wface.waters.layout import JawPlane, JawRegion, MuscleLayout
@@ -110,8 +111,6 @@ def landmark_warp(src: np.ndarray, dst: np.ndarray, *, method: str = "rbf", smoo
             raise ValueError("an affine warp needs at least 4 landmarks")
         warp.affine = np.linalg.lstsq(np.hstack([a, np.ones((len(a), 1))]), b, rcond=None)[0]
     elif method == "rbf":
-        from scipy.interpolate import RBFInterpolator
-
         q = warp.similarity(a)
         resid = b - q
         if len(a) >= 5 and np.max(np.abs(resid)) > 1e-12 * max(1.0, float(np.abs(b).max())):

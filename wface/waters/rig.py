@@ -24,6 +24,8 @@ import warnings
 from collections.abc import Mapping
 
 import numpy as np
+from scipy import sparse
+from scipy.spatial import cKDTree
 
 from wface.waters.layout import MuscleLayout
 from wface.waters.muscles import (
@@ -71,8 +73,6 @@ class WatersRig:
         muscle_mask: np.ndarray | None = None,
         jaw_weights: np.ndarray | None = None,
     ):
-        from scipy import sparse
-        from scipy.spatial import cKDTree
 
         self.layout = layout
         self.rest_positions_m = _check_rest(rest_positions_m)

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import meshio
 import numpy as np
 
 from wface.io.usd import write_mesh_animation
@@ -105,8 +106,6 @@ def read_surface(path: str | Path, *, units: str = "auto") -> SurfaceMesh:
     if path.suffix.lower() == ".obj":
         v, counts, idx = _read_obj(path)
     else:
-        import meshio
-
         m = meshio.read(path)
         v = np.asarray(m.points, dtype=np.float64)[:, :3]
         polys = [c.data for c in m.cells if c.type in ("triangle", "quad") or c.type.startswith("polygon")]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
+from tqdm.auto import tqdm
 
 from wface import facs
 from wface.faces.builtin.anatomy import MARKERS, MUSCLES, bone_region, muscle_paths
@@ -104,7 +105,6 @@ def build_face(target_tets: int = 20_000, *, progress: bool = False, material: M
     """
     if not (MIN_TETS <= int(target_tets) <= MAX_TETS):
         raise ValueError(f"target_tets must be within [{MIN_TETS}, {MAX_TETS}], got {target_tets}")
-    from tqdm.auto import tqdm
 
     bar = tqdm(total=6, desc=f"building face (~{target_tets} tets)", disable=not progress, unit="stage")
     shape = FaceShape()

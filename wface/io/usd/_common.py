@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -235,7 +236,6 @@ def _write_float_primvar(gprim, name: str, values: np.ndarray, interpolation: st
 
 
 def _json_safe(v):
-    import json
 
     if isinstance(v, (bool, int, float, str)):
         return v
