@@ -228,13 +228,23 @@ def _same_value(a, b, rtol: float, atol: float) -> bool:
     return a == b
 
 
-def compare_stages(a, b, *, rtol: float = 1e-5, atol: float = 1e-7, max_report: int = 20) -> list[str]:
+def compare_stages(
+    a,
+    b,
+    *,
+    rtol: float = 1e-5,
+    atol: float = 1e-7,
+    atol_by_attribute: dict[str, float] | None = None,
+    max_report: int = 20,
+) -> list[str]:
     """Differences in authored content between two stages (e.g. a committed scene and a fresh one).
 
     Compares stage metadata (timeCodesPerSecond, start/end, upAxis, metersPerUnit, defaultPrim,
     customLayerData), the prim paths and types, applied API schemas, attribute names, time samples
     and values (numbers with ``rtol`` / ``atol``: float32 round-off across platforms), and
-    relationship targets.
+    relationship targets. ``atol_by_attribute`` gives other absolute tolerances to attributes whose
+    name contains a key (e.g. ``{"wface:activation": 1e-3}`` for the curves of a tracked take,
+    which the tracker determines only to its stopping tolerance).
 
     Returns:
         Up to ``max_report`` lines describing differences; empty when the stages match.
@@ -294,7 +304,8 @@ def compare_stages(a, b, *, rtol: float = 1e-5, atol: float = 1e-7, max_report: 
                     if na.shape != nb.shape:
                         same, why = False, f"shape {na.shape} != {nb.shape}"
                     else:
-                        same = bool(np.allclose(na, nb, rtol=rtol, atol=atol, equal_nan=True))
+                        tol = next((v for k, v in (atol_by_attribute or {}).items() if k in name), atol)
+                        same = bool(np.allclose(na, nb, rtol=rtol, atol=tol, equal_nan=True))
                         why = "" if same else f"max |difference| {np.max(np.abs(na - nb)):.3g}"
                 else:
                     same, why = va == vb, f"{str(va)[:60]!r} != {str(vb)[:60]!r}"
