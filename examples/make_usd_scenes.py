@@ -10,7 +10,7 @@ Scenes (each a .usda text file under 1 MB, so that diffs stay readable):
   an activation heat map, captured (red) and simulated (green) markers, cranium and jaw moving,
   per-muscle activation curves, and an actuation basis as UsdSkel blend shapes.
 - synthetic_tracked_take: the same performance tracked from its noisy captured markers with the
-  linear actuation basis (seed 003: per-frame bounded least squares, ``wface.basis.analysis``):
+  linear actuation basis (Choe & Ko 2001: per-frame bounded least squares, ``wface.basis.analysis``):
   the skin is E0 + sum_i x_i e_i, green markers are the fit, red the capture (needs
   ``wface.basis``).
 - synthetic_basis: that basis alone, as blend shapes animated by per-frame weights (what

@@ -1,7 +1,7 @@
 """Nonlinear FEM of the face flesh and muscles (Warp device code, float64 and float32).
 
 Linear tetrahedra, F = Ds Dm^-1. Forces of element t on its nodes: H = -V0 P Dm^-T, columns to
-nodes 1..3, node 0 gets minus their sum (Teran et al. 2003, 2005; DESIGN.md section 3).
+nodes 1..3, node 0 gets minus their sum (Teran et al. 2003, 2005; docs/design.md, "Elements and forces").
 
 Flesh (isotropic, on the signed singular values s of F = U diag(s) V^T, det U = det V = +1, the
 smallest singular value carrying the sign of det F; Irving et al. 2004):
@@ -28,7 +28,7 @@ Muscle fibre of one (tet, muscle) entry, fibre direction d, q = F d, lam = |q|:
     P_f = (T/lam) q d^T, energy W = k (a G_L(lam) + G_P(lam)), G = integral of f from 1 to lam.
     d2W/dq2 = (T/lam) I + (T' - T/lam) q q^T / lam^2 has eigenvalues T/lam (across the fibre) and
     T' (along it); the projected tangent clamps both at zero (T >= 0 always for a >= 0).
-Force-length f_L and passive f_P are the piecewise curves of DESIGN.md section 3.
+Force-length f_L and passive f_P are the piecewise curves of docs/design.md, "Muscle fibres".
 
 All kernels come from ``fem_kernels(dtype)`` (dtype = wp.float64 or wp.float32), built once per
 dtype. The flesh energy in singular values lives in ``flesh.py``, the fibre curves in ``fibre.py``.

@@ -1,4 +1,4 @@
-"""Muscle fibre curves (Warp device code, float64 and float32; DESIGN.md section 3).
+"""Muscle fibre curves (Warp device code, float64 and float32; docs/design.md, "Muscle fibres").
 
 Fibre stretch lam = |F d|, x = lam - 1. Tension T(lam, a) = k (a f_L(lam) + f_P(lam)),
 k = fraction * strength * sigma_max (Teran et al. 2005; Zajac 1989 force-length shape):

@@ -1,4 +1,4 @@
-"""Isotropic flesh in singular values (Warp device code, float64 and float32; DESIGN.md section 3).
+"""Isotropic flesh in singular values (Warp device code, float64 and float32; docs/design.md, "Flesh").
 
 psi(s) = mu10 (J^-2/3 I1 - 3) + mu01 (J^-4/3 I2 - 3) + kappa/2 (ln J)^2, J = s1 s2 s3,
 I1 = sum s_i^2, I2 = sum_{i<j} s_i^2 s_j^2, on the signed singular values of F = U diag(s) V^T

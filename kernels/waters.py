@@ -10,7 +10,7 @@ Sphincter j (centre c, frame h, v, n, semi-axes s, tension T, e):
     b_j = R^e (T P_n (c - p) + K_n n) (K_n: protrusion, metres).
 Region factor: 1 (any), 1 - w_jaw (upper), w_jaw (lower). Sum d = sum_j c_j b_j, then the per-vertex
 limit L = min(max_displacement, overlap_factor max_j |b_j|): d <- d L/|d| where |d| > L.
-Same formulas as wface.waters.muscles / wface.waters.rig (Waters, SIGGRAPH 1987; DESIGN.md section 7).
+Same formulas as wface.waters.muscles / wface.waters.rig (Waters 1987; docs/design.md, "Waters muscles").
 """
 
 import warp as wp

@@ -78,7 +78,7 @@ def test_svd3_convention_is_inversion_safe():
     np.testing.assert_allclose(np.sort(np.abs(s), axis=1), np.sort(np.linalg.svd(F)[1], axis=1), rtol=0, atol=1e-10)
 
 
-# ---------------------------------------------------------------------- fibre curves (DESIGN.md section 3)
+# ---------------------------------------------------------------------- fibre curves (docs/design.md, "Muscle fibres")
 def _fl(lam):
     x = np.abs(lam - 1.0)
     return np.where(x < 0.4, 1 - 25 / 6 * x**2, np.where(x < 0.6, 25 / 3 * (x - 0.6) ** 2, 0.0))

@@ -1,4 +1,4 @@
-"""Jacobians of the equilibrium (seed 000 eqs. 5-6) against central differences of re-solved equilibria."""
+"""Jacobians of the equilibrium (Sifakis et al. 2005, eqs. 5-6) against central differences of re-solved equilibria."""
 
 from __future__ import annotations
 

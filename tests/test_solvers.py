@@ -122,7 +122,7 @@ def test_warp_cg_path_solves_the_masked_system(stiffness):
 
 
 def test_activation_jacobian_by_one_factorisation_matches_finite_differences():
-    """dX/da_i = K_UU^-1 f_i(X*) (seed 000, eq. 5), all muscles against one factor / with CG,
+    """dX/da_i = K_UU^-1 f_i(X*) (Sifakis et al. 2005, eq. 5), all muscles against one factor / with CG,
     compared with central differences of the equilibrium (h = 1e-4 in activation; Newton to 1e-11)."""
     model = box_model((4, 2, 2), cranium_faces=("x-",), muscles=2)
     sim = Simulator(model)

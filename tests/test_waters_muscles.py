@@ -1,4 +1,4 @@
-"""Waters (1987) muscle formulas at known points (seed 004; DESIGN.md section 7)."""
+"""Waters (1987) muscle formulas at known points (docs/design.md, "Waters muscles")."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """wface: anatomically based, muscle-driven facial animation.
 
-Layers (data flows one way): model -> physics -> solvers -> tracking / basis / editing -> io / viz.
+Layers: a package imports itself and lower layers only (docs/design.md, "Layers").
 """
 
 __version__ = "0.1.0"

@@ -39,7 +39,7 @@ class ModelError(ValueError):
 
 @dataclass(frozen=True)
 class Material:
-    """Flesh and muscle material (Teran et al. 2005; DESIGN.md section 3).
+    """Flesh and muscle material (Teran et al. 2005; docs/design.md, "Flesh").
 
     Flesh: Psi = mu10 (I1~ - 3) + mu01 (I2~ - 3) + kappa/2 (ln J)^2.
     Muscle: fibre tension T = sigma_max (a f_L(lam) + f_P(lam)), times the tet's volume fraction.
@@ -60,7 +60,7 @@ class Material:
 
 @dataclass(frozen=True)
 class JawJoint:
-    """Temporomandibular joint geometry (seed 000, section 7; DESIGN.md section 4).
+    """Temporomandibular joint geometry (Sifakis et al. 2005, section 8; docs/design.md, "Controls and the jaw joint").
 
     ``u``: unit vector from the right to the left condyle; ``v``: unit vector along the sliding
     tracks, back to front; ``w = v x u``; ``midpoint_m``: condyle midpoint; ``condyle_distance_m``
@@ -107,7 +107,10 @@ def _names_json(names) -> str:
 
 @dataclass
 class FaceModel:
-    """An anatomical face for the quasistatic FEM (DESIGN.md section 2). Shapes: n nodes, m tets."""
+    """An anatomical face for the quasistatic FEM (docs/design.md, "Units and the face model").
+
+    Shapes: n nodes, m tets.
+    """
 
     rest_positions_m: np.ndarray  # (n, 3) float64
     tets: np.ndarray  # (m, 4) int32, positively oriented

@@ -1,4 +1,4 @@
-"""Per-frame analysis of marker displacements into element contractions (Choe & Ko 2001, sec. 4.2).
+"""Per-frame analysis of marker displacements into element contractions (Choe & Ko 2001, sec. 4.1.2).
 
 For frame f with measured marker displacements d^_j (model frame, metres) and marker shapes d_ij
 (displacement of marker j when element i contracts fully):

@@ -2,7 +2,7 @@
 
     minimise  1/2 |A x - b|^2   subject to  lower <= x <= upper      (upper may be +inf)
 
-This is the convex QP of Choe & Ko (2001, sec. 4.2) with Q = 2 A^T A, c = 2 A^T b. The working
+This is the convex QP of Choe & Ko (2001, sec. 4.1.2) with Q = 2 A^T A, c = 2 A^T b. The working
 set W holds variables fixed at a bound; the others are free. Each iteration solves the
 unconstrained problem in the free variables for a step p (minimum-norm least squares, so a
 rank-deficient A is fine):  A_F p_F = r,  r = b - A x.

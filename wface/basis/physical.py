@@ -1,4 +1,4 @@
-"""A physically derived actuation basis (seed 003 built from seed 000's face).
+"""A physically derived actuation basis (Choe & Ko 2001 built from the face of Sifakis et al. 2005).
 
 Element i is the skin displacement of the quasistatic FEM face with muscle i alone at activation
 ``activation`` (divided by it, so x_i = 1 means that activation); the basis linearises the face

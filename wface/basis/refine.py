@@ -1,4 +1,4 @@
-"""Basis refinement (Choe & Ko 2001, sec. 4.3): fixed point between analysis and modelling.
+"""Basis refinement (Choe & Ko 2001, sec. 4.2): fixed point between analysis and modelling.
 
 Analysis:  x_f = argmin_{lo <= x <= hi} sum_j |d^_fj - sum_i x_i d_ij|^2   for every training frame f.
 Modelling: d_j = argmin_d sum_f |d^_fj - sum_i x_fi d_ij|^2 + lambda |d_j - d_j^0|^2   for every

@@ -1,6 +1,6 @@
 """``wface bench --suite jacobian``: all Jacobian columns vs one quasistatic solve from a nearby start.
 
-The paper's claim (seed 000, section 8): computing the M + 12 solved columns against one
+The paper's claim (Sifakis et al. 2005, section 6): computing the M + 12 solved columns against one
 factorisation costs about as much as one quasistatic solve. Reported as ``jacobian_over_solve``.
 """
 

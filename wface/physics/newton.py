@@ -1,4 +1,4 @@
-"""Quasistatic Newton-Raphson with an energy line search (seed 000, section 4; DESIGN.md section 3).
+"""Quasistatic Newton-Raphson with an energy line search (Sifakis et al. 2005, section 4; docs/design.md "Newton").
 
 Unknowns: the free nodes U (not attached to a bone). Attached nodes C are Dirichlet nodes placed
 at their bone positions. Each step solves K_UU dx = f_U(x) with the projected, definite stiffness

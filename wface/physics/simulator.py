@@ -1,6 +1,6 @@
 """The physics face: nodal forces, energy, stiffness and quasistatic equilibria of a ``FaceModel``.
 
-f(x, a) = f0(x) + sum_i a_i f_i(x)  (seed 000, eq. 1): f0 is the passive flesh plus the passive
+f(x, a) = f0(x) + sum_i a_i f_i(x)  (Sifakis et al. 2005, eq. 1): f0 is the passive flesh plus the passive
 fibre response, f_i the active fibre force of muscle i at full activation. The constitutive model
 (Mooney-Rivlin flesh with volumetric term, transversely isotropic fibres, inversion-safe clamped
 singular values, projected-definite tangent) is documented in ``wface.kernels.fem``.
@@ -129,7 +129,7 @@ class Simulator:
         precision: "float64" (default; use it for Newton and derivative checks) or "float32".
         solver: linear solver of the Newton steps: "auto" (direct on the CPU when installed, else
             CG), "cg" or "direct" (see ``wface.solvers.linear``).
-        force_length_scale: exaggeration beyond physical limits (seed 000, section 9): scales the
+        force_length_scale: exaggeration beyond physical limits (Sifakis et al. 2005, section 9): scales the
             whole active force-length curve, T = k (s a f_L + f_P), so activations stay in [0, 1].
             A scalar (every muscle) or an (M,) array (one scale per muscle, as
             ``wface.takes.exaggerate`` produces). Also a mutable, validated attribute.
@@ -236,7 +236,7 @@ class Simulator:
     ) -> None:
         """Launch a per-tet kernel, on the CPU over tet ranges on all cores.
 
-        Warp CPU kernels run on one thread (DESIGN.md section 8) but a launch releases the GIL, so
+        Warp CPU kernels run on one thread (docs/design.md, "Performance") but a launch releases the GIL, so
         large meshes are cut into one contiguous tet range per core. ``sliced``: indices of inputs
         indexed by tet (sliced [lo:hi], per-tet outputs included); ``offsets``: per-tet offset
         arrays (sliced [lo:hi+1]); ``scattered``: outputs accumulated with atomics at nodes or
@@ -377,7 +377,7 @@ class Simulator:
     ) -> StiffnessSolver:
         """A ``StiffnessSolver`` for K_UU at (x, a) over the unknown ``nodes`` (default: free nodes).
 
-        Example (activation Jacobian, seed 000 eq. 5): ``dX = sim.stiffness_solver(x, a)
+        Example (activation Jacobian, Sifakis et al. 2005, eq. 5): ``dX = sim.stiffness_solver(x, a)
         .solve_nodal(sim.muscle_forces(x))`` gives dX_U/da_i for every muscle i, shape (M, n, 3).
         """
         engine = resolve_linear_solver(solver, self.device) if solver else self.linear_solver

@@ -5,7 +5,7 @@
   A factor of a nearby matrix also serves as a CG preconditioner (``FactorPreconditioner``).
 - ``"cg"``: preconditioned conjugate gradients. On the CPU the Krylov loop runs in numpy with the
   matrix-vector product supplied by the caller (a Warp kernel or a CSR matrix): Warp's own CG is
-  ~100x slower per iteration on the CPU (DESIGN.md section 8). Several right-hand sides iterate
+  ~100x slower per iteration on the CPU (docs/design.md, "Linear solvers"). Several right-hand sides iterate
   together, each with its own step lengths. On CUDA, ``warp_pcg`` runs the whole loop on the GPU.
 - ``"auto"``: direct on the CPU when a backend is installed, else CG (with a one-line warning
   when direct was possible in principle but no backend is present).

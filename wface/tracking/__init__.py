@@ -1,4 +1,4 @@
-"""Tracking: muscle activations and cranium/jaw motion from motion-capture markers (seed 000)."""
+"""Tracking: muscle activations and cranium/jaw motion from motion-capture markers (Sifakis et al. 2005)."""
 
 from wface.tracking.estimator import FrameEstimator, FrameResult, MarkerMap, TrackOptions
 

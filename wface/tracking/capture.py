@@ -1,4 +1,4 @@
-"""Bringing a real capture onto a face model (seed 003 section 4.1.1; DESIGN.md section 5).
+"""Bringing a real capture onto a face model (Choe & Ko 2001, section 4.1.1; docs/design.md, "Tracking").
 
 The first frame is aligned to the skin by a similarity transform iterated with projection onto
 the surface; markers whose names the model also has pull toward the model's marker as landmarks.

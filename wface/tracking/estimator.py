@@ -1,5 +1,5 @@
 """Per-frame estimation of controls from markers: Gauss-Newton with progressive penalties and a
-golden-section line search (seed 000, sections 5 and 9; DESIGN.md section 5).
+golden-section line search (Sifakis et al. 2005, sections 5 and 9; docs/design.md, "Tracking").
 
 Objective: phi(c) = sum_k w_k |m_k(X(c)) - t_k|^2 over the markers present in the frame, with
 m_k the embedded marker (barycentric point of its skin triangle plus its rest offset along the
@@ -54,7 +54,7 @@ _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
 @dataclass
 class TrackOptions:
-    """Settings of the per-frame estimation (defaults follow seed 000)."""
+    """Settings of the per-frame estimation (defaults follow Sifakis et al. 2005)."""
 
     gn_steps_first: int = 4  # Gauss-Newton steps on the first frame of a chunk
     gn_steps: int = 3  # at most, on later frames (warm-started; stops early, usually after 1-2)

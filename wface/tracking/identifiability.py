@@ -1,4 +1,4 @@
-"""Which muscles the markers can see (seed 000, section 5: not every muscle moves a marker).
+"""Which muscles the markers can see (Sifakis et al. 2005, section 5: not every muscle moves a marker).
 
 For the marker Jacobian J (3k x p) at an equilibrium, the identifiability of muscle i is the part
 of its column that no combination of the other controls can reproduce:

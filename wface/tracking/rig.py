@@ -1,4 +1,4 @@
-"""The face as a function of its controls, X(c), and its Jacobian dX/dc (seed 000, sections 5-8).
+"""The face as a function of its controls, X(c), and its Jacobian dX/dc (Sifakis et al. 2005, sections 5-8).
 
 c = (a, b): M activations then the 24 bone parameters of ``wface.controls``. The equilibrium is
 solved in the cranium frame, Y(a, Mm, tm); world positions are X = Mc Y + tc.

@@ -1,11 +1,11 @@
 """Off-screen pictures and movies of a face with pyvista (VTK): stills, comparisons, takes.
 
-Conventions (seed 000's figures): captured markers red, simulated / tracked markers green; muscles
+Conventions (the figures of Sifakis et al. 2005): captured markers red, simulated / tracked markers green; muscles
 yellow when fully active, red when inactive. Two styles:
 
 - ``"skin"``: the skin surface coloured by the muscles under it (``wface.viz.muscles``);
 - ``"muscles"``: the muscle volumes (surfaces of their tets at the deformed positions) coloured
-  by activation, the bones, and a translucent skin for context (like seed 000 figure 3).
+  by activation, the bones, and a translucent skin for context (like Sifakis et al. 2005, figure 3).
 
 The camera looks at the face from the front with a slight three-quarter turn (``view``: a
 direction from the face towards the camera in model coordinates; +y is up) and is fitted to the

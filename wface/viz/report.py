@@ -28,7 +28,7 @@ _MIME = {
     ".webm": "video/webm",
 }
 
-# report.json keys shown first, as large numbers (DESIGN.md section 9), when present and scalar.
+# report.json keys shown first, as large numbers (docs/design.md, "Takes"), when present and scalar.
 HEADLINE = {
     "marker_rms_mm_mean": ("marker RMS", "mm"),
     "marker_max_mm": ("marker max", "mm"),
@@ -129,7 +129,7 @@ def write_html_report(
 
     Args:
         out_dir: directory (created if needed); usually the one holding report.json.
-        report: the report.json dict (keys as in DESIGN.md section 9). Headline numbers
+        report: the report.json dict (keys as in docs/design.md, "Takes"). Headline numbers
             (``HEADLINE``) are shown first as cards; scalars go into the main table; lists of
             numbers (per frame) are summarised with a sparkline; dicts of scalars (e.g.
             ``muscle_identifiability``, a status block) become tables of their own; anything

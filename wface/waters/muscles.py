@@ -1,6 +1,6 @@
 """Waters (1987) vector muscles: linear (pulling) and sphincter (squeezing) muscles on a surface.
 
-Linear muscle (seed 004; DESIGN.md section 7). Bony attachment V1, skin insertion V2, zone of
+Linear muscle (Waters 1987; docs/design.md, "Waters muscles"). Bony attachment V1, skin insertion V2, zone of
 influence half-angle Omega, fall-start Rs, fall-finish Rf, spring constant K. For a point p with
 D = |p - V1| and mu = angle between p - V1 and the muscle axis V2 - V1:
 
@@ -13,7 +13,7 @@ D = |p - V1| and mu = angle between p - V1 and the muscle axis V2 - V1:
 with contraction c in [0, 1]. K is a length here (metres): the pull at full contraction where
 A = R = 1, the slide's "muscle spring constant" in model units. The skin elasticity e shapes the
 falloff ((A R)^e; e = 1 is the slide's cosine falloff, larger e keeps the pull closer to the
-point of maximum effect). The seed gives "elasticity = 1.0 and 10.0" without a formula: this
+point of maximum effect). Waters 1987 gives "elasticity = 1.0 and 10.0" without a formula: this
 exponent is our reading of it.
 
 Sphincter muscle: a centre, two in-plane unit axes (horizontal, vertical) with semi-axes a, b, and

@@ -6,7 +6,7 @@ B_i(v) = K_i (A_i R_i)^e_i u_i(v) (see ``wface.waters.muscles``) times a region 
 stores the B_i as one sparse (3n, M) matrix built once (vectorised, only the vertices within each
 muscle's reach), so a frame is a sparse mat-vec plus the per-vertex limit and the jaw.
 
-Combination where muscles overlap (seed 004, "confluence of two muscle vectors"): each vertex
+Combination where muscles overlap (Waters 1987, "confluence of two muscle vectors"): each vertex
 gets a limit L_v = min(max_displacement, overlap_factor * max_i |B_i(v)|) from its attractors, and
 the summed displacement is scaled back to length L_v where it exceeds it. One muscle alone at
 c <= 1 is never clamped (overlap_factor >= 1).

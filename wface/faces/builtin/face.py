@@ -98,7 +98,7 @@ def build_face(target_tets: int = 20_000, *, progress: bool = False, material: M
     Args:
         target_tets: desired number of tets; the structured grid lands within a few percent.
         progress: show a progress bar over the build stages.
-        material: flesh/muscle material (defaults to ``Material()``, DESIGN.md section 3).
+        material: flesh/muscle material (defaults to ``Material()``, docs/design.md, "Flesh").
 
     Returns:
         A validated ``FaceModel`` in metres.

@@ -26,7 +26,7 @@ __all__ = ["BlendShapeBasis", "write_blendshape_basis"]
 
 
 class BlendShapeBasis:
-    """A linear actuation basis E = E0 + sum_i x_i e_i (seed 003) to write as UsdSkel blend shapes.
+    """A linear actuation basis E = E0 + sum_i x_i e_i (Choe & Ko 2001) to write as UsdSkel blend shapes.
 
     Args:
         neutral_m: (n, 3) rest shape E0 in metres.
