@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from wface.bench import suite_result
 from wface.controls import attached_positions_from_affines, jaw_opening_affine
 from wface.faces.builtin import build_face
 from wface.physics import Simulator
@@ -198,7 +199,7 @@ def _time_quasistatic(out: dict, sim, a) -> None:
 
 
 def run(args) -> dict:
-    """Entry point of ``wface bench --suite forward``: {"sizes": [...per size...]}."""
+    """Entry point of ``wface bench --suite forward``: ``suite_result`` with one entry per size."""
     import warp as wp
 
     wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # before init: no banner on stdout (--json)
@@ -207,4 +208,4 @@ def run(args) -> dict:
     sizes = getattr(args, "tets", None) or list(DEFAULT_TETS)
     repeat = int(getattr(args, "repeat", 3) or 3)
     results = [bench_size(int(n), device=device, repeat=repeat) for n in sizes]
-    return {"device": device, "sizes": results}
+    return suite_result("forward", device, results)
