@@ -358,7 +358,7 @@ def test_dynamic_bench_prints_json(capsys):
 
     assert main(["bench", "--suite", "dynamic", "--tets", "2000", "--repeat", "1", "--device", "cpu", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
-    (size,) = result["sizes"]
+    (size,) = result["results"]
     for scheme in ("midpoint", "be"):
         assert size[scheme]["seconds_per_step_median"] > 0
         assert size[scheme]["newton_iterations_per_step_mean"] >= 1

@@ -11,7 +11,7 @@ def test_forward_bench_prints_json_with_all_timings(capsys):
     rc = main(["bench", "--suite", "forward", "--tets", "2000", "--repeat", "1", "--device", "cpu", "--json"])
     assert rc == 0
     result = json.loads(capsys.readouterr().out)  # nothing else on stdout
-    (size,) = result["sizes"]
+    (size,) = result["results"]
     for key in (
         "forces_seconds",
         "tangent_seconds",

@@ -115,9 +115,10 @@ def test_bench_suite_runs_and_says_what_it_timed(monkeypatch):
     from wface.bench import waters
 
     monkeypatch.setenv("WFACE_DATA", "/nonexistent")  # force the synthetic fallback: fast and data-free
-    out = waters.run(Namespace(repeat=1))
+    result = waters.run(Namespace(repeat=1))
+    (out,) = result["results"]
     assert out["frames_per_second"] > 0 and out["muscles"] >= 20
-    assert "synthetic" in out["mesh"] and "absent" in out["note"]
+    assert "synthetic" in out["mesh"] and "absent" in result["notes"]["mesh"]
 
 
 def test_example_runs_headless(tmp_path):
@@ -195,7 +196,7 @@ def test_bench_json_on_stdout_is_clean(tmp_path):
     )
     assert r.returncode == 0, r.stderr[-2000:]
     out = json.loads(r.stdout)
-    assert out["suite"] == "waters" and out["warp_direct_frames_per_second"] > 0
+    assert out["suite"] == "waters" and out["results"][0]["warp_direct_frames_per_second"] > 0
 
 
 def test_cli_with_a_layout_file(tmp_path):

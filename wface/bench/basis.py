@@ -17,6 +17,7 @@ import numpy as np
 from wface.basis import MarkerBasis, MarkerLayout, analyze, load_basis, prepare_capture
 from wface.basis.landmarks import load_ict_animface_landmarks
 from wface.basis.refine import model_marker_shapes
+from wface.bench import suite_result
 from wface.io.mocap import read_c3d
 
 __all__ = ["run"]
@@ -93,7 +94,7 @@ def run(args) -> dict:
     t_iter, _ = timed(one_iteration)
     t_model, _ = timed(lambda: model_marker_shapes(an.contractions, d1, mb.shapes_m, regularization=1.0))
     n = d1.shape[0]
-    return {
+    entry = {
         "data": data,
         "elements": mb.n_elements,
         "markers": mb.n_markers,
@@ -111,3 +112,4 @@ def run(args) -> dict:
         "modelling_step_s": t_model,
         "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
     }
+    return suite_result("basis", "cpu", [entry])  # numpy / scipy only

@@ -13,6 +13,7 @@ import os
 import time
 from pathlib import Path
 
+from wface.bench import suite_result
 from wface.faces.artisynth import import_artisynth
 from wface.faces.builtin import build_face
 from wface.mesh.quality import quality_report
@@ -40,6 +41,7 @@ def run(args: argparse.Namespace) -> dict:
         q = quality_report(model.rest_positions_m, model.tets)
         builtin.append(
             {
+                "face": "builtin",
                 "target_tets": target,
                 "tets": model.n_tets,
                 "nodes": model.n_nodes,
@@ -48,18 +50,17 @@ def run(args: argparse.Namespace) -> dict:
                 "max_dihedral_deg": q.max_dihedral_deg,
             }
         )
-    result: dict = {"builtin": builtin}
     data = _artisynth_dir()
     if not (data / "badinface_oop_csa_midsagittal.node").exists():
-        result["artisynth"] = f"skipped: no ArtiSynth face data at {data}"
-        return result
+        return suite_result("build", "cpu", builtin, {"artisynth": f"skipped: no ArtiSynth face data at {data}"})
 
     start = time.perf_counter()
     model = import_artisynth(data, progress=False)
     seconds = time.perf_counter() - start
     info = model.metadata["sliver_removal"]
     split = info["tet_quality_after_split"]
-    result["artisynth"] = {
+    artisynth = {
+        "face": "artisynth",
         "seconds": seconds,
         "tets": model.n_tets,
         "nodes": model.n_nodes,
@@ -71,4 +72,4 @@ def run(args: argparse.Namespace) -> dict:
         "sliver_removal_seconds": info["seconds"],
         "sliver_removal_operations": info["operations"],
     }
-    return result
+    return suite_result("build", "cpu", [*builtin, artisynth])  # numpy / scipy only

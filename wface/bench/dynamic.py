@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from wface.bench import suite_result
 from wface.faces.builtin import build_face
 from wface.physics import Simulator
 from wface.physics.dynamics import DynamicSimulator
@@ -68,7 +69,7 @@ def bench_size(target_tets: int, *, device: str = "cpu", steps: int = 12, dt_s: 
 
 
 def run(args) -> dict:
-    """Entry point of ``wface bench --suite dynamic``: {"sizes": [...per size...]}."""
+    """Entry point of ``wface bench --suite dynamic``: ``suite_result`` with one entry per size."""
     import warp as wp
 
     wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # no banner on stdout (--json)
@@ -76,4 +77,4 @@ def run(args) -> dict:
     device = resolve_device(getattr(args, "device", "auto"))
     sizes = getattr(args, "tets", None) or list(DEFAULT_TETS)
     steps = 4 * max(1, int(getattr(args, "repeat", 3) or 3))
-    return {"device": device, "sizes": [bench_size(int(n), device=device, steps=steps) for n in sizes]}
+    return suite_result("dynamic", device, [bench_size(int(n), device=device, steps=steps) for n in sizes])

@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from wface.bench import suite_result
 from wface.controls import attached_positions_from_affines, jaw_opening_affine
 from wface.faces.builtin import build_face
 from wface.physics import Simulator
@@ -58,6 +59,19 @@ def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_max
     rng = np.random.default_rng(0)
     x = X + 2e-4 * rng.normal(size=X.shape)  # a deformed state (0.2 mm noise)
     a = model.activation_vector({"zygomaticus_major_l": 0.6, "orbicularis_oris_lower": 0.3})
+    _time_forces(out, sim, device, x, a, repeat, sync)
+    tan = _time_tangent(out, sim, x, a, rng, repeat, sync)
+    pattern, b = _time_direct(out, sim, tan, x, a, rng)
+    _time_cg(out, tan, pattern, b, cg_maxiter)
+    _time_quasistatic(out, sim, a)
+    return out
+
+
+def _time_forces(out: dict, sim, device: str, x, a, repeat: int, sync) -> None:
+    """The force kernel (one launch, float64 and float32) and ``energy_and_forces``."""
+    import warp as wp
+
+    model = sim.model
     sim.energy_and_forces(x, a)  # compile / load kernels
     sim._set_state(x, a)
 
@@ -82,6 +96,14 @@ def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_max
 
     out["forces_float32_seconds"] = _median_time(forces32, repeat, sync)
 
+
+def _time_tangent(out: dict, sim, x, a, rng, repeat: int, sync):
+    """``Simulator.tangent``, matrix-free K.v (kernel and ``Tangent.matvec``), CSR assembly and matvec; the
+    tangent at x."""
+    import warp as wp
+
+    model = sim.model
+    X = model.rest_positions_m
     tangent_holder = {}
     tangent_holder["t"] = sim.tangent(x, a)
 
@@ -118,7 +140,11 @@ def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_max
     out["csr_matvec_seconds"] = _median_time(lambda: K @ vf, max(repeat, 5), lambda: None)
     out["kv_over_csr_matvec"] = out["kv_seconds"] / out["csr_matvec_seconds"]
     np.testing.assert_allclose(tan.matvec(v).ravel(), K @ vf, atol=1e-8 * np.abs(K @ vf).max())
+    return tan
 
+
+def _time_direct(out: dict, sim, tan, x, a, rng):
+    """Sparse direct factorisation and solves (1 and 44 right-hand sides) of K_UU; (free pattern, f_U(x))."""
     pattern = sim.pattern("free")
     Kf = tan.assemble(pattern)
     b = pattern.gather(sim.forces(x, a))
@@ -137,7 +163,11 @@ def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_max
         out["direct_solve_44_seconds"] = time.perf_counter() - t0
         factor.free()
         del factor
+    return pattern, b
 
+
+def _time_cg(out: dict, tan, pattern, b, cg_maxiter: int) -> None:
+    """Jacobi-PCG on the matrix-free K.v."""
     diag = pattern.gather(tan.diagonal())
 
     def matvec(u):
@@ -151,6 +181,10 @@ def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_max
     out["cg_converged"] = res.converged
     out["cg_seconds_per_iteration"] = out["cg_seconds"] / max(res.iterations, 1)
 
+
+def _time_quasistatic(out: dict, sim, a) -> None:
+    """One full quasistatic solve with the jaw opened 5 degrees, from rest."""
+    model = sim.model
     targets = attached_positions_from_affines(model, jaw=jaw_opening_affine(model, 5.0))
     eq = sim.solve(a, targets)
     out["quasistatic_seconds"] = eq.seconds
@@ -162,11 +196,10 @@ def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_max
     out["quasistatic_converged"] = eq.converged
     out["quasistatic_solver"] = eq.solver
     out["inverted_elements"] = eq.inverted_elements
-    return out
 
 
 def run(args) -> dict:
-    """Entry point of ``wface bench --suite forward``: {"sizes": [...per size...]}."""
+    """Entry point of ``wface bench --suite forward``: ``suite_result`` with one entry per size."""
     import warp as wp
 
     wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # before init: no banner on stdout (--json)
@@ -175,4 +208,4 @@ def run(args) -> dict:
     sizes = getattr(args, "tets", None) or list(DEFAULT_TETS)
     repeat = int(getattr(args, "repeat", 3) or 3)
     results = [bench_size(int(n), device=device, repeat=repeat) for n in sizes]
-    return {"device": device, "sizes": results}
+    return suite_result("forward", device, results)

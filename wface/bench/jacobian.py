@@ -10,9 +10,11 @@ import time
 
 import numpy as np
 
+from wface.bench import suite_result
 from wface.controls import jaw_from_intuitive
 from wface.faces.builtin import build_face
 from wface.tracking.rig import FaceRig
+from wface.warp_runtime import resolve_device
 
 DEFAULT_TETS = (20_000, 100_000)
 
@@ -53,4 +55,5 @@ def _one(n_tets: int, device: str, repeat: int) -> dict:
 
 def run(args) -> dict:
     sizes = args.tets or list(DEFAULT_TETS)
-    return {"results": [_one(int(n), args.device, max(1, args.repeat)) for n in sizes]}
+    device = resolve_device("cpu" if args.device == "auto" else args.device)
+    return suite_result("jacobian", device, [_one(int(n), device, max(1, args.repeat)) for n in sizes])

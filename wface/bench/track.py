@@ -7,10 +7,12 @@ import time
 
 import numpy as np
 
+from wface.bench import suite_result
 from wface.faces.builtin import build_face
 from wface.tracking.rig import FaceRig
 from wface.tracking.sequence import embed_model_markers, track_sequence
 from wface.tracking.synthetic import synthesize_performance
+from wface.warp_runtime import resolve_device
 
 DEFAULT_TETS = (20_000, 100_000)
 
@@ -45,4 +47,5 @@ def _one(n_tets: int, device: str, frames: int) -> dict:
 
 def run(args) -> dict:
     sizes = args.tets or list(DEFAULT_TETS)
-    return {"results": [_one(int(n), args.device, 4) for n in sizes]}
+    device = resolve_device("cpu" if args.device == "auto" else args.device)
+    return suite_result("track", device, [_one(int(n), device, 4) for n in sizes])

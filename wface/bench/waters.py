@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.bench import suite_result
 from wface.facs import EXPRESSIONS
 from wface.testing.synthetic_head import synthetic_head, synthetic_landmarks
 from wface.waters.expressions import interpolate_poses
@@ -117,6 +118,4 @@ def run(args: argparse.Namespace) -> dict:
         "warp_direct_frames_per_second": None if not warp_s else 1.0 / warp_s,
         "backend": "numpy + scipy.sparse (CPU)",
     }
-    if note:
-        out["note"] = note
-    return out
+    return suite_result("waters", warp_device or "cpu", [out], {"mesh": note} if note else None)

@@ -7,7 +7,7 @@ import importlib
 import json
 import sys
 
-from wface.bench import SUITES, machine_info
+from wface.bench import SUITES
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     module = importlib.import_module(f"wface.bench.{args.suite}")
-    result = {"suite": args.suite, "machine": machine_info(), **module.run(args)}
+    result = module.run(args)  # wface.bench.suite_result: {"suite", "machine", "device", "results", "notes"?}
     text = json.dumps(result, indent=2)
     if args.out:
         with open(args.out, "w") as f:

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import meshio
@@ -47,9 +48,9 @@ from wface.faces.ansys import (
     read_int_list,
     read_obj,
 )
+from wface.faces.artisynth_markers import default_markers
 from wface.faces.fibres import embed_fibres
 from wface.facs import ACTION_UNITS, STAND_INS
-from wface.mesh.closest import SurfaceQuery
 from wface.mesh.improve import improve_tets
 from wface.mesh.quality import quality_report
 from wface.mesh.surface import boundary_faces, triangle_normals, vertex_normals
@@ -192,87 +193,6 @@ def _surface_on_nodes(path: Path, x: np.ndarray, boundary: np.ndarray, tol_m: fl
     return tri
 
 
-def _ray_hits(origin: np.ndarray, direction: np.ndarray, v: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Ray parameters s >= 0 where origin + s direction crosses triangles (Moller-Trumbore); sorted."""
-    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
-    e1, e2 = b - a, c - a
-    pvec = np.cross(direction, e2)
-    det = e1 @ pvec if e1.ndim == 1 else np.einsum("ij,ij->i", e1, pvec)
-    ok = np.abs(det) > 1e-18
-    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-    tvec = origin - a
-    u = np.einsum("ij,ij->i", tvec, pvec) * inv
-    qvec = np.cross(tvec, e1)
-    w = (qvec @ direction) * inv
-    s = np.einsum("ij,ij->i", e2, qvec) * inv
-    hit = ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (s >= 0)
-    return np.sort(s[hit])
-
-
-def _front_point(v: np.ndarray, t: np.ndarray, x: float, y: float) -> np.ndarray | None:
-    """Outermost skin crossing of the ray from (x, y, -1 m) along +Z (wface frame), or None."""
-    origin = np.array([x, y, -1.0])
-    s = _ray_hits(origin, np.array([0.0, 0.0, 1.0]), v, t)
-    return None if s.size == 0 else origin + s[-1] * np.array([0.0, 0.0, 1.0])
-
-
-def _polyline_midpoint(p: np.ndarray) -> np.ndarray:
-    """The point halfway along a polyline (by arc length)."""
-    seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    half = s[-1] / 2
-    i = min(int(np.searchsorted(s, half, side="right")) - 1, len(seg) - 1)
-    return p[i] + (half - s[i]) / max(seg[i], 1e-300) * (p[i + 1] - p[i])
-
-
-def _default_markers(
-    x: np.ndarray, skin: np.ndarray, fibres_l: dict[str, list[np.ndarray]]
-) -> tuple[list[str], np.ndarray, dict[str, str]]:
-    """AnimFace-named markers that the Badin skin covers, placed from anatomy (wface frame)."""
-    names: list[str] = []
-    pos: list[np.ndarray] = []
-    how: dict[str, str] = {}
-    used = np.unique(skin)
-    tip = used[np.argmax(x[used, 2])]
-    names.append("NoseHead")
-    pos.append(x[tip])
-    how["NoseHead"] = "most anterior skin node (pronasale)"
-    oom = fibres_l.get("OOM", [])
-    if len(oom) >= 2:
-        upper_mid, corner, lower_mid = oom[0][0], oom[0][-1], oom[1][-1]
-        q = SurfaceQuery(x, skin)
-        hit = q.closest(np.array([corner, corner * [-1.0, 1.0, 1.0]]))
-        names += ["Mouth_Lend", "Mouth_Rend"]
-        pos += [hit.point_m[0], hit.point_m[1]]
-        how["Mouth_Lend"] = how["Mouth_Rend"] = "skin point closest to the OOM upper/lower fibre junction (modiolus)"
-        for name, p in (("Mouth_Up", upper_mid), ("Mouth_Down", lower_mid)):
-            fp = _front_point(x, skin, 0.0, p[1])
-            if fp is not None:
-                names.append(name)
-                pos.append(fp)
-                how[name] = "midline skin point in front of the OOM midline fibre point"
-        for name, fibre in (("Mouth_UpL", oom[0]), ("Mouth_DownL", oom[1])):
-            p = _polyline_midpoint(fibre)
-            for nm, px in ((name, p[0]), (name[:-1] + "R", -p[0])):
-                fp = _front_point(x, skin, px, p[1])
-                if fp is not None:
-                    names.append(nm)
-                    pos.append(fp)
-                    how[nm] = "skin point in front of the middle of the OOM upper/lower fibre"
-        if "Mouth_Down" in names:
-            y_down = pos[names.index("Mouth_Down")][1]
-            best = None
-            for y in np.arange(y_down - 0.045, y_down - 0.008, 0.0005):
-                fp = _front_point(x, skin, 0.0, y)
-                if fp is not None and (best is None or fp[2] > best[2]):
-                    best = fp
-            if best is not None:
-                names.append("Chin")
-                pos.append(best)
-                how["Chin"] = "most anterior midline skin point 8-45 mm below Mouth_Down (pogonion)"
-    return names, np.array(pos).reshape(-1, 3), how
-
-
 def _facs_table(muscle_names: list[str]) -> dict[str, dict[str, float]]:
     """AU -> {model muscle: weight}: every model muscle whose canonical muscle the AU names; a
     canonical muscle the face lacks is driven through its stand-in (``wface.facs.STAND_INS``)."""
@@ -333,87 +253,204 @@ def import_artisynth(
         raise FileNotFoundError(f"{directory}: no {MESH_PREFIX}.node (is this the ArtiSynth face data folder?)")
 
     # ---- nodes and elements
+    numbers, index_of, x, hexes = _read_mesh(directory)
+    n = len(numbers)
+    n_wedges = int(sum(len(set(h.tolist())) < 8 for h in hexes))
+
+    # ---- boundary-condition lists: fixed lists are node numbers, the jaw list 0-based positions
+    fixed, jaw_pos, external, internal = _boundary_lists(directory, index_of, n)
+
+    # ---- tets: split the hexes, then remove the slivers of the flat cells by local operations
+    mesh = _tet_mesh(hexes, x, [fixed, jaw_pos, external, internal], steiner_below_deg, min_dihedral_goal_deg)
+    x, tets = mesh.x, mesh.tets
+    _log(progress, t0, mesh.summary(len(hexes), n_wedges))
+
+    # ---- surfaces (atlas lists hold node numbers; an added node is on a surface when its sources are)
+    groups = _surface_groups(directory, x, tets, mesh.extend(external), mesh.extend(internal))
+
+    # ---- bones
+    bone_meshes = _bone_meshes(directory)
+    _log(progress, t0, "surfaces and bones read")
+
+    # ---- boundary conditions (a node on both the fixed and the jaw list follows the jaw); an added
+    # node whose source nodes all follow one bone follows it too
+    attached, attached_bone, overlap, added_on = _attachments(mesh, fixed, jaw_pos)
+
+    # ---- jaw joint: hinge axis along Badin y (wface X), through the TMJ point
+    jaw_joint = _jaw_joint(condyle_distance_m, track_length_m)
+
+    # ---- muscles
+    fibres_b = read_badin_fibres(directory)
+    fibres_l = {k: [badin_to_wface(f) for f in v] for k, v in fibres_b.items()}
+    muscle_fibres = _muscle_sides(fibres_l)
+    muscle_names = list(muscle_fibres)
+    fibre_tet, fibre_muscle, fibre_fraction, fibre_direction, n_overfull = _embed_muscles(
+        x, tets, muscle_fibres, fibre_radius_m
+    )
+    _log(
+        progress,
+        t0,
+        f"{len(muscle_names)} muscles embedded in {np.unique(fibre_tet).size} tets "
+        f"(radius {fibre_radius_m * 1e3:g} mm; {n_overfull} tets rescaled to sum 1)",
+    )
+
+    # ---- markers and FACS
+    marker_names, marker_pos, marker_how = default_markers(x, groups["skin"], fibres_l)
+    facs = _facs_table(muscle_names)
+
+    metadata = _metadata(
+        numbers=numbers,
+        mesh=mesh,
+        n_hexes=len(hexes),
+        n_wedges=n_wedges,
+        overlap=overlap,
+        added_on=added_on,
+        fibre_radius_m=fibre_radius_m,
+        muscle_fibres=muscle_fibres,
+        marker_how=marker_how,
+        condyle_distance_m=condyle_distance_m,
+    )
+    model = FaceModel(
+        rest_positions_m=x,
+        tets=tets,
+        skin_triangles=groups["skin"],
+        muscle_names=muscle_names,
+        fibre_tet=fibre_tet,
+        fibre_muscle=fibre_muscle,
+        fibre_fraction=fibre_fraction,
+        fibre_direction=fibre_direction,
+        attached_nodes=attached,
+        attached_bone=attached_bone,
+        jaw_joint=jaw_joint,
+        material=Material.artisynth(),
+        bone_meshes=bone_meshes,
+        surface_groups=groups,
+        marker_names=marker_names,
+        marker_positions_m=marker_pos,
+        facs=facs,
+        metadata=metadata,
+    )
+    model.validate()
+    _log(progress, t0, f"done: {len(marker_names)} markers, {len(facs)} FACS action units")
+    return model
+
+
+def _read_mesh(directory: Path):
+    """(ANSYS node numbers, number -> node id map, wface-frame positions, hexes as node ids) of the mesh."""
     numbers, xb = read_ansys_nodes(directory / f"{MESH_PREFIX}.node")
     n = len(numbers)
     index_of = np.full(int(numbers.max()) + 1, -1, dtype=np.int64)
     index_of[numbers] = np.arange(n)
     x = badin_to_wface(xb)
+    hexes = _by_number(index_of, read_ansys_elements(directory / f"{MESH_PREFIX}.elem"), "element file")
+    return numbers, index_of, x, hexes
 
-    def by_number(nums: np.ndarray, what: str) -> np.ndarray:
-        bad = nums[(nums < 0) | (nums >= len(index_of))]
-        if bad.size or np.any(index_of[nums] < 0):
-            raise ValueError(f"{what}: node numbers not in the node file: {bad[:5].tolist()}")
-        return index_of[nums]
 
-    hexes = by_number(read_ansys_elements(directory / f"{MESH_PREFIX}.elem"), "element file")
-    n_wedges = int(sum(len(set(h.tolist())) < 8 for h in hexes))
+def _by_number(index_of: np.ndarray, nums: np.ndarray, what: str) -> np.ndarray:
+    """Model node ids of ANSYS node numbers (``index_of``: number -> id, -1 where absent)."""
+    bad = nums[(nums < 0) | (nums >= len(index_of))]
+    if bad.size or np.any(index_of[nums] < 0):
+        raise ValueError(f"{what}: node numbers not in the node file: {bad[:5].tolist()}")
+    return index_of[nums]
 
-    # ---- boundary-condition lists: fixed lists are node numbers, the jaw list 0-based positions
-    fixed = np.unique(np.concatenate([by_number(read_int_list(directory / f), f) for f in FIXED_NODE_FILES]))
+
+def _boundary_lists(directory: Path, index_of: np.ndarray, n: int):
+    """(fixed, jaw positions, atlas external, atlas internal) node ids of the boundary-condition lists."""
+    fixed = np.unique(np.concatenate([_by_number(index_of, read_int_list(directory / f), f) for f in FIXED_NODE_FILES]))
     jaw_pos = read_int_list(directory / JAW_NODE_FILE)
     if jaw_pos.min() < 0 or jaw_pos.max() >= n:
         raise ValueError(f"{JAW_NODE_FILE}: positions outside [0, {n})")
-    external = by_number(read_ansys_nodes(directory / "atlas_external.node")[0], "atlas_external.node")
-    internal = by_number(read_ansys_nodes(directory / "atlas_internal.node")[0], "atlas_internal.node")
+    external = _by_number(index_of, read_ansys_nodes(directory / "atlas_external.node")[0], "atlas_external.node")
+    internal = _by_number(index_of, read_ansys_nodes(directory / "atlas_internal.node")[0], "atlas_internal.node")
+    return fixed, jaw_pos, external, internal
 
-    # ---- tets: split the hexes, then remove the slivers of the flat cells by local operations
+
+@dataclass
+class _TetMesh:
+    """The tets of the hex split after the sliver removal, and where the added nodes come from."""
+
+    x: np.ndarray
+    tets: np.ndarray
+    n_file_nodes: int  # the node file's nodes; added nodes have ids n_file_nodes, n_file_nodes + 1, ...
+    sources: list  # per added node: the nodes it stands for
+    edge_sources: list
+    improved: object
+    split_quality: object
+    quality: object
+
+    def extend(self, nodes: np.ndarray) -> np.ndarray:
+        """A node list plus the added face-centre and edge nodes whose source nodes are all on it."""
+        n = self.n_file_nodes
+        member = np.zeros(len(self.x), dtype=bool)
+        member[nodes] = True
+        for k, src in enumerate(self.sources):  # cell-centre nodes (more than 4 sources) are interior
+            member[n + k] = len(src) <= 4 and member[list(src)].all()
+        return np.flatnonzero(member)
+
+    def summary(self, n_hexes: int, n_wedges: int) -> str:
+        """One progress line: sizes and the smallest dihedral angle after the split and the sliver removal."""
+        n, x, tets, split_quality, quality = self.n_file_nodes, self.x, self.tets, self.split_quality, self.quality
+        return (
+            f"{n} nodes, {n_hexes} hexes ({n_wedges} degenerate) -> {len(tets)} tets with "
+            f"{len(x) - n} added nodes; min dihedral {split_quality.min_dihedral_deg:.2f} deg after the split, "
+            f"{quality.min_dihedral_deg:.2f} deg after {sum(self.improved.operations.values())} local operations; "
+            f"inverted {quality.inverted}"
+        )
+
+
+def _tet_mesh(hexes, x, locked_lists, steiner_below_deg: float, min_dihedral_goal_deg: float) -> _TetMesh:
+    """Split the hexes into tets, then remove the slivers of the flat cells by local operations; the
+    nodes of ``locked_lists`` do not move."""
+    n = len(x)
     tets, parent, steiner_points, steiner_sources = hexes_to_tets(
         hexes, x, steiner_below_deg=steiner_below_deg, return_sources=True
     )
     x = np.vstack([x, steiner_points])
     split_quality = quality_report(x, tets)
     locked = np.zeros(len(x), dtype=bool)
-    locked[np.concatenate([fixed, jaw_pos, external, internal])] = True
+    locked[np.concatenate(locked_lists)] = True
     x, tets, edge_sources, improved = improve_tets(x, tets, goal_deg=min_dihedral_goal_deg, locked=locked)
     sources = [*steiner_sources, *edge_sources]  # per added node (ids n, n + 1, ...): the nodes it stands for
     quality = quality_report(x, tets)
-    _log(
-        progress,
-        t0,
-        f"{n} nodes, {len(hexes)} hexes ({n_wedges} degenerate) -> {len(tets)} tets with "
-        f"{len(x) - n} added nodes; min dihedral {split_quality.min_dihedral_deg:.2f} deg after the split, "
-        f"{quality.min_dihedral_deg:.2f} deg after {sum(improved.operations.values())} local operations; "
-        f"inverted {quality.inverted}",
-    )
+    return _TetMesh(x, tets, n, sources, edge_sources, improved, split_quality, quality)
 
-    def extend(nodes: np.ndarray) -> np.ndarray:
-        """A node list plus the added face-centre and edge nodes whose source nodes are all on it."""
-        member = np.zeros(len(x), dtype=bool)
-        member[nodes] = True
-        for k, src in enumerate(sources):  # cell-centre nodes (more than 4 sources) are interior
-            member[n + k] = len(src) <= 4 and member[list(src)].all()
-        return np.flatnonzero(member)
 
-    # ---- surfaces (atlas lists hold node numbers; an added node is on a surface when its sources are)
-    external, internal = extend(external), extend(internal)
+def _surface_groups(directory: Path, x: np.ndarray, tets: np.ndarray, external, internal) -> dict[str, np.ndarray]:
+    """Skin / inner / edge boundary triangles, and the lip contact surfaces when the data has them."""
     boundary = boundary_faces(tets)
     groups = _classify_boundary(boundary, external.astype(np.int64), internal.astype(np.int64))
     for group, fname in LIP_SURFACE_FILES.items():  # lip contact surfaces, when the data has them
         if (directory / fname).exists():
             groups[group] = _surface_on_nodes(directory / fname, x, boundary)
+    return groups
 
-    # ---- bones
+
+def _bone_meshes(directory: Path) -> dict[str, BoneMesh]:
     bone_meshes = {}
     for name, (fname, bone) in BONE_FILES.items():
         v, t = read_obj(directory / fname)
         bone_meshes[name] = BoneMesh(badin_to_wface(v), t, bone)
-    _log(progress, t0, "surfaces and bones read")
+    return bone_meshes
 
-    # ---- boundary conditions (a node on both the fixed and the jaw list follows the jaw); an added
-    # node whose source nodes all follow one bone follows it too
+
+def _attachments(mesh: _TetMesh, fixed: np.ndarray, jaw_pos: np.ndarray):
+    """(attached nodes, their bone 0 cranium / 1 jaw, nodes on both lists, added nodes attached per bone)."""
+    n = mesh.n_file_nodes
     jaw_orig = np.unique(jaw_pos)
     overlap = np.intersect1d(fixed, jaw_orig)
-    cranium_nodes = extend(np.setdiff1d(fixed, jaw_orig))
-    jaw_nodes = extend(jaw_orig)
+    cranium_nodes = mesh.extend(np.setdiff1d(fixed, jaw_orig))
+    jaw_nodes = mesh.extend(jaw_orig)
     added_on = {0: int(np.count_nonzero(cranium_nodes >= n)), 1: int(np.count_nonzero(jaw_nodes >= n))}
     attached = np.concatenate([cranium_nodes, jaw_nodes])
     attached_bone = np.concatenate([np.zeros(len(cranium_nodes)), np.ones(len(jaw_nodes))]).astype(np.int8)
     order = np.argsort(attached, kind="stable")
-    attached, attached_bone = attached[order], attached_bone[order]
+    return attached[order], attached_bone[order], overlap, added_on
 
-    # ---- jaw joint: hinge axis along Badin y (wface X), through the TMJ point
+
+def _jaw_joint(condyle_distance_m: float, track_length_m: float) -> JawJoint:
+    """The jaw hinge through the data's temporomandibular point (``TMJ_POINT_BADIN_M``)."""
     mid = badin_to_wface(np.array(TMJ_POINT_BADIN_M))
-    jaw_joint = JawJoint(
+    return JawJoint(
         u=(1.0, 0.0, 0.0),  # right -> left condyle
         v=(0.0, 0.0, 1.0),  # back -> front
         midpoint_m=tuple(float(c) for c in mid),
@@ -422,12 +459,10 @@ def import_artisynth(
         max_opening_sine=float(np.sin(np.radians(MAX_OPENING_DEG))),
     )
 
-    # ---- muscles
-    fibres_b = read_badin_fibres(directory)
-    fibres_l = {k: [badin_to_wface(f) for f in v] for k, v in fibres_b.items()}
+
+def _muscle_sides(fibres_l: dict[str, list[np.ndarray]]) -> dict[str, list[np.ndarray]]:
+    """Model muscle -> fibre polylines: ``<badin>_l`` (the left fibres) and ``<badin>_r`` (mirrored)."""
     mirror = np.array([-1.0, 1.0, 1.0])
-    muscle_names: list[str] = []
-    entries_t, entries_m, entries_f, entries_d = [], [], [], []
     muscle_fibres: dict[str, list[np.ndarray]] = {}
     for badin in BADIN_MUSCLES:
         if badin not in fibres_l or not fibres_l[badin]:
@@ -438,14 +473,19 @@ def import_artisynth(
             sides = {badin: left}  # a midline muscle mirrors onto itself
         else:
             sides = {f"{badin}_l": left, f"{badin}_r": right}
-        for name, polylines in sides.items():
-            t_ids, frac, dirs = embed_fibres(x, tets, polylines, fibre_radius_m)
-            muscle_fibres[name] = polylines
-            entries_t.append(t_ids)
-            entries_m.append(np.full(len(t_ids), len(muscle_names), dtype=np.int32))
-            entries_f.append(frac)
-            entries_d.append(dirs)
-            muscle_names.append(name)
+        muscle_fibres.update(sides)
+    return muscle_fibres
+
+
+def _embed_muscles(x: np.ndarray, tets: np.ndarray, muscle_fibres: dict[str, list[np.ndarray]], fibre_radius_m):
+    """(fibre_tet, fibre_muscle, fibre_fraction, fibre_direction, tets rescaled to sum 1) of the muscles."""
+    entries_t, entries_m, entries_f, entries_d = [], [], [], []
+    for m, polylines in enumerate(muscle_fibres.values()):
+        t_ids, frac, dirs = embed_fibres(x, tets, polylines, fibre_radius_m)
+        entries_t.append(t_ids)
+        entries_m.append(np.full(len(t_ids), m, dtype=np.int32))
+        entries_f.append(frac)
+        entries_d.append(dirs)
     fibre_tet = np.concatenate(entries_t)
     fibre_muscle = np.concatenate(entries_m)
     fibre_fraction = np.concatenate(entries_f)
@@ -457,17 +497,11 @@ def import_artisynth(
     fibre_tet, fibre_muscle = fibre_tet[order], fibre_muscle[order]
     fibre_fraction, fibre_direction = fibre_fraction[order], fibre_direction[order]
     fibre_direction /= np.linalg.norm(fibre_direction, axis=1, keepdims=True)
-    _log(
-        progress,
-        t0,
-        f"{len(muscle_names)} muscles embedded in {np.unique(fibre_tet).size} tets "
-        f"(radius {fibre_radius_m * 1e3:g} mm; {n_overfull} tets rescaled to sum 1)",
-    )
+    return fibre_tet, fibre_muscle, fibre_fraction, fibre_direction, n_overfull
 
-    # ---- markers and FACS
-    marker_names, marker_pos, marker_how = _default_markers(x, groups["skin"], fibres_l)
-    facs = _facs_table(muscle_names)
 
+def _canonical_muscles(muscle_names: list[str]) -> dict[str, list[str]]:
+    """Model muscle -> the canonical ``wface.facs`` muscles it stands for."""
     canonical = {}
     for name in muscle_names:
         badin, _, side = name.partition("_")
@@ -475,7 +509,26 @@ def import_artisynth(
         canonical[name] = sorted(
             {b if b.startswith("orbicularis_oris") else f"{b}_{s}" for b in CANONICAL_MUSCLES[badin] for s in sides}
         )
-    metadata = {
+    return canonical
+
+
+def _metadata(
+    *,
+    numbers,
+    mesh: _TetMesh,
+    n_hexes: int,
+    n_wedges: int,
+    overlap,
+    added_on,
+    fibre_radius_m,
+    muscle_fibres,
+    marker_how,
+    condyle_distance_m,
+) -> dict:
+    """The model's ``metadata``: sources, frame, node lists, mesh provenance and quality, muscles, jaw."""
+    n, x, edge_sources, improved = mesh.n_file_nodes, mesh.x, mesh.edge_sources, mesh.improved
+    muscle_names = list(muscle_fibres)
+    return {
         "source": "ArtiSynth Models, Badin face (artisynth_models src/artisynth/models/face/geometry)",
         "citation": CITATION,
         "licence": "BSD-style (ArtiSynth Models LICENSE; academic publications must cite the original work)",
@@ -512,18 +565,18 @@ def import_artisynth(
             "method": "edge removal, 2-3 flips, smoothing of free interior nodes and edge splits "
             "(wface.mesh.improve; Klingner & Shewchuk 2007); boundary and boundary-condition nodes do not move",
             **improved.as_dict(),
-            "tet_quality_after_split": split_quality.as_dict(),
+            "tet_quality_after_split": mesh.split_quality.as_dict(),
         },
-        "hexes": int(len(hexes)),
+        "hexes": int(n_hexes),
         "degenerate_hexes": n_wedges,
-        "tet_quality": quality.as_dict(),
+        "tet_quality": mesh.quality.as_dict(),
         "surface_classification": "boundary triangles with all nodes in atlas_external -> skin, all in "
         "atlas_internal -> inner, else edge (cut boundary)",
         "fibre_radius_m": float(fibre_radius_m),
         "fibre_embedding": "fraction = share of 35 lattice points of the tet within fibre_radius_m of a fibre; "
         "direction = tangent of the fibre segment nearest the centroid; fractions rescaled to sum <= 1 per tet",
         "muscle_long_names": {m: _MUSCLE_LONG_NAMES[m.partition("_")[0]] for m in muscle_names},
-        "canonical_muscles": canonical,
+        "canonical_muscles": _canonical_muscles(muscle_names),
         "muscle_sides": "_l: subject's left (+x, the Badin 'left side' fibres); _r: mirrored across x = 0",
         "unused_muscles": list(UNUSED_MUSCLES),
         "muscle_fibres_m": {k: [f.tolist() for f in v] for k, v in muscle_fibres.items()},
@@ -534,26 +587,3 @@ def import_artisynth(
             "condyle_distance_m": "assumed (not in the data)" if condyle_distance_m == 0.1 else "given",
         },
     }
-    model = FaceModel(
-        rest_positions_m=x,
-        tets=tets,
-        skin_triangles=groups["skin"],
-        muscle_names=muscle_names,
-        fibre_tet=fibre_tet,
-        fibre_muscle=fibre_muscle,
-        fibre_fraction=fibre_fraction,
-        fibre_direction=fibre_direction,
-        attached_nodes=attached,
-        attached_bone=attached_bone,
-        jaw_joint=jaw_joint,
-        material=Material.artisynth(),
-        bone_meshes=bone_meshes,
-        surface_groups=groups,
-        marker_names=marker_names,
-        marker_positions_m=marker_pos,
-        facs=facs,
-        metadata=metadata,
-    )
-    model.validate()
-    _log(progress, t0, f"done: {len(marker_names)} markers, {len(facs)} FACS action units")
-    return model

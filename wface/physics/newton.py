@@ -126,106 +126,181 @@ def newton_quasistatic(
     if targets.shape != (fixed.size, 3):
         raise ValueError(f"attached_positions has shape {targets.shape}, expected ({fixed.size}, 3)")
     pattern = sim.pattern("free")
-    free = pattern.dof_nodes
-    a = activations
     if contact is not None:
         contact.set_pose(targets)
-    # the contact pairs at the latest energy_forces point; "live": the contact in use (the contact, or
-    # its self-contact frozen, wface.physics.frozen)
-    state = {"pairs": None, "x": None, "live": contact}
-
-    def energy_only(y):
-        if contact is None:
-            return sim.energy(y, a)
-        return sim.energy(y, a) + state["live"].energy(y)
-
-    def energy_forces(y):
-        """(E, f, sum |E_element|) at y, the contact terms included."""
-        e, fy = sim.energy_and_forces(y, a)
-        e_abs = float(np.abs(sim.last_element_energies()).sum())
-        if contact is None:
-            return e, fy, e_abs
-        pairs = state["live"].evaluate(y)
-        state["pairs"], state["x"] = pairs, y.copy()
-        return e + pairs.energy, fy + pairs.forces(), e_abs + pairs.energy
-
-    def tangent_at(y, project=True):
-        tan = sim.tangent(y, a, project=project)
-        if contact is None:
-            return tan
-        same = state["pairs"] is not None and np.array_equal(state["x"], y)
-        return ContactTangent(tan, state["pairs"] if same else state["live"].evaluate(y))
-
-    x_load = rest.copy()
-    x_load[fixed] = targets
-    mat = model.material
-    floor = 1e-3 * (mat.mu10_pa + mat.mu01_pa) * float(model.rest_volume_m3.sum()) ** (2.0 / 3.0)
-    scale = max(float(np.linalg.norm(sim.forces(x_load, a)[free])), floor)
-
+    problem = _Problem(sim, activations, contact)
+    scale = _force_scale(sim, activations, targets, pattern.dof_nodes)
     x = rest.copy() if x0 is None else np.array(x0, dtype=np.float64)
-    iterations = 0
-    history: list[float] = []
-    steps: list[float] = []
-
-    dxc = targets - x[fixed]
-    if fixed.size and np.any(dxc != 0.0):
-        # Lift: move the attached nodes to their targets and the free ones by the linear response.
-        tan = tangent_at(x)
-        f = sim.forces(x, a) if contact is None else energy_forces(x)[1]
-        v = np.zeros_like(x)
-        v[fixed] = dxc
-        coupling = tan.matvec(v)  # K_{., C} dx_C
-        rhs = pattern.gather(f - coupling)
-        history.append(float(np.linalg.norm(rhs)) / scale)
-        dx = linear.solve(tan, pattern, rhs, rtol=1e-6)
-        x[fixed] = targets
-        x[free] += dx.reshape(-1, 3)
-        iterations += 1
-
-    energy, f, energy_abs = energy_forces(x)
-    residual = float(np.linalg.norm(f[free]))
-    history.append(residual / scale)
+    run = _NewtonRun(problem, linear, pattern, scale, x)
+    run.lift(fixed, targets)
+    run.evaluate()
+    run.history.append(run.residual / scale)
     if stiffness not in ("auto", "projected", "exact"):
         raise ValueError(f"stiffness must be 'auto', 'projected' or 'exact', got {stiffness!r}")
-    exact_retry_below = exact_below  # after a failed exact attempt: retry once the residual fell 3x
-    exact_failures = 0
-    projected_steps = 0
     freeze_below = getattr(contact, "freeze_below", None) if contact is not None else None
     if freeze_below is not None and not contact.self_contact:
         freeze_below = None
-    frozen_at = None  # iteration at which the current frozen features were taken
-    refreezes = 0
+    run.iterate(
+        tol=tol,
+        max_iterations=max_iterations,
+        max_line_search=max_line_search,
+        refreeze_every=refreeze_every,
+        stiffness=stiffness,
+        exact_below=exact_below,
+        freeze_below=freeze_below,
+    )
+    if run.frozen_at is not None:  # report the true contact state
+        run.unfreeze()
+    linear.free()
+    return run.result(tol, engine)
 
-    def freeze():
-        state["live"] = FrozenContact(contact, x, margin_m=contact.freeze_margin_m)
-        return energy_forces(x)
 
-    while iterations < max_iterations:
-        stale = frozen_at is not None and getattr(state["live"], "last_stale", 0) > 0
-        if frozen_at is not None and (residual / scale <= tol or stale or iterations - frozen_at >= refreeze_every):
-            # the frozen problem converged (or is taking long): re-detect the pairs at x
-            state["live"] = contact
-            energy, f, energy_abs = energy_forces(x)
-            residual = float(np.linalg.norm(f[free]))
-            history[-1] = residual / scale
-            if residual / scale <= tol:
-                frozen_at = None
+def _force_scale(sim, a, targets: np.ndarray, free: np.ndarray) -> float:
+    """The denominator of the relative residual (module docstring)."""
+    model = sim.model
+    x_load = model.rest_positions_m.copy()
+    x_load[model.attached_nodes] = targets
+    mat = model.material
+    floor = 1e-3 * (mat.mu10_pa + mat.mu01_pa) * float(model.rest_volume_m3.sum()) ** (2.0 / 3.0)
+    return max(float(np.linalg.norm(sim.forces(x_load, a)[free])), floor)
+
+
+class _Problem:
+    """Energy, forces and stiffness of the elastic face plus the optional contact at activations ``a``."""
+
+    def __init__(self, sim, a, contact):
+        self.sim, self.a, self.contact = sim, a, contact
+        # the contact pairs at the latest energy_forces point; "live": the contact in use (the contact, or
+        # its self-contact frozen, wface.physics.frozen)
+        self.pairs, self.pairs_x, self.live = None, None, contact
+
+    def energy(self, y):
+        """Total energy at y (line search)."""
+        if self.contact is None:
+            return self.sim.energy(y, self.a)
+        return self.sim.energy(y, self.a) + self.live.energy(y)
+
+    def energy_forces(self, y):
+        """(E, f, sum |E_element|) at y, the contact terms included."""
+        e, fy = self.sim.energy_and_forces(y, self.a)
+        e_abs = float(np.abs(self.sim.last_element_energies()).sum())
+        if self.contact is None:
+            return e, fy, e_abs
+        pairs = self.live.evaluate(y)
+        self.pairs, self.pairs_x = pairs, y.copy()
+        return e + pairs.energy, fy + pairs.forces(), e_abs + pairs.energy
+
+    def tangent(self, y, project=True):
+        """The stiffness at y; the contact's reuses the pairs of the last ``energy_forces`` at y."""
+        tan = self.sim.tangent(y, self.a, project=project)
+        if self.contact is None:
+            return tan
+        same = self.pairs is not None and np.array_equal(self.pairs_x, y)
+        return ContactTangent(tan, self.pairs if same else self.live.evaluate(y))
+
+
+class _NewtonRun:
+    """The iterate and the counters of one ``newton_quasistatic`` call."""
+
+    def __init__(self, problem: _Problem, linear: LinearSolver, pattern, scale: float, x: np.ndarray):
+        self.problem, self.linear, self.pattern, self.scale = problem, linear, pattern, scale
+        self.free = pattern.dof_nodes
+        self.x = x
+        self.iterations = 0
+        self.history: list[float] = []
+        self.steps: list[float] = []
+        self.energy = self.f = self.energy_abs = self.residual = None
+        self.exact_retry_below = 0.0
+        self.exact_failures = 0
+        self.projected_steps = 0
+        self.frozen_at = None  # iteration at which the current frozen features were taken
+        self.refreezes = 0
+
+    def lift(self, fixed: np.ndarray, targets: np.ndarray) -> None:
+        """The lift step (module docstring) when the attached nodes are not at their targets."""
+        problem, x, free = self.problem, self.x, self.free
+        dxc = targets - x[fixed]
+        if fixed.size and np.any(dxc != 0.0):
+            # Lift: move the attached nodes to their targets and the free ones by the linear response.
+            tan = problem.tangent(x)
+            f = problem.sim.forces(x, problem.a) if problem.contact is None else problem.energy_forces(x)[1]
+            v = np.zeros_like(x)
+            v[fixed] = dxc
+            coupling = tan.matvec(v)  # K_{., C} dx_C
+            rhs = self.pattern.gather(f - coupling)
+            self.history.append(float(np.linalg.norm(rhs)) / self.scale)
+            dx = self.linear.solve(tan, self.pattern, rhs, rtol=1e-6)
+            x[fixed] = targets
+            x[free] += dx.reshape(-1, 3)
+            self.iterations += 1
+
+    def evaluate(self) -> None:
+        """Energy, forces and residual at the iterate."""
+        self.energy, self.f, self.energy_abs = self.problem.energy_forces(self.x)
+        self.residual = float(np.linalg.norm(self.f[self.free]))
+
+    def freeze(self) -> None:
+        """Take the self-contact features at the iterate as fixed (``wface.physics.frozen``)."""
+        problem = self.problem
+        problem.live = FrozenContact(problem.contact, self.x, margin_m=problem.contact.freeze_margin_m)
+        self.energy, self.f, self.energy_abs = problem.energy_forces(self.x)
+
+    def unfreeze(self) -> None:
+        """Back to the true (re-detected) contact at the iterate; the last residual becomes its residual."""
+        self.problem.live = self.problem.contact
+        self.evaluate()
+        self.history[-1] = self.residual / self.scale
+
+    def iterate(self, *, tol, max_iterations, max_line_search, refreeze_every, stiffness, exact_below, freeze_below):
+        """Newton steps until converged or ``max_iterations``, freezing and re-detecting self-contact."""
+        scale = self.scale
+        self.exact_retry_below = exact_below  # after a failed exact attempt: retry once the residual fell 3x
+        while self.iterations < max_iterations:
+            stale = self.frozen_at is not None and getattr(self.problem.live, "last_stale", 0) > 0
+            if self.frozen_at is not None and (
+                self.residual / scale <= tol or stale or self.iterations - self.frozen_at >= refreeze_every
+            ):
+                # the frozen problem converged (or is taking long): re-detect the pairs at x
+                self.unfreeze()
+                if self.residual / scale <= tol:
+                    self.frozen_at = None
+                    break
+                self.freeze()
+                self.frozen_at, self.refreezes = self.iterations, self.refreezes + 1
+            if self.residual / scale <= tol:
                 break
-            energy, f, energy_abs = freeze()
-            frozen_at, refreezes = iterations, refreezes + 1
-        if residual / scale <= tol:
-            break
-        if freeze_below is not None and frozen_at is None and residual / scale < freeze_below:
-            energy, f, energy_abs = freeze()
-            frozen_at = iterations
-        rhs = pattern.gather(f)
+            if freeze_below is not None and self.frozen_at is None and self.residual / scale < freeze_below:
+                self.freeze()
+                self.frozen_at = self.iterations
+            self.step(max_line_search, stiffness)
+
+    def step(self, max_line_search: int, stiffness: str) -> None:
+        """One Newton step with the line search."""
+        free = self.free
+        rhs = self.pattern.gather(self.f)
+        dx, tan = self.direction(rhs, stiffness)
+        dx = dx.reshape(-1, 3)
+        slope = float(rhs @ dx.reshape(-1))  # -dE/dt at t = 0 (> 0 for a descent direction)
+        if not slope > 0:  # not a descent direction (should not happen with SPD K): steepest descent
+            dx = self.f[free] / max(float(np.abs(tan.diagonal()[free]).max()), 1e-30)
+            slope = float(rhs @ dx.reshape(-1))
+        self.x, t = self.line_search(dx, slope, max_line_search)
+        self.steps.append(t)
+        self.iterations += 1
+        self.evaluate()
+        self.history.append(self.residual / self.scale)
+
+    def direction(self, rhs: np.ndarray, stiffness: str):
+        """The Newton direction and the stiffness it solved with: the exact K when it is tried and
+        works (module docstring), else the projected K."""
+        residual, scale, x = self.residual, self.scale, self.x
         eta = float(np.clip(0.1 * residual / scale, 1e-12, 1e-2))
         dx = None
-        attempted = stiffness == "exact" or (stiffness == "auto" and residual / scale < exact_retry_below)
+        attempted = stiffness == "exact" or (stiffness == "auto" and residual / scale < self.exact_retry_below)
         if attempted:
-            tan = tangent_at(x, project=False)
+            tan = self.problem.tangent(x, project=False)
             try:
-                dx = linear.solve(tan, pattern, rhs, rtol=eta)
+                dx = self.linear.solve(tan, self.pattern, rhs, rtol=eta)
                 if not float(rhs @ dx) > 0:
                     dx = None
             except NotPositiveDefiniteError:
@@ -233,67 +308,60 @@ def newton_quasistatic(
                     raise
                 dx = None
         if attempted and dx is None:
-            exact_failures += 1
-            exact_retry_below = min(exact_retry_below, residual / scale / 3.0)
+            self.exact_failures += 1
+            self.exact_retry_below = min(self.exact_retry_below, residual / scale / 3.0)
         if dx is None:
-            tan = tangent_at(x)
-            dx = linear.solve(tan, pattern, rhs, rtol=eta)
-            projected_steps += 1
-        dx = dx.reshape(-1, 3)
-        slope = float(rhs @ dx.reshape(-1))  # -dE/dt at t = 0 (> 0 for a descent direction)
-        if not slope > 0:  # not a descent direction (should not happen with SPD K): steepest descent
-            dx = f[free] / max(float(np.abs(tan.diagonal()[free]).max()), 1e-30)
-            slope = float(rhs @ dx.reshape(-1))
+            tan = self.problem.tangent(x)
+            dx = self.linear.solve(tan, self.pattern, rhs, rtol=eta)
+            self.projected_steps += 1
+        return dx, tan
+
+    def line_search(self, dx: np.ndarray, slope: float, max_line_search: int):
+        """Backtracking (Armijo) on the total energy: the new iterate and its step length t."""
+        x, free, energy = self.x, self.free, self.energy
+        sim = self.problem.sim
         slack = (
-            64 * np.finfo(np.float64 if sim.precision == "float64" else np.float32).eps * energy_abs
+            64 * np.finfo(np.float64 if sim.precision == "float64" else np.float32).eps * self.energy_abs
         )  # round-off of the energy sum
         t = 1.0
         trial = x.copy()
         for _ in range(max_line_search):
             trial[free] = x[free] + t * dx
-            e_trial = energy_only(trial)
+            e_trial = self.problem.energy(trial)
             if np.isfinite(e_trial) and e_trial <= energy - 1e-4 * t * slope + slack:
                 break
             t *= 0.5
-        x = trial
-        steps.append(t)
-        iterations += 1
-        energy, f, energy_abs = energy_forces(x)
-        residual = float(np.linalg.norm(f[free]))
-        history.append(residual / scale)
+        return trial, t
 
-    if frozen_at is not None:  # report the true contact state
-        state["live"] = contact
-        energy, f, energy_abs = energy_forces(x)
-        residual = float(np.linalg.norm(f[free]))
-        history[-1] = residual / scale
-    linear.free()
-    extra = {}
-    if contact is not None:
-        stats = state["pairs"].stats()
-        extra = {
-            "contact_refreezes": refreezes,
-            "contact_active_nodes": stats["active_nodes"],
-            "contact_max_penetration_m": stats["max_penetration_m"],
-            "contact_force_n": stats["force_n"],
-            "contact_energy": state["pairs"].energy,
-            "contact_stats": stats["sources"],
-        }
-    return Equilibrium(
-        x=x,
-        converged=bool(residual / scale <= tol),
-        iterations=iterations,
-        residual_rel=residual / scale,
-        residual_abs=residual,
-        force_scale=scale,
-        inverted_elements=count_inverted(model, x),
-        energy=energy,
-        cg_iterations=linear.cg_iterations,
-        projected_steps=projected_steps,
-        factorizations=linear.factorizations,
-        exact_failures=exact_failures,
-        solver=engine,
-        history=history,
-        step_lengths=steps,
-        **extra,
-    )
+    def result(self, tol: float, engine: str) -> Equilibrium:
+        """The ``Equilibrium`` at the iterate."""
+        problem, linear, residual, scale, x = self.problem, self.linear, self.residual, self.scale, self.x
+        extra = {}
+        if problem.contact is not None:
+            stats = problem.pairs.stats()
+            extra = {
+                "contact_refreezes": self.refreezes,
+                "contact_active_nodes": stats["active_nodes"],
+                "contact_max_penetration_m": stats["max_penetration_m"],
+                "contact_force_n": stats["force_n"],
+                "contact_energy": problem.pairs.energy,
+                "contact_stats": stats["sources"],
+            }
+        return Equilibrium(
+            x=x,
+            converged=bool(residual / scale <= tol),
+            iterations=self.iterations,
+            residual_rel=residual / scale,
+            residual_abs=residual,
+            force_scale=scale,
+            inverted_elements=count_inverted(problem.sim.model, x),
+            energy=self.energy,
+            cg_iterations=linear.cg_iterations,
+            projected_steps=self.projected_steps,
+            factorizations=linear.factorizations,
+            exact_failures=self.exact_failures,
+            solver=engine,
+            history=self.history,
+            step_lengths=self.steps,
+            **extra,
+        )

@@ -232,35 +232,52 @@ def resimulate(
     acts, scale = (take.activations, None) if take.force_length_scale is None else split_drives(take.drives, per="take")
     acts = np.array([model.activation_vector(a) for a in acts])
     xc = take_attached_positions(model, take, frame=frame)
-    T = take.n_frames
     saved_scale = sim.force_length_scale  # restored below, also when a solve fails
     if scale is not None:
         sim.force_length_scale = scale
-    t0 = time.perf_counter()
     try:
-        if x0_m is None:
-            eq = sim.solve(acts[0], xc[0], tol=tol, contact=contact)
-            x0, its0, res0 = eq.x, eq.iterations, eq.residual_rel
-        else:
-            x0, its0, res0 = x0_m, 0, 0.0
-        state = dyn.initial_state(x0, None, acts[0])
-        first = StepStats(
-            newton_iterations=its0,
-            residual_rel=res0,
-            elastic_energy_j=sim.energy(x0, acts[0]),
-            inverted_elements=count_inverted(model, x0),
-            seconds=time.perf_counter() - t0,
-        )
+        state, first = _first_frame(sim, dyn, acts[0], xc[0], x0_m, tol, contact)
     except BaseException:
         dyn.free()
         sim.force_length_scale = saved_scale
         raise
-    positions = np.empty((T, model.n_nodes, 3))
+    positions = np.empty((take.n_frames, model.n_nodes, 3))
     positions[0] = state.x_m
     stats = [first]
-    bar = tqdm(total=T - 1, desc=f"resim {scheme}", disable=not progress, unit="frame")
     try:
-        for k in range(1, T):
+        _later_frames(model, take, dyn, state, acts, xc, substeps, frame, on_step, progress, positions, stats)
+    finally:
+        dyn.free()
+        sim.force_length_scale = saved_scale
+    if frame == "cranium":
+        positions = cranium_to_world(take, positions)
+    return _resim_result(take, positions, stats, dyn, sim, substeps=substeps, frame=frame, stiffness=stiffness)
+
+
+def _first_frame(sim, dyn, a0, xc0, x0_m, tol, contact):
+    """(dynamic state, stats) of frame 0: its quasistatic equilibrium (or ``x0_m``) at rest velocity."""
+    t0 = time.perf_counter()
+    if x0_m is None:
+        eq = sim.solve(a0, xc0, tol=tol, contact=contact)
+        x0, its0, res0 = eq.x, eq.iterations, eq.residual_rel
+    else:
+        x0, its0, res0 = x0_m, 0, 0.0
+    state = dyn.initial_state(x0, None, a0)
+    first = StepStats(
+        newton_iterations=its0,
+        residual_rel=res0,
+        elastic_energy_j=sim.energy(x0, a0),
+        inverted_elements=count_inverted(sim.model, x0),
+        seconds=time.perf_counter() - t0,
+    )
+    return state, first
+
+
+def _later_frames(model, take, dyn, state, acts, xc, substeps, frame, on_step, progress, positions, stats) -> None:
+    """Advance frame by frame from ``state``, filling ``positions[1:]`` and appending to ``stats``."""
+    bar = tqdm(total=take.n_frames - 1, desc=f"resim {dyn.scheme}", disable=not progress, unit="frame")
+    try:
+        for k in range(1, take.n_frames):
             path = xc[k]
             if take.bones is not None and take.attached_positions_m is None:
                 b0, b1 = take.bones[k - 1], take.bones[k]
@@ -279,14 +296,14 @@ def resimulate(
             bar.set_postfix(newton=st.newton_iterations, ke=f"{st.kinetic_energy_j:.2e}")
     finally:
         bar.close()
-        dyn.free()
-        sim.force_length_scale = saved_scale
-    if frame == "cranium":
-        positions = cranium_to_world(take, positions)
+
+
+def _resim_result(take, positions, stats, dyn, sim, *, substeps, frame, stiffness) -> ResimResult:
+    """The ``ResimResult`` of the per-frame positions and step statistics."""
     return ResimResult(
         positions_m=positions,
         fps=take.fps,
-        scheme=scheme,
+        scheme=dyn.scheme,
         substeps=int(substeps),
         damping=dyn.damping,
         frame=frame,

@@ -47,77 +47,17 @@ def synthetic_face(*, nx: int = 12, ny: int = 12, nz: int = 2):
     def nid(i, j, k):
         return (i * (ny + 1) + j) * (nz + 1) + k
 
-    # Kuhn split of each hexahedral cell into 6 tets along the main diagonal.
-    cube = [(0, 0, 0), (1, 0, 0), (0, 1, 0), (1, 1, 0), (0, 0, 1), (1, 0, 1), (0, 1, 1), (1, 1, 1)]
-    kuhn = [(0, 1, 3, 7), (0, 3, 2, 7), (0, 2, 6, 7), (0, 6, 4, 7), (0, 4, 5, 7), (0, 5, 1, 7)]
-    tets, cells = [], []
-    for i in range(nx):
-        for j in range(ny):
-            for k in range(nz):
-                corner = [nid(i + a, j + b, k + c) for a, b, c in cube]
-                for t in kuhn:
-                    tets.append([corner[q] for q in t])
-                    cells.append((i, j, k))
-    tets = np.asarray(tets, dtype=np.int64)
-    e = x[tets[:, 1:]] - x[tets[:, :1]]
-    neg = np.linalg.det(e) < 0
-    tets[neg, 2], tets[neg, 3] = tets[neg, 3].copy(), tets[neg, 2].copy()
-    cells = np.asarray(cells)
-
-    def surface(k, outward_sign):
-        tri = []
-        for i in range(nx):
-            for j in range(ny):
-                a, b, c, d = nid(i, j, k), nid(i + 1, j, k), nid(i + 1, j + 1, k), nid(i, j + 1, k)
-                tri += [[a, b, c], [a, c, d]]
-        tri = np.asarray(tri)
-        n = np.cross(x[tri[:, 1]] - x[tri[:, 0]], x[tri[:, 2]] - x[tri[:, 0]])
-        radial = x[tri].mean(axis=1) + [0, 0, _R_OUT]
-        flip = np.sum(n * radial, axis=1) * outward_sign < 0
-        tri[flip, 1], tri[flip, 2] = tri[flip, 2].copy(), tri[flip, 1].copy()
-        return tri
-
-    skin = surface(nz, +1.0)
-
-    # Muscles: sets of cells (tets) with unit fibre directions.
-    cen = x[tets].mean(axis=1)
-    tth = np.arctan2(cen[:, 0], cen[:, 2] + _R_OUT)
-    tph = np.arcsin(np.clip(cen[:, 1] / np.linalg.norm(cen + [0, 0, _R_OUT], axis=1), -1, 1))
-    muscles = {
-        "zygomatic_major_L": (np.abs(tph - (-0.05 + 0.6 * (tth - 0.25))) < 0.09) & (tth > 0.2) & (tth < 0.8),
-        "zygomatic_major_R": (np.abs(tph - (-0.05 - 0.6 * (tth + 0.25))) < 0.09) & (tth < -0.2) & (tth > -0.8),
-        "frontalis": (tph > 0.45) & (np.abs(tth) < 0.55),
-    }
-    fdir = {"zygomatic_major_L": (0.85, 0.5, 0.0), "zygomatic_major_R": (-0.85, 0.5, 0.0), "frontalis": (0.0, 1.0, 0.0)}
-    entries = []
-    for m, (name, mask) in enumerate(muscles.items()):
-        d = np.asarray(fdir[name]) / np.linalg.norm(fdir[name])
-        for t in np.flatnonzero(mask):
-            entries.append((t, m, 1.0, d))
-    entries.sort(key=lambda r: (r[0], r[1]))
-    fibre_tet = np.array([r[0] for r in entries], dtype=np.int32)
-    fibre_muscle = np.array([r[1] for r in entries], dtype=np.int32)
-    fibre_fraction = np.array([r[2] for r in entries])
-    fibre_direction = np.array([r[3] for r in entries]).reshape(-1, 3)
+    tets = _kuhn_tets(x, nx, ny, nz, nid)
+    skin = _cap_surface(x, nx, ny, nz, +1.0, nid)
+    muscles = _fake_muscles(x, tets)
+    fibre_tet, fibre_muscle, fibre_fraction, fibre_direction = _fibre_entries(muscles)
 
     inner = np.array([nid(i, j, 0) for i in range(nx + 1) for j in range(ny + 1)])
     inner_ph = np.array([ph[j] for i in range(nx + 1) for j in range(ny + 1)])
     jaw = inner_ph < -0.3
     attached_nodes = inner.astype(np.int32)
     attached_bone = jaw.astype(np.int8)
-
-    inner_tri = surface(0, -1.0)
-    tri_jaw = np.all(np.isin(inner_tri, inner[jaw]), axis=1)
-    bone_meshes = {}
-    for bname, bone, sel in (("skull", "cranium", ~tri_jaw), ("mandible", "jaw", tri_jaw)):
-        tri = inner_tri[sel]
-        used = np.unique(tri)
-        remap = np.full(x.shape[0], -1)
-        remap[used] = np.arange(used.size)
-        # Bone surface slightly inside the flesh (scaled towards the cap centre).
-        centre = np.array([0.0, 0.0, -_R_OUT])
-        v = centre + 0.97 * (x[used] - centre)
-        bone_meshes[bname] = BoneMesh(v, remap[tri].astype(np.int32), bone)
+    bone_meshes = _bone_meshes(x, _cap_surface(x, nx, ny, 0, -1.0, nid), inner[jaw])
 
     skin_nodes = np.unique(skin)
     rng = np.random.default_rng(7)
@@ -147,6 +87,85 @@ def synthetic_face(*, nx: int = 12, ny: int = 12, nz: int = 2):
         metadata={"synthetic": True, "marker_nodes": marker_nodes.tolist()},
     )
     return model.validate()
+
+
+def _kuhn_tets(x: np.ndarray, nx: int, ny: int, nz: int, nid) -> np.ndarray:
+    """Positively oriented tets of the nx by ny by nz cells (node ids ``nid(i, j, k)``)."""
+    # Kuhn split of each hexahedral cell into 6 tets along the main diagonal.
+    cube = [(0, 0, 0), (1, 0, 0), (0, 1, 0), (1, 1, 0), (0, 0, 1), (1, 0, 1), (0, 1, 1), (1, 1, 1)]
+    kuhn = [(0, 1, 3, 7), (0, 3, 2, 7), (0, 2, 6, 7), (0, 6, 4, 7), (0, 4, 5, 7), (0, 5, 1, 7)]
+    tets = []
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                corner = [nid(i + a, j + b, k + c) for a, b, c in cube]
+                for t in kuhn:
+                    tets.append([corner[q] for q in t])
+    tets = np.asarray(tets, dtype=np.int64)
+    e = x[tets[:, 1:]] - x[tets[:, :1]]
+    neg = np.linalg.det(e) < 0
+    tets[neg, 2], tets[neg, 3] = tets[neg, 3].copy(), tets[neg, 2].copy()
+    return tets
+
+
+def _cap_surface(x: np.ndarray, nx: int, ny: int, k: int, outward_sign: float, nid) -> np.ndarray:
+    """Triangles of the grid layer k, wound to face away from the cap centre (``outward_sign`` +1) or to it."""
+    tri = []
+    for i in range(nx):
+        for j in range(ny):
+            a, b, c, d = nid(i, j, k), nid(i + 1, j, k), nid(i + 1, j + 1, k), nid(i, j + 1, k)
+            tri += [[a, b, c], [a, c, d]]
+    tri = np.asarray(tri)
+    n = np.cross(x[tri[:, 1]] - x[tri[:, 0]], x[tri[:, 2]] - x[tri[:, 0]])
+    radial = x[tri].mean(axis=1) + [0, 0, _R_OUT]
+    flip = np.sum(n * radial, axis=1) * outward_sign < 0
+    tri[flip, 1], tri[flip, 2] = tri[flip, 2].copy(), tri[flip, 1].copy()
+    return tri
+
+
+def _fake_muscles(x: np.ndarray, tets: np.ndarray) -> dict[str, np.ndarray]:
+    """{muscle: tet mask} of the two zygomatics and the frontalis, by the tet centres' angles."""
+    # Muscles: sets of cells (tets) with unit fibre directions.
+    cen = x[tets].mean(axis=1)
+    tth = np.arctan2(cen[:, 0], cen[:, 2] + _R_OUT)
+    tph = np.arcsin(np.clip(cen[:, 1] / np.linalg.norm(cen + [0, 0, _R_OUT], axis=1), -1, 1))
+    return {
+        "zygomatic_major_L": (np.abs(tph - (-0.05 + 0.6 * (tth - 0.25))) < 0.09) & (tth > 0.2) & (tth < 0.8),
+        "zygomatic_major_R": (np.abs(tph - (-0.05 - 0.6 * (tth + 0.25))) < 0.09) & (tth < -0.2) & (tth > -0.8),
+        "frontalis": (tph > 0.45) & (np.abs(tth) < 0.55),
+    }
+
+
+def _fibre_entries(muscles: dict[str, np.ndarray]):
+    """(fibre_tet, fibre_muscle, fibre_fraction, fibre_direction): whole tets, one direction per muscle."""
+    fdir = {"zygomatic_major_L": (0.85, 0.5, 0.0), "zygomatic_major_R": (-0.85, 0.5, 0.0), "frontalis": (0.0, 1.0, 0.0)}
+    entries = []
+    for m, (name, mask) in enumerate(muscles.items()):
+        d = np.asarray(fdir[name]) / np.linalg.norm(fdir[name])
+        for t in np.flatnonzero(mask):
+            entries.append((t, m, 1.0, d))
+    entries.sort(key=lambda r: (r[0], r[1]))
+    fibre_tet = np.array([r[0] for r in entries], dtype=np.int32)
+    fibre_muscle = np.array([r[1] for r in entries], dtype=np.int32)
+    fibre_fraction = np.array([r[2] for r in entries])
+    fibre_direction = np.array([r[3] for r in entries]).reshape(-1, 3)
+    return fibre_tet, fibre_muscle, fibre_fraction, fibre_direction
+
+
+def _bone_meshes(x: np.ndarray, inner_tri: np.ndarray, jaw_nodes: np.ndarray) -> dict[str, BoneMesh]:
+    """Skull and mandible under the inner surface (its triangles on ``jaw_nodes`` follow the jaw)."""
+    tri_jaw = np.all(np.isin(inner_tri, jaw_nodes), axis=1)
+    bone_meshes = {}
+    for bname, bone, sel in (("skull", "cranium", ~tri_jaw), ("mandible", "jaw", tri_jaw)):
+        tri = inner_tri[sel]
+        used = np.unique(tri)
+        remap = np.full(x.shape[0], -1)
+        remap[used] = np.arange(used.size)
+        # Bone surface slightly inside the flesh (scaled towards the cap centre).
+        centre = np.array([0.0, 0.0, -_R_OUT])
+        v = centre + 0.97 * (x[used] - centre)
+        bone_meshes[bname] = BoneMesh(v, remap[tri].astype(np.int32), bone)
+    return bone_meshes
 
 
 def rotation_about(axis, angle_rad: float) -> np.ndarray:

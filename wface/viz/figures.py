@@ -76,38 +76,87 @@ def write_take_figures(
     if x.ndim != 3 or x.shape[1:] != (model.n_nodes, 3) or x.shape[0] == 0:
         raise ValueError(f"node_positions_m must have shape (frames, {model.n_nodes}, 3); got {x.shape}")
     F = x.shape[0]
-    for name, arr in (
-        ("activations", activations),
-        ("captured_markers_m", captured_markers_m),
-        ("simulated_markers_m", simulated_markers_m),
-        ("jaw_affines", jaw_affines),
-        ("cranium_affines", cranium_affines),
-        ("jaw_angle_deg", jaw_angle_deg),
-        ("truth_activations", truth_activations),
-        ("truth_jaw_angle_deg", truth_jaw_angle_deg),
-    ):
+    _check_frame_counts(
+        F,
+        activations=activations,
+        captured_markers_m=captured_markers_m,
+        simulated_markers_m=simulated_markers_m,
+        jaw_affines=jaw_affines,
+        cranium_affines=cranium_affines,
+        jaw_angle_deg=jaw_angle_deg,
+        truth_activations=truth_activations,
+        truth_jaw_angle_deg=truth_jaw_angle_deg,
+    )
+    jaw_rel = _jaw_relative(jaw_affines, cranium_affines, jaw_frame)
+    markers = (captured_markers_m, simulated_markers_m)
+    images = _write_pictures(out, model, x, fps, activations, markers, cranium_affines, jaw_rel, panel_size)
+    images.update(
+        _write_plots(
+            out,
+            model,
+            fps,
+            activations,
+            markers,
+            jaw_affines=jaw_affines,
+            cranium_affines=cranium_affines,
+            jaw_frame=jaw_frame,
+            jaw_angle_deg=jaw_angle_deg,
+            truth_activations=truth_activations,
+            truth_jaw_angle_deg=truth_jaw_angle_deg,
+        )
+    )
+    if movie:
+        images["Take (movie)"] = _write_movie(
+            out,
+            model,
+            x,
+            fps,
+            activations,
+            markers,
+            cranium_affines,
+            jaw_affines,
+            jaw_frame,
+            movie_max_frames,
+            panel_size,
+        )
+    return images
+
+
+def _check_frame_counts(F: int, **arrays) -> None:
+    """Every per-frame array given has F rows."""
+    for name, arr in arrays.items():
         if arr is not None and len(arr) != F:
             raise ValueError(f"{name} has {len(arr)} frames but node_positions_m has {F}")
 
-    def at(arr, f):
-        return None if arr is None else np.asarray(arr)[f]
 
+def _jaw_relative(jaw_affines, cranium_affines, jaw_frame: str):
+    """The jaw affines in the cranium's frame (as the pictures draw them)."""
     if jaw_affines is not None and jaw_frame == "world" and cranium_affines is not None:
         c, j = np.asarray(cranium_affines, float), np.asarray(jaw_affines, float)  # make the jaw relative
         lin = np.linalg.solve(c[:, :, :3], j[:, :, :3])
         jaw_rel = np.concatenate([lin, np.linalg.solve(c[:, :, :3], (j[:, :, 3] - c[:, :, 3])[..., None])], axis=2)
     else:
         jaw_rel = jaw_affines
+    return jaw_rel
+
+
+def _at(arr, f):
+    return None if arr is None else np.asarray(arr)[f]
+
+
+def _write_pictures(out: Path, model, x, fps, activations, markers, cranium_affines, jaw_rel, panel_size):
+    """Stills of the most expressive frame (expression, muscles) and of the first frame beside it."""
+    captured_markers_m, simulated_markers_m = markers
 
     def panel(f: int, title: str) -> render.Panel:
         return render.Panel(
             x[f],
-            at(activations, f),
-            at(captured_markers_m, f),
-            at(simulated_markers_m, f),
+            _at(activations, f),
+            _at(captured_markers_m, f),
+            _at(simulated_markers_m, f),
             title,
-            at(cranium_affines, f),
-            at(jaw_rel, f),
+            _at(cranium_affines, f),
+            _at(jaw_rel, f),
         )
 
     images: dict[str, Path] = {}
@@ -117,9 +166,9 @@ def write_take_figures(
         model,
         x[f],
         out / "expression.png",
-        activations=at(activations, f),
-        captured_markers_m=at(captured_markers_m, f),
-        simulated_markers_m=at(simulated_markers_m, f),
+        activations=_at(activations, f),
+        captured_markers_m=_at(captured_markers_m, f),
+        simulated_markers_m=_at(simulated_markers_m, f),
         panel_size=panel_size,
     )
     if activations is not None:
@@ -133,7 +182,26 @@ def write_take_figures(
         out / "before_after.png",
         panel_size=panel_size,
     )
+    return images
 
+
+def _write_plots(
+    out: Path,
+    model,
+    fps,
+    activations,
+    markers,
+    *,
+    jaw_affines,
+    cranium_affines,
+    jaw_frame,
+    jaw_angle_deg,
+    truth_activations,
+    truth_jaw_angle_deg,
+) -> dict[str, Path]:
+    """Plots over time: activations, marker error, jaw opening (each when its data is given)."""
+    captured_markers_m, simulated_markers_m = markers
+    images: dict[str, Path] = {}
     if activations is not None:
         images["Muscle activations"] = plots.plot_activations(
             activations, model.muscle_names, out / "activations.png", fps=fps, truth=truth_activations
@@ -151,24 +219,41 @@ def write_take_figures(
         images["Jaw opening"] = plots.plot_jaw_opening(
             jaw_angle_deg, out / "jaw_opening.png", fps=fps, truth_deg=truth_jaw_angle_deg
         )
-    if movie:
-        step = max(1, int(np.ceil(F / movie_max_frames)))
-        sel = np.arange(0, F, step)
-
-        def sub(arr):
-            return None if arr is None else np.asarray(arr)[sel]
-
-        images["Take (movie)"] = render.render_take_movie(
-            model,
-            x[sel],
-            out / "take.mp4",
-            fps=max(1.0, fps / step),
-            activations=sub(activations),
-            captured_markers_m=sub(captured_markers_m),
-            simulated_markers_m=sub(simulated_markers_m),
-            cranium_affines=sub(cranium_affines),
-            jaw_affines=sub(jaw_affines),
-            jaw_frame=jaw_frame,
-            window_size=panel_size,
-        )
     return images
+
+
+def _write_movie(
+    out: Path,
+    model,
+    x,
+    fps,
+    activations,
+    markers,
+    cranium_affines,
+    jaw_affines,
+    jaw_frame,
+    movie_max_frames,
+    panel_size,
+) -> Path:
+    """``take.mp4``: every frame up to ``movie_max_frames``, else evenly subsampled at a reduced rate."""
+    captured_markers_m, simulated_markers_m = markers
+    F = x.shape[0]
+    step = max(1, int(np.ceil(F / movie_max_frames)))
+    sel = np.arange(0, F, step)
+
+    def sub(arr):
+        return None if arr is None else np.asarray(arr)[sel]
+
+    return render.render_take_movie(
+        model,
+        x[sel],
+        out / "take.mp4",
+        fps=max(1.0, fps / step),
+        activations=sub(activations),
+        captured_markers_m=sub(captured_markers_m),
+        simulated_markers_m=sub(simulated_markers_m),
+        cranium_affines=sub(cranium_affines),
+        jaw_affines=sub(jaw_affines),
+        jaw_frame=jaw_frame,
+        window_size=panel_size,
+    )

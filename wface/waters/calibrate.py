@@ -216,63 +216,98 @@ def calibrate_muscle(
         query = SurfaceQuery(*surface)
 
     if isinstance(m0, LinearMuscle):
-        length = float(np.linalg.norm(m0.insertion_m - m0.bone_m))
-        lo = np.r_[-np.ones(3) * bone_range_m, -np.ones(3) * insertion_range_m, 8.0, 0.6, 1.1, 0.0]
-        hi = np.r_[
-            np.ones(3) * bone_range_m, np.ones(3) * insertion_range_m, 60.0, 1.4, 2.5, 3.0 * mb.spring_constant_m
-        ]
-        p0 = np.r_[
-            m0.bone_m - mb.bone_m, m0.insertion_m - mb.insertion_m, m0.zone_deg, m0.fall_start_m / length,
-            m0.fall_finish_m / m0.fall_start_m, m0.spring_constant_m,
-        ]  # fmt: skip
-
-        def build(p):
-            bone = mb.bone_m + p[0:3]
-            ins = mb.insertion_m + p[3:6]
-            if query is not None:
-                ins = query.closest(ins[None]).point_m[0]
-            rs = p[7] * float(np.linalg.norm(ins - bone))
-            return replace(
-                m0,
-                bone_m=bone,
-                insertion_m=ins,
-                zone_deg=float(p[6]),
-                fall_start_m=rs,
-                fall_finish_m=rs * p[8],
-                spring_constant_m=float(p[9]),
-            )
+        lo, hi, p0, build = _linear_space(m0, mb, query, bone_range_m, insertion_range_m)
     else:
-        scale_lo = np.broadcast_to(np.asarray(axis_scale_range[0], dtype=np.float64), (3,))
-        scale_hi = np.broadcast_to(np.asarray(axis_scale_range[1], dtype=np.float64), (3,))
-        lo = np.r_[-np.ones(3) * centre_range_m, scale_lo, 0.02]
-        hi = np.r_[np.ones(3) * centre_range_m, scale_hi, 0.9]
-        p0 = np.r_[m0.centre_m - mb.centre_m, m0.semi_axes_m / mb.semi_axes_m, m0.tension]
-        free = []  # optional parameters after the 7 fixed ones: (name, low, high, start)
-        if protrusion_range_m is not None:
-            free.append(("protrusion", min(protrusion_range_m[0], mb.protrusion_m),
-                         max(protrusion_range_m[1], mb.protrusion_m), m0.protrusion_m))  # fmt: skip
-        if lower_axis_scale_range is not None:
-            start = m0.below_m / (mb.below_m * m0.semi_axes_m[1] / mb.semi_axes_m[1])
-            free.append(("lower", lower_axis_scale_range[0], lower_axis_scale_range[1], start))
-        lo = np.r_[lo, [f[1] for f in free]]
-        hi = np.r_[hi, [f[2] for f in free]]
-        p0 = np.r_[p0, [f[3] for f in free]]
-
-        def build(p):
-            extra = {}
-            for k, (name, *_) in enumerate(free):
-                if name == "protrusion":
-                    extra["protrusion_m"] = float(p[7 + k])
-                else:  # the lower semi-axis scales with the vertical one and by its own factor
-                    extra["lower_semi_axis_m"] = float(mb.below_m * p[4] * p[7 + k])
-            if "lower_semi_axis_m" not in extra and mb.lower_semi_axis_m:
-                extra["lower_semi_axis_m"] = float(mb.lower_semi_axis_m * p[4])
-            return replace(m0, centre_m=mb.centre_m + p[0:3], semi_axes_m=mb.semi_axes_m * p[3:6],
-                           tension=float(p[6]), **extra)  # fmt: skip
+        lo, hi, p0, build = _sphincter_space(
+            m0, mb, centre_range_m, axis_scale_range, protrusion_range_m, lower_axis_scale_range
+        )
 
     partner = mirror_name(muscle) if mirror else None
-    pts = x[rows]
-    target = ref[rows]
+    error, count = _objective(layout, used, muscle, partner, build, lo, hi, x[rows], ref[rows], pose, jaw_open_deg)
+    q0 = np.clip((p0 - lo) / np.maximum(hi - lo, 1e-300), 0.0, 1.0)
+    before = error(q0)
+    res = minimize(
+        error,
+        q0,
+        method="Powell",
+        bounds=[(0.0, 1.0)] * len(q0),
+        options={"maxfev": max_evaluations, "xtol": 1e-3, "ftol": 1e-4},
+    )
+    best = res.x if res.fun < before else q0
+    fitted = build(lo + np.clip(best, 0, 1) * (hi - lo))
+    muscles = [fitted if u.name == muscle else u for u in layout.muscles]
+    if mirror and partner is not None and any(u.name == partner for u in layout.muscles):
+        muscles = [_mirror(fitted) if u.name == partner else u for u in muscles]
+    return CalibrationResult(replace(layout, muscles=muscles), muscle, before, min(float(res.fun), before), count[0])
+
+
+def _linear_space(m0: LinearMuscle, mb: LinearMuscle, query, bone_range_m: float, insertion_range_m: float):
+    """(low bounds, high bounds, start, parameters -> muscle) of a linear muscle's search: bone and insertion
+    offsets from ``mb``, zone angle, fall-off start (a fraction of the length) and finish, spring constant."""
+    length = float(np.linalg.norm(m0.insertion_m - m0.bone_m))
+    lo = np.r_[-np.ones(3) * bone_range_m, -np.ones(3) * insertion_range_m, 8.0, 0.6, 1.1, 0.0]
+    hi = np.r_[np.ones(3) * bone_range_m, np.ones(3) * insertion_range_m, 60.0, 1.4, 2.5, 3.0 * mb.spring_constant_m]
+    p0 = np.r_[
+        m0.bone_m - mb.bone_m, m0.insertion_m - mb.insertion_m, m0.zone_deg, m0.fall_start_m / length,
+        m0.fall_finish_m / m0.fall_start_m, m0.spring_constant_m,
+    ]  # fmt: skip
+
+    def build(p):
+        bone = mb.bone_m + p[0:3]
+        ins = mb.insertion_m + p[3:6]
+        if query is not None:
+            ins = query.closest(ins[None]).point_m[0]
+        rs = p[7] * float(np.linalg.norm(ins - bone))
+        return replace(
+            m0,
+            bone_m=bone,
+            insertion_m=ins,
+            zone_deg=float(p[6]),
+            fall_start_m=rs,
+            fall_finish_m=rs * p[8],
+            spring_constant_m=float(p[9]),
+        )
+
+    return lo, hi, p0, build
+
+
+def _sphincter_space(m0, mb, centre_range_m, axis_scale_range, protrusion_range_m, lower_axis_scale_range):
+    """(low bounds, high bounds, start, parameters -> muscle) of a sphincter's search: centre offset from
+    ``mb``, semi-axis scales, tension, and optionally protrusion and the lower semi-axis scale."""
+    scale_lo = np.broadcast_to(np.asarray(axis_scale_range[0], dtype=np.float64), (3,))
+    scale_hi = np.broadcast_to(np.asarray(axis_scale_range[1], dtype=np.float64), (3,))
+    lo = np.r_[-np.ones(3) * centre_range_m, scale_lo, 0.02]
+    hi = np.r_[np.ones(3) * centre_range_m, scale_hi, 0.9]
+    p0 = np.r_[m0.centre_m - mb.centre_m, m0.semi_axes_m / mb.semi_axes_m, m0.tension]
+    free = []  # optional parameters after the 7 fixed ones: (name, low, high, start)
+    if protrusion_range_m is not None:
+        free.append(("protrusion", min(protrusion_range_m[0], mb.protrusion_m),
+                     max(protrusion_range_m[1], mb.protrusion_m), m0.protrusion_m))  # fmt: skip
+    if lower_axis_scale_range is not None:
+        start = m0.below_m / (mb.below_m * m0.semi_axes_m[1] / mb.semi_axes_m[1])
+        free.append(("lower", lower_axis_scale_range[0], lower_axis_scale_range[1], start))
+    lo = np.r_[lo, [f[1] for f in free]]
+    hi = np.r_[hi, [f[2] for f in free]]
+    p0 = np.r_[p0, [f[3] for f in free]]
+
+    def build(p):
+        extra = {}
+        for k, (name, *_) in enumerate(free):
+            if name == "protrusion":
+                extra["protrusion_m"] = float(p[7 + k])
+            else:  # the lower semi-axis scales with the vertical one and by its own factor
+                extra["lower_semi_axis_m"] = float(mb.below_m * p[4] * p[7 + k])
+        if "lower_semi_axis_m" not in extra and mb.lower_semi_axis_m:
+            extra["lower_semi_axis_m"] = float(mb.lower_semi_axis_m * p[4])
+        return replace(m0, centre_m=mb.centre_m + p[0:3], semi_axes_m=mb.semi_axes_m * p[3:6],
+                       tension=float(p[6]), **extra)  # fmt: skip
+
+    return lo, hi, p0, build
+
+
+def _objective(layout, used, muscle, partner, build, lo, hi, pts, target, pose, jaw_open_deg):
+    """The search's objective of normalised parameters q in [0, 1]^d (the relative error of the displacement
+    on ``pts`` against ``target``, 1e3 for an invalid muscle) and its evaluation counter ([count])."""
 
     def layout_with(m):
         muscles = [m if u.name == muscle else u for u in used]
@@ -293,18 +328,4 @@ def calibrate_muscle(
         d = rig.deform(pose.contractions, jaw_open_deg=jaw_open_deg) - pts
         return relative_error(d, target)
 
-    q0 = np.clip((p0 - lo) / np.maximum(hi - lo, 1e-300), 0.0, 1.0)
-    before = error(q0)
-    res = minimize(
-        error,
-        q0,
-        method="Powell",
-        bounds=[(0.0, 1.0)] * len(q0),
-        options={"maxfev": max_evaluations, "xtol": 1e-3, "ftol": 1e-4},
-    )
-    best = res.x if res.fun < before else q0
-    fitted = build(lo + np.clip(best, 0, 1) * (hi - lo))
-    muscles = [fitted if u.name == muscle else u for u in layout.muscles]
-    if mirror and partner is not None and any(u.name == partner for u in layout.muscles):
-        muscles = [_mirror(fitted) if u.name == partner else u for u in muscles]
-    return CalibrationResult(replace(layout, muscles=muscles), muscle, before, min(float(res.fun), before), count[0])
+    return error, count

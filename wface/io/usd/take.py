@@ -137,16 +137,51 @@ def write_take(
     Raises:
         UsdWriteError: a shape, frame count or value is wrong; the message names it.
     """
-    from pxr import Sdf, UsdGeom, Vt
-
     path = _check_path(path)
+    x = _checked_positions(model, node_positions_m)
+    n_frames = x.shape[0]
+    skin_nodes, counts, indices = _skin_polygons(model)
+    act = None if activations is None else _check_frames("activations", activations, n_frames, (model.n_muscles,))
+    markers = _checked_markers(captured_markers_m, simulated_markers_m, n_frames)
+    affines = _checked_affines(cranium_affines, jaw_affines, n_frames)
+    basis, bw = _checked_basis(basis, basis_weights, model, skin_nodes, n_frames)
+    if jaw_frame not in ("cranium", "world"):
+        raise UsdWriteError(f"jaw_frame must be 'cranium' or 'world', got {jaw_frame!r}")
+    if not (np.isfinite(marker_radius_m) and marker_radius_m > 0):
+        raise UsdWriteError(f"marker_radius_m must be positive, got {marker_radius_m}")
+
+    stage = _new_stage(path, fps=fps, n_frames=n_frames, up_axis=up_axis, root=name)
+    root = f"/{name}"
+    info = {"kind": "take", "frames": int(n_frames), "nodes": int(model.n_nodes), "muscles": int(model.n_muscles)}
+    info.update({str(k): _json_safe(v) for k, v in (metadata or {}).items()})
+    stage.GetRootLayer().customLayerData = {"wface": info}
+
+    skin = _write_mesh(stage, f"{root}/Skin", x[:, skin_nodes], counts, indices)
+    _write_skin_primvars(skin, model, skin_nodes, act, n_frames, muscle_radius_m, vertex_colors)
+    if markers:
+        _write_markers(stage, f"{root}/Markers", model, markers, marker_names, marker_radius_m)
+    _write_bones(stage, root, model.bone_meshes if bone_meshes is None else bone_meshes, affines, jaw_frame)
+    if act is not None:
+        _write_muscles(stage, f"{root}/Muscles", model.muscle_names, act)
+    if basis is not None:
+        _write_blendshapes(stage, f"{root}/Basis", basis, bw, counts, indices)
+    stage.GetRootLayer().Save()
+    return path
+
+
+def _checked_positions(model, node_positions_m) -> np.ndarray:
+    """The (F, n, 3) node positions as float64, checked."""
     x = np.asarray(node_positions_m, dtype=np.float64)
     if x.ndim != 3 or x.shape[1:] != (model.n_nodes, 3) or x.shape[0] == 0:
         raise UsdWriteError(
             f"node_positions_m must have shape (frames, {model.n_nodes}, 3) for this model; got {x.shape}"
         )
     _check_finite("node_positions_m", x)
-    n_frames = x.shape[0]
+    return x
+
+
+def _skin_polygons(model):
+    """(skin node ids, face vertex counts, face vertex indices) of the skin renumbered compactly."""
     if model.skin_triangles.size == 0:
         raise UsdWriteError("model has no skin_triangles to write")
     skin_nodes = np.unique(model.skin_triangles)
@@ -154,8 +189,11 @@ def write_take(
     remap[skin_nodes] = np.arange(skin_nodes.size)
     tri = remap[model.skin_triangles]
     counts, indices = as_polygons(None, tri, skin_nodes.size)
+    return skin_nodes, counts, indices
 
-    act = None if activations is None else _check_frames("activations", activations, n_frames, (model.n_muscles,))
+
+def _checked_markers(captured_markers_m, simulated_markers_m, n_frames: int) -> dict[str, np.ndarray]:
+    """{"Captured": (F, k, 3), "Simulated": (F, k, 3)} of the markers given, checked."""
     markers = {}
     for label, arr, nan_ok in (("Captured", captured_markers_m, True), ("Simulated", simulated_markers_m, False)):
         if arr is not None:
@@ -164,10 +202,20 @@ def write_take(
     ks = {a.shape[1] for a in markers.values()}
     if len(ks) > 1:
         raise UsdWriteError(f"captured and simulated markers differ in count: {sorted(ks)}")
+    return markers
+
+
+def _checked_affines(cranium_affines, jaw_affines, n_frames: int) -> dict[str, np.ndarray]:
+    """{"Cranium": (F, 3, 4), "Jaw": (F, 3, 4)} of the affines given, checked."""
     affines = {}
     for label, arr in (("Cranium", cranium_affines), ("Jaw", jaw_affines)):
         if arr is not None:
             affines[label] = _check_frames(f"{label.lower()}_affines", arr, n_frames, (3, 4))
+    return affines
+
+
+def _checked_basis(basis, basis_weights, model, skin_nodes: np.ndarray, n_frames: int):
+    """(the basis as a ``BlendShapeBasis`` on the skin vertices, its (F, B) weights), or (None, None)."""
     if basis is not None:
         basis = BlendShapeBasis.coerce(basis)
         if basis_weights is None:
@@ -181,20 +229,16 @@ def write_take(
                 f"basis has {nb} vertices; expected the model's {model.n_nodes} nodes "
                 f"or its {skin_nodes.size} skin vertices"
             )
+        return basis, bw
     elif basis_weights is not None:
         raise UsdWriteError("basis_weights given without a basis")
-    if jaw_frame not in ("cranium", "world"):
-        raise UsdWriteError(f"jaw_frame must be 'cranium' or 'world', got {jaw_frame!r}")
-    if not (np.isfinite(marker_radius_m) and marker_radius_m > 0):
-        raise UsdWriteError(f"marker_radius_m must be positive, got {marker_radius_m}")
+    return None, None
 
-    stage = _new_stage(path, fps=fps, n_frames=n_frames, up_axis=up_axis, root=name)
-    root = f"/{name}"
-    info = {"kind": "take", "frames": int(n_frames), "nodes": int(model.n_nodes), "muscles": int(model.n_muscles)}
-    info.update({str(k): _json_safe(v) for k, v in (metadata or {}).items()})
-    stage.GetRootLayer().customLayerData = {"wface": info}
 
-    skin = _write_mesh(stage, f"{root}/Skin", x[:, skin_nodes], counts, indices)
+def _write_skin_primvars(skin, model, skin_nodes, act, n_frames: int, muscle_radius_m, vertex_colors: bool) -> None:
+    """The skin Mesh's node ids, activation primvar and colours."""
+    from pxr import Sdf, UsdGeom
+
     node_id = UsdGeom.PrimvarsAPI(skin.GetPrim()).CreatePrimvar(
         "wface:nodeId", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex
     )
@@ -210,21 +254,30 @@ def write_take(
     else:
         _set_display_color(skin, SKIN_RGB, n_points=skin_nodes.size, n_frames=n_frames)
 
-    if markers:
-        UsdGeom.Scope.Define(stage, f"{root}/Markers")
-        k = next(iter(markers.values())).shape[1]
-        if marker_names is None:
-            marker_names = list(model.marker_names) if len(model.marker_names) == k else [f"m{i}" for i in range(k)]
-        if len(marker_names) != k:
-            raise UsdWriteError(f"{len(marker_names)} marker names for {k} markers")
-        colours = {"Captured": (0.9, 0.05, 0.05), "Simulated": (0.05, 0.8, 0.1)}
-        for label, arr in markers.items():
-            _write_points(
-                stage, f"{root}/Markers/{label}", arr, radius_m=marker_radius_m, rgb=colours[label], names=marker_names
-            )
+
+def _write_markers(stage, prim_path: str, model, markers: dict, marker_names, marker_radius_m: float) -> None:
+    """A Scope with one Points prim per marker set (captured red, simulated green)."""
+    from pxr import UsdGeom
+
+    UsdGeom.Scope.Define(stage, prim_path)
+    k = next(iter(markers.values())).shape[1]
+    if marker_names is None:
+        marker_names = list(model.marker_names) if len(model.marker_names) == k else [f"m{i}" for i in range(k)]
+    if len(marker_names) != k:
+        raise UsdWriteError(f"{len(marker_names)} marker names for {k} markers")
+    colours = {"Captured": (0.9, 0.05, 0.05), "Simulated": (0.05, 0.8, 0.1)}
+    for label, arr in markers.items():
+        _write_points(
+            stage, f"{prim_path}/{label}", arr, radius_m=marker_radius_m, rgb=colours[label], names=marker_names
+        )
+
+
+def _write_bones(stage, root: str, bone_meshes: dict, affines: dict, jaw_frame: str) -> None:
+    """``Bones/Cranium`` and the jaw Xform (under the cranium or beside it), animated by ``affines``."""
+    from pxr import UsdGeom
 
     bone_groups: dict[str, list[tuple[str, object]]] = {"Cranium": [], "Jaw": []}
-    for mesh_name, mesh in (model.bone_meshes if bone_meshes is None else bone_meshes).items():
+    for mesh_name, mesh in bone_meshes.items():
         bone_groups["Jaw" if mesh.bone == "jaw" else "Cranium"].append((mesh_name, mesh))
     has_jaw = bool(bone_groups["Jaw"]) or "Jaw" in affines
     has_cranium = bool(bone_groups["Cranium"]) or "Cranium" in affines or (has_jaw and jaw_frame == "cranium")
@@ -250,26 +303,23 @@ def write_take(
             c, i = as_polygons(None, np.asarray(mesh.triangles).reshape(-1, 3), v.shape[0])
             _write_mesh(stage, f"{bone_paths[label]}/{ident}", v, c, i, colors=bone_rgb)
 
-    if act is not None:
-        muscles = UsdGeom.Scope.Define(stage, f"{root}/Muscles").GetPrim()
-        muscles.CreateAttribute(
-            "wface:muscleNames", Sdf.ValueTypeNames.StringArray, custom=True, variability=Sdf.VariabilityUniform
-        ).Set(Vt.StringArray(list(model.muscle_names)))
-        all_attr = muscles.CreateAttribute("wface:activations", Sdf.ValueTypeNames.FloatArray, custom=True)
-        taken = set()
-        per_muscle = []
-        for m_name in model.muscle_names:
-            ident = _identifier(m_name, taken)
-            per_muscle.append(
-                muscles.CreateAttribute(f"wface:activation:{ident}", Sdf.ValueTypeNames.Float, custom=True)
-            )
-        for f, a in enumerate(act):
-            t = float(f)
-            all_attr.Set(_vt_float(a), t)
-            for attr, value in zip(per_muscle, a, strict=True):
-                attr.Set(float(value), t)
 
-    if basis is not None:
-        _write_blendshapes(stage, f"{root}/Basis", basis, bw, counts, indices)
-    stage.GetRootLayer().Save()
-    return path
+def _write_muscles(stage, prim_path: str, muscle_names, act: np.ndarray) -> None:
+    """A Scope with the muscle names and the (F, M) activations, all together and one attribute each."""
+    from pxr import Sdf, UsdGeom, Vt
+
+    muscles = UsdGeom.Scope.Define(stage, prim_path).GetPrim()
+    muscles.CreateAttribute(
+        "wface:muscleNames", Sdf.ValueTypeNames.StringArray, custom=True, variability=Sdf.VariabilityUniform
+    ).Set(Vt.StringArray(list(muscle_names)))
+    all_attr = muscles.CreateAttribute("wface:activations", Sdf.ValueTypeNames.FloatArray, custom=True)
+    taken = set()
+    per_muscle = []
+    for m_name in muscle_names:
+        ident = _identifier(m_name, taken)
+        per_muscle.append(muscles.CreateAttribute(f"wface:activation:{ident}", Sdf.ValueTypeNames.Float, custom=True))
+    for f, a in enumerate(act):
+        t = float(f)
+        all_attr.Set(_vt_float(a), t)
+        for attr, value in zip(per_muscle, a, strict=True):
+            attr.Set(float(value), t)
