@@ -268,8 +268,8 @@ def main(argv=None) -> int:
     from wface.faces.builtin import build_face
     from wface.io.usd import assert_stage_valid
     from wface.takes import write_edit
-    from wface.takes.dynamic import deviation_mm, write_resim_npz
-    from wface.takes.store import take_from_records
+    from wface.takes.dynamic import deviation_mm
+    from wface.takes.store import take_from_records, write_resim_npz
     from wface.takes.usd import skin_mesh, write_take_usd
 
     args = _parse(argv)

@@ -229,8 +229,8 @@ def test_undamped_midpoint_resimulation_shows_inertia(jaw_box):
 
 
 def test_load_take_from_a_tracking_directory_and_write_usd(jaw_box, tmp_path):
-    from wface.takes.dynamic import resimulate, write_resim_npz
-    from wface.takes.store import FrameRecord, load_take, write_frame
+    from wface.takes.dynamic import resimulate
+    from wface.takes.store import FrameRecord, load_take, write_frame, write_resim_npz
     from wface.takes.usd import write_take_usd
 
     model = jaw_box

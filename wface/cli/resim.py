@@ -12,8 +12,8 @@ from wface.cli.simulate import parse_activations
 from wface.faces.builtin import build_face
 from wface.model import load_model
 from wface.physics import Damping, Simulator
-from wface.takes.dynamic import compare_with_quasistatic, quasistatic_reference, resimulate, write_resim_npz
-from wface.takes.store import USD, load_take, write_report
+from wface.takes.dynamic import compare_with_quasistatic, quasistatic_reference, resimulate
+from wface.takes.store import USD, load_take, write_report, write_resim_npz
 from wface.takes.synthetic import step_take
 from wface.takes.usd import skin_mesh, write_take_usd
 from wface.warp_runtime import quiet_warp

@@ -2,7 +2,8 @@
 
 ``builtin`` (the procedural face at any resolution: ``build_face``), ``artisynth`` (the ArtiSynth
 "Badin" FEM face: hexes split into tets, slivers removed, muscles from fibre points), ``ansys``
-(the ANSYS mesh and element files ArtiSynth reads), ``fibres`` (muscle fibre fields from polylines),
+(the ANSYS mesh and element files ArtiSynth reads), ``artisynth_markers`` (the AnimFace-named
+markers placed on the Badin skin), ``fibres`` (muscle fibre fields from polylines),
 ``summary`` (a model in numbers).
 """
 

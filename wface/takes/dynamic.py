@@ -16,15 +16,14 @@ affine times jaw affine), so head accelerations shake the flesh; "cranium" simul
 cranium's frame as the tracker does (no inertia from head motion; positions are mapped to the
 world afterwards with the cranium affine).
 
-Writing: ``write_resim_npz`` here; the USD stage through ``wface.takes.usd.write_take_usd``.
+Writing: ``resim.npz`` through ``wface.takes.store.write_resim_npz``; the USD stage through
+``wface.takes.usd.write_take_usd``.
 """
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -47,7 +46,6 @@ __all__ = [
     "resimulate",
     "step_overshoot_mm",
     "take_attached_positions",
-    "write_resim_npz",
 ]
 
 FRAMES = ("world", "cranium")
@@ -146,27 +144,6 @@ def cranium_to_world(take: Take, positions: np.ndarray) -> np.ndarray:
         cranium, _ = bone_affines(b)
         out[k] = positions[k] @ cranium[:, :3].T + cranium[:, 3]
     return out
-
-
-def write_resim_npz(path: str | Path, result: ResimResult, *, reference_positions_m: np.ndarray | None = None) -> Path:
-    """positions_m (T, n, 3), fps, scheme, the per-frame stats (and the quasistatic reference)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    arrays = {
-        "positions_m": result.positions_m,
-        "fps": np.float64(result.fps),
-        "kinetic_energy_j": result.kinetic_energy_j,
-        "newton_iterations": result.newton_iterations,
-        "residual_rel": result.residual_rel,
-        "inverted_elements": result.inverted_elements,
-        "summary_json": np.frombuffer(
-            json.dumps({k: v for k, v in result.summary().items() if not isinstance(v, list)}).encode(), dtype=np.uint8
-        ),
-    }
-    if reference_positions_m is not None:
-        arrays["reference_positions_m"] = reference_positions_m
-    np.savez(path, **arrays)
-    return path
 
 
 def resimulate(

@@ -11,6 +11,7 @@ A take directory (what ``wface track``, ``wface demo``, ``wface edit`` and ``wfa
     controls.csv              the same per frame, for spreadsheets and DCC scripts
     report.json               what made the take and how well (``write_report`` / ``read_report``)
     animation.usdc            the take as USD (``wface.takes.usd.write_take_usd``)
+    resim.npz                 a dynamic replay's positions and per-frame stats (``write_resim_npz``)
 
 ``load_take`` reads a directory back into a ``wface.takes.take.Take``: from controls.npz, or from
 the frame files of an interrupted run; the tracked world positions of the frame files become the
@@ -30,6 +31,7 @@ import numpy as np
 
 from wface.controls import IDENTITY_BONES, jaw_to_intuitive
 from wface.model import FaceModel
+from wface.takes.dynamic import ResimResult
 from wface.takes.pose import bone_projection_error_m
 from wface.takes.take import Take
 
@@ -51,6 +53,7 @@ __all__ = [
     "write_controls",
     "write_frame",
     "write_report",
+    "write_resim_npz",
 ]
 
 FRAMES_DIR = "frames"
@@ -333,3 +336,25 @@ def load_take(
         err = max(err, bone_projection_error_m(model, np.concatenate([a, b]), pose))
     take.info.update({"frames": take.frames.tolist(), "bone_projection_error_mm": err * 1e3})
     return take
+
+
+def write_resim_npz(path: str | Path, result: ResimResult, *, reference_positions_m: np.ndarray | None = None) -> Path:
+    """resim.npz of a dynamic replay (``wface.takes.dynamic.ResimResult``): positions_m (T, n, 3), fps,
+    scheme, the per-frame stats (and the quasistatic reference)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {
+        "positions_m": result.positions_m,
+        "fps": np.float64(result.fps),
+        "kinetic_energy_j": result.kinetic_energy_j,
+        "newton_iterations": result.newton_iterations,
+        "residual_rel": result.residual_rel,
+        "inverted_elements": result.inverted_elements,
+        "summary_json": np.frombuffer(
+            json.dumps({k: v for k, v in result.summary().items() if not isinstance(v, list)}).encode(), dtype=np.uint8
+        ),
+    }
+    if reference_positions_m is not None:
+        arrays["reference_positions_m"] = reference_positions_m
+    np.savez(path, **arrays)
+    return path
