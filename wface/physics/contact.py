@@ -78,6 +78,14 @@ from wface.physics.obstacles import (
     bone_affines_from_attached,
     parse_obstacle,
 )
+from wface.physics.penalty import (
+    DEFAULT_STIFFNESS_FACTOR,
+    contact_points,
+    default_contact_stiffness,
+    median_edge_length,
+    penalty_profile,
+)
+from wface.physics.smooth_contact import CombinedPairs, SmoothSelfContact
 
 __all__ = [
     "DEFAULT_STIFFNESS_FACTOR",
@@ -95,62 +103,10 @@ __all__ = [
     "penalty_profile",
 ]
 
-DEFAULT_STIFFNESS_FACTOR = 100.0
 REGIONS = ("lips", "teeth", "bones")
 _ROUND_OFF_M = 1e-12  # penetrations below this are round-off (lips coincide at rest), not contact
 # Surface groups holding the upper / lower lip contact surfaces, first match wins.
 LIP_GROUPS = (("upper_lip", "lower_lip"), ("upper_lip_contact", "lower_lip_contact"))
-
-
-def median_edge_length(model: FaceModel) -> float:
-    """Median rest tet edge length h in metres."""
-    x, t = model.rest_positions_m, model.tets
-    edges = np.concatenate([x[t[:, a]] - x[t[:, b]] for a, b in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))])
-    return float(np.median(np.linalg.norm(edges, axis=1)))
-
-
-def default_contact_stiffness(model: FaceModel, factor: float = DEFAULT_STIFFNESS_FACTOR) -> float:
-    """k = factor * 6 (mu10 + mu01) * h in N/m, h = median rest tet edge length (module docstring)."""
-    h = median_edge_length(model)
-    return float(factor * 6.0 * (model.material.mu10_pa + model.material.mu01_pa) * h)
-
-
-def _contact_points(tri_a: np.ndarray, tri_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Contact points of surface a against surface b: its nodes and the midpoints of its edges, as
-    (S, 2) node ids and (S, 2) weights. Points on a node shared with b (where the two surfaces are
-    joined, e.g. the mouth corners) are left out: they never separate."""
-    tri_a = np.asarray(tri_a, dtype=np.int64).reshape(-1, 3)
-    shared = np.zeros(int(max(tri_a.max(initial=0), np.max(tri_b, initial=0))) + 1, dtype=bool)
-    shared[np.asarray(tri_b).ravel()] = True
-    nodes = np.unique(tri_a)
-    nodes = nodes[~shared[nodes]]
-    edges = np.unique(np.sort(np.concatenate([tri_a[:, [0, 1]], tri_a[:, [1, 2]], tri_a[:, [2, 0]]]), axis=1), axis=0)
-    edges = edges[~shared[edges].any(axis=1)]
-    pn = np.concatenate([np.repeat(nodes[:, None], 2, axis=1), edges])
-    pw = np.concatenate([np.tile([1.0, 0.0], (len(nodes), 1)), np.full((len(edges), 2), 0.5)])
-    return pn, pw
-
-
-def penalty_profile(g: np.ndarray, k: float, smoothing_m: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Penalty energy per pair E(g), its slope E'(g) (the normal force, N) and curvature E''(g) (N/m)
-    for penetrations g (m).
-
-    smoothing_m = 0: E = k/2 max(0, g)^2 (C1; E'' jumps from 0 to k at contact).
-    smoothing_m = d > 0: the C2 penalty E = k g^3 / (6 d) for 0 < g < d (the stiffness rises linearly
-    from 0 at contact to k at g = d), E = k/2 (g - d/2)^2 + k d^2/24 beyond (force k (g - d/2)): no
-    force before contact (surfaces that touch at rest stay at rest), about d/2 more penetration.
-    """
-    g = np.asarray(g, dtype=np.float64)
-    if smoothing_m <= 0.0:
-        gp = np.maximum(g, 0.0)
-        return 0.5 * k * gp**2, k * gp, np.where(g >= 0.0, k, 0.0)
-    d = float(smoothing_m)
-    s = np.maximum(g, 0.0)
-    ramp = s < d
-    e = np.where(ramp, k * s**3 / (6.0 * d), 0.5 * k * (s - 0.5 * d) ** 2 + k * d * d / 24.0)
-    fn = np.where(ramp, 0.5 * k * s**2 / d, k * (s - 0.5 * d))
-    kn = np.where(ramp, k * s / d, k)
-    return e, fn, kn
 
 
 # ---------------------------------------------------------------------- active pairs
@@ -243,8 +199,9 @@ class ContactPairs:
         coef = np.concatenate([self.point_weights, -self.weights], axis=1)  # C = [v_1 I, v_2 I, -w_1 I, ...]
         return nodes, coef
 
-    def matvec(self, v: np.ndarray) -> np.ndarray:
-        """H v with H = k J^T J (Gauss-Newton), v and the result (n, 3)."""
+    def matvec(self, v: np.ndarray, *, exact: bool = False) -> np.ndarray:
+        """H v with H = k J^T J (Gauss-Newton), v and the result (n, 3); ``exact`` is accepted for the
+        interface of ``wface.physics.smooth_contact.CombinedPairs`` (this Hessian has one form)."""
         v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
         out = np.zeros_like(v)
         if not len(self.node):
@@ -256,7 +213,7 @@ class ContactPairs:
             np.add.at(out, nodes[:, a], coef[:, a, None] * qu)
         return out
 
-    def diagonal(self) -> np.ndarray:
+    def diagonal(self, *, exact: bool = False) -> np.ndarray:
         """diag(H) as (n, 3)."""
         out = np.zeros((self.n_nodes, 3))
         nodes, coef = self._coefficients()
@@ -265,7 +222,7 @@ class ContactPairs:
             np.add.at(out, nodes[:, a], coef[:, a, None] ** 2 * q)
         return out
 
-    def assemble(self, pattern) -> sp.csr_matrix:
+    def assemble(self, pattern, *, exact: bool = False) -> sp.csr_matrix:
         """H restricted to the unknowns of a ``BlockPattern``, CSR (3k, 3k)."""
         nodes, coef = self._coefficients()
         dof = pattern.node_to_dof[nodes]  # (P, 5), -1 for Dirichlet nodes
@@ -305,27 +262,29 @@ class ContactPairs:
 
 
 class ContactTangent:
-    """Elastic tangent + contact Gauss-Newton Hessian, with the ``Tangent`` interface used by the
-    Newton solver (``matvec``, ``diagonal``, ``assemble``)."""
+    """Elastic tangent + contact Hessian, with the ``Tangent`` interface used by the Newton solver
+    (``matvec``, ``diagonal``, ``assemble``): the Gauss-Newton contact Hessian, or for smooth lip
+    surfaces with the exact (unprojected) elastic tangent, their exact Hessian too."""
 
     def __init__(self, tangent, pairs: ContactPairs):
         self.elastic = tangent
         self.contact = pairs
         self._sim = tangent._sim
         self.projected = tangent.projected
+        self._exact = not tangent.projected
 
     def matvec(self, v: np.ndarray) -> np.ndarray:
-        return self.elastic.matvec(v) + self.contact.matvec(v)
+        return self.elastic.matvec(v) + self.contact.matvec(v, exact=self._exact)
 
     def diagonal(self) -> np.ndarray:
-        return self.elastic.diagonal() + self.contact.diagonal()
+        return self.elastic.diagonal() + self.contact.diagonal(exact=self._exact)
 
     def assemble(self, pattern=None) -> sp.csr_matrix:
         pattern = pattern or self._sim.pattern(None)
         K = self.elastic.assemble(pattern)
         if not len(self.contact.node):
             return K
-        K = (K + self.contact.assemble(pattern)).tocsr()
+        K = (K + self.contact.assemble(pattern, exact=self._exact)).tocsr()
         K.sort_indices()
         return K
 
@@ -362,6 +321,11 @@ class Contact:
             (ArtiSynth uses the teeth for display; its lip-skull contact is against the jaw and
             maxilla): those nodes are not in contact in the rest state, which must stay an
             equilibrium. ``ignored_at_rest`` counts them per mesh. User obstacles are never filtered.
+        surface: self-contact against the "faceted" surfaces (default) or "smooth" ones
+            (``wface.physics.smooth_contact``: C2 in the positions, exact Hessian, quadratic Newton;
+            not combined with ``freeze_below``).
+        smooth_levels, smooth_radius_factor: the smooth surfaces' Loop levels and support radii
+            (``wface.mesh.smooth_distance.SmoothSurface``).
     """
 
     def __init__(
@@ -380,6 +344,9 @@ class Contact:
         bone_affines: dict | None = None,
         nodes: np.ndarray | None = None,
         ignore_inside_at_rest: bool = True,
+        surface: str = "faceted",
+        smooth_levels: int = 2,
+        smooth_radius_factor: float = 1.5,
     ):
         if isinstance(regions, str):
             regions = [r for r in (s.strip() for s in regions.split(",")) if r]
@@ -466,11 +433,21 @@ class Contact:
                     raise ValueError(f"unknown surface group {g!r}; the model has {list(model.surface_groups)}")
             ta, tb = model.surface_groups[a], model.surface_groups[b]
             # point-to-triangle both ways
-            self.self_contact.append((f"{a}/{b}", *_contact_points(ta, tb), tb))
-            self.self_contact.append((f"{b}/{a}", *_contact_points(tb, ta), ta))
+            self.self_contact.append((f"{a}/{b}", *contact_points(ta, tb), tb))
+            self.self_contact.append((f"{b}/{a}", *contact_points(tb, ta), ta))
         self.names = [n for n, _ in self.rigid] + [n for n, *_ in self.self_contact]
         if not self.names:
             raise ValueError("contact has nothing to do: give regions and/or obstacles")
+        if surface not in ("faceted", "smooth"):
+            raise ValueError(f"surface must be 'faceted' or 'smooth', got {surface!r}")
+        if surface == "smooth" and self.freeze_below is not None:
+            raise ValueError("freeze_below freezes faceted features; smooth lip surfaces need no freezing")
+        self.surface = surface
+        self.smooth = None
+        if surface == "smooth" and self.self_contact:
+            self.smooth = SmoothSelfContact(
+                model, self.self_contact, levels=smooth_levels, radius_factor=smooth_radius_factor
+            )
 
     @classmethod
     def from_spec(cls, model: FaceModel, regions: str = "", obstacles=(), **kwargs) -> Contact:
@@ -520,7 +497,7 @@ class Contact:
                 )
             )
         for s, (_, pn, pw, tri) in enumerate(self.self_contact, start=len(self.rigid)):
-            if not len(pn) or not self_contact:
+            if not len(pn) or not self_contact or self.smooth is not None:
                 continue
             surf = SignedSurface(x, tri, orient=False)
             q = np.einsum("pk,pkd->pd", pw, x[pn])
@@ -547,7 +524,7 @@ class Contact:
                 )
             )
         cat = lambda i, shape: np.concatenate([q[i] for q in parts]) if parts else np.zeros(shape)  # noqa: E731
-        return ContactPairs(
+        pairs = ContactPairs(
             node=cat(0, (0,)).astype(np.int64),
             others=cat(1, (0, 3)).astype(np.int64).reshape(-1, 3),
             weights=cat(2, (0, 3)).reshape(-1, 3),
@@ -564,6 +541,9 @@ class Contact:
             stiffness_n_per_m=self.stiffness_n_per_m,
             n_nodes=self.model.n_nodes,
         )
+        if self.smooth is None or not self_contact:
+            return pairs
+        return CombinedPairs(pairs, self.smooth.evaluate(self, x, len(self.rigid)))
 
     def self_distance_m(self, x: np.ndarray) -> float:
         """Smallest signed distance (m) between the self-contact surfaces at ``x``: the gap between the

@@ -37,6 +37,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from wface.physics.contact import Contact, ContactPairs
+from wface.physics.smooth_contact import CombinedPairs
 
 __all__ = ["FrozenContact", "concat_pairs", "exact_self_hessian"]
 
@@ -215,6 +216,9 @@ def exact_self_hessian(contact, pairs: ContactPairs, x: np.ndarray, pattern, *, 
 
     d2g comes from central second differences of the pair distance with step ``_HESS_STEP_M``.
     """
+    if isinstance(pairs, CombinedPairs):  # smooth lip surfaces: their own exact Hessian
+        rigid = exact_self_hessian(contact, pairs.rigid, x, pattern, project=project)
+        return (rigid + pairs.smooth.assemble(pattern, exact=not project)).tocsr()
     selfp = pairs.source >= len(contact.rigid)
     rigid_part = _subset(pairs, ~selfp).assemble(pattern)
     if not selfp.any():

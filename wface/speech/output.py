@@ -7,12 +7,13 @@ from pathlib import Path
 import numpy as np
 
 from wface.model import FaceModel
+from wface.speech.aperture import ApertureResult, ApertureView, aperture_area
 from wface.speech.playback import GestureResult
 from wface.takes.take import Take
 from wface.takes.usd import write_take_usd
 from wface.viz.plots import _plt
 
-__all__ = ["write_gesture_usd", "write_lip_opening"]
+__all__ = ["write_aperture_picture", "write_gesture_usd", "write_lip_opening"]
 
 
 def write_lip_opening(out: Path, result: GestureResult, model: FaceModel) -> tuple[Path, Path]:
@@ -68,3 +69,61 @@ def write_gesture_usd(path: Path, result: GestureResult, model: FaceModel, *, fp
         marker_names=result.marker_names,
         metadata={"gesture": result.gesture},
     )
+
+
+def write_aperture_picture(
+    path: Path,
+    x_m: np.ndarray,
+    occluders: np.ndarray,
+    view: ApertureView,
+    *,
+    resolution_m: float = 5e-5,
+    near_points_m: np.ndarray | None = None,
+    title: str = "",
+    margin_mm: float = 6.0,
+) -> ApertureResult:
+    """A picture of the aperture measure (``wface.speech.aperture``): the occluders projected in the
+    camera's image plane (red), the seen window enclosed by them near ``near_points_m`` (green: the
+    lip opening), enclosed elsewhere (blue, e.g. open nostrils) and seen past their outline (yellow).
+    Returns the measure."""
+    from matplotlib.collections import PolyCollection
+
+    res = aperture_area(
+        x_m, occluders, view, resolution_m=resolution_m, near_points_m=near_points_m, keep_intervals=True
+    )
+    e1, e2 = view.image_axes
+    uv = np.stack([x_m @ e1, x_m @ e2], axis=1) * 1e3
+    iv = res.intervals
+    h = resolution_m * 1e3
+    enclosed = iv["enclosed"]
+    if enclosed.any():
+        u0, u1 = iv["u_lo_m"][enclosed].min() * 1e3, iv["u_hi_m"][enclosed].max() * 1e3
+        v0, v1 = iv["v_m"][enclosed].min() * 1e3, iv["v_m"][enclosed].max() * 1e3
+    else:  # closed: frame the occluders in front of the window centre
+        c = np.asarray(view.window_center_m)
+        u0 = u1 = float(c @ e1) * 1e3
+        v0 = v1 = float(c @ e2) * 1e3
+    half = max(u1 - u0, v1 - v0) / 2 + margin_mm
+    cu, cv = (u0 + u1) / 2, (v0 + v1) / 2
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.5, 6.5))
+    ax.add_collection(PolyCollection(uv[occluders], facecolors="#c0392b", edgecolors="#7b241c", linewidths=0.2))
+    other = iv["elsewhere"]
+    for sel, colour in ((enclosed, "#2ecc40"), (other, "#3498db"), (~enclosed & ~other, "#f1c40f")):
+        v, lo, hi = iv["v_m"][sel] * 1e3, iv["u_lo_m"][sel] * 1e3, iv["u_hi_m"][sel] * 1e3
+        rects = np.stack([np.stack([lo, v - h / 2], 1), np.stack([hi, v - h / 2], 1), np.stack([hi, v + h / 2], 1)], 1)
+        rects = np.concatenate([rects, np.stack([lo, v + h / 2], 1)[:, None]], axis=1)
+        ax.add_collection(PolyCollection(rects, facecolors=colour, edgecolors="none"))
+    ax.set_xlim(cu - half, cu + half)
+    ax.set_ylim(cv - half, cv + half)
+    ax.set_aspect("equal")
+    ax.set_xlabel("image right (mm)")
+    ax.set_ylabel("image up (mm)")
+    ax.set_title(
+        (title + "\n" if title else "")
+        + f"lip opening {res.area_mm2:.2f} mm$^2$ (+-{res.error_mm2:.2g}), {res.regions} region(s); view {view.name}",
+        fontsize=9,
+    )
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return res

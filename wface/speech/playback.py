@@ -8,8 +8,16 @@ closed), warm-started from the previous frame's equilibrium: successive frames d
 activation step, so Newton converges in a few iterations where a cold start from rest needs many
 (measured on the Badin face at a = 0.3: 26 iterations cold, 2 warm).
 
-This is a sequence of quasistatic states, not the original's dynamic (inertial) simulation, so
-the curves' timing only sets which activation each frame sees.
+This quasistatic playback is the default: a sequence of equilibria, in which the curves' timing
+only sets which activation each frame sees. ``dynamics=GestureDynamics()`` (``wface speech
+--dynamic``) plays the curves through the implicit dynamic FEM instead (``wface.speech.dynamic``:
+inertia, ArtiSynth's damping and gravity, the curves sampled at every time step).
+
+Lip opening area (``lip_opening_area_mm2``): the mouth aperture seen in an orthographic view, in
+mm^2, measured as speech scientists and ArtiSynth's ``BadinFaceDemoLipOpening`` measure it
+(``wface.speech.aperture``; the occluders are the face's boundary triangles, bones and teeth are not,
+and only apertures near the lip surfaces count). The view is ``ApertureView.for_model``: ArtiSynth's
+camera and green plane for the Badin face.
 
 Lip opening: the distance between the upper- and lower-lip midline skin markers (``Mouth_Up``,
 ``Mouth_Down``), in millimetres. It is the marker-to-marker distance across both lips' vermilion,
@@ -34,14 +42,18 @@ from scipy.spatial import cKDTree
 from wface.controls import IDENTITY_BONES, jaw_from_intuitive
 from wface.mesh.align import align_to_surface
 from wface.mesh.closest import SurfaceQuery
+from wface.mesh.surface import boundary_faces
 from wface.physics.contact import Contact
 from wface.physics.simulator import Simulator
+from wface.speech.aperture import ApertureView, aperture_area
+from wface.speech.dynamic import GestureDynamics, play_dynamic
 from wface.speech.gestures import map_gesture_to_model
 from wface.tracking.sequence import embed_model_markers
 
 __all__ = [
     "GestureResult",
     "gesture_times",
+    "lip_area_points",
     "lip_opening_mm",
     "performance_controls",
     "select_capture_markers",
@@ -74,6 +86,15 @@ class GestureResult:
     max_penetration_mm: np.ndarray | None = None  # (F,) deepest lip-lip penetration
     contact: str | None = None  # the contact regions used, or None
     notes: list[str] = field(default_factory=list)
+    lip_opening_area_mm2: np.ndarray | None = None  # (F,) mouth aperture, wface.speech.aperture
+    lip_opening_area_error_mm2: np.ndarray | None = None  # (F,) its discretisation error estimate
+    lip_opening_width_mm: np.ndarray | None = None  # (F,) its extent across the image
+    lip_opening_height_mm: np.ndarray | None = None  # (F,) and up the image
+    area_view: dict | None = None  # the ApertureView, as a dict
+    area_resolution_m: float | None = None
+    mode: str = "quasistatic"  # or "dynamic"
+    dynamics: dict | None = None  # the GestureDynamics (and density) of a dynamic playback
+    kinetic_energy_j: np.ndarray | None = None  # (F,) dynamic playback only
 
 
 def gesture_times(t_start: float, t_end: float, fps: float, *, max_frames: int | None = None) -> np.ndarray:
@@ -107,6 +128,13 @@ def lip_opening_mm(
     return 1e3 * np.linalg.norm(m[..., names.index(upper), :] - m[..., names.index(lower), :], axis=-1)
 
 
+def lip_area_points(model) -> np.ndarray | None:
+    """Node ids of the lip surfaces (``upper_lip`` / ``lower_lip``), near which apertures count as
+    the mouth's (``aperture_area(near_points_m=...)``), or None for a model without them."""
+    groups = [g for g in ("upper_lip", "lower_lip") if g in model.surface_groups]
+    return np.unique(np.concatenate([model.surface_groups[g] for g in groups])) if groups else None
+
+
 def simulate_gesture(
     model,
     gesture,
@@ -119,8 +147,12 @@ def simulate_gesture(
     progress: bool = False,
     contact=None,
     max_iterations: int = 40,
+    dynamics: GestureDynamics | None = None,
+    view: ApertureView | None = None,
+    area_resolution_m: float = 5e-5,
 ) -> GestureResult:
-    """Drive ``model`` through ``gesture`` (a ``SpeechGesture``) at ``fps`` with warm-started equilibria.
+    """Drive ``model`` through ``gesture`` (a ``SpeechGesture``) at ``fps``: warm-started equilibria,
+    or the dynamic FEM with ``dynamics``.
 
     Args:
         model: a ``FaceModel`` with the gesture's muscles (the imported Badin face).
@@ -128,78 +160,105 @@ def simulate_gesture(
         fps: frame rate (ArtiSynth records this gesture's output every 0.01 s, i.e. 100 fps).
         max_frames: subsample to at most this many frames (first and last kept).
         mapping: a ``GestureMapping`` (default ``map_gesture_to_model(gesture, model)``).
-        tol: relative force residual of each solve.
+        tol: relative force residual of each quasistatic solve.
         simulator: a ``wface.physics.simulator.Simulator`` to reuse.
         progress: print one line per frame.
-        contact: a ``wface.physics.contact.Contact`` used in every solve, or None.
-        max_iterations: Newton iteration cap per frame.
+        contact: a ``wface.physics.contact.Contact`` used in every solve (or step), or None.
+        max_iterations: Newton iteration cap per quasistatic frame.
+        dynamics: a ``wface.speech.dynamic.GestureDynamics`` to play the curves dynamically; None
+            (default): quasistatic.
+        view: the lip-opening-area camera and window (default ``ApertureView.for_model(model)``).
+        area_resolution_m: scanline spacing of the area measure (m).
     """
 
     mapping = mapping or map_gesture_to_model(gesture, model)
     t0, t1 = gesture.duration_s
     times = gesture_times(t0, t1, fps, max_frames=max_frames)
-    A = mapping.activations(gesture, model, times)
     sim = simulator or Simulator(model)
-    markers = embed_model_markers(model)
+    if dynamics is not None:
+        run = play_dynamic(sim, gesture, mapping, times, dynamics=dynamics, contact=contact, progress=progress)
+    else:
+        run = _play_quasistatic(sim, gesture, mapping, times, tol, max_iterations, contact, progress)
+    return _result(model, gesture, mapping, fps, times, run, contact, dynamics, view, area_resolution_m)
+
+
+def _play_quasistatic(sim, gesture, mapping, times, tol, max_iterations, contact, progress) -> dict:
+    """Warm-started equilibria at ``times`` (module docstring), as per-frame arrays."""
+    model = sim.model
+    A = mapping.activations(gesture, model, times)
     F = len(times)
-    X = np.empty((F, model.n_nodes, 3))
-    Mk = np.empty((F, len(model.marker_names), 3))
-    its, res, conv, inv, secs = (
-        np.zeros(F, dtype=int),
-        np.zeros(F),
-        np.zeros(F, dtype=bool),
-        np.zeros(F, dtype=int),
-        np.zeros(F),
-    )
-    lips = None
-    if "upper_lip" in model.surface_groups and "lower_lip" in model.surface_groups:
-        lips = contact if contact is not None and contact.self_contact else Contact(model, regions="lips")
-    gap, pen = np.full(F, np.nan), np.full(F, np.nan)
+    run = {
+        "x_m": np.empty((F, model.n_nodes, 3)),
+        "activations": A,
+        "newton_iterations": np.zeros(F, dtype=int),
+        "residual_rel": np.zeros(F),
+        "converged": np.zeros(F, dtype=bool),
+        "inverted_elements": np.zeros(F, dtype=int),
+        "seconds": np.zeros(F),
+    }
     x_prev = None
+    kwargs = {} if contact is None else {"contact": contact}
     for f in range(F):
-        kwargs = {} if contact is None else {"contact": contact}
         eq = sim.solve(activations=A[f], x0=x_prev, tol=tol, max_iterations=max_iterations, **kwargs)
-        if lips is not None:
-            gap[f] = lips.self_distance_m(eq.x) * 1e3
-            pen[f] = max(-gap[f], 0.0)
-        X[f] = eq.x
-        Mk[f] = markers.positions(eq.x)
-        its[f], res[f], conv[f], inv[f], secs[f] = (
-            eq.iterations,
-            eq.residual_rel,
-            eq.converged,
-            eq.inverted_elements,
-            eq.seconds,
-        )
-        x_prev = eq.x
+        run["x_m"][f] = x_prev = eq.x
+        for key in ("iterations", "residual_rel", "converged", "inverted_elements", "seconds"):
+            run["newton_iterations" if key == "iterations" else key][f] = getattr(eq, key)
         if progress:
             print(
                 f"{gesture.name} frame {f + 1}/{F} t={times[f]:.3f}s: {eq.iterations} Newton its, "
-                f"residual {eq.residual_rel:.1e}, {eq.seconds:.1f} s"
-                + ("" if lips is None else f", lip gap {gap[f]:+.3f} mm"),
+                f"residual {eq.residual_rel:.1e}, {eq.seconds:.1f} s",
                 flush=True,
             )
+    return run
+
+
+def _result(model, gesture, mapping, fps, times, run, contact, dynamics, view, resolution_m) -> GestureResult:
+    """The ``GestureResult`` of a playback: markers, lip opening and area, lip gap per frame."""
+    X = run["x_m"]
+    F = len(times)
+    markers = embed_model_markers(model)
+    Mk = np.stack([markers.positions(x) for x in X])
+    lips = None
+    if "upper_lip" in model.surface_groups and "lower_lip" in model.surface_groups:
+        lips = contact if contact is not None and contact.self_contact else Contact(model, regions="lips")
+    gap = np.array([lips.self_distance_m(x) * 1e3 for x in X]) if lips is not None else np.full(F, np.nan)
+    view = view or ApertureView.for_model(model)
+    occluders = boundary_faces(model.tets)
+    near = lip_area_points(model)
+    area = [
+        aperture_area(x, occluders, view, resolution_m=resolution_m, near_points_m=None if near is None else x[near])
+        for x in X
+    ]
+    up, down = model.marker_names.index("Mouth_Up"), model.marker_names.index("Mouth_Down")
     return GestureResult(
         gesture=gesture.name,
         fps=float(fps),
         times_s=times,
-        activations=A,
+        activations=run["activations"],
         node_positions_m=X,
         markers_m=Mk,
         marker_names=list(model.marker_names),
         lip_opening_mm=lip_opening_mm(Mk, model.marker_names),
-        lip_vertical_mm=1e3
-        * (Mk[:, model.marker_names.index("Mouth_Up"), 1] - Mk[:, model.marker_names.index("Mouth_Down"), 1]),
-        newton_iterations=its,
-        residual_rel=res,
-        converged=conv,
-        inverted_elements=inv,
-        seconds=secs,
+        lip_vertical_mm=1e3 * (Mk[:, up, 1] - Mk[:, down, 1]),
+        newton_iterations=run["newton_iterations"],
+        residual_rel=run["residual_rel"],
+        converged=run["converged"],
+        inverted_elements=run["inverted_elements"],
+        seconds=run["seconds"],
         mapping=dict(mapping.muscles),
         notes=list(mapping.notes),
         lip_gap_mm=gap,
-        max_penetration_mm=pen,
+        max_penetration_mm=np.maximum(-gap, 0.0),
         contact=None if contact is None else ",".join(contact.regions) or "obstacles",
+        lip_opening_area_mm2=np.array([a.area_mm2 for a in area]),
+        lip_opening_area_error_mm2=np.array([a.error_mm2 for a in area]),
+        lip_opening_width_mm=np.array([a.width_mm for a in area]),
+        lip_opening_height_mm=np.array([a.height_mm for a in area]),
+        area_view=view.to_dict(),
+        area_resolution_m=float(resolution_m),
+        mode="quasistatic" if dynamics is None else "dynamic",
+        dynamics=None if dynamics is None else dynamics.to_dict(model),
+        kinetic_energy_j=run.get("kinetic_energy_j"),
     )
 
 
@@ -223,6 +282,18 @@ def summarize(result: GestureResult) -> dict:
             "last": float(result.lip_vertical_mm[-1]),
             "min": float(result.lip_vertical_mm.min()),
         },
+        "mode": result.mode,
+        "dynamics": result.dynamics,
+        "lip_opening_area_mm2": _list(result.lip_opening_area_mm2),
+        "lip_opening_area_summary_mm2": _stats(result.lip_opening_area_mm2),
+        "lip_opening_area_error_mm2_max": _num(np.max(result.lip_opening_area_error_mm2))
+        if result.lip_opening_area_error_mm2 is not None
+        else None,
+        "lip_opening_width_mm": _list(result.lip_opening_width_mm),
+        "lip_opening_height_mm": _list(result.lip_opening_height_mm),
+        "lip_opening_area_view": result.area_view,
+        "lip_opening_area_resolution_m": result.area_resolution_m,
+        "kinetic_energy_j": _list(result.kinetic_energy_j),
         "probe_to_muscles": result.mapping,
         "notes": result.notes,
         "newton_iterations": result.newton_iterations.tolist(),
@@ -241,6 +312,16 @@ def summarize(result: GestureResult) -> dict:
         if _any(result.max_penetration_mm)
         else None,
     }
+
+
+def _list(a) -> list | None:
+    return None if a is None else [_num(v) for v in a]
+
+
+def _stats(a) -> dict | None:
+    if a is None or not len(a):
+        return None
+    return {"first": _num(a[0]), "last": _num(a[-1]), "min": _num(np.min(a)), "max": _num(np.max(a))}
 
 
 def _any(a) -> bool:

@@ -1,0 +1,324 @@
+"""ArtiSynth's lip-opening demo on the imported Badin face: its OOP ring, muscle stress, boundary and dynamics.
+
+``BadinFaceDemoLipOpening`` (artisynth_models, ``src/artisynth/models/face``, commit bcda205; it
+extends ``BadinFemMuscleFaceDemo`` and ``BadinFaceDemo``) sets the approximant up as follows, and
+this module reproduces each choice on the imported face (``wface.faces.artisynth``):
+
+- OOP ring (``oop_ring_entries``): the OOP bundle's elements are replaced by ten rings of hex elements
+  of the ``badinface_oop_csa_midsagittal`` mesh, ``LIP_OPENING_RINGS`` (5Du, 6Sl, 6M, 6Du, 7Sl, 7M,
+  7Du, 8Su, 8Mu, 8Du: ring 5-8 around the mouth, S/M/D superficial/middle/deep layer, u/l the upper
+  or lower lip only), listed in ``geometry/oop/<ring>_elements.txt`` by ANSYS element number (the
+  14th column of the .elem file). Each element is muscle over its whole volume (fraction 1); its
+  fibre direction is that of the nearest segment of one closed polyline through the centroids of
+  the 7M ring's hexes (wedges skipped: ``loadoop("7M")``, ``setFibresFromElementCentroids``,
+  ``computeElementDirections``). The element numbers are vendored below (``OOP_RING_ELEMENTS``) with
+  the ArtiSynth Models licence notice: they are not in the face data folder.
+- Muscle material: ``BlemkerMuscle`` with ``maxStress`` 1e5 Pa for OOP and the ``GenericMuscle``
+  with 1e5 Pa for the others (``ARTISYNTH_MAX_STRESS_PA``; wface's default sigma_max is 3e5 Pa).
+  Blemker's active force-length curve (1 - 4 (lam - 1)^2, quadratic tails to 0 at 0.4 and 1.6) is
+  close to wface's (``docs/design.md``, "Muscle fibres"); the material is otherwise wface's.
+- Boundary (``demo_attachments``): ``attachFaceToSkull`` fixes every inner-surface node
+  (``atlas_internal.node``) except the lip, cheek and nose free lists, on top of the edge, nose and
+  zygomatic-ligament lists that the import attaches; the jaw list stays on the jaw.
+- Dynamics (``ARTISYNTH_DYNAMICS``): ConstrainedBackwardEuler with steps of at most 5 ms, density
+  1040 kg/m^3, Rayleigh damping alpha = 19 1/s (particle damping), beta = 0.055 s (stiffness
+  damping), gravity 9.8 m/s^2 down (Badin -z, wface -Y).
+- Measure: the green plane at x = 0.1 m and the orthographic camera, ``wface.speech.aperture``.
+- Not reproduced: every rigid body of the demo, the tongue among them, is hidden in its picture, so
+  nothing but the face occludes the plane; the tongue mesh is not in the face data.
+
+ArtiSynth Models licence (applies to ``OOP_RING_ELEMENTS``): Copyright (c) 2014, contributing Authors
+and Organizations as indicated in subpackage COPYRIGHT notices. All rights reserved. Redistribution
+and use of the ArtiSynth Models package in source and binary forms, with or without modification,
+are permitted provided that the following conditions are met: 1. Redistributions of source code and
+data must retain all copyright notices, this list of conditions and the following disclaimer.
+2. Redistributions in binary form must reproduce all copyright notices, this list of conditions and
+the following disclaimer in the documentation and/or other materials provided with the distribution.
+3. Academic publication of work based on these models provides appropriate citations to the original
+work, as indicated on the ArtiSynth Models download site. THIS SOFTWARE AND DATA IS PROVIDED BY THE
+COPYRIGHT HOLDERS AND CONTRIBUTORS "AS IS" AND ANY EXPRESS OR IMPLIED WARRANTIES, INCLUDING, BUT NOT
+LIMITED TO, THE IMPLIED WARRANTIES OF MERCHANTABILITY AND FITNESS FOR A PARTICULAR PURPOSE ARE
+DISCLAIMED. IN NO EVENT SHALL THE COPYRIGHT HOLDER OR CONTRIBUTORS BE LIABLE FOR ANY DIRECT, INDIRECT,
+INCIDENTAL, SPECIAL, EXEMPLARY, OR CONSEQUENTIAL DAMAGES (INCLUDING, BUT NOT LIMITED TO, PROCUREMENT OF
+SUBSTITUTE GOODS OR SERVICES; LOSS OF USE, DATA, OR PROFITS; OR BUSINESS INTERRUPTION) HOWEVER CAUSED
+AND ON ANY THEORY OF LIABILITY, WHETHER IN CONTRACT, STRICT LIABILITY, OR TORT (INCLUDING NEGLIGENCE OR
+OTHERWISE) ARISING IN ANY WAY OUT OF THE USE OF THIS SOFTWARE, EVEN IF ADVISED OF THE POSSIBILITY OF
+SUCH DAMAGE. Cite Nazari et al. 2010 and the ArtiSynth face papers (Stavness et al.).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from wface.faces.ansys import read_ansys_elements, read_ansys_nodes, read_int_list
+from wface.faces.artisynth import FIXED_NODE_FILES, JAW_NODE_FILE, MESH_PREFIX
+from wface.faces.fibres import point_segment_distance
+from wface.model import FaceModel
+
+__all__ = [
+    "ARTISYNTH_DYNAMICS",
+    "ARTISYNTH_MAX_STRESS_PA",
+    "LIP_OPENING_FIBRE_RING",
+    "LIP_OPENING_RINGS",
+    "OOP_RING_ELEMENTS",
+    "ArtisynthDynamics",
+    "demo_attachments",
+    "lip_opening_demo_model",
+    "oop_ring_entries",
+    "ring_hexes",
+]
+
+ARTISYNTH_MAX_STRESS_PA = 1.0e5
+LIP_OPENING_RINGS = ("5Du", "6Sl", "6M", "6Du", "7Sl", "7M", "7Du", "8Su", "8Mu", "8Du")
+LIP_OPENING_FIBRE_RING = "7M"
+FREE_NODE_FILES = ("lip_free_nodes.nodenum", "cheek_free_nodes.nodenum", "nose_free_nodes.nodenum")
+
+
+@dataclass(frozen=True)
+class ArtisynthDynamics:
+    """BadinFaceDemo's time integration (``setFaceProperties``, ``defaultMaxStepSizeSec``)."""
+
+    scheme: str = "be"  # ConstrainedBackwardEuler
+    max_step_s: float = 0.005
+    density_kg_m3: float = 1040.0
+    alpha_per_s: float = 19.0  # particle (mass) damping
+    beta_s: float = 0.055  # stiffness damping
+    gravity_m_s2: tuple = (0.0, -9.8, 0.0)  # Badin (0, 0, -9.8) in wface's frame
+
+
+ARTISYNTH_DYNAMICS = ArtisynthDynamics()
+
+# geometry/oop/<ring>_elements.txt of artisynth_models (licence in the module docstring)
+_RINGS_TEXT = {
+    "5Du": (
+        "5337 5351 5352 5353 5354 5355 5356 5357 5358 5359 5360 5361 5362 5363 2192 2191 2190 2189 2188 2187 "
+        "2186 2185 2184 2183 2182 2181 2180 2166"
+    ),
+    "6Sl": (
+        "3047 889 838 837 836 835 824 823 505 506 507 908 909 508 3679 4080 4079 3678 3677 3676 3994 3995 "
+        "4006 4007 4008 4009 4060 6218"
+    ),
+    "6M": (
+        "2111 2112 2113 2114 2115 2116 2117 2118 2119 2120 2121 2122 2123 2124 2125 3120 2140 2141 2142 2143 "
+        "2144 2145 2146 2147 2148 2149 2150 2151 2152 5323 5322 5321 5320 5319 5318 5317 5316 5315 5314 5313 "
+        "5312 5311 6291 5296 5295 5294 5293 5292 5291 5290 5289 5288 5287 5286 5285 5284 5283 5282"
+    ),
+    "6Du": (
+        "4762 4763 4078 4077 4076 4075 4074 4068 4067 4066 4065 4064 4063 4062 4061 890 891 892 893 894 895 "
+        "896 897 903 904 905 906 907 1592 1591"
+    ),
+    "7Sl": (
+        "3049 524 121 831 830 834 826 825 122 123 124 910 911 125 3296 4082 4081 3295 3294 3293 3996 3997 "
+        "4005 4001 4002 3292 3695 6220"
+    ),
+    "7M": (
+        "2218 2217 2216 2215 2214 2213 2212 2211 2210 3125 2209 3124 2208 2207 2206 3123 2138 2126 2127 2128 "
+        "2129 2130 2131 2132 2133 2134 2135 2136 2137 5308 5307 5306 5305 5304 5303 5302 5301 5300 5299 5298 "
+        "5297 5309 6294 5377 5378 5379 6295 5380 6296 5381 5382 5383 5384 5385 5386 5387 5388 5389"
+    ),
+    "7Du": (
+        "6248 4765 4766 4767 6249 4768 6250 4769 3807 3809 3311 3312 3817 3313 3314 3854 683 143 142 646 141 "
+        "140 638 636 1598 3079 1597 3078 1596 1595 1594 3077"
+    ),
+    "8Su": (
+        "4605 6264 6263 4604 4477 3522 4472 4463 4462 4460 4410 4409 4408 4407 4828 1657 1236 1237 1238 1239 "
+        "1289 1291 1292 1301 351 1306 1433 3092 3093 1434"
+    ),
+    "8Mu": (
+        "5398 6302 6303 5399 5400 5401 5402 5403 5404 5405 5406 5407 5408 5409 5410 2239 2238 2237 2236 2235 "
+        "2234 2233 2232 2231 2230 2229 2228 3132 3131 2227"
+    ),
+    "8Du": (
+        "1656 1610 1609 1608 4770 6265 6266 4771 4772 4773 4774 4775 4776 4777 4778 4779 4780 4781 4827 1607 "
+        "1606 1605 1604 1603 1602 1601 1600 3095 3094 1599"
+    ),
+}
+OOP_RING_ELEMENTS: dict[str, tuple[int, ...]] = {k: tuple(int(v) for v in s.split()) for k, s in _RINGS_TEXT.items()}
+
+
+def _hex_elements(data_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(ANSYS element numbers (m,), hexes as ANSYS node numbers (m, 8)) of the face mesh."""
+    raw = np.loadtxt(data_dir / f"{MESH_PREFIX}.elem", ndmin=2, dtype=np.int64)
+    if raw.shape[1] < 14:
+        raise ValueError(f"{data_dir / MESH_PREFIX}.elem: expected 14 columns (8 nodes, 5 attributes, number)")
+    return raw[:, 13], read_ansys_elements(data_dir / f"{MESH_PREFIX}.elem")
+
+
+def _node_ids(data_dir: Path, numbers: np.ndarray, what: str) -> np.ndarray:
+    """Model node ids of ANSYS node numbers: the import keeps the node file's nodes first, in file order."""
+    file_numbers = read_ansys_nodes(data_dir / f"{MESH_PREFIX}.node")[0]
+    index_of = np.full(int(max(file_numbers.max(), numbers.max())) + 1, -1, dtype=np.int64)
+    index_of[file_numbers] = np.arange(file_numbers.size)
+    ids = index_of[numbers]
+    if np.any(ids < 0):
+        raise ValueError(f"{what}: node numbers not in {MESH_PREFIX}.node: {numbers[ids < 0][:5].tolist()}")
+    return ids
+
+
+def ring_hexes(data_dir: str | Path, rings=LIP_OPENING_RINGS) -> dict[str, np.ndarray]:
+    """{ring: (h, 8) model node ids of its hexes, in the file's order}."""
+    data_dir = Path(data_dir)
+    numbers, hexes = _hex_elements(data_dir)
+    row_of = {int(e): k for k, e in enumerate(numbers)}
+    out = {}
+    for r in rings:
+        if r not in OOP_RING_ELEMENTS:
+            raise ValueError(f"unknown OOP ring {r!r}; known: {', '.join(OOP_RING_ELEMENTS)}")
+        missing = [e for e in OOP_RING_ELEMENTS[r] if e not in row_of]
+        if missing:
+            raise ValueError(f"OOP ring {r}: element numbers not in the mesh: {missing[:5]}")
+        rows = [row_of[e] for e in OOP_RING_ELEMENTS[r]]
+        out[r] = _node_ids(data_dir, hexes[rows].reshape(-1), f"ring {r}").reshape(-1, 8)
+    return out
+
+
+_HEX_TETS = np.array([[0, 1, 3, 4], [1, 2, 3, 6], [1, 4, 5, 6], [3, 4, 6, 7], [1, 3, 4, 6]])  # 5-tet split
+
+
+def _tets_in_hexes(model: FaceModel, hexes: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(m,) index of the hex (row of ``hexes``) holding each model tet's centroid, -1 for none; a
+    centroid in no hex's 5-tet split (non-planar faces) but within one hex's bounding box goes to the
+    hex whose centroid is nearest."""
+    cent = x[model.tets].mean(axis=1)
+    hc = x[hexes].mean(axis=1)
+    lo, hi = x[hexes].min(axis=1), x[hexes].max(axis=1)
+    k = min(8, len(hexes))
+    _, cand = cKDTree(hc).query(cent, k=k)
+    cand = cand.reshape(len(cent), k)
+    owner = np.full(len(cent), -1)
+    for j in range(k):
+        h = cand[:, j]
+        corners = x[hexes[h]][:, _HEX_TETS]  # (m, 5, 4, 3)
+        a = corners[:, :, 0]
+        D = np.stack([corners[:, :, i] - a for i in (1, 2, 3)], axis=-1)  # (m, 5, 3, 3)
+        ok_d = np.abs(np.linalg.det(D)) > 1e-18
+        lam = np.linalg.solve(np.where(ok_d[..., None, None], D, np.eye(3)), (cent[:, None] - a)[..., None])[..., 0]
+        inside = ok_d & (lam >= -1e-9).all(-1) & (lam.sum(-1) <= 1 + 1e-9)
+        hit = (owner < 0) & inside.any(axis=1)
+        owner[hit] = h[hit]
+    box = np.all((cent[:, None] >= lo[cand] - 1e-9) & (cent[:, None] <= hi[cand] + 1e-9), axis=2)
+    near = (owner < 0) & box.any(axis=1)
+    owner[near] = cand[near, np.argmax(box[near], axis=1)]
+    return owner
+
+
+def oop_ring_entries(
+    model: FaceModel,
+    data_dir: str | Path,
+    *,
+    rings=LIP_OPENING_RINGS,
+    fibre_ring: str = LIP_OPENING_FIBRE_RING,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The OOP of the lip-opening demo: (tet ids (e,), unit fibre directions (e, 3)), fraction 1 each.
+
+    Tets belong to a ring hex when their centroid lies in it (rest shape); each takes the direction
+    of the segment of the closed ``fibre_ring`` centroid polyline nearest its hex's centroid.
+    """
+    x = model.rest_positions_m
+    by_ring = ring_hexes(data_dir, tuple(dict.fromkeys([*rings, fibre_ring])))
+    poly = by_ring[fibre_ring]
+    poly = poly[np.array([len(set(h.tolist())) == 8 for h in poly])]  # wedges skipped
+    pts = x[poly].mean(axis=1)
+    a, b = pts, np.roll(pts, -1, axis=0)  # closed loop
+    tangent = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
+    hexes = np.unique(np.concatenate([by_ring[r] for r in rings]), axis=0)
+    owner = _tets_in_hexes(model, hexes, x)
+    tets = np.flatnonzero(owner >= 0)
+    _, nearest = point_segment_distance(x[hexes].mean(axis=1), a, b)
+    return tets.astype(np.int32), tangent[nearest[owner[tets]]]
+
+
+def demo_attachments(model: FaceModel, data_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """(attached node ids, bone 0 cranium / 1 jaw) of ``attachFaceToSkull`` + the import's lists.
+
+    Original nodes: the import's fixed lists plus every ``atlas_internal.node`` node not on the lip,
+    cheek or nose free lists; the jaw list (``face_jaw_attachments.txt``, 0-based positions) on the
+    jaw. Nodes the import added follow: a face-centre or edge node on the inner surface whose
+    neighbours on that surface are all fixed is fixed too.
+    """
+    data_dir = Path(data_dir)
+    n_file = read_ansys_nodes(data_dir / f"{MESH_PREFIX}.node")[0].size
+    fixed = [_node_ids(data_dir, read_int_list(data_dir / f), f) for f in FIXED_NODE_FILES]
+    inner = _node_ids(data_dir, read_ansys_nodes(data_dir / "atlas_internal.node")[0], "atlas_internal.node")
+    free = np.concatenate([_node_ids(data_dir, read_int_list(data_dir / f), f) for f in FREE_NODE_FILES])
+    cranium = np.zeros(model.n_nodes, bool)
+    cranium[np.concatenate([*fixed, np.setdiff1d(inner, free)])] = True
+    jaw = np.zeros(model.n_nodes, bool)
+    jaw[np.unique(read_int_list(data_dir / JAW_NODE_FILE))] = True
+    # added nodes on the inner surface: fixed when every inner-surface neighbour is
+    tri = model.surface_groups.get("inner", np.zeros((0, 3), int))
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    e = np.concatenate([e, e[:, ::-1]])
+    added = e[:, 0] >= n_file
+    src, dst = e[added, 0], e[added, 1]
+    bad = np.zeros(model.n_nodes, bool)
+    np.logical_or.at(bad, src, ~cranium[dst] & (dst < n_file))
+    cand = np.unique(src)
+    cranium[cand[~bad[cand]]] = True
+    cranium &= ~jaw  # a node on both lists follows the jaw, as in the import
+    nodes = np.flatnonzero(cranium | jaw)
+    return nodes, jaw[nodes].astype(np.int8)
+
+
+def lip_opening_demo_model(
+    model: FaceModel,
+    data_dir: str | Path,
+    *,
+    ring: bool = True,
+    max_stress_pa: float | None = ARTISYNTH_MAX_STRESS_PA,
+    boundary: bool = True,
+) -> FaceModel:
+    """The imported Badin face set up as ``BadinFaceDemoLipOpening`` (module docstring), each part optional.
+
+    Args:
+        model: the face from ``wface.faces.artisynth.import_artisynth``.
+        data_dir: the artisynth-face data folder (mesh and node lists).
+        ring: replace ``OOP_l``/``OOP_r`` by one muscle ``OOP`` on the demo's ten rings.
+        max_stress_pa: sigma_max of every muscle (None: keep the model's).
+        boundary: the demo's boundary (``demo_attachments``) instead of the import's.
+
+    Returns:
+        A new, validated ``FaceModel`` (the input is not changed).
+    """
+    out = model
+    if ring:
+        keep = ~np.isin(np.asarray(model.muscle_names)[model.fibre_muscle], ["OOP_l", "OOP_r"])
+        names = [n for n in model.muscle_names if n not in ("OOP_l", "OOP_r")] + ["OOP"]
+        old_index = {n: i for i, n in enumerate(model.muscle_names)}
+        remap = np.array([names.index(n) if n in names else -1 for n in model.muscle_names])
+        tets, dirs = oop_ring_entries(model, data_dir)
+        ft = np.concatenate([model.fibre_tet[keep], tets])
+        fm = np.concatenate([remap[model.fibre_muscle[keep]], np.full(len(tets), len(names) - 1)])
+        ff = np.concatenate([model.fibre_fraction[keep], np.ones(len(tets))])
+        fd = np.concatenate([model.fibre_direction[keep], dirs])
+        order = np.argsort(ft, kind="stable")
+        strength = np.array([model.muscle_strength[old_index[n]] for n in names[:-1]] + [1.0])
+        facs = {au: {m: w for m, w in ws.items() if m in names} for au, ws in model.facs.items()}
+        out = replace(
+            out,
+            muscle_names=names,
+            fibre_tet=ft[order],
+            fibre_muscle=fm[order],
+            fibre_fraction=ff[order],
+            fibre_direction=fd[order],
+            muscle_strength=strength,
+            facs=facs,
+        )
+    if max_stress_pa is not None:
+        out = out.with_material(replace(out.material, sigma_max_pa=float(max_stress_pa)))
+    if boundary:
+        nodes, bone = demo_attachments(model, data_dir)
+        out = replace(out, attached_nodes=nodes, attached_bone=bone)
+    meta = dict(out.metadata)
+    meta["artisynth_lip_opening_demo"] = {
+        "ring": list(LIP_OPENING_RINGS) if ring else None,
+        "max_stress_pa": max_stress_pa,
+        "boundary": "demo" if boundary else "import",
+    }
+    out = replace(out, metadata=meta)
+    out.validate()
+    return out
