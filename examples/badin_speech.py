@@ -1,17 +1,28 @@
-"""Play the ArtiSynth speech gestures on the imported Badin face and compare their lip openings.
+"""Play the ArtiSynth speech gestures on the imported Badin face: lip opening area, quasistatic and dynamic.
 
 Each gesture (closure, fricative, approximant) drives the face's muscles through its measured-style
-excitation curves (both sides of each muscle); every frame is a quasistatic equilibrium
-warm-started from the previous one. Writes, per gesture, OUT/<gesture>/lip_opening.{csv,png},
-report.json and animation.usdc (``wface speech``), and OUT/lip_opening_all.png with the three curves.
+excitation curves (both sides of each muscle). Every variant plays it one way:
+
+- ``quasistatic``: warm-started equilibria, one per frame (``wface speech``'s default);
+- ``dynamic``: the implicit dynamic FEM with ArtiSynth's integration (backward Euler, 5 ms steps,
+  Rayleigh damping alpha = 19 1/s, beta = 0.055 s, density 1040 kg/m^3, gravity; ``--dynamic``);
+- ``..._contact``: the same with lip contact on the smooth lip surfaces (``--contact lips``).
+
+Writes OUT/<gesture>/<variant>/ (lip_opening.{csv,png}, report.json, animation.usdc: ``wface
+speech``'s files) and OUT/lip_opening_area_all.png (one panel per gesture, every variant, with the
+original's recorded curve where the data has one). ``--compare-artisynth`` also plays the
+approximant set up step by step towards ArtiSynth's BadinFaceDemoLipOpening (OOP rings, muscle
+stress, boundary, contact, dynamics, material) and writes OUT/artisynth/factors.json and
+factors.png: what each difference does to the lip opening area (README, "Speech gestures").
 
 With --track-mocap, also tracks an AnimFace take on the Badin face: the capture markers that the
 alignment puts within --select-mm of the Badin skin are used (OUT/track/report.json).
 
 Run:
-    python examples/badin_speech.py --out badin_speech_out                 # 25 fps, all three
-    python examples/badin_speech.py --gestures closure --max-frames 3 --out quick
-    python examples/badin_speech.py --gestures --track-mocap ../shared/data/animface/JawMoCap.c3d \
+    python examples/badin_speech.py --out badin_speech_out                   # all, 25 fps (hours on 2 cores)
+    python examples/badin_speech.py --gestures closure --variants quasistatic --max-frames 3 --out quick
+    python examples/badin_speech.py --gestures --compare-artisynth --out appr  # the factor study
+    python examples/badin_speech.py --gestures --track-mocap ../shared/data/animface/JawMoCap.c3d \\
         --track-frames 0:300:10 --out jaw_on_badin
 
 Data: ../shared/data/artisynth-face (ArtiSynth Models, BSD-style; cite Nazari et al. 2010 and
@@ -25,65 +36,179 @@ import json
 from pathlib import Path
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "artisynth-face"
+VARIANTS = ("quasistatic", "dynamic", "quasistatic_contact", "dynamic_contact")
+_STYLE = {
+    "quasistatic": ("C0", "-"),
+    "dynamic": ("C3", "-"),
+    "quasistatic_contact": ("C0", "--"),
+    "dynamic_contact": ("C3", "--"),
+}
+
+
+def _model(data: Path, model_path: Path | None):
+    if model_path is not None:
+        from wface.model import load_model
+
+        return load_model(model_path)
+    from wface.faces.artisynth import import_artisynth
+
+    return import_artisynth(data, progress=False)
+
+
+def play(model, gesture, out: Path, variant: str, *, fps: float, max_frames: int | None, max_step_ms: float, sim=None):
+    """Play one variant of ``gesture`` on ``model`` and write ``wface speech``'s files to ``out``."""
+    from wface.physics.contact import Contact
+    from wface.speech import simulate_gesture, summarize
+    from wface.speech.dynamic import GestureDynamics
+    from wface.speech.output import write_gesture_usd, write_lip_opening
+    from wface.speech.playback import compare_with_reference
+
+    contact = Contact(model, regions="lips", smoothing_m=1e-4, surface="smooth") if "contact" in variant else None
+    dynamics = GestureDynamics(max_step_s=max_step_ms * 1e-3) if variant.startswith("dynamic") else None
+    res = simulate_gesture(
+        model,
+        gesture,
+        fps=fps,
+        max_frames=max_frames,
+        simulator=sim,
+        progress=True,
+        contact=contact,
+        dynamics=dynamics,
+        tol=1e-6,
+        max_iterations=80,
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    write_lip_opening(out, res, model, reference=gesture.reference_lip_area)
+    F = len(res.times_s)
+    rate = fps if max_frames is None else max(1.0, (F - 1) / max(res.times_s[-1] - res.times_s[0], 1e-9))
+    write_gesture_usd(out / "animation.usdc", res, model, fps=rate, source=str(gesture.directory))
+    summary = summarize(res)
+    summary["times_s"] = res.times_s.tolist()
+    summary["reference_comparison"] = compare_with_reference(res, gesture.reference_lip_area)
+    (out / "report.json").write_text(json.dumps(summary, indent=2))
+    return summary
 
 
 def run(
     out: Path,
     *,
     gestures=("closure", "fricative", "approximant"),
+    variants=VARIANTS,
     fps: float = 25.0,
     max_frames: int | None = None,
+    max_step_ms: float = 5.0,
     data: Path = DATA,
     model_path: Path | None = None,
 ) -> dict:
-    """Play ``gestures``; returns {gesture: summary} and writes the outputs under ``out``."""
+    """Play ``gestures`` in each of ``variants``; returns {gesture: {variant: summary}}, writes under ``out``."""
     from wface.physics.simulator import Simulator
-    from wface.speech import map_gesture_to_model, read_gesture, simulate_gesture, summarize
-    from wface.speech.output import write_gesture_usd, write_lip_opening
+    from wface.speech import read_gesture
 
-    if model_path is not None:
-        from wface.model import load_model
-
-        model = load_model(model_path)
-    else:
-        from wface.faces.artisynth import import_artisynth
-
-        model = import_artisynth(data, progress=False)
-    sim = Simulator(model)  # one simulator (kernels, sparsity pattern) for all gestures
+    model = _model(data, model_path)
+    sim = Simulator(model)  # one simulator (kernels, sparsity pattern) for all
     out.mkdir(parents=True, exist_ok=True)
-    results, summaries = {}, {}
+    summaries: dict = {}
+    refs = {}
     for name in gestures:
         g = read_gesture(data / "speech" / name)
-        res = simulate_gesture(
-            model,
-            g,
-            fps=fps,
-            max_frames=max_frames,
-            mapping=map_gesture_to_model(g, model),
-            simulator=sim,
-            progress=True,
-        )
-        d = out / name
-        d.mkdir(exist_ok=True)
-        write_lip_opening(d, res, model)
-        write_gesture_usd(d / "animation.usdc", res, model, fps=fps, source=str(data / "speech" / name))
-        summaries[name] = summarize(res)
-        (d / "report.json").write_text(json.dumps(summaries[name], indent=2))
-        results[name] = res
+        refs[name] = g.reference_lip_area
+        summaries[name] = {}
+        for v in variants:
+            summaries[name][v] = play(
+                model, g, out / name / v, v, fps=fps, max_frames=max_frames, max_step_ms=max_step_ms, sim=sim
+            )
+    (out / "summary.json").write_text(json.dumps(summaries, indent=2))
+    figure(out / "lip_opening_area_all.png", summaries, refs)
+    return summaries
+
+
+def figure(path: Path, summaries: dict, refs: dict) -> None:
+    """One panel per gesture: the lip opening area of every variant, and the original's curve."""
     from wface.viz.plots import _plt
 
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(6.5, 3.8))
-    for name, res in results.items():
-        ax.plot(res.times_s, res.lip_opening_mm, "o-", ms=3, label=name)
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("Mouth_Up - Mouth_Down (mm)")
-    ax.set_title("Badin face: lip opening during speech gestures (quasistatic)")
-    ax.grid(alpha=0.3)
-    ax.legend()
-    fig.savefig(out / "lip_opening_all.png", dpi=110, bbox_inches="tight")
+    fig, axes = plt.subplots(1, len(summaries), figsize=(4.2 * len(summaries), 3.6), squeeze=False, sharey=True)
+    for ax, (name, per) in zip(axes[0], summaries.items(), strict=True):
+        for v, s in per.items():
+            colour, style = _STYLE.get(v, ("k", ":"))
+            ax.plot(s["times_s"], s["lip_opening_area_mm2"], style, color=colour, lw=1.6, label=v.replace("_", " + "))
+        ref = refs.get(name)
+        if ref is not None and len(ref):
+            ax.plot(ref[:, 0], ref[:, 1], "k:", lw=1.6, label="original (ArtiSynth)")
+        ax.set_title(name)
+        ax.set_xlabel("time (s)")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("lip opening area (mm$^2$)")
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle("Badin face (wface import), ArtiSynth's camera and plane", fontsize=10)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
-    return summaries
+
+
+# the approximant, step by step from wface's import towards ArtiSynth's BadinFaceDemoLipOpening:
+# (name, setup keyword arguments of lip_opening_demo_model or None, variant, flesh mu01 scale, excitation)
+STEPS = (
+    ("wface import", None, "quasistatic", 1.0, "file"),
+    ("+ OOP rings", {"ring": True, "max_stress_pa": None, "boundary": False}, "quasistatic", 1.0, "file"),
+    ("+ 1e5 Pa", {"ring": True, "boundary": False}, "quasistatic", 1.0, "file"),
+    ("+ boundary", {}, "quasistatic", 1.0, "file"),
+    ("+ lip contact", {}, "quasistatic_contact", 1.0, "file"),
+    ("+ dynamics, gravity", {}, "dynamic_contact", 1.0, "file"),
+    ("+ C10-only flesh", {}, "dynamic_contact", 0.0, "file"),
+    ("inline excitation (peak 1)", {}, "dynamic_contact", 0.0, "inline"),
+)
+
+
+def compare_artisynth(
+    out: Path,
+    *,
+    steps=STEPS,
+    fps: float = 25.0,
+    max_frames: int | None = None,
+    max_step_ms: float = 5.0,
+    data: Path = DATA,
+    model_path: Path | None = None,
+) -> dict:
+    """The approximant set up step by step as ArtiSynth's lip-opening demo (``STEPS``); writes
+    OUT/factors.json and OUT/factors.png and returns {step: summary}."""
+    from dataclasses import replace
+
+    from wface.speech import read_gesture
+    from wface.speech.artisynth_demo import lip_opening_demo_model
+    from wface.speech.gestures import ExcitationCurve
+
+    base = _model(data, model_path)
+    g = read_gesture(data / "speech" / "approximant")
+    inline = read_gesture(data / "speech" / "approximant")
+    probe = next(p for p in inline.probes if p.name == "OOP")
+    inline.curves["OOP"] = ExcitationCurve(
+        0.0, 1.0, 1.0, "CubicStep", 1, probe.inline_data[:, 0], probe.inline_data[:, 1:]
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    results = {}
+    for k, (name, setup, variant, mu01, excitation) in enumerate(steps):
+        model = base if setup is None else lip_opening_demo_model(base, data, **setup)
+        if mu01 != 1.0:
+            model = model.with_material(replace(model.material, mu01_pa=model.material.mu01_pa * mu01))
+        gest = g if excitation == "file" else inline
+        s = play(model, gest, out / f"step{k}", variant, fps=fps, max_frames=max_frames, max_step_ms=max_step_ms)
+        results[name] = {"variant": variant, "excitation": excitation, "mu01_scale": mu01, **s}
+        (out / "factors.json").write_text(json.dumps(results, indent=2))
+    from wface.viz.plots import _plt
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    for k, (name, s) in enumerate(results.items()):
+        ax.plot(s["times_s"], s["lip_opening_area_mm2"], color=plt.cm.viridis(k / max(len(results) - 1, 1)), label=name)
+    ax.plot(g.reference_lip_area[:, 0], g.reference_lip_area[:, 1], "k:", lw=2, label="original (ArtiSynth)")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("lip opening area (mm$^2$)")
+    ax.set_title("approximant: from wface's import to ArtiSynth's lip-opening demo", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.savefig(out / "factors.png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return results
 
 
 def track_take(
@@ -109,14 +234,7 @@ def track_take(
     from wface.tracking.rig import FaceRig
     from wface.tracking.sequence import track_sequence
 
-    if model_path is not None:
-        from wface.model import load_model
-
-        model = load_model(model_path)
-    else:
-        from wface.faces.artisynth import import_artisynth
-
-        model = import_artisynth(data, progress=False)
+    model = _model(data, model_path)
     a, b, step = (list(map(int, frames.split(":"))) + [1])[:3]
     take = read_mocap(mocap)
     sel = select_capture_markers(model, take.positions_m[a:b], take.marker_names, max_distance_mm=select_mm)
@@ -162,10 +280,13 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", required=True, type=Path)
     p.add_argument("--gestures", nargs="*", default=["closure", "fricative", "approximant"])
+    p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
     p.add_argument("--fps", type=float, default=25.0)
     p.add_argument("--max-frames", type=int)
+    p.add_argument("--max-step-ms", type=float, default=5.0, help="longest dynamic time step (ms)")
     p.add_argument("--data", type=Path, default=DATA, help="the artisynth-face data folder")
     p.add_argument("--model", type=Path, help="a saved Badin model (.npz) instead of importing")
+    p.add_argument("--compare-artisynth", action="store_true", help="also the approximant's factor study")
     p.add_argument("--track-mocap", type=Path, help="also track this capture (C3D/TRC/CSV) on the Badin face")
     p.add_argument("--track-frames", default="0:300:10", help="A:B:STEP of the capture to track")
     p.add_argument("--select-mm", type=float, default=5.0, help="largest marker distance from the Badin skin")
@@ -184,16 +305,30 @@ def main(argv=None) -> int:
             f"marker RMS {rep['marker_rms_mm_mean']:.3f} mm "
             f"(max {rep['marker_max_mm']:.2f} mm), {rep['seconds_per_frame_median']:.1f} s/frame"
         )
-    if not a.gestures:
-        return 0
-    summaries = run(a.out, gestures=a.gestures, fps=a.fps, max_frames=a.max_frames, data=a.data, model_path=a.model)
-    for name, s in summaries.items():
-        lo = s["lip_opening_mm"]
-        print(
-            f"{name:12s} lip opening {lo['first']:6.2f} -> {lo['last']:6.2f} mm "
-            f"(min {lo['min']:.2f}, max {lo['max']:.2f}), "
-            f"{s['frames']} frames, {s['seconds_total']:.1f} s"
-        )
+    common = {
+        "fps": a.fps,
+        "max_frames": a.max_frames,
+        "max_step_ms": a.max_step_ms,
+        "data": a.data,
+        "model_path": a.model,
+    }
+    if a.gestures:
+        summaries = run(a.out, gestures=a.gestures, variants=a.variants, **common)
+        for name, per in summaries.items():
+            for v, s in per.items():
+                ar = s["lip_opening_area_summary_mm2"]
+                print(
+                    f"{name:12s} {v:20s} lip opening area {ar['first']:6.2f} -> {ar['last']:6.2f} mm^2 "
+                    f"(min {ar['min']:.2f}, max {ar['max']:.2f}), {s['frames']} frames, {s['seconds_total']:.0f} s"
+                )
+    if a.compare_artisynth:
+        for name, s in compare_artisynth(a.out / "artisynth", **common).items():
+            ref = s["reference_comparison"] or {}
+            w = ref.get("wface", {})
+            print(
+                f"{name:28s} settled {w.get('settled_mm2', 0):6.1f} final {w.get('final_mm2', 0):6.1f} mm^2, "
+                f"RMS vs original {ref.get('rms_mm2', 0):.1f} mm^2"
+            )
     return 0
 
 

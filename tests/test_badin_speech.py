@@ -164,7 +164,8 @@ def test_closure_with_lip_contact_cli(tmp_path, badin_model_path, capsys):
 
 @pytest.mark.slow
 def test_example_runs_headless(tmp_path, badin_model_path):
-    """examples/badin_speech.py doubles as a test: one gesture, 3 frames."""
+    """examples/badin_speech.py doubles as a test: one gesture, 3 frames, quasistatic and dynamic (with
+    0.25 s steps: the example's integration, not its accuracy)."""
     import importlib.util
     from pathlib import Path
 
@@ -173,8 +174,50 @@ def test_example_runs_headless(tmp_path, badin_model_path):
     spec = importlib.util.spec_from_file_location("badin_speech_example", path)
     ex = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(ex)
-    s = ex.run(tmp_path, gestures=("approximant",), max_frames=3, data=face, model_path=badin_model_path)
-    lo = s["approximant"]["lip_opening_mm"]
-    assert s["approximant"]["probe_to_muscles"] == {"OOP": ["OOP_l", "OOP_r"]}
-    assert s["approximant"]["all_converged"] and lo["first"] > 0
-    assert (tmp_path / "lip_opening_all.png").exists() and (tmp_path / "approximant" / "animation.usdc").exists()
+    s = ex.run(
+        tmp_path,
+        gestures=("approximant",),
+        variants=("quasistatic", "dynamic"),
+        max_frames=3,
+        max_step_ms=250.0,
+        data=face,
+        model_path=badin_model_path,
+    )
+    q, d = s["approximant"]["quasistatic"], s["approximant"]["dynamic"]
+    assert q["probe_to_muscles"] == {"OOP": ["OOP_l", "OOP_r"]}
+    assert q["all_converged"] and d["all_converged"] and d["mode"] == "dynamic"
+    # the rest shape's aperture in ArtiSynth's camera: 39.5 mm^2 (the original records 40.1 at t = 0)
+    assert q["lip_opening_area_mm2"][0] == pytest.approx(39.5, abs=0.5)
+    assert d["lip_opening_area_mm2"][0] == q["lip_opening_area_mm2"][0]  # the same start
+    assert q["reference_comparison"]["original"]["settled_mm2"] == pytest.approx(53.2, abs=0.1)
+    assert (tmp_path / "lip_opening_area_all.png").exists() and (
+        tmp_path / "approximant" / "dynamic" / "animation.usdc"
+    ).exists()
+
+
+def test_dynamic_playback_area_outputs_cli(tmp_path, badin_model_path):
+    """``--dynamic`` with ArtiSynth's damping and the area in report.json, CSV, plot and USD (2 frames,
+    100 ms steps: the outputs, not the accuracy)."""
+    from pxr import Usd
+
+    from wface.cli import main
+
+    out = tmp_path / "dyn"
+    args = ["speech", "--model", str(badin_model_path), "--gesture", "approximant", "--max-frames", "2"]
+    assert main(args + ["--dynamic", "--max-step-ms", "100", "--out", str(out)]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["mode"] == "dynamic" and rep["all_converged"]
+    assert rep["dynamics"]["alpha_per_s"] == 19.0 and rep["dynamics"]["beta_s"] == 0.055
+    assert rep["dynamics"]["gravity_m_s2"] == [0.0, -9.8, 0.0] and rep["dynamics"]["density_kg_m3"] == 1040.0
+    area = rep["lip_opening_area_mm2"]
+    assert len(area) == 2 and area[0] == pytest.approx(39.5, abs=0.5)
+    assert rep["lip_opening_area_view"]["name"] == "artisynth" and rep["lip_opening_area_error_mm2_max"] < 0.1
+    header = (out / "lip_opening.csv").read_text().splitlines()[0].split(",")
+    assert header[:2] == ["time_s", "lip_opening_area_mm2"]
+    stage = Usd.Stage.Open(str(out / "animation.usdc"))
+    attr = stage.GetDefaultPrim().GetAttribute("wface:lipOpeningArea_mm2")
+    assert [attr.Get(Usd.TimeCode(f)) for f in (0, 1)] == pytest.approx(area, abs=1e-4)  # float32 samples
+    meta = stage.GetRootLayer().customLayerData["wface"]
+    assert list(meta["lip_opening_area_mm2"]) == pytest.approx(area) and meta["mode"] == "dynamic"
+    for name in ("lip_opening.png", "aperture_first.png", "aperture_last.png"):
+        assert (out / name).stat().st_size > 1000

@@ -1,7 +1,9 @@
 """``wface speech``: play an ArtiSynth speech gesture (excitation curves) on the Badin face.
 
-Writes into --out: lip_opening.csv (time, lip opening in mm, its signed vertical part, activations
-of the driven muscles), lip_opening.png, animation.usdc (skin, markers, per-muscle activations) and report.json.
+Writes into --out: lip_opening.csv (time, lip opening area in mm^2, the Mouth_Up - Mouth_Down
+distance, the lip gap, activations of the driven muscles), lip_opening.png, aperture_first.png and
+aperture_last.png (the aperture measure), animation.usdc (skin, markers, per-muscle activations, the
+area as metadata and time samples) and report.json.
 """
 
 from __future__ import annotations
@@ -13,22 +15,33 @@ from pathlib import Path
 
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.faces.artisynth import import_artisynth
+from wface.mesh.surface import boundary_faces
 from wface.model import load_model
+from wface.physics.contact import Contact
+from wface.speech.aperture import ApertureView
+from wface.speech.artisynth_demo import lip_opening_demo_model
+from wface.speech.dynamic import GestureDynamics
 from wface.speech.gestures import map_gesture_to_model, read_gesture
-from wface.speech.output import write_gesture_usd, write_lip_opening
-from wface.speech.playback import simulate_gesture, summarize
+from wface.speech.output import write_aperture_picture, write_gesture_usd, write_lip_opening
+from wface.speech.playback import compare_with_reference, lip_area_points, simulate_gesture, summarize
 
 _EPILOG = """\
 The gesture folders (speech/closure, speech/fricative, speech/approximant of the ArtiSynth face
 data) hold one excitation curve per muscle and 0probes.art, which names the muscle each curve
 drives and whether ArtiSynth plays it (active). Each frame is a quasistatic equilibrium
-warm-started from the previous one; the lip opening is the Mouth_Up - Mouth_Down distance.
+warm-started from the previous one (default), or with --dynamic the curves drive the implicit
+dynamic FEM (inertia; ArtiSynth's backward Euler, 5 ms steps, Rayleigh damping alpha = 19 1/s,
+beta = 0.055 s, gravity). The lip opening area is the mouth aperture in mm^2 seen in ArtiSynth's
+orthographic camera against its green plane at Badin x = 0.1 m (--area-view frontal: straight from
+the front); the Mouth_Up - Mouth_Down distance is reported too. --setup artisynth sets the face up
+as ArtiSynth's BadinFaceDemoLipOpening (its ten OOP rings, muscle stress 1e5 Pa, inner surface fixed).
 
 examples:
   wface speech --model ../shared/data/artisynth-face --gesture closure --out closure_out
   wface speech --model badin.npz --gesture fricative --fps 25 --out fricative_out
   wface speech --model badin.npz --gesture approximant --max-frames 5 --out quick
   wface speech --model badin.npz --gesture closure --contact lips --max-frames 6 --out closure_contact
+  wface speech --model badin.npz --gesture approximant --setup artisynth --dynamic --contact lips --out dyn
 """
 
 
@@ -62,7 +75,45 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="whole",
         help="what the OOMl exciter drives: the whole OOM (default, approximation) or nothing",
     )
-    add_contact_arguments(p, smoothing_mm=0.1, freeze_below=1.0, obstacles=False, where="every frame's solve")
+    add_contact_arguments(p, smoothing_mm=0.1, freeze_below=None, obstacles=False, where="every frame's solve")
+    p.add_argument(
+        "--lip-surface",
+        choices=["smooth", "faceted"],
+        default="smooth",
+        help="lip contact against smooth lip surfaces (default: C2, Newton converges quadratically) or the "
+        "faceted collision surfaces (then --freeze-below 1 converges best)",
+    )
+    p.add_argument(
+        "--setup",
+        choices=["import", "artisynth"],
+        default="import",
+        help="the face as imported (default) or as ArtiSynth's BadinFaceDemoLipOpening sets it up",
+    )
+    p.add_argument(
+        "--data",
+        help="the artisynth-face data folder for --setup artisynth (default: --model's folder "
+        "or ../shared/data/artisynth-face)",
+    )
+    p.add_argument("--dynamic", action="store_true", help="play through the implicit dynamic FEM (inertia)")
+    p.add_argument(
+        "--scheme", choices=["be", "midpoint"], default="be", help="dynamic scheme (default be, ArtiSynth's)"
+    )
+    p.add_argument("--max-step-ms", type=float, default=5.0, help="longest dynamic time step in ms (default 5)")
+    p.add_argument("--damping-alpha", type=float, default=19.0, help="mass damping alpha in 1/s (default 19)")
+    p.add_argument("--damping-beta", type=float, default=0.055, help="stiffness damping beta in s (default 0.055)")
+    p.add_argument("--no-gravity", action="store_true", help="dynamic playback without gravity")
+    p.add_argument(
+        "--area-view",
+        choices=["artisynth", "frontal"],
+        default="artisynth",
+        help="lip opening area camera: ArtiSynth's (20 deg upward, default) or straight from the front",
+    )
+    p.add_argument(
+        "--area-resolution-mm",
+        type=float,
+        default=0.05,
+        help="scanline spacing of the area measure in mm (default 0.05)",
+    )
     p.add_argument("--max-iterations", type=int, default=40, help="Newton iteration cap per frame (default 40)")
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
     p.set_defaults(func=run_speech)
@@ -95,16 +146,61 @@ def _gesture_dir(args) -> Path:
     )
 
 
+def _data_dir(args) -> Path:
+    candidates = [Path(args.data)] if args.data else []
+    if Path(args.model).is_dir():
+        candidates.append(Path(args.model))
+    candidates += [
+        Path(__file__).resolve().parents[3] / "shared" / "data" / "artisynth-face",
+        Path.cwd().parent / "shared" / "data" / "artisynth-face",
+    ]
+    for c in candidates:
+        if (c / "badinface_oop_csa_midsagittal.elem").exists():
+            return c
+    raise FileNotFoundError(
+        f"--setup artisynth: no artisynth-face data folder among {[str(c) for c in candidates]} (use --data)"
+    )
+
+
+def _speech_contact(args, model):
+    """The lip contact of the options: ``contact_from_args``, on the surface ``--lip-surface`` chose."""
+    contact = contact_from_args(args, model)
+    if contact is None or args.lip_surface == "faceted":
+        return contact
+    if args.freeze_below >= 0:
+        raise ValueError("--freeze-below freezes faceted lip features: use it with --lip-surface faceted")
+    return Contact.from_spec(
+        model,
+        args.contact,
+        (),
+        stiffness_n_per_m=args.contact_stiffness,
+        smoothing_m=args.contact_smoothing_mm * 1e-3,
+        surface="smooth",
+    )
+
+
 def run_speech(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     model = _load_model(Path(args.model))
+    if args.setup == "artisynth":
+        model = lip_opening_demo_model(model, _data_dir(args))
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
     mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
     t_load = time.perf_counter() - t_start
-    contact = contact_from_args(args, model)
+    contact = _speech_contact(args, model)
+    dynamics = None
+    if args.dynamic:
+        dynamics = GestureDynamics(
+            scheme=args.scheme,
+            max_step_s=args.max_step_ms * 1e-3,
+            alpha_per_s=args.damping_alpha,
+            beta_s=args.damping_beta,
+            gravity_m_s2=None if args.no_gravity else (0.0, -9.8, 0.0),
+        )
+    view = ApertureView.for_model(model, frontal=args.area_view == "frontal")
     result = simulate_gesture(
         model,
         gesture,
@@ -115,9 +211,25 @@ def run_speech(args: argparse.Namespace) -> int:
         progress=True,
         contact=contact,
         max_iterations=args.max_iterations,
+        dynamics=dynamics,
+        view=view,
+        area_resolution_m=args.area_resolution_mm * 1e-3,
     )
-    csv, png = write_lip_opening(out, result, model)
+    csv, png = write_lip_opening(out, result, model, reference=gesture.reference_lip_area)
     files = [csv.name, png.name]
+    occluders, lips = boundary_faces(model.tets), lip_area_points(model)
+    for tag, f in (("first", 0), ("last", len(result.times_s) - 1)):
+        x = result.node_positions_m[f]
+        write_aperture_picture(
+            out / f"aperture_{tag}.png",
+            x,
+            occluders,
+            view,
+            resolution_m=args.area_resolution_mm * 1e-3,
+            near_points_m=None if lips is None else x[lips],
+            title=f"{result.gesture} t = {result.times_s[f]:.3f} s ({result.mode})",
+        )
+        files.append(f"aperture_{tag}.png")
     if not args.no_usd:
         F = len(result.times_s)
         fps_out = (
@@ -142,11 +254,17 @@ def run_speech(args: argparse.Namespace) -> int:
             "unmapped_probes": mapping.unmapped,
             "interpolation": {k: c.order for k, c in gesture.curves.items()},
             "tol": args.tol,
+            "setup": args.setup,
+            "lip_surface": args.lip_surface if contact is not None else None,
+            "reference_comparison": compare_with_reference(result, gesture.reference_lip_area),
             "contact_stiffness_n_per_m": None if contact is None else contact.stiffness_n_per_m,
             "contact_smoothing_m": None if contact is None else contact.smoothing_m,
             "setup_seconds": t_load,
             "wall_seconds": time.perf_counter() - t_start,
             "lip_opening_definition": "distance between the Mouth_Up and Mouth_Down skin markers (mm)",
+            "lip_opening_area_definition": "mouth aperture seen in an orthographic view against a window behind "
+            "the face, mm^2 in the image plane (wface.speech.aperture); occluders: the face's boundary "
+            "triangles; only apertures near the lip surfaces",
             "reference_lip_opening_area": None
             if gesture.reference_lip_area is None
             else {
@@ -160,11 +278,19 @@ def run_speech(args: argparse.Namespace) -> int:
         }
     )
     (out / "report.json").write_text(json.dumps(report, indent=2))
-    lo = report["lip_opening_mm"]
+    lo, ar = report["lip_opening_mm"], report["lip_opening_area_summary_mm2"]
     print(
-        f"{result.gesture}: lip opening {lo['first']:.2f} -> {lo['last']:.2f} mm (min {lo['min']:.2f}, "
-        f"max {lo['max']:.2f}) over {report['frames']} frames, {report['seconds_total']:.1f} s of solves"
+        f"{result.gesture} ({result.mode}): lip opening area {ar['first']:.2f} -> {ar['last']:.2f} mm^2 "
+        f"(min {ar['min']:.2f}, max {ar['max']:.2f}); Mouth_Up - Mouth_Down {lo['first']:.2f} -> {lo['last']:.2f} mm; "
+        f"{report['frames']} frames, {report['seconds_total']:.1f} s of solves"
     )
+    ref = report["reference_comparison"]
+    if ref is not None:
+        o, w = ref["original"], ref["wface"]
+        print(
+            f"original (recorded): settled {o['settled_mm2']:.1f} -> final {o['final_mm2']:.1f} mm^2; wface: "
+            f"{w['settled_mm2']:.1f} -> {w['final_mm2']:.1f} mm^2; RMS difference {ref['rms_mm2']:.1f} mm^2"
+        )
     if report.get("lip_gap_mm_min") is not None:
         print(
             f"lip gap min {report['lip_gap_mm_min']:+.3f} mm, max penetration "

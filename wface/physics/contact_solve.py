@@ -9,7 +9,9 @@ curvature (Badin lip-pressing pose: along the softest mode the elastic stiffness
 contact curvature -0.9 N/m, the Gauss-Newton contact term +0.08 N/m), so the residual may never fall
 below the retry threshold. Restarting Newton from its iterate every ``restart_every`` iterations
 resets that threshold; near the solution the exact Hessian is definite and the restarted round
-converges quadratically (measured on Badin: 3e-4 -> 1e-10 in 8 iterations).
+converges quadratically. Measured on the Badin lip-pressing pose (full OOP and MENT, smooth lips):
+one run of 60 iterations ends at 3e-4 (55 projected steps); restarted every 20, 2e-4 after 80;
+every 5, 6e-9 after 56, the last four iterations 8e-4, 8e-6, 3e-6, 6e-9.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ def solve_restarted(
     *,
     tol: float = 1e-6,
     max_iterations: int = 60,
-    restart_every: int = 20,
+    restart_every: int = 5,
     **kwargs,
 ):
     """``sim.solve`` in rounds of at most ``restart_every`` Newton iterations, each from the last

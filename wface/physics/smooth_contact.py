@@ -34,6 +34,8 @@ closest point is on the rim is no contact, as in the faceted model.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -107,13 +109,13 @@ class SmoothSelfContact:
         if not cand.size:
             return None
         hs = surf.evaluate(q[cand], x)
-        hf = SignedSurface(x, tri, orient=False).signed(q[cand])
         beta, dbeta = _smoothstep(hs.weight / self.weight_ref[k])
+        hf = _faceted(x, tri, q[cand], beta < 1.0)  # only where the smooth distance does not hold alone
         tau, dtau = _smoothstep((hs.interior - _RIM[0]) / (_RIM[1] - _RIM[0]))
         phi_s = np.nan_to_num(hs.phi_m)
         phi = beta * phi_s + (1 - beta) * hf.phi_m
         tau = np.where(beta < 1.0, tau * ~hf.on_boundary, tau)
-        active = (tau > 0) & (hf.phi_m > -contact.self_max_depth_m) & (phi <= contact.gap_m)
+        active = (tau > 0) & (phi > -contact.self_max_depth_m) & (phi <= contact.gap_m)
         if not active.any():
             return None
         sel = np.flatnonzero(active)
@@ -134,6 +136,23 @@ class SmoothSelfContact:
             "surface": k,
             "source": source,
         }
+
+
+def _faceted(x, tri, q, need):
+    """``SignedSurface.signed`` of the points ``need`` selects; zeros elsewhere (only ever weighted by 0)."""
+    k = len(q)
+    hit = SimpleNamespace(
+        phi_m=np.zeros(k),
+        normal=np.zeros((k, 3)),
+        triangle=np.zeros(k, np.int64),
+        barycentric=np.zeros((k, 3)),
+        on_boundary=np.zeros(k, bool),
+    )
+    if need.any():
+        h = SignedSurface(x, tri, orient=False).signed(q[need])
+        for key in ("phi_m", "normal", "triangle", "barycentric", "on_boundary"):
+            getattr(hit, key)[need] = getattr(h, key)
+    return hit
 
 
 def _coo_rows(rows, cols, vals, shape):

@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from wface.faces.ansys import read_ansys_elements, read_ansys_nodes, read_int_list
+from wface.faces.ansys import hexes_to_tets, read_ansys_elements, read_ansys_nodes, read_int_list
 from wface.faces.artisynth import FIXED_NODE_FILES, JAW_NODE_FILE, MESH_PREFIX
 from wface.faces.fibres import point_segment_distance
 from wface.model import FaceModel
@@ -176,33 +176,30 @@ def ring_hexes(data_dir: str | Path, rings=LIP_OPENING_RINGS) -> dict[str, np.nd
     return out
 
 
-_HEX_TETS = np.array([[0, 1, 3, 4], [1, 2, 3, 6], [1, 4, 5, 6], [3, 4, 6, 7], [1, 3, 4, 6]])  # 5-tet split
-
-
 def _tets_in_hexes(model: FaceModel, hexes: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """(m,) index of the hex (row of ``hexes``) holding each model tet's centroid, -1 for none; a
-    centroid in no hex's 5-tet split (non-planar faces) but within one hex's bounding box goes to the
-    hex whose centroid is nearest."""
+    """(m,) index of the hex (row of ``hexes``) holding each model tet's centroid, -1 for none.
+
+    The hexes are split into tets as the import splits them (``wface.faces.ansys.hexes_to_tets``,
+    conforming, so the pieces tile the hexes exactly) and each centroid is located in those pieces
+    (barycentric test on the 12 pieces with the nearest centroids)."""
+    n_file = int(np.max(hexes)) + 1
+    pieces, parent, added = hexes_to_tets(hexes, x[:n_file])[:3]
+    px = np.vstack([x[:n_file], added])[pieces]  # (k, 4, 3)
+    a = px[:, 0]
+    D = np.stack([px[:, i] - a for i in (1, 2, 3)], axis=-1)  # (k, 3, 3)
+    Dinv = np.linalg.inv(D)
     cent = x[model.tets].mean(axis=1)
-    hc = x[hexes].mean(axis=1)
-    lo, hi = x[hexes].min(axis=1), x[hexes].max(axis=1)
-    k = min(8, len(hexes))
-    _, cand = cKDTree(hc).query(cent, k=k)
-    cand = cand.reshape(len(cent), k)
+    lo, hi = px.reshape(-1, 3).min(axis=0), px.reshape(-1, 3).max(axis=0)
+    near = np.flatnonzero(np.all((cent >= lo) & (cent <= hi), axis=1))
+    k = min(12, len(pieces))
+    _, cand = cKDTree(px.mean(axis=1)).query(cent[near], k=k)
+    cand = cand.reshape(len(near), k)
     owner = np.full(len(cent), -1)
     for j in range(k):
-        h = cand[:, j]
-        corners = x[hexes[h]][:, _HEX_TETS]  # (m, 5, 4, 3)
-        a = corners[:, :, 0]
-        D = np.stack([corners[:, :, i] - a for i in (1, 2, 3)], axis=-1)  # (m, 5, 3, 3)
-        ok_d = np.abs(np.linalg.det(D)) > 1e-18
-        lam = np.linalg.solve(np.where(ok_d[..., None, None], D, np.eye(3)), (cent[:, None] - a)[..., None])[..., 0]
-        inside = ok_d & (lam >= -1e-9).all(-1) & (lam.sum(-1) <= 1 + 1e-9)
-        hit = (owner < 0) & inside.any(axis=1)
-        owner[hit] = h[hit]
-    box = np.all((cent[:, None] >= lo[cand] - 1e-9) & (cent[:, None] <= hi[cand] + 1e-9), axis=2)
-    near = (owner < 0) & box.any(axis=1)
-    owner[near] = cand[near, np.argmax(box[near], axis=1)]
+        c = cand[:, j]
+        lam = np.einsum("pij,pj->pi", Dinv[c], cent[near] - a[c])
+        inside = (lam >= -1e-9).all(axis=1) & (lam.sum(axis=1) <= 1 + 1e-9) & (owner[near] < 0)
+        owner[near[inside]] = parent[c[inside]]
     return owner
 
 
@@ -215,7 +212,8 @@ def oop_ring_entries(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The OOP of the lip-opening demo: (tet ids (e,), unit fibre directions (e, 3)), fraction 1 each.
 
-    Tets belong to a ring hex when their centroid lies in it (rest shape); each takes the direction
+    Tets belong to a ring hex when their centroid lies in it (rest shape; ``_tets_in_hexes``: the
+    tets chosen hold 16,970 mm^3 on the Badin import, the ring hexes' own volume); each takes the direction
     of the segment of the closed ``fibre_ring`` centroid polyline nearest its hex's centroid.
     """
     x = model.rest_positions_m

@@ -16,22 +16,50 @@ from wface.viz.plots import _plt
 __all__ = ["write_aperture_picture", "write_gesture_usd", "write_lip_opening"]
 
 
-def write_lip_opening(out: Path, result: GestureResult, model: FaceModel) -> tuple[Path, Path]:
-    """lip_opening.csv (time_s, lip_opening_mm, driven activations) and lip_opening.png."""
+def write_lip_opening(
+    out: Path, result: GestureResult, model: FaceModel, *, reference: np.ndarray | None = None
+) -> tuple[Path, Path]:
+    """lip_opening.csv and lip_opening.png of a played gesture.
+
+    CSV columns: time_s, lip_opening_area_mm2 (the mouth aperture, ``wface.speech.aperture``),
+    lip_opening_area_error_mm2, lip_opening_width_mm, lip_opening_height_mm, lip_opening_mm and
+    lip_vertical_mm (Mouth_Up - Mouth_Down distance and its vertical part), lip_gap_mm (smallest
+    signed lip-lip distance), then the activation of each driven muscle. The picture: the area (with
+    ``reference``, (k, 2) time and area of the original, when given), the marker distance and the
+    activations over time.
+    """
     driven = [i for i in range(model.n_muscles) if np.any(result.activations[:, i] > 0)]
-    header = ["time_s", "lip_opening_mm", "lip_vertical_mm"] + [f"a_{model.muscle_names[i]}" for i in driven]
-    table = np.column_stack(
-        [result.times_s, result.lip_opening_mm, result.lip_vertical_mm, result.activations[:, driven]]
-    )
+    F = len(result.times_s)
+    area = result.lip_opening_area_mm2 if result.lip_opening_area_mm2 is not None else np.full(F, np.nan)
+    cols = {
+        "time_s": result.times_s,
+        "lip_opening_area_mm2": area,
+        "lip_opening_area_error_mm2": _or_nan(result.lip_opening_area_error_mm2, F),
+        "lip_opening_width_mm": _or_nan(result.lip_opening_width_mm, F),
+        "lip_opening_height_mm": _or_nan(result.lip_opening_height_mm, F),
+        "lip_opening_mm": result.lip_opening_mm,
+        "lip_vertical_mm": result.lip_vertical_mm,
+        "lip_gap_mm": _or_nan(result.lip_gap_mm, F),
+    }
+    header = list(cols) + [f"a_{model.muscle_names[i]}" for i in driven]
+    table = np.column_stack([*cols.values(), result.activations[:, driven]])
     csv = out / "lip_opening.csv"
     np.savetxt(csv, table, delimiter=",", header=",".join(header), comments="", fmt="%.6g")
     plt = _plt()
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True)
+    fig, (ax0, ax1, ax2) = plt.subplots(3, 1, figsize=(7, 7.5), sharex=True)
+    ax0.plot(result.times_s, area, "o-", color="C2", ms=3, label=f"wface ({result.mode})")
+    if reference is not None and len(reference):
+        ax0.plot(reference[:, 0], reference[:, 1], "k--", lw=1.2, label="original (ArtiSynth, recorded)")
+    ax0.set_ylabel("lip opening area (mm$^2$)")
+    ax0.legend(fontsize=8)
+    ax0.grid(alpha=0.3)
+    view = (result.area_view or {}).get("name", "")
+    contact = f", contact {result.contact}" if result.contact else ", no contact"
+    ax0.set_title(f"{result.gesture}: {result.mode} Badin face{contact}, {F} frames (view {view})", fontsize=10)
     ax1.plot(result.times_s, result.lip_opening_mm, "o-", color="C3", ms=3, label="distance")
     ax1.plot(result.times_s, result.lip_vertical_mm, "--", color="C0", label="vertical part")
     ax1.legend(fontsize=8)
-    ax1.set_ylabel("lip opening (mm)\nMouth_Up - Mouth_Down")
-    ax1.set_title(f"{result.gesture}: quasistatic Badin face, {len(result.times_s)} frames")
+    ax1.set_ylabel("Mouth_Up - Mouth_Down (mm)")
     ax1.grid(alpha=0.3)
     seen = set()
     for i in driven:
@@ -50,9 +78,15 @@ def write_lip_opening(out: Path, result: GestureResult, model: FaceModel) -> tup
     return csv, png
 
 
+def _or_nan(a, n: int) -> np.ndarray:
+    return np.full(n, np.nan) if a is None else np.asarray(a, dtype=np.float64)
+
+
 def write_gesture_usd(path: Path, result: GestureResult, model: FaceModel, *, fps: float, source: str = "") -> Path:
     """The played gesture as a take stage (``wface.takes.usd``): skin, markers, activations; the
-    bones stay at rest."""
+    bones stay at rest. The lip opening area goes into the layer metadata (customLayerData["wface"]:
+    ``lip_opening_area_mm2`` per frame, the view, the mode) and, time-sampled like the skin, onto the
+    root prim as ``wface:lipOpeningArea_mm2`` (float, one sample per frame at time code f)."""
     take = Take(
         activations=result.activations,
         fps=fps,
@@ -60,15 +94,38 @@ def write_gesture_usd(path: Path, result: GestureResult, model: FaceModel, *, fp
         source=source,
         joint=model.jaw_joint,
     )
-    return write_take_usd(
+    meta = {"gesture": result.gesture, "mode": result.mode, "contact": result.contact}
+    if result.lip_opening_area_mm2 is not None:
+        meta["lip_opening_area_mm2"] = [float(v) for v in result.lip_opening_area_mm2]
+        meta["lip_opening_area_view"] = result.area_view
+        meta["times_s"] = [float(t) for t in result.times_s]
+    if result.dynamics is not None:
+        meta["dynamics"] = result.dynamics
+    path = write_take_usd(
         path,
         model,
         result.node_positions_m,
         take=take,
         simulated_markers_m=result.markers_m,
         marker_names=result.marker_names,
-        metadata={"gesture": result.gesture},
+        metadata=meta,
     )
+    if result.lip_opening_area_mm2 is not None:
+        _area_samples(path, result.lip_opening_area_mm2)
+    return path
+
+
+def _area_samples(path: Path, area_mm2: np.ndarray) -> None:
+    """Add ``wface:lipOpeningArea_mm2`` time samples to the stage's default prim."""
+    from pxr import Sdf, Usd
+
+    stage = Usd.Stage.Open(str(path))
+    prim = stage.GetDefaultPrim()
+    attr = prim.CreateAttribute("wface:lipOpeningArea_mm2", Sdf.ValueTypeNames.Float)
+    attr.SetDocumentation("mouth aperture in an orthographic view, mm^2 (wface.speech.aperture)")
+    for f, v in enumerate(area_mm2):
+        attr.Set(float(v), Usd.TimeCode(f))
+    stage.GetRootLayer().Save()
 
 
 def write_aperture_picture(

@@ -44,6 +44,7 @@ from wface.mesh.align import align_to_surface
 from wface.mesh.closest import SurfaceQuery
 from wface.mesh.surface import boundary_faces
 from wface.physics.contact import Contact
+from wface.physics.contact_solve import solve_restarted
 from wface.physics.simulator import Simulator
 from wface.speech.aperture import ApertureView, aperture_area
 from wface.speech.dynamic import GestureDynamics, play_dynamic
@@ -52,6 +53,7 @@ from wface.tracking.sequence import embed_model_markers
 
 __all__ = [
     "GestureResult",
+    "compare_with_reference",
     "gesture_times",
     "lip_area_points",
     "lip_opening_mm",
@@ -197,9 +199,11 @@ def _play_quasistatic(sim, gesture, mapping, times, tol, max_iterations, contact
         "seconds": np.zeros(F),
     }
     x_prev = None
-    kwargs = {} if contact is None else {"contact": contact}
     for f in range(F):
-        eq = sim.solve(activations=A[f], x0=x_prev, tol=tol, max_iterations=max_iterations, **kwargs)
+        if contact is None:
+            eq = sim.solve(activations=A[f], x0=x_prev, tol=tol, max_iterations=max_iterations)
+        else:  # Newton restarted every few iterations (wface.physics.contact_solve)
+            eq = solve_restarted(sim, A[f], None, x_prev, tol=tol, max_iterations=max_iterations, contact=contact)
         run["x_m"][f] = x_prev = eq.x
         for key in ("iterations", "residual_rel", "converged", "inverted_elements", "seconds"):
             run["newton_iterations" if key == "iterations" else key][f] = getattr(eq, key)
@@ -456,3 +460,30 @@ def simulate_controls(rig, markers, controls: np.ndarray, *, substeps: int = 3, 
         if progress:
             print(f"simulated frame {f + 1}/{F}: residual {state.residual_rel:.1e}, {secs[f]:.1f} s", flush=True)
     return {"x_m": X, "markers_m": Mk, "converged": conv, "residual_rel": res, "seconds": secs}
+
+
+def compare_with_reference(result: GestureResult, reference: np.ndarray | None) -> dict | None:
+    """wface's lip opening area against the original's recorded curve ((k, 2) time, area in mm^2).
+
+    Returns None without a reference or an area; else the RMS difference over the reference times
+    inside the played span (wface's curve interpolated linearly), and the "settled" (largest value
+    before the excitation starts, t <= 0.22 s, where the original has settled under gravity) and
+    "final" (mean over t >= 0.6 s) values of both, with their ratios final / settled.
+    """
+    if reference is None or not len(reference) or result.lip_opening_area_mm2 is None:
+        return None
+    t, a = result.times_s, result.lip_opening_area_mm2
+    ref = np.asarray(reference, dtype=np.float64)
+    inside = (ref[:, 0] >= t[0] - 1e-9) & (ref[:, 0] <= t[-1] + 1e-9)
+    ours = np.interp(ref[inside, 0], t, a)
+    out = {"rms_mm2": float(np.sqrt(np.mean((ours - ref[inside, 1]) ** 2))) if inside.any() else None}
+    for name, tt, vv in (("wface", t, a), ("original", ref[:, 0], ref[:, 1])):
+        early, late = tt <= 0.22 + 1e-9, tt >= 0.6 - 1e-9
+        settled = float(vv[early].max()) if early.any() else None
+        final = float(vv[late].mean()) if late.any() else None
+        out[name] = {
+            "settled_mm2": settled,
+            "final_mm2": final,
+            "ratio": final / settled if settled and final is not None else None,
+        }
+    return out
