@@ -31,7 +31,17 @@ from wface.controls import attached_positions_from_affines, jaw_opening_affine
 from wface.faces.builtin import build_face
 from wface.physics import Simulator
 from wface.solvers.amg import AMGPreconditioner, amg_available
-from wface.solvers.linear import DirectFactor, JacobiPreconditioner, available_direct_backends, direct_backend, pcg
+from wface.solvers.cudss import CudssFactor
+from wface.solvers.linear import (
+    DirectFactor,
+    JacobiPreconditioner,
+    available_direct_backends,
+    cudss_available,
+    direct_backend,
+    forget_analysis,
+    pcg,
+)
+from wface.solvers.warp_cg import warp_pcg
 from wface.warp_runtime import init_warp, resolve_device
 
 __all__ = ["run", "DEFAULT_TETS"]
@@ -89,7 +99,8 @@ def _time_forces(out: dict, sim, device: str, x, a, repeat: int, sync) -> None:
 
     def forces():
         sim._f.zero_()
-        wp.launch(sim._k.element_forces, model.n_tets, inputs=[*sim._model_inputs(), sim._x, sim._a, sim._f, sim._e])
+        inputs = [*sim._model_inputs(), sim._x, sim._a, sim._f, sim._e]
+        wp.launch(sim._k.element_forces, model.n_tets, inputs=inputs, device=sim.device)
 
     out["forces_kernel_seconds"] = _median_time(forces, repeat, sync)  # one launch, one CPU thread
     out["forces_ns_per_tet"] = 1e9 * out["forces_kernel_seconds"] / model.n_tets
@@ -104,6 +115,7 @@ def _time_forces(out: dict, sim, device: str, x, a, repeat: int, sync) -> None:
             sim32._k.element_forces,
             model.n_tets,
             inputs=[*sim32._model_inputs(), sim32._x, sim32._a, sim32._f, sim32._e],
+            device=sim32.device,
         )
 
     out["forces_float32_seconds"] = _median_time(forces32, repeat, sync)
@@ -131,9 +143,8 @@ def _time_tangent(out: dict, sim, x, a, rng, repeat: int, sync):
 
     def kv():
         sim._out.zero_()
-        wp.launch(
-            sim._k.tangent_matvec, model.n_tets, inputs=[sim._tets, sim._dm_inv, tan.element_tangents, sim._v, sim._out]
-        )
+        inputs = [sim._tets, sim._dm_inv, tan.element_tangents, sim._v, sim._out]
+        wp.launch(sim._k.tangent_matvec, model.n_tets, inputs=inputs, device=sim.device)
 
     out["kv_kernel_seconds"] = _median_time(kv, repeat, sync)  # one launch, one CPU thread
     out["kv_seconds"] = _median_time(lambda: tan.matvec(v), max(repeat, 5), sync)  # Tangent.matvec, all cores
@@ -234,6 +245,8 @@ def compare_solvers(
     """
     B = np.random.default_rng(1).normal(size=(pattern.shape[0], columns))
     out: dict = {}
+    if str(tan.device).startswith("cuda"):
+        return _compare_gpu_solvers(tan, pattern, b, B)
     for backend in available_direct_backends():
         out[backend] = _time_direct_backend(tan, pattern, b, B, backend)
     K = tan.assemble(pattern)
@@ -251,9 +264,7 @@ def _time_direct_backend(tan, pattern, b, B, backend: str) -> dict:
     """Setup (with analysis), numeric refactorisation, 1 and M + 12 right-hand sides of one backend."""
     values = tan.assemble_upper(pattern)
     if backend == "pardiso":  # a fresh analysis for the setup time, as a new mesh would have
-        from wface.solvers.linear import _ANALYSES
-
-        _ANALYSES.pop(pattern, None)
+        forget_analysis(pattern)
     t0 = time.perf_counter()
     factor = DirectFactor.of_pattern(pattern, values, backend=backend)
     setup = time.perf_counter() - t0
@@ -291,4 +302,40 @@ def _time_cg_backend(K, b, preconditioner, setup: float, columns: int, maxiter: 
     out["columns"] = columns
     out["columns_seconds"] = columns * out["rtol_1e-10"]["seconds"]  # an estimate: 47 x one column
     out["frame_seconds"] = setup + out["columns_seconds"]
+    return out
+
+
+def _compare_gpu_solvers(tan, pattern, b, B) -> dict:
+    """On CUDA: cuDSS (when nvmath-python is installed) and the matrix-free Warp CG with Jacobi."""
+    out: dict = {}
+    if cudss_available():
+        values = tan.assemble_upper(pattern)
+        timings = []
+        for _ in range(2):  # the first includes cuDSS's plan (analysis)
+            t0 = time.perf_counter()
+            factor = CudssFactor(pattern, values)
+            timings.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        factor.solve(b)
+        one = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        factor.solve(B)
+        cols = time.perf_counter() - t0
+        out["cudss"] = {
+            "setup_seconds": timings[0],
+            "refactor_seconds": timings[1],
+            "solve_seconds": one,
+            "columns": B.shape[1],
+            "columns_seconds": cols,
+            "frame_seconds": timings[1] + cols,
+        }
+    entry: dict = {"setup_seconds": 0.0}
+    for rtol, key in ((1e-6, "rtol_1e-6"), (1e-10, "rtol_1e-10")):
+        t0 = time.perf_counter()
+        _, its = warp_pcg(tan, pattern, b, rtol=rtol)
+        entry[key] = {"seconds": time.perf_counter() - t0, "iterations": its}
+    entry["columns"] = B.shape[1]
+    entry["columns_seconds"] = B.shape[1] * entry["rtol_1e-10"]["seconds"]  # an estimate: 47 x one column
+    entry["frame_seconds"] = entry["columns_seconds"]
+    out["warp_jacobi_cg"] = entry
     return out

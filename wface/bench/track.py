@@ -27,6 +27,7 @@ import numpy as np
 from wface.bench import suite_result
 from wface.faces.builtin import build_face
 from wface.solvers import DirectFactor
+from wface.solvers.cudss import CudssFactor
 from wface.tracking.estimator import TrackOptions
 from wface.tracking.identifiability import rig_identifiability_mm
 from wface.tracking.report import build_report
@@ -82,9 +83,10 @@ def limit_seconds(rig: FaceRig, state: RigState, *, repeat: int = 3) -> dict:
     values = sim.tangent(state.y_m, a, project=False).assemble_upper(pattern)
     B = np.random.default_rng(0).normal(size=(pattern.shape[0], rig.n_muscles + 12))
     factor_s, solve_s = [], []
+    on_gpu = str(sim.device).startswith("cuda")
     for _ in range(max(1, repeat)):
         t0 = time.perf_counter()
-        factor = DirectFactor.of_pattern(pattern, values)
+        factor = CudssFactor(pattern, values) if on_gpu else DirectFactor.of_pattern(pattern, values)
         factor_s.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         factor.solve(B)

@@ -46,6 +46,7 @@ class Tangent:
         self.device = sim.device
         self.n_nodes = sim.model.n_nodes
         self.dtype = sim._np_dtype  # the precision of the element tangents (``device_matvec``)
+        self._upper: dict = {}  # pattern id -> upper-triangle values already assembled
 
     def device_matvec(self, x, out) -> None:
         """out += K x on Warp arrays of vec3 on ``device`` (out zeroed by the caller): one launch."""
@@ -88,7 +89,21 @@ class Tangent:
     def assemble_upper(self, pattern: BlockPattern) -> np.ndarray:
         """(nnz,) float64 upper-triangle values of K_UU in the order of ``pattern.upper`` (the sparse
         direct solvers' input, with no format conversion)."""
+        cached = self._upper.get(id(pattern))
+        if cached is not None:
+            return cached
         return pattern.upper_values(self.assemble_blocks(pattern).numpy())
+
+    def assemble_free_and_coupling(self) -> sp.csr_matrix:
+        """K_UC over the free rows and attached columns (``Simulator.pattern("coupling")``) as CSR, and
+        K_UU's upper-triangle values, kept for ``assemble_upper(pattern("free"))``: one assembly pass
+        over the tets for both (the tracker's Jacobians need both at every new stiffness)."""
+        s = self._sim
+        rows, uu, uc = s._free_rows_pattern()
+        blocks = self.assemble_blocks(rows).numpy().astype(np.float64)
+        free = s.pattern("free")
+        self._upper[id(free)] = free.upper_values(blocks[uu])
+        return s.pattern("coupling").to_csr(blocks[uc])
 
 
 class StiffnessSolver:
@@ -361,6 +376,7 @@ class Simulator:
                     self._x,
                     out,
                 ],
+                device=self.device,
             )
         return out.numpy().astype(np.float64)[:M] * self._muscle_scale()
 
@@ -423,6 +439,18 @@ class Simulator:
         if key not in self._patterns:
             self._patterns[key] = BlockPattern(self.model.tets, self.model.n_nodes, ids)
         return self._patterns[key]
+
+    def _free_rows_pattern(self):
+        """(pattern of the free rows and the free-then-attached columns, mask of its K_UU blocks, mask of
+        its K_UC blocks); both subsets come out in the order of ``pattern("free")`` / ``pattern("coupling")``
+        (blocks sorted by row, then column, and the free columns come first)."""
+        if "free_rows" not in self._patterns:
+            m = self.model
+            cols = np.concatenate([m.free_nodes, m.attached_nodes])
+            rows = BlockPattern(m.tets, m.n_nodes, m.free_nodes, col_nodes=cols)
+            uu = rows.indices < m.free_nodes.size
+            self._patterns["free_rows"] = (rows, uu, ~uu)
+        return self._patterns["free_rows"]
 
     def _block_index_array(self, pattern: BlockPattern):
         key = id(pattern)

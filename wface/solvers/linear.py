@@ -40,6 +40,7 @@ __all__ = [
     "available_direct_backends",
     "cudss_available",
     "direct_backend",
+    "forget_analysis",
     "pattern_analysis",
     "pcg",
     "resolve_linear_solver",
@@ -122,6 +123,11 @@ def pattern_analysis(pattern) -> PardisoAnalysis:
         analysis = PardisoAnalysis(upper.indptr, upper.indices, slots=4)
         _ANALYSES[pattern] = analysis
     return analysis
+
+
+def forget_analysis(pattern) -> None:
+    """Drop the kept analysis of a pattern (the next factorisation analyses anew; benchmarks)."""
+    _ANALYSES.pop(pattern, None)
 
 
 class NotPositiveDefiniteError(np.linalg.LinAlgError):

@@ -30,6 +30,7 @@ import threading
 import time
 
 import numpy as np
+import scipy.sparse as sp
 
 __all__ = ["PardisoAnalysis", "PardisoError", "PardisoFactor", "mkl_runtime", "pardiso_threads"]
 
@@ -162,8 +163,6 @@ class PardisoAnalysis:
     @classmethod
     def of_matrix(cls, A, *, slots: int = 1) -> tuple[PardisoAnalysis, np.ndarray]:
         """(analysis, upper-triangle values) of a full symmetric scipy sparse matrix (tests, small uses)."""
-        import scipy.sparse as sp
-
         U = sp.triu(sp.csr_matrix(A, dtype=np.float64), format="csr")
         U.sum_duplicates()
         U.sort_indices()

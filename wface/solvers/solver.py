@@ -28,6 +28,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from wface.solvers.cudss import CudssFactor
 from wface.solvers.linear import (
     DirectFactor,
     FactorPreconditioner,
@@ -142,8 +143,6 @@ class LinearSolver:
         CUDA operator, else from the assembled CSR matrix."""
         t0 = time.perf_counter()
         if _on_device(operator) and cudss_available():
-            from wface.solvers.cudss import CudssFactor
-
             factor = CudssFactor.of_operator(operator, pattern)
         elif hasattr(operator, "assemble_upper") and pattern.square:
             factor = DirectFactor.of_pattern(pattern, operator.assemble_upper(pattern))

@@ -230,7 +230,7 @@ class FaceRig:
         sim, pattern = self.sim, self.sim.pattern("free")
         t0 = time.perf_counter()
         tan = sim.tangent(y, a, project=False)
-        k_uc = tan.assemble(sim.pattern("coupling"))  # (3|U|, 3|C|) of the exact tangent
+        k_uc = tan.assemble_free_and_coupling()  # (3|U|, 3|C|) of the exact tangent, K_UU kept for the factor
         t1 = time.perf_counter()
         counts0 = self._linear.counters()
         projected = False
