@@ -273,3 +273,33 @@ def test_linear_solver_counts_factorisations_and_back_solves(stiffness):
     assert (solver.factorizations, solver.back_solves) == (1, 6)
     assert solver.factor_seconds > 0 and solver.solve_seconds > 0
     bound.free()
+
+
+def test_linear_solver_cg_with_the_amg_preconditioner(stiffness):
+    pytest.importorskip("pyamg")
+    from wface.solvers import LinearSolver
+
+    sim, x, a, K = stiffness
+    b = np.random.default_rng(8).normal(size=K.shape[0])
+    solver = LinearSolver("cg", preconditioner="amg")
+    X = solver.solve(sim.tangent(x, a), sim.pattern("free"), b, rtol=1e-10)
+    assert np.linalg.norm(K @ X - b) <= 1.01e-10 * np.linalg.norm(b)
+    jacobi = LinearSolver("cg")
+    jacobi.solve(sim.tangent(x, a), sim.pattern("free"), b, rtol=1e-10)
+    assert solver.cg_iterations < jacobi.cg_iterations
+
+
+def test_more_live_factors_than_kept_slots_still_factor(stiffness):
+    _pardiso_or_skip()
+    from wface.solvers.linear import pattern_analysis
+
+    sim, x, a, K = stiffness
+    pattern = sim.pattern("free")
+    values = sim.tangent(x, a).assemble_upper(pattern)
+    slots = pattern_analysis(pattern).slots
+    factors = [DirectFactor.of_pattern(pattern, values) for _ in range(slots + 2)]  # two beyond the slots
+    b = np.ones(K.shape[0])
+    for f in factors:
+        np.testing.assert_allclose(K @ f.solve(b), b, rtol=0, atol=1e-9)
+    for f in factors:
+        f.free()

@@ -172,9 +172,8 @@ def test_a_rejected_full_step_is_not_solved_twice(capture_30hz):
 
 
 def test_cg_iterations_reach_the_frame_records_and_the_report(scene):
-    from wface.tracking.report import build_report
-
     from wface.tracking.estimator import TrackOptions
+    from wface.tracking.report import build_report
 
     model, markers, perf = scene
     one_step = TrackOptions(gn_steps_first=1, reuse_factor=False)  # one Jacobian: keep the CG run short

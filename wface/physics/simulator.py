@@ -48,6 +48,11 @@ class Tangent:
         self.dtype = sim._np_dtype  # the precision of the element tangents (``device_matvec``)
         self._upper: dict = {}  # pattern id -> upper-triangle values already assembled
 
+    @property
+    def rest_positions_m(self) -> np.ndarray:
+        """(n, 3) rest positions of the nodes (the rigid-body modes of an AMG preconditioner)."""
+        return self._sim.model.rest_positions_m
+
     def device_matvec(self, x, out) -> None:
         """out += K x on Warp arrays of vec3 on ``device`` (out zeroed by the caller): one launch."""
         s = self._sim

@@ -68,6 +68,7 @@ class AMGPreconditioner:
             presmoother=("block_gauss_seidel", {"sweep": "symmetric"}),
             postsmoother=("block_gauss_seidel", {"sweep": "symmetric"}),
             max_coarse=max_coarse,
+            coarse_solver="splu",
         )
         self._M = self._ml.aspreconditioner(cycle="V")
         self.levels = len(self._ml.levels)

@@ -184,6 +184,8 @@ class DirectFactor:
         self.shape = pattern.shape
         upper = pattern.upper
         analysis = pattern_analysis(pattern) if self.backend == "pardiso" else None
+        if analysis is not None and analysis.slots_in_use == analysis.slots:
+            analysis = PardisoAnalysis(upper.indptr, upper.indices, slots=1)  # every kept slot is taken
         self.reused_analysis = analysis is not None and analysis.analyses > 0
         self._factor(upper.indptr, upper.indices, values, analysis)
         return self

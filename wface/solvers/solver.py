@@ -28,6 +28,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from wface.solvers.amg import AMGPreconditioner
 from wface.solvers.cudss import CudssFactor
 from wface.solvers.linear import (
     DirectFactor,
@@ -86,6 +87,10 @@ class LinearSolver:
             the analysis of a pattern is kept anyway, see ``wface.solvers.linear.pattern_analysis``).
         precondition: with ``keep_factor``, first try CG preconditioned by the kept (older) factor,
             for at most ``reuse_iterations`` iterations, before factoring anew.
+        preconditioner: of the CPU CG engine: "jacobi" (default; measured faster than pyamg's AMG at
+            20K-400K tets on the 2-core CPU, docs/design.md, "Linear solvers") or "amg" (smoothed
+            aggregation with the rigid-body modes, ``wface.solvers.amg``; needs pyamg and an
+            operator with ``rest_positions_m``).
 
     Attributes:
         engine: "direct" or "cg", what runs here.
@@ -102,8 +107,12 @@ class LinearSolver:
         keep_factor: bool = False,
         precondition: bool = False,
         reuse_iterations: int = 12,
+        preconditioner: str = "jacobi",
     ):
+        if preconditioner not in ("jacobi", "amg"):
+            raise ValueError(f"preconditioner must be 'jacobi' or 'amg', got {preconditioner!r}")
         self.engine = resolve_linear_solver(solver, device)
+        self.preconditioner = preconditioner
         self.device = str(device)
         self.keep_factor = bool(keep_factor)
         self.precondition = bool(precondition)
@@ -198,7 +207,7 @@ class LinearSolver:
             X, its = warp_pcg(operator, pattern, rhs, rtol=rtol)
             self.cg_iterations += its
             return X
-        precond = JacobiPreconditioner(pattern.gather(operator.diagonal()))
+        precond = self._cg_preconditioner(operator, pattern)
         res = pcg(
             _unknown_matvec(operator, pattern),
             rhs,
@@ -211,6 +220,12 @@ class LinearSolver:
         if res.indefinite:
             raise NotPositiveDefiniteError("CG met a direction of non-positive curvature")
         return res.x
+
+    def _cg_preconditioner(self, operator, pattern):
+        positions = getattr(operator, "rest_positions_m", None)
+        if self.preconditioner == "amg" and positions is not None:
+            return AMGPreconditioner(operator.assemble(pattern), positions[pattern.dof_nodes])
+        return JacobiPreconditioner(pattern.gather(operator.diagonal()))
 
 
 class BoundSolve:

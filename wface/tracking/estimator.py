@@ -228,7 +228,7 @@ class FrameEstimator:
             step = self._gn_step(state, lin.jy, m, target, present, w, a_prev)
             timings["gauss_newton_system_s"] += time.perf_counter() - t
             rho = step["rho"]
-            if opt.reuse_factor and gn_done > 0 and self._converged(step["total0"], step["predicted"], present):
+            if opt.reuse_factor and self._converged(step["total0"], step["predicted"], present, relative=gn_done > 0):
                 break  # the next step would change the fit by less than the tolerances: done here
             t = time.perf_counter()
             cache, near = self._line_search(step, state, lin, target, present, w, a_prev)
@@ -298,15 +298,16 @@ class FrameEstimator:
         predicted = total0 - (float(np.sum(wr * (r + Jp @ dc) ** 2)) + rho * pen + self._reg(c + dc, a_prev))
         return {"dc": dc, "rho": rho, "total0": total0, "predicted": predicted, "Jy": Jy}
 
-    def _converged(self, total: float, decrease: float, present: np.ndarray) -> bool:
+    def _converged(self, total: float, decrease: float, present: np.ndarray, *, relative: bool = True) -> bool:
         """The stopping test on a decrease of the objective (achieved, or predicted for the next step):
-        below ``min_improvement`` of it, or an RMS marker change below ``tol_mm`` or below
-        ``noise_fraction`` of the capture's noise ``noise_mm``."""
+        below ``min_improvement`` of it (``relative``; not before a frame's first step, where a slow
+        motion under the noise would be a small share of the objective and the face would lag), or an
+        RMS marker change below ``tol_mm`` or below ``noise_fraction`` of the capture's noise ``noise_mm``."""
         opt = self.options
         n = max(int(present.sum()), 1)
         rms_change_mm = (np.sqrt(max(total, 0.0) / n) - np.sqrt(max(total - decrease, 0.0) / n)) * 1e3
         tol_mm = max(opt.tol_mm, opt.noise_fraction * (opt.noise_mm or 0.0))
-        return decrease < opt.min_improvement * total or rms_change_mm < tol_mm
+        return (relative and decrease < opt.min_improvement * total) or rms_change_mm < tol_mm
 
     def _line_search(self, step, state, lin, target, present, w, a_prev) -> tuple[dict[float, tuple], object]:
         """(tau -> (objective, state, markers) of the trials along dc, the stiffness factored at the full
