@@ -303,3 +303,19 @@ def test_more_live_factors_than_kept_slots_still_factor(stiffness):
         np.testing.assert_allclose(K @ f.solve(b), b, rtol=0, atol=1e-9)
     for f in factors:
         f.free()
+
+
+@pytest.mark.parametrize("backend", ["pardiso", "cholespy"])
+def test_single_precision_factors_solve_to_float32_accuracy(stiffness, backend):
+    if backend not in linear.available_direct_backends():
+        pytest.skip(f"{backend} is not installed")
+    sim, x, a, K = stiffness
+    pattern = sim.pattern("free")
+    values = sim.tangent(x, a).assemble_upper(pattern)
+    B = np.random.default_rng(9).normal(size=(K.shape[0], 3))
+    X64 = DirectFactor.of_pattern(pattern, values, backend=backend).solve(B)
+    f32 = DirectFactor.of_pattern(pattern, values, backend=backend, precision="float32")
+    X32 = f32.solve(B)
+    assert f32.precision == "float32" and X32.dtype == np.float64
+    err = np.linalg.norm(X32 - X64) / np.linalg.norm(X64)
+    assert 1e-12 < err < 1e-3, err  # float32 round-off (eps 6e-8) times the box's condition (~1e4)

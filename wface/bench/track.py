@@ -86,25 +86,30 @@ def limit_seconds(rig: FaceRig, state: RigState, *, repeat: int = 3) -> dict:
     on_gpu = str(sim.device).startswith("cuda")
     for _ in range(max(1, repeat)):
         t0 = time.perf_counter()
-        factor = CudssFactor(pattern, values) if on_gpu else DirectFactor.of_pattern(pattern, values)
+        if on_gpu:
+            factor = CudssFactor(pattern, values)
+        else:
+            factor = DirectFactor.of_pattern(pattern, values, precision=rig.factor_precision)
         factor_s.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         factor.solve(B)
         solve_s.append(time.perf_counter() - t0)
         factor.free()
     f, s = statistics.median(factor_s), statistics.median(solve_s)
-    return {"numeric_factor_seconds": f, "back_solve_columns_seconds": s, "columns": B.shape[1], "seconds": f + s}
+    out = {"numeric_factor_seconds": f, "back_solve_columns_seconds": s, "columns": B.shape[1], "seconds": f + s}
+    out["precision"] = "cudss" if on_gpu else rig.factor_precision
+    return out
 
 
 def bench_size(n_tets: int, *, device: str = "cpu", frames: int = 6, repeat: int = 3, options=None) -> dict:
     """One mesh size (module docstring). ``options``: ``TrackOptions`` of the tracker (default ones)."""
     model = build_face(n_tets)
     kwargs = {"device": device, "tol": 1e-6}
-    rig = FaceRig(model, **kwargs)
+    options = options or TrackOptions()
+    rig = FaceRig(model, factor_precision=options.factor_precision, **kwargs)  # the tracker's factors
     markers = embed_model_markers(model)
     window = (WINDOW_START, WINDOW_START + max(2, int(frames)))
     perf = synthesize_performance(rig, markers, frames=TAKE_FRAMES, seed=0, noise_mm=NOISE_MM, window=window)
-    options = options or TrackOptions()
     rss_reset = reset_peak_rss()
     t = time.perf_counter()
     recs = track_sequence(

@@ -129,6 +129,8 @@ class PardisoAnalysis:
         indptr, indices: the upper triangle of the symmetric matrix in CSR, sorted column indices,
             every row non-empty (its diagonal present); kept (as int32) for every later call.
         slots: how many numeric factors of this sparsity may be alive at the same time.
+        single: factor and solve in single precision (iparm[27] = 1; values and right-hand sides are
+            handed over as float32, solutions come back as float64).
 
     Attributes:
         n: matrix size.
@@ -138,7 +140,7 @@ class PardisoAnalysis:
         last_factor_seconds: wall time of the latest numeric factorisation.
     """
 
-    def __init__(self, indptr: np.ndarray, indices: np.ndarray, *, slots: int = 4):
+    def __init__(self, indptr: np.ndarray, indices: np.ndarray, *, slots: int = 4, single: bool = False):
         self._lib = mkl_runtime()
         if self._lib is None:
             raise RuntimeError("MKL PARDISO not found (pip install pypardiso, or set PYPARDISO_MKL_RT)")
@@ -151,6 +153,10 @@ class PardisoAnalysis:
         self.slots = int(slots)
         self._pt = np.zeros(64, dtype=np.int64)
         self._iparm = _iparm(self._lib)
+        self.single = bool(single)
+        self._dtype = np.float32 if self.single else np.float64
+        if self.single:
+            self._iparm[27] = 1
         self._perm = np.zeros(1, dtype=np.int32)
         self._free_slots = list(range(self.slots, 0, -1))  # mnum values 1..slots
         self._analysed = False
@@ -171,7 +177,7 @@ class PardisoAnalysis:
     def _call(self, phase: int, mnum: int, values, B: np.ndarray | None = None, X: np.ndarray | None = None):
         error = ctypes.c_int32(0)
         nrhs = 1 if B is None else (1 if B.ndim == 1 else B.shape[1])
-        dummy = np.zeros(1)
+        dummy = np.zeros(1, dtype=self._dtype)
         self._lib.pardiso(
             _ptr64(self._pt),
             ctypes.byref(ctypes.c_int32(self.slots)),  # maxfct
@@ -196,7 +202,7 @@ class PardisoAnalysis:
     def factor(self, values: np.ndarray) -> PardisoFactor:
         """Numeric factorisation of the matrix with these upper-triangle values (the analysis is done
         on the first call). Raises ``PardisoError`` (code -4 when the matrix is not positive definite)."""
-        values = np.ascontiguousarray(values, dtype=np.float64)
+        values = np.ascontiguousarray(values, dtype=self._dtype)
         if values.shape != (self.nnz,):
             raise ValueError(f"values have shape {values.shape}, expected ({self.nnz},)")
         with self._lock:
@@ -223,10 +229,10 @@ class PardisoAnalysis:
         return self.slots - len(self._free_slots)
 
     def _solve(self, mnum: int, values: np.ndarray, B: np.ndarray) -> np.ndarray:
-        B = np.asfortranarray(B, dtype=np.float64)
+        B = np.asfortranarray(B, dtype=self._dtype)
         X = np.zeros_like(B, order="F")
         self._call(33, mnum, values, B, X)
-        return X
+        return X.astype(np.float64, copy=False)
 
     def _release(self, mnum: int) -> None:
         with self._lock:

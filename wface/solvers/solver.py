@@ -91,6 +91,8 @@ class LinearSolver:
             20K-400K tets on the 2-core CPU, docs/design.md, "Linear solvers") or "amg" (smoothed
             aggregation with the rigid-body modes, ``wface.solvers.amg``; needs pyamg and an
             operator with ``rest_positions_m``).
+        factor_precision: "float64" or "float32" (single-precision PARDISO / cholespy factors of
+            pattern operators, see ``DirectFactor.of_pattern``).
 
     Attributes:
         engine: "direct" or "cg", what runs here.
@@ -108,11 +110,13 @@ class LinearSolver:
         precondition: bool = False,
         reuse_iterations: int = 12,
         preconditioner: str = "jacobi",
+        factor_precision: str = "float64",
     ):
         if preconditioner not in ("jacobi", "amg"):
             raise ValueError(f"preconditioner must be 'jacobi' or 'amg', got {preconditioner!r}")
         self.engine = resolve_linear_solver(solver, device)
         self.preconditioner = preconditioner
+        self.factor_precision = factor_precision
         self.device = str(device)
         self.keep_factor = bool(keep_factor)
         self.precondition = bool(precondition)
@@ -154,7 +158,8 @@ class LinearSolver:
         if _on_device(operator) and cudss_available():
             factor = CudssFactor.of_operator(operator, pattern)
         elif hasattr(operator, "assemble_upper") and pattern.square:
-            factor = DirectFactor.of_pattern(pattern, operator.assemble_upper(pattern))
+            values = operator.assemble_upper(pattern)
+            factor = DirectFactor.of_pattern(pattern, values, precision=self.factor_precision)
         else:
             factor = DirectFactor(operator.assemble(pattern))
         self.factorizations += 1

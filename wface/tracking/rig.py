@@ -110,6 +110,9 @@ class FaceRig:
         contact: a ``wface.physics.contact.Contact`` used in every equilibrium and Jacobian (module
             docstring), or None (default: no contact, results unchanged).
         max_iterations: Newton iteration cap of each equilibrium.
+        factor_precision: of the Jacobians' factorisations (and the chords made from them): "float64",
+            or "float32" (the tracker's default, ``TrackOptions.factor_precision``: 1.5x faster, within
+            8e-6 of float64 at 100K tets; docs/design.md, "Linear solvers").
     """
 
     def __init__(
@@ -123,10 +126,13 @@ class FaceRig:
         simulator=None,
         contact=None,
         max_iterations: int = 40,
+        factor_precision: str = "float64",
     ):
         self.model = model
         self.sim = simulator or Simulator(model, device=device, precision=precision, solver=solver)
-        self._linear = LinearSolver(self.sim.linear_solver, self.sim.device)  # the Jacobian solves
+        # the Jacobian solves (and the tracker's chord steps)
+        self._linear = LinearSolver(self.sim.linear_solver, self.sim.device, factor_precision=factor_precision)
+        self.factor_precision = factor_precision
         self.tol = tol
         self.contact = contact
         self.max_iterations = int(max_iterations)

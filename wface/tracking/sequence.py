@@ -52,7 +52,7 @@ def initial_controls(rig, markers: MarkerMap, target_m: np.ndarray, marker_names
 
 def _track_chunk(model, embedding, targets, frames, marker_names, options, rig_kwargs, out_dir, resume, progress):
     """Track consecutive frames (runs in a worker). Returns the list of FrameRecords."""
-    rig = FaceRig(model, **rig_kwargs)
+    rig = FaceRig(model, **{"factor_precision": options.factor_precision, **rig_kwargs})
     markers = MarkerMap(model, embedding)
     est = FrameEstimator(rig, markers, options)
     out = []
