@@ -9,8 +9,9 @@ per frame are medians over the later, warm-started frames.
 Reported per size: seconds per frame and its breakdown; Gauss-Newton steps, quasistatic solves,
 Newton iterations (chord steps among them), numeric factorisations and back-solves per frame;
 ``limit_seconds`` = one numeric factorisation of K_UU (the exact tangent at the last tracked
-equilibrium, the analysis reused) + one back-solve of the M + 12 solved control columns together,
-timed in the same run (median of ``--repeat``), and ``limit_ratio`` = seconds per frame / that;
+equilibrium, the analysis reused, in the tracker's factor precision) + one back-solve of the M + 12
+solved control columns together, timed in the same run (median of ``--repeat``), and ``limit_ratio``
+= seconds per frame / that (``limit_ratio_float64`` against double-precision factors, for reference);
 peak RSS (the process's high-water mark, reset before tracking where Linux allows it); and the
 accuracy against the known truth (activation RMS error over the observable muscles and over all,
 tracked-marker error against the clean markers, jaw angle error).
@@ -74,9 +75,11 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def limit_seconds(rig: FaceRig, state: RigState, *, repeat: int = 3) -> dict:
+def limit_seconds(rig: FaceRig, state: RigState, *, repeat: int = 3, precision: str | None = None) -> dict:
     """The least a frame needs at ``state``: one numeric factorisation of K_UU and one back-solve of
-    the M + 12 solved columns, each the median of ``repeat`` timings (s). Direct engine only."""
+    the M + 12 solved columns, each the median of ``repeat`` timings (s), in the tracker's factor
+    precision (``precision`` overrides it). Direct engine only."""
+    precision = precision or rig.factor_precision
     sim = rig.sim
     a = np.clip(state.controls[: rig.n_muscles], 0.0, 1.0)
     pattern = sim.pattern("free")
@@ -89,7 +92,7 @@ def limit_seconds(rig: FaceRig, state: RigState, *, repeat: int = 3) -> dict:
         if on_gpu:
             factor = CudssFactor(pattern, values)
         else:
-            factor = DirectFactor.of_pattern(pattern, values, precision=rig.factor_precision)
+            factor = DirectFactor.of_pattern(pattern, values, precision=precision)
         factor_s.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         factor.solve(B)
@@ -97,7 +100,7 @@ def limit_seconds(rig: FaceRig, state: RigState, *, repeat: int = 3) -> dict:
         factor.free()
     f, s = statistics.median(factor_s), statistics.median(solve_s)
     out = {"numeric_factor_seconds": f, "back_solve_columns_seconds": s, "columns": B.shape[1], "seconds": f + s}
-    out["precision"] = "cudss" if on_gpu else rig.factor_precision
+    out["precision"] = "cudss" if on_gpu else precision
     return out
 
 
@@ -143,6 +146,9 @@ def bench_size(n_tets: int, *, device: str = "cpu", frames: int = 6, repeat: int
         out["limit"] = limit_seconds(rig, last, repeat=repeat)
         out["limit_seconds"] = out["limit"]["seconds"]
         out["limit_ratio"] = out["seconds_per_frame"] / out["limit_seconds"]
+        if out["limit"]["precision"] == "float32":  # for reference: the limit with double-precision factors
+            out["limit_float64"] = limit_seconds(rig, last, repeat=repeat, precision="float64")
+            out["limit_ratio_float64"] = out["seconds_per_frame"] / out["limit_float64"]["seconds"]
     out["accuracy"] = _accuracy(model, rig, markers, recs, perf)
     return out
 

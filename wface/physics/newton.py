@@ -122,6 +122,7 @@ def newton_quasistatic(
     contact=None,
     chord=None,
     chord_rate: float = 0.5,
+    factor_precision: str = "float64",
 ) -> Equilibrium:
     """Newton-Raphson for f_U(x, a) = 0 (see module docstring). ``sim`` is a ``Simulator``.
 
@@ -133,9 +134,13 @@ def newton_quasistatic(
     ``chord``: a factor of K_UU at a nearby configuration for chord steps (module docstring): an
     object with ``solve(rhs)`` ((3k,) -> (3k,) over the free nodes) and ``coupling(dx_c)`` (K_UC dx_C
     for attached-node moves dx_C (a, 3), (3k,)), such as ``Simulator.stiffness_solver``'s.
+    ``factor_precision``: of the direct solver's factors ("float32": inexact Newton steps, 1.5x
+    cheaper factorisations; ``wface.solvers.LinearSolver``).
     """
     model = sim.model
-    linear = LinearSolver(solver, sim.device, keep_factor=True, precondition=bool(reuse_factor))
+    linear = LinearSolver(
+        solver, sim.device, keep_factor=True, precondition=bool(reuse_factor), factor_precision=factor_precision
+    )
     engine = linear.engine
     fixed = model.attached_nodes
     rest = model.rest_positions_m

@@ -477,6 +477,7 @@ class Simulator:
         reuse_factor: bool = False,
         contact=None,
         chord=None,
+        factor_precision: str = "float64",
     ) -> Equilibrium:
         """Quasistatic equilibrium f_U(x, a) = 0 with attached nodes at ``attached_positions``.
 
@@ -500,6 +501,8 @@ class Simulator:
             chord: the factor of K_UU at a nearby configuration (e.g. a ``StiffnessSolver``, or the
                 tracker's last Jacobian factor) for chord Newton steps: back-solves instead of fresh
                 factorisations while they converge fast (``wface.physics.newton``).
+            factor_precision: "float64", or "float32" for single-precision factors (inexact Newton
+                steps, 1.5x cheaper factorisations; the tracker's choice).
 
         Returns:
             ``wface.physics.newton.Equilibrium``.
@@ -517,6 +520,7 @@ class Simulator:
             reuse_factor=reuse_factor,
             contact=contact,
             chord=chord,
+            factor_precision=factor_precision,
         )
         result.seconds = time.perf_counter() - start
         return result

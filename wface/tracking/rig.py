@@ -177,6 +177,8 @@ class FaceRig:
         kwargs = {} if self.contact is None else {"contact": self.contact}
         if chord is not None:
             kwargs["chord"] = chord
+        if self.factor_precision != "float64":
+            kwargs["factor_precision"] = self.factor_precision
         eq = self.sim.solve(
             a_phys,
             attached_positions(self.model, b, frame="cranium"),
