@@ -53,6 +53,9 @@ LAZY_THIRD_PARTY = {
     "distributed",
     "pypardiso",
     "sksparse",
+    "cholespy",
+    "pyamg",
+    "nvmath",
 }
 
 

@@ -156,3 +156,166 @@ def test_refactorisation_with_the_same_sparsity_reuses_the_analysis(stiffness):
     if second.backend == "pardiso":
         with pytest.raises(RuntimeError, match="freed"):
             first.solve(b)  # its PARDISO handle now belongs to the newer factor
+
+
+# ---------------------------------------------------------------------------------------------
+# PARDISO through ctypes, the pattern's kept analysis, other backends and AMG (issue "Paper scale")
+
+
+def _pardiso_or_skip():
+    from wface.solvers.pardiso import mkl_runtime
+
+    if mkl_runtime() is None:
+        pytest.skip("MKL PARDISO not installed here")
+
+
+def test_upper_structure_and_coupling_block_match_scipy(stiffness):
+    sim, x, a, K = stiffness
+    tan = sim.tangent(x, a)
+    pattern = sim.pattern("free")
+    U = sp.triu(K, format="csr")
+    U.sort_indices()
+    assert np.array_equal(pattern.upper.indptr, U.indptr) and np.array_equal(pattern.upper.indices, U.indices)
+    np.testing.assert_array_equal(tan.assemble_upper(pattern), U.data)  # a gather of the same sums
+    full = tan.assemble(sim.pattern("all"))
+    free, fixed = sim.model.free_nodes, sim.model.attached_nodes
+    rows, cols = (3 * free[:, None] + np.arange(3)).ravel(), (3 * fixed[:, None] + np.arange(3)).ravel()
+    K_uc = tan.assemble(sim.pattern("coupling"))
+    assert (K_uc != full[rows][:, cols]).nnz == 0
+    fused = sim.tangent(x, a).assemble_free_and_coupling()
+    assert (fused != K_uc).nnz == 0
+
+
+def test_pardiso_slots_hold_two_factors_of_one_analysis(stiffness):
+    _pardiso_or_skip()
+    from wface.solvers.linear import pattern_analysis
+
+    sim, x, a, K0 = stiffness
+    pattern = sim.pattern("free")
+    t1 = sim.tangent(x * 1.01, a * 0.5)
+    K1 = t1.assemble(pattern)
+    f0 = DirectFactor.of_pattern(pattern, sim.tangent(x, a).assemble_upper(pattern))
+    f1 = DirectFactor.of_pattern(pattern, t1.assemble_upper(pattern))
+    analysis = pattern_analysis(pattern)
+    assert analysis.analyses == 1 and analysis.slots_in_use >= 2 and f1.reused_analysis
+    B = np.random.default_rng(5).normal(size=(K0.shape[0], 3))
+    for factor, K in ((f0, K0), (f1, K1), (f0, K0)):  # interleaved: each slot keeps its own factor
+        np.testing.assert_allclose(K @ factor.solve(B), B, rtol=0, atol=1e-9 * np.abs(B).max())
+    in_use = analysis.slots_in_use
+    f0.free()
+    f1.free()
+    assert analysis.slots_in_use == in_use - 2
+
+
+def test_pardiso_indefinite_matrix_is_reported_and_frees_its_slot():
+    _pardiso_or_skip()
+    from wface.solvers.pardiso import PardisoAnalysis, PardisoError
+
+    A = sp.csr_matrix(np.array([[2.0, 1.0, 0.0], [1.0, -3.0, 1.0], [0.0, 1.0, 2.0]]))
+    analysis, values = PardisoAnalysis.of_matrix(A, slots=1)
+    with pytest.raises(PardisoError) as err:
+        analysis.factor(values)
+    assert err.value.code == -4 and analysis.slots_in_use == 0
+
+
+@pytest.mark.parametrize("backend", ["cholespy", "cholmod"])
+def test_other_direct_backends_solve_the_stiffness(stiffness, backend):
+    if backend not in linear.available_direct_backends():
+        pytest.skip(f"{backend} is not installed")
+    sim, x, a, K = stiffness
+    B = np.random.default_rng(6).normal(size=(K.shape[0], 4))
+    factor = DirectFactor.of_pattern(
+        sim.pattern("free"), sim.tangent(x, a).assemble_upper(sim.pattern("free")), backend=backend
+    )
+    np.testing.assert_allclose(K @ factor.solve(B), B, rtol=0, atol=1e-9 * np.abs(B).max())
+    np.testing.assert_allclose(factor.solve(B[:, 1]), factor.solve(B)[:, 1], rtol=0, atol=1e-12 * np.abs(B).max())
+
+
+def test_rigid_body_modes_span_the_nullspace_of_the_unconstrained_stiffness():
+    from wface.solvers.amg import rigid_body_modes
+
+    model = box_model((3, 2, 2), cranium_faces=("x-",), muscles=1)
+    sim = Simulator(model)
+    K = sim.assemble_stiffness(model.rest_positions_m, None, nodes="all")  # no Dirichlet rows, at rest
+    B = rigid_body_modes(model.rest_positions_m)
+    assert np.allclose(B.T @ B, np.eye(6), atol=1e-12)
+    # rigid motions of the stress-free rest shape cost no force: K B = 0 to round-off of K's scale
+    assert np.abs(K @ B).max() <= 1e-9 * abs(K).max() * np.abs(B).max()
+
+
+def test_amg_preconditioned_cg_beats_jacobi():
+    pytest.importorskip("pyamg")
+    from wface.solvers.amg import AMGPreconditioner
+
+    model = box_model((12, 6, 6), cranium_faces=("x-",), muscles=1)
+    sim = Simulator(model)
+    K = sim.assemble_stiffness(model.rest_positions_m, None, nodes="free")
+    b = np.random.default_rng(7).normal(size=K.shape[0])
+    amg = pcg(
+        lambda v: K @ v, b, preconditioner=AMGPreconditioner(K, model.rest_positions_m[model.free_nodes]), rtol=1e-10
+    )
+    jac = pcg(lambda v: K @ v, b, preconditioner=JacobiPreconditioner(K.diagonal()), rtol=1e-10)
+    assert amg.converged and jac.converged
+    assert amg.iterations < jac.iterations / 3, (amg.iterations, jac.iterations)
+    np.testing.assert_allclose(amg.x, jac.x, rtol=0, atol=1e-6 * np.abs(jac.x).max())  # both to rtol 1e-10
+
+
+def test_linear_solver_counts_factorisations_and_back_solves(stiffness):
+    if direct_backend() is None:
+        pytest.skip("no sparse direct backend installed")
+    from wface.solvers import LinearSolver
+
+    sim, x, a, K = stiffness
+    solver = LinearSolver("direct")
+    bound = solver.bind(sim.tangent(x, a), sim.pattern("free"))
+    bound.solve(np.ones((K.shape[0], 5)))
+    bound.solve(np.ones(K.shape[0]))
+    assert (solver.factorizations, solver.back_solves) == (1, 6)
+    assert solver.factor_seconds > 0 and solver.solve_seconds > 0
+    bound.free()
+
+
+def test_linear_solver_cg_with_the_amg_preconditioner(stiffness):
+    pytest.importorskip("pyamg")
+    from wface.solvers import LinearSolver
+
+    sim, x, a, K = stiffness
+    b = np.random.default_rng(8).normal(size=K.shape[0])
+    solver = LinearSolver("cg", preconditioner="amg")
+    X = solver.solve(sim.tangent(x, a), sim.pattern("free"), b, rtol=1e-10)
+    assert np.linalg.norm(K @ X - b) <= 1.01e-10 * np.linalg.norm(b)
+    jacobi = LinearSolver("cg")
+    jacobi.solve(sim.tangent(x, a), sim.pattern("free"), b, rtol=1e-10)
+    assert solver.cg_iterations < jacobi.cg_iterations
+
+
+def test_more_live_factors_than_kept_slots_still_factor(stiffness):
+    _pardiso_or_skip()
+    from wface.solvers.linear import pattern_analysis
+
+    sim, x, a, K = stiffness
+    pattern = sim.pattern("free")
+    values = sim.tangent(x, a).assemble_upper(pattern)
+    slots = pattern_analysis(pattern).slots
+    factors = [DirectFactor.of_pattern(pattern, values) for _ in range(slots + 2)]  # two beyond the slots
+    b = np.ones(K.shape[0])
+    for f in factors:
+        np.testing.assert_allclose(K @ f.solve(b), b, rtol=0, atol=1e-9)
+    for f in factors:
+        f.free()
+
+
+@pytest.mark.parametrize("backend", ["pardiso", "cholespy"])
+def test_single_precision_factors_solve_to_float32_accuracy(stiffness, backend):
+    if backend not in linear.available_direct_backends():
+        pytest.skip(f"{backend} is not installed")
+    sim, x, a, K = stiffness
+    pattern = sim.pattern("free")
+    values = sim.tangent(x, a).assemble_upper(pattern)
+    B = np.random.default_rng(9).normal(size=(K.shape[0], 3))
+    X64 = DirectFactor.of_pattern(pattern, values, backend=backend).solve(B)
+    f32 = DirectFactor.of_pattern(pattern, values, backend=backend, precision="float32")
+    X32 = f32.solve(B)
+    assert f32.precision == "float32" and X32.dtype == np.float64
+    err = np.linalg.norm(X32 - X64) / np.linalg.norm(X64)
+    assert 1e-12 < err < 1e-3, err  # float32 round-off (eps 6e-8) times the box's condition (~1e4)

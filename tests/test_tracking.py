@@ -75,8 +75,13 @@ def test_resume_reuses_written_frames(scene, tmp_path):
     )
     assert frames[0].stat().st_mtime_ns == stamp  # not recomputed
     assert len(list((tmp_path / "frames").glob("frame_*.npz"))) == 3
-    for a, b in zip(first, again, strict=True):
-        assert np.allclose(a.controls, b.controls, atol=1e-9)
+    for a, b in zip(first[:2], again[:2], strict=True):
+        assert np.array_equal(a.controls, b.controls)  # read back from their files
+    # The redone frame starts from the Jacobian factored at the loaded equilibrium, where the uninterrupted
+    # run had the factor at its linear prediction (docs/design.md, "Performance"): the same frame's
+    # Gauss-Newton fit, equal to its stopping test on clean data (measured 2e-7), not to round-off.
+    _TOL = 1e-5
+    np.testing.assert_allclose(again[2].controls, first[2].controls, rtol=0, atol=_TOL)
 
 
 @pytest.mark.slow
@@ -128,3 +133,66 @@ def test_bad_input_is_named(scene):
     empty = np.full_like(perf.clean_markers_m[:1], np.nan)
     with pytest.raises(ValueError, match="markers present"):
         track_sequence(model, empty, marker_names=model.marker_names, markers=markers, options=TrackOptions())
+
+
+@pytest.fixture(scope="module")
+def capture_30hz():
+    """Six consecutive frames of a 2 s performance at 30 Hz with 0.5 mm noise: capture-like motion."""
+    model = build_face(2000)
+    rig = FaceRig(model, tol=1e-6)
+    markers = embed_model_markers(model)
+    perf = synthesize_performance(rig, markers, frames=60, seed=0, noise_mm=0.5, window=(24, 30))
+    return model, markers, perf
+
+
+def test_warm_frames_cost_one_factorisation_with_the_accuracy_of_the_paper_loop(capture_30hz):
+    from wface.tracking.estimator import TrackOptions
+
+    model, markers, perf = capture_30hz
+    kw = {"marker_names": model.marker_names, "markers": markers}
+    fast = track_sequence(model, perf.markers_m, **kw)
+    paper = track_sequence(model, perf.markers_m, options=TrackOptions(reuse_factor=False), **kw)
+    for r in fast[1:]:  # a warm frame: no start solve, one Gauss-Newton step, one factorisation
+        assert r.stats["quasistatic_solves"] == 1 and r.stats["gauss_newton_steps"] == 1, r.stats
+        assert r.stats["factorizations"] == 1 and r.stats["back_solves"] <= model.n_muscles + 12 + 4, r.stats
+    assert all(r.stats["factorizations"] > 2 for r in paper[1:])
+    err_fast, err_paper = _activation_rms(model, fast, perf), _activation_rms(model, paper, perf)
+    assert err_fast <= 1.05 * err_paper + 2e-3, (err_fast, err_paper)  # the same accuracy, up to noise
+
+
+def test_a_rejected_full_step_is_not_solved_twice(capture_30hz):
+    from wface.tracking.estimator import FrameEstimator, TrackOptions
+
+    model, markers, perf = capture_30hz
+    rig = FaceRig(model, tol=1e-6)
+    est = FrameEstimator(rig, markers, TrackOptions(accept_full_step=10.0))  # never good enough: search
+    first = est.estimate(0, perf.markers_m[0], rig.rest_controls(), steps=2)
+    res = est.estimate(1, perf.markers_m[1], first.controls, start=first.linearization, steps=1)
+    assert res.gauss_newton_steps == 1 and res.quasistatic_solves == est.options.line_search_evals == 5
+
+
+def test_cg_iterations_reach_the_frame_records_and_the_report(scene):
+    from wface.tracking.estimator import TrackOptions
+    from wface.tracking.report import build_report
+
+    model, markers, perf = scene
+    one_step = TrackOptions(gn_steps_first=1, reuse_factor=False)  # one Jacobian: keep the CG run short
+    recs = track_sequence(
+        model,
+        perf.clean_markers_m[:1],
+        marker_names=model.marker_names,
+        markers=markers,
+        options=one_step,
+        rig_kwargs={"solver": "cg"},
+    )
+    # Newton's CG and the Jacobian columns' CG (47 columns to 1e-10 take more than Newton alone)
+    assert recs[0].stats["cg_iterations"] > 47 * 10
+    rep = build_report(
+        model,
+        recs,
+        markers_data_m=perf.clean_markers_m[:1],
+        marker_names=model.marker_names,
+        rig_info={},
+        identifiability_mm=np.ones(model.n_muscles),
+    )
+    assert rep["cg_iterations"] == recs[0].stats["cg_iterations"]

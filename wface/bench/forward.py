@@ -8,6 +8,15 @@ of the same K (``kv_over_csr_matvec`` = ``Tangent.matvec`` time / CSR matvec tim
 factor and solves (1 and 44 right-hand sides), Jacobi-PCG on the matrix-free K.v, and one full
 quasistatic solve (``quasistatic_seconds``: zygomaticus_major_l = 0.6, orbicularis_oris_lower = 0.3,
 jaw opened 5 degrees, from rest).
+
+``solvers``: every linear solver installed here side by side on the same K_UU (the projected tangent
+at the deformed state): PARDISO, CHOLMOD (scikit-sparse, or the cholespy wheel), AMG-preconditioned
+CG (pyamg, rigid-body near-nullspace) and Jacobi CG (both on the CSR matrix). For each: ``setup_seconds``
+(first factorisation with its analysis, or the AMG hierarchy), ``refactor_seconds`` (a numeric
+factorisation with the analysis kept; direct only), one right-hand side to round-off (direct) or to
+rtol 1e-6 and 1e-10 (CG: iterations and seconds), ``columns_seconds`` for the M + 12 Jacobian columns
+(direct: one block solve; CG: 47 times the 1e-10 column, an estimate) and ``frame_seconds`` = the
+per-frame linear algebra of tracking (refactor or setup + the columns).
 """
 
 from __future__ import annotations
@@ -21,7 +30,18 @@ from wface.bench import suite_result
 from wface.controls import attached_positions_from_affines, jaw_opening_affine
 from wface.faces.builtin import build_face
 from wface.physics import Simulator
-from wface.solvers.linear import DirectFactor, JacobiPreconditioner, direct_backend, pcg
+from wface.solvers.amg import AMGPreconditioner, amg_available
+from wface.solvers.cudss import CudssFactor
+from wface.solvers.linear import (
+    DirectFactor,
+    JacobiPreconditioner,
+    available_direct_backends,
+    cudss_available,
+    direct_backend,
+    forget_analysis,
+    pcg,
+)
+from wface.solvers.warp_cg import warp_pcg
 from wface.warp_runtime import init_warp, resolve_device
 
 __all__ = ["run", "DEFAULT_TETS"]
@@ -63,6 +83,8 @@ def bench_size(target_tets: int, *, device: str = "cpu", repeat: int = 3, cg_max
     tan = _time_tangent(out, sim, x, a, rng, repeat, sync)
     pattern, b = _time_direct(out, sim, tan, x, a, rng)
     _time_cg(out, tan, pattern, b, cg_maxiter)
+    positions = model.rest_positions_m[pattern.dof_nodes]
+    out["solvers"] = compare_solvers(tan, pattern, b, positions, columns=model.n_muscles + 12, cg_maxiter=cg_maxiter)
     _time_quasistatic(out, sim, a)
     return out
 
@@ -77,7 +99,8 @@ def _time_forces(out: dict, sim, device: str, x, a, repeat: int, sync) -> None:
 
     def forces():
         sim._f.zero_()
-        wp.launch(sim._k.element_forces, model.n_tets, inputs=[*sim._model_inputs(), sim._x, sim._a, sim._f, sim._e])
+        inputs = [*sim._model_inputs(), sim._x, sim._a, sim._f, sim._e]
+        wp.launch(sim._k.element_forces, model.n_tets, inputs=inputs, device=sim.device)
 
     out["forces_kernel_seconds"] = _median_time(forces, repeat, sync)  # one launch, one CPU thread
     out["forces_ns_per_tet"] = 1e9 * out["forces_kernel_seconds"] / model.n_tets
@@ -92,6 +115,7 @@ def _time_forces(out: dict, sim, device: str, x, a, repeat: int, sync) -> None:
             sim32._k.element_forces,
             model.n_tets,
             inputs=[*sim32._model_inputs(), sim32._x, sim32._a, sim32._f, sim32._e],
+            device=sim32.device,
         )
 
     out["forces_float32_seconds"] = _median_time(forces32, repeat, sync)
@@ -119,9 +143,8 @@ def _time_tangent(out: dict, sim, x, a, rng, repeat: int, sync):
 
     def kv():
         sim._out.zero_()
-        wp.launch(
-            sim._k.tangent_matvec, model.n_tets, inputs=[sim._tets, sim._dm_inv, tan.element_tangents, sim._v, sim._out]
-        )
+        inputs = [sim._tets, sim._dm_inv, tan.element_tangents, sim._v, sim._out]
+        wp.launch(sim._k.tangent_matvec, model.n_tets, inputs=inputs, device=sim.device)
 
     out["kv_kernel_seconds"] = _median_time(kv, repeat, sync)  # one launch, one CPU thread
     out["kv_seconds"] = _median_time(lambda: tan.matvec(v), max(repeat, 5), sync)  # Tangent.matvec, all cores
@@ -209,3 +232,110 @@ def run(args) -> dict:
     repeat = int(getattr(args, "repeat", 3) or 3)
     results = [bench_size(int(n), device=device, repeat=repeat) for n in sizes]
     return suite_result("forward", device, results)
+
+
+def compare_solvers(
+    tan, pattern, b: np.ndarray, positions_m: np.ndarray, *, columns: int = 47, cg_maxiter: int = 3000
+) -> dict:
+    """The installed linear solvers on K_UU side by side (module docstring); {name: timings}.
+
+    Args:
+        tan: the stiffness (``Tangent``); pattern: its unknowns; b: (3k,) a right-hand side;
+        positions_m: (k, 3) positions of the unknowns (AMG near-nullspace); columns: Jacobian columns.
+    """
+    B = np.random.default_rng(1).normal(size=(pattern.shape[0], columns))
+    out: dict = {}
+    if str(tan.device).startswith("cuda"):
+        return _compare_gpu_solvers(tan, pattern, b, B)
+    for backend in available_direct_backends():
+        out[backend] = _time_direct_backend(tan, pattern, b, B, backend)
+    K = tan.assemble(pattern)
+    if amg_available():
+        t0 = time.perf_counter()
+        amg = AMGPreconditioner(K, positions_m)
+        setup = time.perf_counter() - t0
+        out["amg_cg"] = _time_cg_backend(K, b, amg, setup, columns, cg_maxiter)
+        out["amg_cg"].update(levels=amg.levels, operator_complexity=amg.operator_complexity)
+    out["jacobi_cg"] = _time_cg_backend(K, b, JacobiPreconditioner(K.diagonal()), 0.0, columns, cg_maxiter)
+    return out
+
+
+def _time_direct_backend(tan, pattern, b, B, backend: str) -> dict:
+    """Setup (with analysis), numeric refactorisation, 1 and M + 12 right-hand sides of one backend."""
+    values = tan.assemble_upper(pattern)
+    if backend == "pardiso":  # a fresh analysis for the setup time, as a new mesh would have
+        forget_analysis(pattern)
+    t0 = time.perf_counter()
+    factor = DirectFactor.of_pattern(pattern, values, backend=backend)
+    setup = time.perf_counter() - t0
+    factor.free()
+    t0 = time.perf_counter()
+    factor = DirectFactor.of_pattern(pattern, values, backend=backend)
+    refactor = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    x = factor.solve(b)
+    one = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    factor.solve(B)
+    cols = time.perf_counter() - t0
+    factor.free()
+    K = tan.assemble(pattern)
+    rel = float(np.linalg.norm(K @ x - b) / np.linalg.norm(b))
+    return {
+        "setup_seconds": setup,
+        "refactor_seconds": refactor,
+        "solve_seconds": one,
+        "columns": B.shape[1],
+        "columns_seconds": cols,
+        "frame_seconds": refactor + cols,
+        "residual_rel": rel,
+    }
+
+
+def _time_cg_backend(K, b, preconditioner, setup: float, columns: int, maxiter: int) -> dict:
+    """CG on the CSR K with a preconditioner: one right-hand side to 1e-6 and to 1e-10."""
+    out = {"setup_seconds": setup}
+    for rtol, key in ((1e-6, "rtol_1e-6"), (1e-10, "rtol_1e-10")):
+        t0 = time.perf_counter()
+        res = pcg(lambda v: K @ v, b, preconditioner=preconditioner, rtol=rtol, maxiter=maxiter)
+        out[key] = {"seconds": time.perf_counter() - t0, "iterations": res.iterations, "converged": res.converged}
+    out["columns"] = columns
+    out["columns_seconds"] = columns * out["rtol_1e-10"]["seconds"]  # an estimate: 47 x one column
+    out["frame_seconds"] = setup + out["columns_seconds"]
+    return out
+
+
+def _compare_gpu_solvers(tan, pattern, b, B) -> dict:
+    """On CUDA: cuDSS (when nvmath-python is installed) and the matrix-free Warp CG with Jacobi."""
+    out: dict = {}
+    if cudss_available():
+        values = tan.assemble_upper(pattern)
+        timings = []
+        for _ in range(2):  # the first includes cuDSS's plan (analysis)
+            t0 = time.perf_counter()
+            factor = CudssFactor(pattern, values)
+            timings.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        factor.solve(b)
+        one = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        factor.solve(B)
+        cols = time.perf_counter() - t0
+        out["cudss"] = {
+            "setup_seconds": timings[0],
+            "refactor_seconds": timings[1],
+            "solve_seconds": one,
+            "columns": B.shape[1],
+            "columns_seconds": cols,
+            "frame_seconds": timings[1] + cols,
+        }
+    entry: dict = {"setup_seconds": 0.0}
+    for rtol, key in ((1e-6, "rtol_1e-6"), (1e-10, "rtol_1e-10")):
+        t0 = time.perf_counter()
+        _, its = warp_pcg(tan, pattern, b, rtol=rtol)
+        entry[key] = {"seconds": time.perf_counter() - t0, "iterations": its}
+    entry["columns"] = B.shape[1]
+    entry["columns_seconds"] = B.shape[1] * entry["rtol_1e-10"]["seconds"]  # an estimate: 47 x one column
+    entry["frame_seconds"] = entry["columns_seconds"]
+    out["warp_jacobi_cg"] = entry
+    return out

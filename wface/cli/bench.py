@@ -20,6 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tets", type=int, action="append", help="mesh size(s) in tetrahedra (repeatable)")
     p.add_argument("--device", default="auto", help="Warp device: cpu, cuda:0 or auto (default)")
     p.add_argument("--repeat", type=int, default=3, help="repetitions per timing; the median is reported")
+    p.add_argument("--frames", type=int, help="frames to track (track suite; default 6)")
     p.add_argument("--json", action="store_true", help="print JSON only")
     p.add_argument("--out", help="also write the JSON to this file")
     p.set_defaults(func=_run)

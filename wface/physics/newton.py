@@ -17,6 +17,13 @@ built-in face (20K tets, jaw 5-25 deg, up to all 35 muscles at 1): the same Newt
 as trying the exact K from the start, without its failed factorisations, and 1.5-1.7x fewer
 iterations than "projected" alone.
 
+Chord steps (``chord=``): a factor of K_UU at a nearby configuration (the tracker hands on the
+factor of its last Jacobian, at the previous equilibrium) replaces the fresh factorisation: the lift
+and the Newton steps solve with it, back-solves only (a chord, or modified, Newton method with the
+energy line search). The chord is dropped, and ordinary Newton steps follow, as soon as a chord step
+is cut by the line search, is not a descent direction, or reduces the residual by less than
+``chord_rate`` (0.5): its linear rate has become too slow for the back-solves to pay.
+
 Relative residual (``Equilibrium.residual_rel``):
     ||f_U(x)||_2 / max(||f_U(X_load)||_2, f_floor),
 where X_load is the rest shape with the attached nodes at their targets (the out-of-balance force
@@ -53,6 +60,8 @@ class Equilibrium:
         inverted_elements: tets with det F <= 0 at x.
         energy: total elastic energy at x, joules.
         cg_iterations: CG iterations over all Newton steps (0 for the direct solver).
+        back_solves: right-hand sides solved with a factor (fresh or the chord's).
+        chord_steps: steps (the lift included) solved with the ``chord`` factor.
         projected_steps: Newton steps that used the projected stiffness.
         exact_failures: exact-Hessian attempts rejected (not positive definite / not descent).
         factorizations: sparse factorisations done (direct solver; later steps first try CG
@@ -79,6 +88,8 @@ class Equilibrium:
     inverted_elements: int
     energy: float
     cg_iterations: int = 0
+    back_solves: int = 0
+    chord_steps: int = 0
     projected_steps: int = 0
     factorizations: int = 0
     exact_failures: int = 0
@@ -109,6 +120,9 @@ def newton_quasistatic(
     reuse_factor: bool = False,
     exact_below: float = 0.1,
     contact=None,
+    chord=None,
+    chord_rate: float = 0.5,
+    factor_precision: str = "float64",
 ) -> Equilibrium:
     """Newton-Raphson for f_U(x, a) = 0 (see module docstring). ``sim`` is a ``Simulator``.
 
@@ -116,9 +130,17 @@ def newton_quasistatic(
     energy (line search), its forces the residual and its Gauss-Newton Hessian the stiffness of every
     step (assembled and matrix-free paths); bone-following obstacles are placed from
     ``attached_positions``. The residual scale stays the elastic one of the load on the rest shape.
+
+    ``chord``: a factor of K_UU at a nearby configuration for chord steps (module docstring): an
+    object with ``solve(rhs)`` ((3k,) -> (3k,) over the free nodes) and ``coupling(dx_c)`` (K_UC dx_C
+    for attached-node moves dx_C (a, 3), (3k,)), such as ``Simulator.stiffness_solver``'s.
+    ``factor_precision``: of the direct solver's factors ("float32": inexact Newton steps, 1.5x
+    cheaper factorisations; ``wface.solvers.LinearSolver``).
     """
     model = sim.model
-    linear = LinearSolver(solver, sim.device, keep_factor=True, precondition=bool(reuse_factor))
+    linear = LinearSolver(
+        solver, sim.device, keep_factor=True, precondition=bool(reuse_factor), factor_precision=factor_precision
+    )
     engine = linear.engine
     fixed = model.attached_nodes
     rest = model.rest_positions_m
@@ -132,6 +154,7 @@ def newton_quasistatic(
     scale = _force_scale(sim, activations, targets, pattern.dof_nodes)
     x = rest.copy() if x0 is None else np.array(x0, dtype=np.float64)
     run = _NewtonRun(problem, linear, pattern, scale, x)
+    run.chord, run.chord_rate = chord, float(chord_rate)
     run.lift(fixed, targets)
     run.evaluate()
     run.history.append(run.residual / scale)
@@ -215,28 +238,40 @@ class _NewtonRun:
         self.projected_steps = 0
         self.frozen_at = None  # iteration at which the current frozen features were taken
         self.refreezes = 0
+        self.chord, self.chord_rate, self.chord_steps = None, 0.5, 0
+        self.anderson = _Anderson(depth=5)
+        self._accepted = None  # (energy, forces, sum |E|) at the line search's accepted point, when known
 
     def lift(self, fixed: np.ndarray, targets: np.ndarray) -> None:
         """The lift step (module docstring) when the attached nodes are not at their targets."""
         problem, x, free = self.problem, self.x, self.free
         dxc = targets - x[fixed]
+        if fixed.size and np.abs(dxc).max() <= 1e-12 * max(float(np.ptp(targets, axis=0).max()), 1e-30):
+            x[fixed] = targets  # already there up to round-off (a linear prediction at the targets)
+            dxc = np.zeros_like(dxc)
         if fixed.size and np.any(dxc != 0.0):
             # Lift: move the attached nodes to their targets and the free ones by the linear response.
-            tan = problem.tangent(x)
             f = problem.sim.forces(x, problem.a) if problem.contact is None else problem.energy_forces(x)[1]
-            v = np.zeros_like(x)
-            v[fixed] = dxc
-            coupling = tan.matvec(v)  # K_{., C} dx_C
-            rhs = self.pattern.gather(f - coupling)
-            self.history.append(float(np.linalg.norm(rhs)) / self.scale)
-            dx = self.linear.solve(tan, self.pattern, rhs, rtol=1e-6)
+            if self.chord is not None:  # K_UC dx_C and K_UU^-1 from the nearby configuration
+                rhs = self.pattern.gather(f) - self.chord.coupling(dxc)
+                self.history.append(float(np.linalg.norm(rhs)) / self.scale)
+                dx = self.chord.solve(rhs)
+                self.chord_steps += 1
+            else:
+                tan = problem.tangent(x)
+                v = np.zeros_like(x)
+                v[fixed] = dxc
+                rhs = self.pattern.gather(f - tan.matvec(v))  # f_U - K_UC dx_C
+                self.history.append(float(np.linalg.norm(rhs)) / self.scale)
+                dx = self.linear.solve(tan, self.pattern, rhs, rtol=1e-6)
             x[fixed] = targets
             x[free] += dx.reshape(-1, 3)
             self.iterations += 1
 
     def evaluate(self) -> None:
-        """Energy, forces and residual at the iterate."""
-        self.energy, self.f, self.energy_abs = self.problem.energy_forces(self.x)
+        """Energy, forces and residual at the iterate (kept from the line search when it has them)."""
+        known, self._accepted = self._accepted, None
+        self.energy, self.f, self.energy_abs = known if known is not None else self.problem.energy_forces(self.x)
         self.residual = float(np.linalg.norm(self.f[self.free]))
 
     def freeze(self) -> None:
@@ -275,20 +310,36 @@ class _NewtonRun:
             self.step(max_line_search, stiffness)
 
     def step(self, max_line_search: int, stiffness: str) -> None:
-        """One Newton step with the line search."""
+        """One Newton (or chord) step with the line search."""
         free = self.free
         rhs = self.pattern.gather(self.f)
-        dx, tan = self.direction(rhs, stiffness)
+        chord = self.chord is not None
+        if chord:
+            g = self.chord.solve(rhs)  # the plain chord step
+            if not float(rhs @ g) > 0:  # not a descent direction: no more chord steps
+                self.chord, chord = None, False
+            else:
+                dx = self.anderson.step(self.x[free].reshape(-1), g)
+                if not float(rhs @ dx) > 0:
+                    dx = g
+                    self.anderson.reset()
+        if not chord:
+            dx, tan = self.direction(rhs, stiffness)
         dx = dx.reshape(-1, 3)
         slope = float(rhs @ dx.reshape(-1))  # -dE/dt at t = 0 (> 0 for a descent direction)
         if not slope > 0:  # not a descent direction (should not happen with SPD K): steepest descent
             dx = self.f[free] / max(float(np.abs(tan.diagonal()[free]).max()), 1e-30)
             slope = float(rhs @ dx.reshape(-1))
+        before = self.residual
         self.x, t = self.line_search(dx, slope, max_line_search)
         self.steps.append(t)
         self.iterations += 1
         self.evaluate()
         self.history.append(self.residual / self.scale)
+        if chord:
+            self.chord_steps += 1
+            if t < 1.0 or self.residual > self.chord_rate * before:
+                self.chord = None  # the chord's linear rate no longer pays: Newton from here
 
     def direction(self, rhs: np.ndarray, stiffness: str):
         """The Newton direction and the stiffness it solved with: the exact K when it is tried and
@@ -325,10 +376,15 @@ class _NewtonRun:
         )  # round-off of the energy sum
         t = 1.0
         trial = x.copy()
-        for _ in range(max_line_search):
+        for k in range(max_line_search):
             trial[free] = x[free] + t * dx
-            e_trial = self.problem.energy(trial)
+            if k == 0:  # the full step is usually taken: its forces come in the same pass
+                full = self.problem.energy_forces(trial)
+                e_trial = full[0]
+            else:
+                e_trial = self.problem.energy(trial)
             if np.isfinite(e_trial) and e_trial <= energy - 1e-4 * t * slope + slack:
+                self._accepted = full if k == 0 else None
                 break
             t *= 0.5
         return trial, t
@@ -357,6 +413,8 @@ class _NewtonRun:
             inverted_elements=count_inverted(problem.sim.model, x),
             energy=self.energy,
             cg_iterations=linear.cg_iterations,
+            back_solves=linear.back_solves + self.chord_steps,
+            chord_steps=self.chord_steps,
             projected_steps=self.projected_steps,
             factorizations=linear.factorizations,
             exact_failures=self.exact_failures,
@@ -365,3 +423,34 @@ class _NewtonRun:
             step_lengths=self.steps,
             **extra,
         )
+
+
+class _Anderson:
+    """Anderson acceleration of the chord iteration x <- x + g(x), g = F^-1 f_U(x) (F: the chord's
+    factor): the next step is g - (dX + dG) gamma with gamma = argmin |g - dG gamma| over the last
+    ``depth`` differences of iterates (dX) and of chord steps (dG). On a linear problem this is GMRES on
+    F^-1 K (Walker & Ni 2011), much faster than the chord's linear rate when F is an older stiffness."""
+
+    def __init__(self, depth: int = 5):
+        self.depth = int(depth)
+        self.reset()
+
+    def reset(self) -> None:
+        self.xs: list[np.ndarray] = []
+        self.gs: list[np.ndarray] = []
+
+    def step(self, x: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """The accelerated step from iterate x (3k,) with chord step g (3k,)."""
+        self.xs.append(np.array(x, dtype=np.float64))
+        self.gs.append(np.array(g, dtype=np.float64))
+        if len(self.xs) > self.depth + 1:
+            self.xs.pop(0)
+            self.gs.pop(0)
+        if len(self.xs) < 2:
+            return g
+        dX = np.stack([b - a for a, b in zip(self.xs[:-1], self.xs[1:], strict=True)], axis=1)
+        dG = np.stack([b - a for a, b in zip(self.gs[:-1], self.gs[1:], strict=True)], axis=1)
+        scale = np.linalg.norm(dG, axis=0)
+        scale[scale == 0] = 1.0
+        gamma = np.linalg.lstsq(dG / scale, g, rcond=1e-10)[0] / scale
+        return g - (dX + dG) @ gamma

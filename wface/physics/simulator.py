@@ -46,6 +46,12 @@ class Tangent:
         self.device = sim.device
         self.n_nodes = sim.model.n_nodes
         self.dtype = sim._np_dtype  # the precision of the element tangents (``device_matvec``)
+        self._upper: dict = {}  # pattern id -> upper-triangle values already assembled
+
+    @property
+    def rest_positions_m(self) -> np.ndarray:
+        """(n, 3) rest positions of the nodes (the rigid-body modes of an AMG preconditioner)."""
+        return self._sim.model.rest_positions_m
 
     def device_matvec(self, x, out) -> None:
         """out += K x on Warp arrays of vec3 on ``device`` (out zeroed by the caller): one launch."""
@@ -70,16 +76,39 @@ class Tangent:
         s._launch_tets(s._k.tangent_diagonal, inputs, sliced=(0, 1, 2), scattered=(3,))
         return s._out.numpy().astype(np.float64)
 
-    def assemble(self, pattern: BlockPattern | None = None) -> sp.csr_matrix:
-        """K restricted to the unknowns of ``pattern`` (default: all nodes) as CSR float64, (3k, 3k)."""
+    def assemble_blocks(self, pattern: BlockPattern):
+        """The (n_blocks,) 3x3 block values of K over ``pattern`` as a Warp array on ``device``."""
         s = self._sim
-        wp = s._wp
-        pattern = pattern or s.pattern(None)
         block_index = s._block_index_array(pattern)
-        blocks = wp.zeros(pattern.n_blocks, dtype=s._k.mat33, device=s.device)
+        blocks = s._wp.zeros(pattern.n_blocks, dtype=s._k.mat33, device=s.device)
         inputs = [s._dm_inv, self.element_tangents, block_index, blocks]
         s._launch_tets(s._k.tangent_assemble, inputs, sliced=(0, 1, 2), scattered=(3,))
-        return pattern.to_csr(blocks.numpy().astype(np.float64))
+        return blocks
+
+    def assemble(self, pattern: BlockPattern | None = None) -> sp.csr_matrix:
+        """K restricted to the rows and columns of ``pattern`` (default: all nodes) as CSR float64,
+        (3k, 3kc); a pattern with ``col_nodes`` gives a coupling block such as K_UC."""
+        pattern = pattern or self._sim.pattern(None)
+        return pattern.to_csr(self.assemble_blocks(pattern).numpy().astype(np.float64))
+
+    def assemble_upper(self, pattern: BlockPattern) -> np.ndarray:
+        """(nnz,) float64 upper-triangle values of K_UU in the order of ``pattern.upper`` (the sparse
+        direct solvers' input, with no format conversion)."""
+        cached = self._upper.get(id(pattern))
+        if cached is not None:
+            return cached
+        return pattern.upper_values(self.assemble_blocks(pattern).numpy())
+
+    def assemble_free_and_coupling(self) -> sp.csr_matrix:
+        """K_UC over the free rows and attached columns (``Simulator.pattern("coupling")``) as CSR, and
+        K_UU's upper-triangle values, kept for ``assemble_upper(pattern("free"))``: one assembly pass
+        over the tets for both (the tracker's Jacobians need both at every new stiffness)."""
+        s = self._sim
+        rows, uu, uc = s._free_rows_pattern()
+        blocks = self.assemble_blocks(rows).numpy().astype(np.float64)
+        free = s.pattern("free")
+        self._upper[id(free)] = free.upper_values(blocks[uu])
+        return s.pattern("coupling").to_csr(blocks[uc])
 
 
 class StiffnessSolver:
@@ -106,6 +135,19 @@ class StiffnessSolver:
     def solve(self, B: np.ndarray, *, rtol: float = 1e-10) -> np.ndarray:
         """X = K_UU^-1 B for B of shape (3k,) or (3k, c)."""
         return self._bound.solve(np.asarray(B, dtype=np.float64), rtol=rtol)
+
+    def coupling(self, dx_c: np.ndarray) -> np.ndarray:
+        """K_UC dx_C over the unknowns (3k,) for moves dx_C (a, 3) of the model's attached nodes
+        (the chord steps' lift, ``wface.physics.newton``): one matrix-free K v."""
+        sim = self.tangent._sim
+        v = np.zeros((sim.model.n_nodes, 3))
+        v[sim.model.attached_nodes] = dx_c
+        return self.pattern.gather(self.tangent.matvec(v))
+
+    @property
+    def factor(self):
+        """The factorisation (direct engine), or None with CG."""
+        return self._bound.factor
 
     def solve_nodal(self, F: np.ndarray, *, rtol: float = 1e-10) -> np.ndarray:
         """Nodal right-hand sides (n, 3) or (c, n, 3) -> nodal solutions, zero on Dirichlet nodes."""
@@ -339,6 +381,7 @@ class Simulator:
                     self._x,
                     out,
                 ],
+                device=self.device,
             )
         return out.numpy().astype(np.float64)[:M] * self._muscle_scale()
 
@@ -384,7 +427,13 @@ class Simulator:
         return StiffnessSolver(self.tangent(x, activations, project=project), self.pattern(nodes), engine)
 
     def pattern(self, nodes: str | np.ndarray | None = "all") -> BlockPattern:
-        """Block sparsity pattern (cached) over "all" nodes, the "free" nodes, or given node ids."""
+        """Block sparsity pattern (cached) over "all" nodes, the "free" nodes, given node ids, or
+        "coupling": rows of the free nodes, columns of ``model.attached_nodes`` in their order (K_UC)."""
+        if isinstance(nodes, str) and nodes == "coupling":
+            if "coupling" not in self._patterns:
+                m = self.model
+                self._patterns["coupling"] = BlockPattern(m.tets, m.n_nodes, m.free_nodes, col_nodes=m.attached_nodes)
+            return self._patterns["coupling"]
         if nodes is None or (isinstance(nodes, str) and nodes == "all"):
             key, ids = "all", None
         elif isinstance(nodes, str) and nodes == "free":
@@ -395,6 +444,18 @@ class Simulator:
         if key not in self._patterns:
             self._patterns[key] = BlockPattern(self.model.tets, self.model.n_nodes, ids)
         return self._patterns[key]
+
+    def _free_rows_pattern(self):
+        """(pattern of the free rows and the free-then-attached columns, mask of its K_UU blocks, mask of
+        its K_UC blocks); both subsets come out in the order of ``pattern("free")`` / ``pattern("coupling")``
+        (blocks sorted by row, then column, and the free columns come first)."""
+        if "free_rows" not in self._patterns:
+            m = self.model
+            cols = np.concatenate([m.free_nodes, m.attached_nodes])
+            rows = BlockPattern(m.tets, m.n_nodes, m.free_nodes, col_nodes=cols)
+            uu = rows.indices < m.free_nodes.size
+            self._patterns["free_rows"] = (rows, uu, ~uu)
+        return self._patterns["free_rows"]
 
     def _block_index_array(self, pattern: BlockPattern):
         key = id(pattern)
@@ -415,6 +476,8 @@ class Simulator:
         stiffness: str = "auto",
         reuse_factor: bool = False,
         contact=None,
+        chord=None,
+        factor_precision: str = "float64",
     ) -> Equilibrium:
         """Quasistatic equilibrium f_U(x, a) = 0 with attached nodes at ``attached_positions``.
 
@@ -435,6 +498,11 @@ class Simulator:
             contact: a ``wface.physics.contact.Contact`` (lips, teeth, bones, rigid obstacles) or
                 None (default: no contact, the solve is unchanged). Teeth and bone meshes follow the
                 bones implied by ``attached_positions``; contact statistics land on the result.
+            chord: the factor of K_UU at a nearby configuration (e.g. a ``StiffnessSolver``, or the
+                tracker's last Jacobian factor) for chord Newton steps: back-solves instead of fresh
+                factorisations while they converge fast (``wface.physics.newton``).
+            factor_precision: "float64", or "float32" for single-precision factors (inexact Newton
+                steps, 1.5x cheaper factorisations; the tracker's choice).
 
         Returns:
             ``wface.physics.newton.Equilibrium``.
@@ -451,6 +519,8 @@ class Simulator:
             stiffness=stiffness,
             reuse_factor=reuse_factor,
             contact=contact,
+            chord=chord,
+            factor_precision=factor_precision,
         )
         result.seconds = time.perf_counter() - start
         return result

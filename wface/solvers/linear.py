@@ -1,35 +1,47 @@
 """Linear solvers for the symmetric positive definite stiffness K: one interface, three engines.
 
-- ``"direct"``: a sparse Cholesky-type factorisation, CHOLMOD (scikit-sparse, when importable) or
-  PARDISO (pypardiso, x86-64), factored once and back-solved for any number of right-hand sides.
-  A factor of a nearby matrix also serves as a CG preconditioner (``FactorPreconditioner``).
+- ``"direct"``: a sparse Cholesky-type factorisation, factored once and back-solved for any number of
+  right-hand sides: PARDISO (MKL, x86-64; ``wface.solvers.pardiso``, its analysis done once per
+  sparsity pattern), CHOLMOD through scikit-sparse or through the cholespy wheel that bundles it, and
+  on CUDA NVIDIA cuDSS (``wface.solvers.cudss``). A factor of a nearby matrix also serves as a CG
+  preconditioner (``FactorPreconditioner``) or as the matrix of chord Newton steps.
 - ``"cg"``: preconditioned conjugate gradients. On the CPU the Krylov loop runs in numpy with the
   matrix-vector product supplied by the caller (a Warp kernel or a CSR matrix): Warp's own CG is
-  ~100x slower per iteration on the CPU (docs/design.md, "Linear solvers"). Several right-hand sides iterate
-  together, each with its own step lengths. On CUDA, ``warp_pcg`` runs the whole loop on the GPU.
-- ``"auto"``: direct on the CPU when a backend is installed, else CG (with a one-line warning
-  when direct was possible in principle but no backend is present).
+  ~100x slower per iteration on the CPU (docs/design.md, "Linear solvers"). Several right-hand sides
+  iterate together, each with its own step lengths. On CUDA, ``warp_pcg`` runs the whole loop on
+  the GPU. Preconditioners: Jacobi, or smoothed-aggregation AMG with the rigid-body near-nullspace
+  (``wface.solvers.amg``, pyamg).
+- ``"auto"``: direct when a backend is installed for the device, else CG (with a one-line warning
+  on the CPU); docs/design.md, "Linear solvers", has the measurements behind the choice.
 """
 
 from __future__ import annotations
 
-import ctypes
-import os
+import importlib
 import platform
+import time
 import warnings
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 
+from wface.solvers.pardiso import PardisoAnalysis, PardisoError, mkl_runtime
+
 __all__ = [
+    "DIRECT_BACKENDS",
     "CGResult",
     "DirectFactor",
     "FactorPreconditioner",
     "JacobiPreconditioner",
     "NotPositiveDefiniteError",
+    "available_direct_backends",
+    "cudss_available",
     "direct_backend",
+    "forget_analysis",
+    "pattern_analysis",
     "pcg",
     "resolve_linear_solver",
     "SOLVERS",
@@ -38,40 +50,51 @@ __all__ = [
 SOLVERS = ("auto", "cg", "direct")
 
 
-def direct_backend() -> str | None:
-    """Name of the sparse direct backend available here: "cholmod", "pardiso" or None."""
-    try:
-        import sksparse.cholmod  # noqa: F401
+DIRECT_BACKENDS = ("pardiso", "cholmod", "cholespy")
 
-        return "cholmod"
-    except ImportError:
-        pass
-    if platform.machine().lower() in ("x86_64", "amd64"):
+
+def available_direct_backends() -> list[str]:
+    """The sparse direct backends importable here, in the order "auto" prefers them (docs/design.md,
+    "Linear solvers": PARDISO measured fastest on the CPU; CHOLMOD through scikit-sparse, or the
+    CHOLMOD that the cholespy wheel bundles, where MKL is absent)."""
+    out = []
+    if platform.machine().lower() in ("x86_64", "amd64") and mkl_runtime() is not None:
+        out.append("pardiso")
+    for name, module in (("cholmod", "sksparse.cholmod"), ("cholespy", "cholespy")):
         try:
-            import pypardiso  # noqa: F401
-
-            return "pardiso"
-        except (ImportError, OSError):
+            importlib.import_module(module)
+            out.append(name)
+        except ImportError:
             pass
-    return None
+    return out
+
+
+def direct_backend() -> str | None:
+    """Name of the sparse direct backend "auto" uses here: "pardiso", "cholmod", "cholespy" or None."""
+    found = available_direct_backends()
+    return found[0] if found else None
 
 
 def resolve_linear_solver(solver: str, device: str = "cpu") -> str:
     """Map "auto" | "cg" | "direct" to the engine that will run here ("cg" or "direct").
 
-    "auto" is direct on the CPU when a backend is installed and CG otherwise (always CG on CUDA).
-    Asking for "direct" without a backend falls back to CG with a one-line warning.
+    "auto" is direct on the CPU when a backend is installed and CG otherwise; on CUDA it is direct
+    when NVIDIA cuDSS (nvmath-python) is importable, else the matrix-free Warp CG. Asking for
+    "direct" without a backend falls back to CG with a one-line warning.
     """
     if solver not in SOLVERS:
         raise ValueError(f"unknown linear solver {solver!r}; choose one of {', '.join(SOLVERS)}")
     if solver == "cg":
         return "cg"
-    backend = direct_backend()
-    if solver == "auto" and str(device).startswith("cuda"):
+    if str(device).startswith("cuda"):
+        if cudss_available():
+            return "direct"
+        if solver == "direct":
+            warnings.warn("NVIDIA cuDSS (nvmath-python) is not installed: using Warp CG on the GPU", stacklevel=2)
         return "cg"
-    if backend is None:
+    if direct_backend() is None:
         warnings.warn(
-            "no sparse direct solver (scikit-sparse CHOLMOD or pypardiso) is installed: using preconditioned CG",
+            "no sparse direct solver (pypardiso/MKL, scikit-sparse or cholespy) is installed: using preconditioned CG",
             RuntimeWarning,
             stacklevel=2,
         )
@@ -79,32 +102,31 @@ def resolve_linear_solver(solver: str, device: str = "cpu") -> str:
     return "direct"
 
 
-def _pardiso_threads() -> int:
-    """The OpenMP thread count PARDISO runs with (``MKL_NUM_THREADS``, else every core): its
-    conditional numerical reproducibility mode (iparm[33] > 0) needs it fixed. Without that mode the
-    multi-threaded factorisation gives results that differ at round-off from run to run, which the
-    tracker amplifies (measured: activation RMS error 0.0676-0.0683 over repeated runs of the same
-    8-frame demo)."""
-    env = os.environ.get("MKL_NUM_THREADS", "")
-    return int(env) if env.strip().isdigit() and int(env) > 0 else max(1, os.cpu_count() or 1)
+def cudss_available() -> bool:
+    """Whether NVIDIA cuDSS can be reached through nvmath-python (the GPU sparse direct option)."""
+    try:
+        importlib.import_module("nvmath.sparse.advanced")
+        return True
+    except Exception:  # noqa: BLE001 - ImportError, or a CUDA library that fails to load
+        return False
 
 
-def _reproducible_iparm(solver) -> None:
-    """PARDISO's defaults for a real SPD matrix (``pardisoinit``), then conditional numerical
-    reproducibility: sequential METIS ordering (the parallel one, iparm[1] = 3, rules CNR out) and
-    iparm[33] = the thread count. PARDISO ignores iparm[1..63] unless iparm[0] = 1."""
+_ANALYSES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
-    init = solver.libmkl.pardisoinit
-    init.argtypes = [ctypes.POINTER(solver._pt_type[0]), ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_int32)]
-    init.restype = None
-    init(
-        solver.pt.ctypes.data_as(ctypes.POINTER(solver._pt_type[0])),
-        ctypes.byref(ctypes.c_int32(solver.mtype)),
-        solver.iparm.ctypes.data_as(ctypes.POINTER(ctypes.c_int32)),
-    )
-    solver.iparm[0] = 1  # use the values below, not PARDISO's defaults
-    solver.iparm[1] = 2
-    solver.iparm[33] = _pardiso_threads()
+
+def pattern_analysis(pattern, precision: str = "float64") -> PardisoAnalysis:
+    """PARDISO's analysis of a square ``BlockPattern``'s upper triangle, done once per pattern (and
+    precision) and kept as long as the pattern lives (the simulator caches its patterns: once per mesh)."""
+    kept = _ANALYSES.setdefault(pattern, {})
+    if precision not in kept:
+        upper = pattern.upper
+        kept[precision] = PardisoAnalysis(upper.indptr, upper.indices, slots=4, single=precision == "float32")
+    return kept[precision]
+
+
+def forget_analysis(pattern) -> None:
+    """Drop the kept analysis of a pattern (the next factorisation analyses anew; benchmarks)."""
+    _ANALYSES.pop(pattern, None)
 
 
 class NotPositiveDefiniteError(np.linalg.LinAlgError):
@@ -115,82 +137,122 @@ class DirectFactor:
     """Factorisation of a sparse SPD matrix; ``solve(B)`` for one (N,) or many (N, k) right-hand sides.
 
     Args:
-        A: (N, N) symmetric positive definite scipy sparse matrix (float64).
-        backend: "cholmod" or "pardiso"; default: ``direct_backend()``.
-        reuse: an older factor of a matrix with the same sparsity (e.g. the previous Newton step):
-            PARDISO keeps its analysis (ordering, symbolic factor) and refactors numerically only
-            (about a third less time at 100K tets). ``reuse`` is unusable afterwards.
+        A: (N, N) symmetric positive definite scipy sparse matrix (float64); only its upper
+            triangle is read.
+        backend: "pardiso", "cholmod" or "cholespy"; default: ``direct_backend()``.
+        reuse: an older PARDISO factor of a matrix with the same sparsity (e.g. the previous Newton
+            step): its analysis (ordering, symbolic factor) is kept and only the numeric
+            factorisation is done. ``reuse`` is unusable afterwards.
+
+    ``DirectFactor.of_pattern`` factors the upper-triangle values of a ``BlockPattern`` against the
+    analysis kept for that pattern (``pattern_analysis``), with no sparse-format conversion.
+
+    Attributes:
+        backend: the engine. reused_analysis: whether the analysis was reused (PARDISO).
+        seconds: wall time of the numeric factorisation (the analysis excluded when it was reused).
     """
 
-    def __init__(self, A: sp.spmatrix, *, backend: str | None = None, reuse: DirectFactor | None = None):
+    def __init__(self, A: sp.spmatrix | None, *, backend: str | None = None, reuse: DirectFactor | None = None):
         self.backend = backend or direct_backend()
         if self.backend is None:
-            raise RuntimeError("no sparse direct backend installed (pip install pypardiso, or scikit-sparse)")
-        self.shape = A.shape
+            raise RuntimeError("no sparse direct backend installed (pip install pypardiso, or cholespy)")
         self.reused_analysis = False
-        if self.backend == "cholmod":
+        self.precision = "float64"
+        self._impl = None
+        if A is None:  # of_pattern fills it in
+            return
+        U = sp.triu(sp.csr_matrix(A, dtype=np.float64), format="csr")
+        U.sum_duplicates()
+        U.sort_indices()
+        self.shape = A.shape
+        analysis = None
+        pardiso_reuse = reuse is not None and reuse.backend == self.backend == "pardiso"
+        old = getattr(reuse, "_impl", None) if pardiso_reuse else None
+        same = old is not None and np.array_equal(old.analysis.indptr, U.indptr)
+        if same and np.array_equal(old.analysis.indices, U.indices):
+            analysis = old.analysis
+            reuse.free()
+            self.reused_analysis = True
+        if self.backend == "pardiso" and analysis is None:
+            analysis = PardisoAnalysis(U.indptr, U.indices, slots=1)
+        self._factor(U.indptr, U.indices, np.ascontiguousarray(U.data), analysis)
+
+    @classmethod
+    def of_pattern(
+        cls, pattern, values: np.ndarray, *, backend: str | None = None, precision: str = "float64"
+    ) -> DirectFactor:
+        """Factor the matrix with upper-triangle ``values`` in the order of ``pattern.upper``.
+
+        ``precision``: "float64", or "float32" for a single-precision factor (PARDISO and cholespy;
+        measured at 99,684 tets: 1.5x faster factorisation and solves, solutions within 8e-6 of the
+        double-precision ones; docs/design.md, "Linear solvers")."""
+        if precision not in ("float64", "float32"):
+            raise ValueError(f"precision must be 'float64' or 'float32', got {precision!r}")
+        self = cls(None, backend=backend)
+        self.shape = pattern.shape
+        self.precision = precision if self.backend in ("pardiso", "cholespy") else "float64"
+        upper = pattern.upper
+        analysis = pattern_analysis(pattern, self.precision) if self.backend == "pardiso" else None
+        if analysis is not None and analysis.slots_in_use == analysis.slots:  # every kept slot is taken
+            analysis = PardisoAnalysis(upper.indptr, upper.indices, slots=1, single=self.precision == "float32")
+        self.reused_analysis = analysis is not None and analysis.analyses > 0
+        self._factor(upper.indptr, upper.indices, values, analysis)
+        return self
+
+    def _factor(self, indptr, indices, values, analysis) -> None:
+        t0 = time.perf_counter()
+        n = indptr.size - 1
+        if self.backend == "pardiso":
+            try:
+                self._impl = analysis.factor(values)
+            except PardisoError as exc:
+                if exc.code == -4:
+                    raise NotPositiveDefiniteError(f"PARDISO: matrix is not positive definite ({exc})") from exc
+                raise
+        elif self.backend == "cholespy":
+            from cholespy import CholeskySolverD, CholeskySolverF, MatrixType
+
+            single = getattr(self, "precision", "float64") == "float32"
+            kind, dtype = (CholeskySolverF, np.float32) if single else (CholeskySolverD, np.float64)
+            try:  # the upper triangle in CSR is the lower triangle in CSC, which CHOLMOD reads
+                self._impl = kind(n, indptr, indices, np.ascontiguousarray(values, dtype), MatrixType.CSC)
+            except ValueError as exc:
+                raise NotPositiveDefiniteError(f"CHOLMOD (cholespy): {exc}") from exc
+        elif self.backend == "cholmod":
             from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
 
+            U = sp.csr_matrix((values, indices, indptr), shape=(n, n))
             try:
-                self._factor = cholesky(sp.csc_matrix(A, dtype=np.float64))
+                self._impl = cholesky(sp.csc_matrix(U + sp.triu(U, k=1).T))
             except CholmodNotPositiveDefiniteError as exc:
                 raise NotPositiveDefiniteError(str(exc)) from exc
-        elif self.backend == "pardiso":
-            import pypardiso
-
-            # pypardiso searches the whole prefix for libmkl_rt on every new solver (~0.5 s);
-            # point it at the library its module-level solver already found.
-            os.environ.setdefault("PYPARDISO_MKL_RT", pypardiso.ps.libmkl._name)
-            # Real SPD (mtype 2): PARDISO reads the upper triangle only.
-            self._matrix = sp.triu(sp.csr_matrix(A, dtype=np.float64), format="csr")
-            self._matrix.sort_indices()
-            phase = 12  # analysis (fill-reducing ordering) + numeric factorisation
-            if (
-                reuse is not None
-                and reuse.backend == "pardiso"
-                and getattr(reuse, "_solver", None) is not None
-                and reuse._matrix.shape == self._matrix.shape
-                and np.array_equal(reuse._matrix.indptr, self._matrix.indptr)
-                and np.array_equal(reuse._matrix.indices, self._matrix.indices)
-            ):
-                # Same sparsity (next Newton step): keep the analysis, refactor numerically only.
-                self._solver, reuse._solver = reuse._solver, None
-                phase = 22
-                self.reused_analysis = True
-            else:
-                self._solver = pypardiso.PyPardisoSolver(mtype=2)
-                _reproducible_iparm(self._solver)
-            self._solver._check_A(self._matrix)  # CSR, sorted, no empty rows; sets iparm for CSR input
-            self._solver.set_phase(phase)
-            try:
-                self._solver._call_pardiso(self._matrix, np.zeros((self._matrix.shape[0], 1)))
-            except pypardiso.pardiso_wrapper.PyPardisoError as exc:
-                self.free()
-                if exc.value == -4:  # zero or negative pivot
-                    raise NotPositiveDefiniteError("PARDISO: matrix is not positive definite") from exc
-                raise
         else:
             raise ValueError(f"unknown direct backend {self.backend!r}")
+        self.seconds = time.perf_counter() - t0
 
     def solve(self, B: np.ndarray) -> np.ndarray:
         """A^-1 B for B of shape (N,) or (N, k)."""
         B = np.asarray(B, dtype=np.float64)
-        if self.backend == "cholmod":
-            return np.asarray(self._factor(B))
-        if self._solver is None:
+        if self._impl is None:
             raise RuntimeError("this factorisation was freed (or handed on to a newer one)")
-        self._solver.set_phase(33)  # forward / back substitution with the stored factor
-        X = self._solver._call_pardiso(self._matrix, np.asfortranarray(B.reshape(B.shape[0], -1)))
-        return np.asarray(X).reshape(B.shape)
+        if self.backend == "pardiso":
+            return self._impl.solve(B)
+        if self.backend == "cholespy":
+            single = getattr(self, "precision", "float64") == "float32"
+            Bc = np.ascontiguousarray(B, dtype=np.float32 if single else np.float64)
+            X = np.zeros_like(Bc)
+            self._impl.solve(Bc, X)
+            return X.astype(np.float64, copy=False)
+        return np.asarray(self._impl(B))
 
     def __call__(self, B: np.ndarray) -> np.ndarray:
         return self.solve(B)
 
     def free(self) -> None:
-        """Release the factor's memory now (PARDISO keeps it until freed)."""
-        if self.backend == "pardiso" and getattr(self, "_solver", None) is not None:
-            self._solver.free_memory(everything=True)
-            self._solver = None
+        """Release the factor's memory now."""
+        impl, self._impl = getattr(self, "_impl", None), None
+        if impl is not None and self.backend == "pardiso":
+            impl.free()
 
     def __del__(self):  # pragma: no cover - best effort
         try:

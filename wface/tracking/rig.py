@@ -21,6 +21,12 @@ point on the obstacle, moving with the jaw affine; Q: the pair's Hessian block; 
 feature); other obstacles are fixed in the cranium frame. The Jacobian is
 exact where no pair enters or leaves contact for small control changes (pairs at exactly zero
 penetration are a kink of the C1 penalty: ``Contact(smoothing_m=...)`` makes it C2).
+
+Factor reuse (docs/design.md, "Performance"): ``linearize`` keeps the factorisation of K_UU at the
+equilibrium together with dY/dc and the coupling block K_UC (``RigLinearization``); the next
+equilibria near it (the line-search trials of the next Gauss-Newton step, the next frame) take
+chord Newton steps with that factor (``equilibrium(..., chord=...)``) instead of factoring anew, so
+a tracked frame costs one factorisation at its new equilibrium plus one back-solve per column.
 """
 
 from __future__ import annotations
@@ -37,7 +43,46 @@ from wface.physics.frozen import exact_self_hessian
 from wface.physics.simulator import Simulator
 from wface.solvers import LinearSolver, MatrixOperator, NotPositiveDefiniteError
 
-__all__ = ["FaceRig", "RigState"]
+__all__ = ["FaceRig", "RigLinearization", "RigState"]
+
+
+@dataclass
+class RigLinearization:
+    """The rig linearised at an equilibrium: dY/d(a, b_jaw) and the factor of K_UU there.
+
+    ``chord`` (``solve(rhs)`` and ``coupling(dx_c)``, see ``wface.physics.newton``) is None when no
+    factorisation exists (the CG engine) or with contact. ``free()`` releases the factor.
+    """
+
+    state: RigState
+    jy: np.ndarray  # (3n, M + 12) cranium-frame Jacobian of all nodes
+    chord: object | None = None
+    seconds: dict = field(default_factory=dict)
+
+    def free(self) -> None:
+        if self.chord is not None:
+            self.chord.free()
+            self.chord = None
+
+
+class _Chord:
+    """K_UU bound to its solver (factorised with the direct engine) and the coupling block K_UC at one
+    configuration (``FaceRig.stiffness_at``): the chord steps of nearby solves (``solve``, ``coupling``)
+    and the back-solves of a Jacobian."""
+
+    def __init__(self, bound, k_uc, seconds: dict | None = None):
+        self.bound, self.k_uc = bound, k_uc
+        self.seconds = seconds or {}
+        self.projected = False  # the projected tangent was factored (the exact one is not definite there)
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        return self.bound.solve(rhs)
+
+    def coupling(self, dx_c: np.ndarray) -> np.ndarray:
+        return self.k_uc @ np.asarray(dx_c, dtype=np.float64).reshape(-1)
+
+    def free(self) -> None:
+        self.bound.free()
 
 
 @dataclass
@@ -65,6 +110,9 @@ class FaceRig:
         contact: a ``wface.physics.contact.Contact`` used in every equilibrium and Jacobian (module
             docstring), or None (default: no contact, results unchanged).
         max_iterations: Newton iteration cap of each equilibrium.
+        factor_precision: of the Jacobians' factorisations (and the chords made from them): "float64",
+            or "float32" (the tracker's default, ``TrackOptions.factor_precision``: 1.5x faster, within
+            8e-6 of float64 at 100K tets; docs/design.md, "Linear solvers").
     """
 
     def __init__(
@@ -78,10 +126,13 @@ class FaceRig:
         simulator=None,
         contact=None,
         max_iterations: int = 40,
+        factor_precision: str = "float64",
     ):
         self.model = model
         self.sim = simulator or Simulator(model, device=device, precision=precision, solver=solver)
-        self._linear = LinearSolver(self.sim.linear_solver, self.sim.device)  # the Jacobian solves
+        # the Jacobian solves (and the tracker's chord steps)
+        self._linear = LinearSolver(self.sim.linear_solver, self.sim.device, factor_precision=factor_precision)
+        self.factor_precision = factor_precision
         self.tol = tol
         self.contact = contact
         self.max_iterations = int(max_iterations)
@@ -94,7 +145,15 @@ class FaceRig:
         self._free_dofs = (3 * free[:, None] + np.arange(3)).ravel()
         self._fixed_dofs = (3 * fixed[:, None] + np.arange(3)).ravel()
         self._n = n
-        self.counters = {"quasistatic_solves": 0, "linear_solves": 0, "newton_iterations": 0, "cg_iterations": 0}
+        self.counters = {
+            "quasistatic_solves": 0,
+            "linear_solves": 0,  # Jacobian columns solved
+            "newton_iterations": 0,
+            "cg_iterations": 0,  # Newton and Jacobian CG iterations
+            "factorizations": 0,  # Newton and Jacobian numeric factorisations
+            "back_solves": 0,  # right-hand sides solved with a factor (Newton, chord and Jacobian)
+            "chord_steps": 0,
+        }
 
     # ------------------------------------------------------------------ controls
     def rest_controls(self) -> np.ndarray:
@@ -107,14 +166,19 @@ class FaceRig:
         return c[: self.n_muscles], c[self.n_muscles :]
 
     # ------------------------------------------------------------------ forward model
-    def equilibrium(self, c: np.ndarray, y0: np.ndarray | None = None) -> RigState:
-        """Solve the quasistatic equilibrium for controls c, warm-started from y0 (cranium frame)."""
+    def equilibrium(self, c: np.ndarray, y0: np.ndarray | None = None, *, chord=None) -> RigState:
+        """Solve the quasistatic equilibrium for controls c, warm-started from y0 (cranium frame);
+        ``chord``: a nearby ``RigLinearization.chord`` for chord Newton steps (module docstring)."""
         a, b = self.split(c)
         # Activations slightly outside [0, 1] can occur inside a penalty method: the physics
         # sees them clipped (the penalty keeps them near the box).
         a_phys = np.clip(a, 0.0, 1.0)
         t0 = time.perf_counter()
         kwargs = {} if self.contact is None else {"contact": self.contact}
+        if chord is not None:
+            kwargs["chord"] = chord
+        if self.factor_precision != "float64":
+            kwargs["factor_precision"] = self.factor_precision
         eq = self.sim.solve(
             a_phys,
             attached_positions(self.model, b, frame="cranium"),
@@ -126,6 +190,9 @@ class FaceRig:
         self.counters["quasistatic_solves"] += 1
         self.counters["newton_iterations"] += eq.iterations
         self.counters["cg_iterations"] += getattr(eq, "cg_iterations", 0)
+        self.counters["factorizations"] += eq.factorizations
+        self.counters["back_solves"] += eq.back_solves
+        self.counters["chord_steps"] += eq.chord_steps
         if not eq.converged:
             warnings.warn(
                 f"quasistatic solve stopped at residual {eq.residual_rel:.2e} (tol {self.tol:g})", stacklevel=2
@@ -157,6 +224,81 @@ class FaceRig:
     # ------------------------------------------------------------------ Jacobians
     def jacobian_y(self, state: RigState) -> np.ndarray:
         """dY/d(a, b_jaw) in the cranium frame: (3n, M + 12) for all nodes."""
+        lin = self.linearize(state, keep_factor=False)
+        return lin.jy
+
+    def stiffness_at(self, c: np.ndarray, y: np.ndarray, *, warn: bool = True) -> _Chord | None:
+        """The factorised K_UU (exact; projected, with a warning, where the exact one is not positive
+        definite) and K_UC at controls c and cranium-frame positions y, e.g. the linear prediction of
+        an equilibrium: the chord of its solve and the factor of its Jacobian (``projected`` says which
+        tangent was factored; ``warn``: say so when it is the projected one). None with contact."""
+        if self.contact is not None:
+            return None
+        a = np.clip(self.split(c)[0], 0.0, 1.0)
+        sim, pattern = self.sim, self.sim.pattern("free")
+        t0 = time.perf_counter()
+        tan = sim.tangent(y, a, project=False)
+        k_uc = tan.assemble_free_and_coupling()  # (3|U|, 3|C|) of the exact tangent, K_UU kept for the factor
+        t1 = time.perf_counter()
+        counts0 = self._linear.counters()
+        projected = False
+        try:
+            bound = self._linear.bind(tan, pattern)
+        except NotPositiveDefiniteError:
+            if warn:
+                warnings.warn(
+                    "exact tangent not positive definite at this equilibrium; Jacobians use the projected tangent",
+                    stacklevel=3,
+                )
+            bound, projected = self._linear.bind(sim.tangent(y, a, project=True), pattern), True
+        self._count(counts0)
+        chord = _Chord(bound, k_uc, {"tangent_s": t1 - t0, "factor_s": time.perf_counter() - t1})
+        chord.projected = projected
+        return chord
+
+    def _count(self, counts0: dict) -> None:
+        for key in ("factorizations", "back_solves", "cg_iterations"):
+            self.counters[key] += getattr(self._linear, key) - counts0[key]
+
+    def linearize(
+        self, state: RigState, *, keep_factor: bool = True, stiffness: _Chord | None = None
+    ) -> RigLinearization:
+        """dY/d(a, b_jaw) at the equilibrium ``state`` and, with ``keep_factor``, the factor of K_UU
+        there for chord steps of nearby equilibria (module docstring).
+
+        ``stiffness``: a ``stiffness_at`` of a point near ``state`` (the linear prediction its solve
+        started from) whose factor and K_UC serve instead of the exact ones at ``state``: no new
+        factorisation, at the price of a Jacobian error of the order of the prediction's (measured
+        1 % at 100K tets; docs/design.md, "Performance"). It is owned by the result from here.
+        """
+        if self.contact is not None:
+            return RigLinearization(state, self._jacobian_y_contact(state))
+        y = state.y_m
+        M, U = self.n_muscles, self._free_dofs
+        t0 = time.perf_counter()
+        chord = stiffness if stiffness is not None else self.stiffness_at(state.controls, y)
+        t1 = time.perf_counter()
+        rhs = np.empty((len(U), M + 12))
+        if M:
+            rhs[:, :M] = self.sim.muscle_forces(y).reshape(M, -1)[:, U].T
+        rhs[:, M:] = -(chord.k_uc @ self._dxc_djaw)
+        t2 = time.perf_counter()
+        counts0 = self._linear.counters()
+        sol = chord.bound.solve(rhs, rtol=1e-10)
+        self._count(counts0)
+        t3 = time.perf_counter()
+        self.counters["linear_solves"] += rhs.shape[1]
+        J = np.zeros((3 * self._n, M + 12))
+        J[U] = sol
+        J[self._fixed_dofs, M:] = self._dxc_djaw
+        if not (keep_factor and chord.bound.factor is not None):
+            chord.free()
+            chord = None
+        seconds = {"stiffness_s": t1 - t0, "rhs_s": t2 - t1, "back_solve_s": t3 - t2}
+        return RigLinearization(state, J, chord, seconds)
+
+    def _jacobian_y_contact(self, state: RigState) -> np.ndarray:
+        """``jacobian_y`` with contact: the exact contact Hessian joins K (module docstring)."""
         a, b = self.split(state.controls)
         a = np.clip(a, 0.0, 1.0)
         y = state.y_m
@@ -177,7 +319,10 @@ class FaceRig:
         rhs[:, M:] = -(K_uc @ self._dxc_djaw)
         if pairs is not None and len(pairs.node):
             rhs[:, M:] += self._contact_jaw_rhs(pairs, y)[U]
+        counts0 = self._linear.counters()
         sol = self._solve_many(K, y, a, rhs, pairs)
+        for key in ("factorizations", "back_solves", "cg_iterations"):
+            self.counters[key] += getattr(self._linear, key) - counts0[key]
         self.counters["linear_solves"] += rhs.shape[1]
         J = np.zeros((3 * self._n, M + 12))
         J[U] = sol

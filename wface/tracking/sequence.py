@@ -2,7 +2,9 @@
 
 Frames are independent given a start guess (Sifakis et al. 2005, section 9), so a take splits into chunks
 of consecutive frames; each chunk starts cold (rest controls, cranium from a rigid fit of the
-stable markers, more Gauss-Newton steps) and warm-starts frame to frame inside. Chunks run on any
+stable markers, more Gauss-Newton steps) and warm-starts frame to frame inside: each frame hands
+the next its equilibrium with the Jacobian and the factorisation there (``RigLinearization``), so a
+warm frame starts with no solve and its solves take chord steps with that factor. Chunks run on any
 ``concurrent.futures``-style executor (``submit`` returning futures), e.g. a process pool or a
 Dask ``Client.get_executor()``. With ``out_dir``, each frame is written to
 ``out_dir/frames/frame_NNNNNN.npz`` as soon as it is done (atomically, ``wface.takes.store``), and
@@ -21,7 +23,7 @@ from wface.controls import params_from_affine
 from wface.mesh.align import embed_markers, umeyama
 from wface.takes.store import FrameRecord, load_frame_records, write_frame
 from wface.tracking.estimator import FrameEstimator, MarkerMap, TrackOptions
-from wface.tracking.rig import FaceRig
+from wface.tracking.rig import FaceRig, RigState
 
 __all__ = ["dask_executor", "embed_model_markers", "initial_controls", "track_sequence"]
 
@@ -50,29 +52,35 @@ def initial_controls(rig, markers: MarkerMap, target_m: np.ndarray, marker_names
 
 def _track_chunk(model, embedding, targets, frames, marker_names, options, rig_kwargs, out_dir, resume, progress):
     """Track consecutive frames (runs in a worker). Returns the list of FrameRecords."""
-    rig = FaceRig(model, **rig_kwargs)
+    rig = FaceRig(model, **{"factor_precision": options.factor_precision, **rig_kwargs})
     markers = MarkerMap(model, embedding)
     est = FrameEstimator(rig, markers, options)
     out = []
     done = load_frame_records(out_dir, frames) if (out_dir is not None and resume) else {}
-    c, y, a_prev, c_older = None, None, None, None
+    c, y, a_prev, c_older, lin, resumed = None, None, None, None, None, None
     for j, f in enumerate(tqdm(frames, desc="tracking", disable=not progress, unit="frame")):
         if f in done:
             rec = done[f]
             c_older, c, y, a_prev = c, rec.controls, rec.y_m, rec.controls[: rig.n_muscles]
+            if lin is not None:
+                lin.free()
+            lin = None
+            resumed = RigState(rec.controls, rec.y_m, rec.x_m)  # linearised again if the next frame is new
             out.append(rec)
             continue
+        if lin is None and resumed is not None and options.reuse_factor:
+            lin = rig.linearize(resumed)  # as the interrupted run had it: a resumed take is the same take
+        resumed = None
         first = c is None
         c_last = c
         if first:
             c = initial_controls(rig, markers, targets[j], marker_names)
-        elif c_older is not None and options.extrapolate:
+        elif lin is None and c_older is not None and options.extrapolate:
             c = est.retract(2.0 * c - c_older)  # constant-velocity prediction of the controls
-        res = est.estimate(
-            int(f), targets[j], c, y, steps=options.gn_steps_first if first else options.gn_steps, a_prev=a_prev
-        )
+        steps = options.gn_steps_first if first else options.gn_steps
+        res = est.estimate(int(f), targets[j], c, y, steps=steps, a_prev=a_prev, start=lin)
         c_older = c_last
-        c, y, a_prev = res.controls, res.state.y_m, res.controls[: rig.n_muscles]
+        c, y, a_prev, lin = res.controls, res.state.y_m, res.controls[: rig.n_muscles], res.linearization
         stats = {
             "gauss_newton_steps": res.gauss_newton_steps,
             "quasistatic_solves": res.quasistatic_solves,
@@ -84,11 +92,15 @@ def _track_chunk(model, embedding, targets, frames, marker_names, options, rig_k
             "rho": res.rho,
             "seconds": res.seconds,
             **{k: float(v) for k, v in res.timings.items()},
+            **{k: res.counts.get(k, 0) for k in ("cg_iterations", "factorizations", "back_solves", "chord_steps")},
+            "frame_newton_iterations": res.counts.get("newton_iterations", 0),
         }
         rec = FrameRecord(int(f), res.controls, res.state.x_m, res.state.y_m, res.markers_m, res.marker_error_m, stats)
         if out_dir is not None:
             write_frame(out_dir, rec)
         out.append(rec)
+    if lin is not None:
+        lin.free()
     return out
 
 

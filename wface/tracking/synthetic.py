@@ -96,8 +96,13 @@ def synthesize_performance(
     max_jaw_deg: float = 12.0,
     head_motion: bool = True,
     progress: bool = False,
+    window: tuple[int, int] | None = None,
 ) -> SyntheticPerformance:
-    """Generate, simulate and corrupt a performance on ``rig`` (a ``FaceRig``) with ``markers`` (a ``MarkerMap``)."""
+    """Generate, simulate and corrupt a performance on ``rig`` (a ``FaceRig``) with ``markers`` (a ``MarkerMap``).
+
+    ``window``: (start, stop) simulate and return only these frames of the ``frames``-long performance
+    (the motion between frames is then that of the whole take at ``rate_hz``; default: every frame).
+    """
 
     model = rig.model
     rng = np.random.default_rng(seed)
@@ -121,10 +126,15 @@ def synthesize_performance(
             trans = 0.004 * np.sin(2 * np.pi * (t[f] / T) * np.array([0.4, 0.6, 0.5]) + np.array([0.5, 1.5, 2.5]))
             B[f, :12] = params_from_affine(_rotation_xyz(*ang), trans)
         B[f, 12:] = jaw_from_intuitive(model.jaw_joint, jaw[f], 0.0015 * jaw[f] / max(max_jaw_deg, 1e-9), 0.0)
-    clean = np.empty((frames, len(markers.embedding.triangle), 3))
-    X = np.empty((frames, model.n_nodes, 3))
+    if window is not None:
+        lo, hi = window
+        if not 0 <= lo < hi <= frames:
+            raise ValueError(f"window {window} is not inside the {frames} frames")
+        A, B, jaw = A[lo:hi], B[lo:hi], jaw[lo:hi]
+    clean = np.empty((len(A), len(markers.embedding.triangle), 3))
+    X = np.empty((len(A), model.n_nodes, 3))
     y = None
-    for f in tqdm(range(frames), desc="simulating performance", disable=not progress, unit="frame"):
+    for f in tqdm(range(len(A)), desc="simulating performance", disable=not progress, unit="frame"):
         state = rig.equilibrium(np.concatenate([A[f], B[f]]), y)
         y = state.y_m
         X[f] = state.x_m

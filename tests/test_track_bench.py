@@ -1,0 +1,25 @@
+"""``wface bench --suite track`` reports what a frame costs and how close it comes to its limit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wface.bench.track import bench_size, peak_rss_mb
+from wface.solvers.linear import direct_backend
+
+
+@pytest.mark.skipif(direct_backend() is None, reason="the limit is a factorisation: needs a direct backend")
+def test_track_bench_reports_the_breakdown_the_counts_and_the_limit():
+    r = bench_size(1000, frames=3, repeat=1)
+    assert r["frames"] == 3 and r["seconds_per_frame"] > 0
+    assert set(r["breakdown_seconds_per_frame"]) == {"quasistatic_solves", "jacobians", "gauss_newton_system"}
+    assert r["factorizations_per_frame"] == 1.0 and r["quasistatic_solves_per_frame"] == 1.0  # a warm frame
+    assert r["back_solves_per_frame"] >= r["limit"]["columns"] == 47  # 35 muscles + 12 jaw numbers
+    limit = r["limit"]
+    assert r["limit_seconds"] == pytest.approx(limit["numeric_factor_seconds"] + limit["back_solve_columns_seconds"])
+    assert r["limit_ratio"] == pytest.approx(r["seconds_per_frame"] / r["limit_seconds"])
+    assert 0 < r["peak_rss_mb"] <= peak_rss_mb() + 1.0
+    acc = r["accuracy"]
+    assert all(np.isfinite(acc[k]) for k in ("activation_rms_error_all", "truth_marker_rms_mm", "jaw_angle_error_deg"))
+    assert acc["truth_marker_rms_mm"] < acc["input_noise_rms_mm"]  # the fit filters the 0.5 mm noise
