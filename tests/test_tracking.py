@@ -126,5 +126,5 @@ def test_bad_input_is_named(scene):
     with pytest.raises(ValueError, match="shape"):
         track_sequence(model, perf.clean_markers_m[0], marker_names=model.marker_names, markers=markers)
     empty = np.full_like(perf.clean_markers_m[:1], np.nan)
-    with pytest.raises(ValueError, match="markers present"):
+    with pytest.raises(ValueError, match="no frame has the .* usable markers"):
         track_sequence(model, empty, marker_names=model.marker_names, markers=markers, options=TrackOptions())

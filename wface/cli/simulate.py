@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
+from wface.cli.validate import non_negative_float, positive_float, positive_int
 from wface.controls import attached_positions_from_affines, jaw_opening_affine
 from wface.model import load_model
 from wface.physics import Simulator
@@ -51,7 +52,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="NAME=VALUE",
         help="muscle activation in [0, 1] (repeatable)",
     )
-    p.add_argument("--jaw-open", type=float, default=0.0, metavar="DEG", help="jaw opening angle in degrees")
+    p.add_argument(
+        "--jaw-open", type=non_negative_float, default=0.0, metavar="DEG", help="jaw opening angle in degrees"
+    )
     add_contact_arguments(p)
     p.add_argument(
         "--picture",
@@ -61,8 +64,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--device", default="cpu", help="Warp device: cpu (default), cuda:0 or auto")
     p.add_argument("--solver", default="auto", choices=["auto", "cg", "direct"], help="linear solver")
-    p.add_argument("--tol", type=float, default=1e-6, help="relative residual tolerance (default 1e-6)")
-    p.add_argument("--max-iterations", type=int, default=40, help="Newton iteration cap (default 40)")
+    p.add_argument("--tol", type=positive_float, default=1e-6, help="relative residual tolerance (default 1e-6)")
+    p.add_argument("--max-iterations", type=positive_int, default=40, help="Newton iteration cap (default 40)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=_run)

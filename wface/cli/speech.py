@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
+from wface.cli.validate import positive_float, positive_int
 from wface.faces.artisynth import import_artisynth
 from wface.model import load_model
 from wface.speech.gestures import map_gesture_to_model, read_gesture
@@ -52,9 +53,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="folder holding the gesture folders (default: MODEL_DATA/speech, or ../shared/data/artisynth-face/speech)",
     )
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--fps", type=float, default=100.0, help="frame rate (default 100, the original's output rate)")
-    p.add_argument("--max-frames", type=int, help="subsample to at most this many frames (first and last kept)")
-    p.add_argument("--tol", type=float, default=1e-4, help="relative force residual of each solve (default 1e-4)")
+    p.add_argument(
+        "--fps", type=positive_float, default=100.0, help="frame rate (default 100, the original's output rate)"
+    )
+    p.add_argument(
+        "--max-frames", type=positive_int, help="subsample to at most this many frames (first and last kept)"
+    )
+    p.add_argument(
+        "--tol", type=positive_float, default=1e-4, help="relative force residual of each solve (default 1e-4)"
+    )
     p.add_argument("--all-probes", action="store_true", help="also play probes marked active=false")
     p.add_argument(
         "--lower-oom",
@@ -63,7 +70,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="what the OOMl exciter drives: the whole OOM (default, approximation) or nothing",
     )
     add_contact_arguments(p, smoothing_mm=0.1, freeze_below=1.0, obstacles=False, where="every frame's solve")
-    p.add_argument("--max-iterations", type=int, default=40, help="Newton iteration cap per frame (default 40)")
+    p.add_argument(
+        "--max-iterations", type=positive_int, default=40, help="Newton iteration cap per frame (default 40)"
+    )
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
     p.set_defaults(func=run_speech)
 

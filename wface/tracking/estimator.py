@@ -69,6 +69,7 @@ class TrackOptions:
     robust_mm: float | None = (
         3.0  # Tukey cut-off on marker residuals (mm) once the fit is close; None: plain least squares
     )
+    temporal_prior: str = "auto"  # "auto": the data-chosen temporal prior of wface.tracking.prior; "off"
     temporal_weight: float = 0.0  # lam: pull of activations toward the previous frame (m^2 per unit^2)
     activation_prior: float = 0.0  # mu: pull of activations toward zero (m^2 per unit^2), a small prior
     extrapolate: bool = True  # start each frame from a constant-velocity prediction of the controls
@@ -91,6 +92,8 @@ class FrameResult:
     rho: float
     seconds: float
     timings: dict = field(default_factory=dict)
+    system: dict = field(default_factory=dict)  # the last Gauss-Newton system: data_hessian (p, p) = 2 J^T W J
+    # (m^2 per unit^2), weighted_rss_m2 and weighted_count (sum of w_k over the coordinates) at the solution
 
 
 class MarkerMap:
@@ -162,6 +165,7 @@ class FrameEstimator:
         *,
         steps: int | None = None,
         a_prev: np.ndarray | None = None,
+        prior=None,
     ) -> FrameResult:
         """Controls for one frame of marker data.
 
@@ -172,8 +176,10 @@ class FrameEstimator:
             y0: warm start of the equilibrium (cranium frame), e.g. the previous frame's.
             steps: Gauss-Newton steps (default from the options: first / later frame).
             a_prev: activations of the previous frame for the temporal term.
+            prior: (a - mean)^T weight (a - mean) added to phi (``wface.tracking.prior.GaussianPrior``).
         """
         opt = self.options
+        self._prior = prior
         t_start = time.perf_counter()
         rig = self.rig
         counters0 = dict(rig.counters)
@@ -207,6 +213,10 @@ class FrameEstimator:
             r = (m - target).reshape(-1)[rows]
             A = 2.0 * (Jp.T * wr) @ Jp
             g = 2.0 * (Jp.T * wr) @ r
+            data_hessian = A.copy()
+            if prior is not None:
+                A[: self.M, : self.M] += 2.0 * prior.weight
+                g[: self.M] += 2.0 * prior.weight @ (c[: self.M] - prior.mean)
             if opt.temporal_weight > 0 and a_prev is not None:
                 A[: self.M, : self.M] += 2.0 * opt.temporal_weight * np.eye(self.M)
                 g[: self.M] += 2.0 * opt.temporal_weight * (c[: self.M] - a_prev)
@@ -247,6 +257,8 @@ class FrameEstimator:
         err = np.linalg.norm(m - target, axis=1)
         err[~present] = np.nan
         used = {k: rig.counters[k] - counters0[k] for k in rig.counters}
+        system = {"weighted_rss_m2": self._phi(m, target, present, w), "weighted_count": 3.0 * float(w[present].sum())}
+        system.update({"data_hessian": data_hessian} if gn_done else {})
         return FrameResult(
             frame,
             c,
@@ -260,6 +272,7 @@ class FrameEstimator:
             rho,
             time.perf_counter() - t_start,
             timings,
+            system,
         )
 
     def _bounded_step(self, H: np.ndarray, g: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -358,9 +371,12 @@ class FrameEstimator:
         return cache
 
     def _reg(self, c: np.ndarray, a_prev: np.ndarray | None) -> float:
-        """Value of the optional regularisers (temporal smoothness, prior toward rest)."""
+        """Value of the optional regularisers (temporal smoothness, prior toward rest, Gaussian prior)."""
         a = c[: self.M]
         out = self.options.activation_prior * float(a @ a)
+        prior = getattr(self, "_prior", None)
+        if prior is not None:
+            out += float((a - prior.mean) @ prior.weight @ (a - prior.mean))
         if self.options.temporal_weight > 0 and a_prev is not None:
             out += self.options.temporal_weight * float(np.sum((a - a_prev) ** 2))
         return out
