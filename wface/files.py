@@ -154,6 +154,8 @@ def load_npz(path: str | Path, *, what: str = "an .npz archive", required: Itera
     """
     path = Path(path)
     _size_problem(path, what)
+    if not zipfile.is_zipfile(path):
+        raise FileFormatError(f"{path}: not {what} (not an .npz archive: no zip directory; truncated or other format?)")
     try:
         with np.load(path, allow_pickle=False) as data:
             out = {k: data[k] for k in data.files}

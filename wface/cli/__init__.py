@@ -104,8 +104,13 @@ def _message(exc: BaseException) -> str:
             return f"this needs the optional package {top!r}: pip install 'wface[{OPTIONAL_EXTRAS[top]}]'"
     if isinstance(exc, KeyError) and exc.args:
         return str(exc.args[0])
-    if isinstance(exc, OSError) and exc.filename and str(exc.filename) not in str(exc):
-        return f"{exc.filename}: {exc.strerror or exc}"
+    if isinstance(exc, OSError) and exc.filename and exc.strerror:
+        hint = {
+            FileExistsError: " (a file is in the way where a directory is needed)",
+            NotADirectoryError: " (a file is in the way where a directory is needed)",
+            PermissionError: " (choose a writable place)",
+        }.get(type(exc), "")
+        return f"{exc.filename}: {exc.strerror}{hint}"
     text = str(exc).strip() or type(exc).__name__
     return " ".join(text.split()) if "\n" in text else text
 

@@ -30,6 +30,8 @@ from wface.takes import (
     simulate_poses,
     write_edit,
 )
+from wface.takes.provenance import command_provenance
+from wface.takes.store import claim_take_dir
 from wface.warp_runtime import quiet_warp
 
 _EPILOG = """\
@@ -71,6 +73,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--usda", action="store_true", help="write animation.usda (text) instead of .usdc")
     p.add_argument("--mesh-only", action="store_true", help="USD with the skin mesh only (write_mesh_animation)")
     p.add_argument("--no-pictures", action="store_true", help="skip the contact sheet")
+    p.add_argument("--overwrite", action="store_true", help="replace the results of another take that OUT holds")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -192,6 +195,7 @@ def _load(args, model):
 
 def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> int:
 
+    claim_take_dir(args.out, command_provenance(f"edit {args.edit_command}", model, args), overwrite=args.overwrite)
     t0 = time.perf_counter()
     result = simulate_poses(model, take, device=args.device, solver=args.solver, tol=args.tol, progress=True)
     wall = time.perf_counter() - t0

@@ -14,7 +14,8 @@ from wface.faces.builtin import build_face
 from wface.model import load_model
 from wface.physics import Damping, Simulator
 from wface.takes.dynamic import compare_with_quasistatic, quasistatic_reference, resimulate
-from wface.takes.store import USD, load_take, write_report, write_resim_npz
+from wface.takes.provenance import command_provenance
+from wface.takes.store import USD, claim_take_dir, load_take, write_report, write_resim_npz
 from wface.takes.synthetic import step_take
 from wface.takes.usd import skin_mesh, write_take_usd
 from wface.warp_runtime import quiet_warp
@@ -129,6 +130,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_contact_arguments(p, where="every time step and reference frame")
     p.add_argument("--no-reference", action="store_true", help="skip the quasistatic reference frames")
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
+    p.add_argument("--overwrite", action="store_true", help="replace the results of another take that OUT holds")
     p.add_argument("--tol", type=positive_float, default=1e-6, help="relative Newton tolerance per step (default 1e-6)")
     p.add_argument("--device", default="cpu", help="Warp device: cpu (default), cuda:0 or auto")
     p.add_argument("--solver", default="auto", choices=["auto", "direct", "cg"], help="linear solver")
@@ -205,7 +207,7 @@ def _run(args: argparse.Namespace) -> int:
             head_shake=_head_shake(args.head_shake),
         )
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    claim_take_dir(out, command_provenance("resim", model, args), overwrite=args.overwrite)
     sim = Simulator(model, device=args.device, solver=args.solver)
     contact = contact_from_args(args, model)
     skin_nodes, _ = skin_mesh(model)

@@ -107,11 +107,22 @@ def _gesture_dir(args) -> Path:
 def run_speech(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     model = _load_model(Path(args.model))
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
     mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
+    if not any(mapping.muscles.values()):
+        wanted = ", ".join(sorted({p.target for p in gesture.probes})) or "none"
+        raise ValueError(
+            f"{args.model}: the model has none of the muscles the gesture drives ({wanted}); it has "
+            f"{', '.join(model.muscle_names[:8])}...: play speech on the Badin face (wface model import artisynth)"
+        )
+    lacking = [n for n in ("Mouth_Up", "Mouth_Down") if n not in model.marker_names]
+    if lacking:
+        raise ValueError(
+            f"{args.model}: the lip opening is measured between markers the model lacks: {', '.join(lacking)}"
+        )
+    out.mkdir(parents=True, exist_ok=True)
     t_load = time.perf_counter() - t_start
     contact = contact_from_args(args, model)
     result = simulate_gesture(

@@ -80,10 +80,11 @@ def _common(p: argparse.ArgumentParser) -> None:
         "--overwrite", action="store_true", help="replace the results of another take that OUT already holds"
     )
     p.add_argument(
-        "--temporal-prior",
-        choices=["auto", "off"],
+        "--prior",
+        choices=["auto", "temporal", "off"],
         default="auto",
-        help="the activations' temporal prior, its strength estimated from the take (default auto; see docs)",
+        help="priors on the activations whose strength the take itself sets: auto (default) a temporal prior, "
+        "then a second pass with each muscle's usage; temporal: the first alone (one pass, faster); off",
     )
     p.add_argument(
         "--robust-mm",
@@ -150,9 +151,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _options(args) -> TrackOptions:
-    return TrackOptions(
-        robust_mm=args.robust_mm or None, temporal_weight=args.temporal_weight, temporal_prior=args.temporal_prior
-    )
+    return TrackOptions(robust_mm=args.robust_mm or None, temporal_weight=args.temporal_weight, prior=args.prior)
 
 
 def _rig_kwargs(args, model) -> dict:
@@ -288,8 +287,8 @@ def run_demo(args: argparse.Namespace) -> int:
 
 
 def run_track(args: argparse.Namespace) -> int:
+    take = read_mocap(args.mocap)  # a bad file fails before the face is built
     model = load_model(args.model) if args.model else build_face(args.tets, progress=True)
-    take = read_mocap(args.mocap)
     neutral = args.neutral_frame
     if neutral is not None and not 0 <= neutral < take.n_frames:
         raise ValueError(f"--neutral-frame {neutral} is outside {args.mocap}'s {take.n_frames} frames")

@@ -22,6 +22,7 @@ from wface.takes.provenance import explain_mismatch, frame_fingerprint
 
 __all__ = [
     "FRAMES_DIR",
+    "SURVEY_DIR",
     "FrameRecord",
     "ResumePlan",
     "decode_json",
@@ -36,6 +37,7 @@ __all__ = [
 ]
 
 FRAMES_DIR = "frames"
+SURVEY_DIR = "survey"  # the first pass of a two-pass tracking run (``wface.tracking.sequence``)
 
 
 # ---------------------------------------------------------------------- frame files
@@ -54,22 +56,22 @@ class FrameRecord:
     provenance: dict | None = None  # {"run": run provenance, "frame": f, "fingerprint": ...}
 
 
-def frame_path(out_dir: str | Path, frame: int) -> Path:
-    """``out_dir/frames/frame_NNNNNN.npz`` of a frame number."""
-    return Path(out_dir) / FRAMES_DIR / f"frame_{int(frame):06d}.npz"
+def frame_path(out_dir: str | Path, frame: int, *, folder: str = FRAMES_DIR) -> Path:
+    """``out_dir/frames/frame_NNNNNN.npz`` of a frame number (``folder``: another folder of the take)."""
+    return Path(out_dir) / folder / f"frame_{int(frame):06d}.npz"
 
 
 def json_bytes(obj) -> np.ndarray:
     return np.frombuffer(json.dumps(obj).encode(), dtype=np.uint8)
 
 
-def write_frame(out_dir: str | Path, rec: FrameRecord) -> Path:
+def write_frame(out_dir: str | Path, rec: FrameRecord, *, folder: str = FRAMES_DIR) -> Path:
     """Write one frame file atomically (a temporary file renamed into place, ``wface.files``)."""
     extra = {f"state/{k}": np.asarray(v) for k, v in rec.state.items()}
     if rec.provenance is not None:
         extra["provenance_json"] = json_bytes(rec.provenance)
     return save_npz(
-        frame_path(out_dir, rec.frame),
+        frame_path(out_dir, rec.frame, folder=folder),
         frame=rec.frame,
         controls=rec.controls,
         x_m=rec.x_m,
@@ -109,14 +111,14 @@ def read_frame(path: str | Path) -> FrameRecord:
     )
 
 
-def frame_numbers_on_disk(out_dir: str | Path) -> list[int]:
+def frame_numbers_on_disk(out_dir: str | Path, *, folder: str = FRAMES_DIR) -> list[int]:
     """Frame numbers of the frame files under ``out_dir/frames`` (sorted; temporaries of unfinished
     writes and files not named ``frame_<number>.npz`` are ignored)."""
-    folder = Path(out_dir) / FRAMES_DIR
-    if not folder.is_dir():
+    where = Path(out_dir) / folder
+    if not where.is_dir():
         return []
     out = []
-    for p in folder.glob("frame_*.npz"):
+    for p in where.glob("frame_*.npz"):
         tail = p.stem.split("_", 1)[1]
         if not is_temporary(p) and ".part" not in p.name and tail.isdigit():
             out.append(int(tail))
@@ -140,7 +142,9 @@ def load_frame_records(out_dir: str | Path, frames) -> dict[int, FrameRecord]:
     return found
 
 
-def verified_frames(out_dir: str | Path, frames, targets_m, run: dict) -> tuple[dict[int, FrameRecord], dict[int, str]]:
+def verified_frames(
+    out_dir: str | Path, frames, targets_m, run: dict, *, folder: str = FRAMES_DIR, extra: str | None = None
+) -> tuple[dict[int, FrameRecord], dict[int, str]]:
     """The frame files under ``out_dir`` that this run may reuse, and why the others present may not.
 
     Args:
@@ -148,6 +152,8 @@ def verified_frames(out_dir: str | Path, frames, targets_m, run: dict) -> tuple[
         frames: frame numbers wanted.
         targets_m: (len(frames), k, 3) the marker data of those frames (the frame fingerprints cover it).
         run: the run's provenance (``wface.takes.provenance.run_provenance``).
+        folder: the folder of frame files (``frames``, or ``survey`` for a first pass).
+        extra: what else the frames depend on (``wface.takes.provenance.frame_fingerprint``).
 
     Returns:
         ({frame: record} reusable, {frame: reason} present but to be tracked again).
@@ -156,7 +162,7 @@ def verified_frames(out_dir: str | Path, frames, targets_m, run: dict) -> tuple[
     redo: dict[int, str] = {}
     for f, target in zip(frames, targets_m, strict=True):
         f = int(f)
-        p = frame_path(out_dir, f)
+        p = frame_path(out_dir, f, folder=folder)
         if not p.exists():
             continue
         try:
@@ -169,9 +175,11 @@ def verified_frames(out_dir: str | Path, frames, targets_m, run: dict) -> tuple[
             redo[f] = f"the file holds frame {rec.frame}"
         elif not prov:
             redo[f] = "no provenance recorded"
-        elif prov.get("fingerprint") != frame_fingerprint(run, f, target):
+        elif prov.get("fingerprint") != frame_fingerprint(run, f, target, extra=extra):
             why = explain_mismatch(run, prov.get("run"))
-            redo[f] = "other marker data for this frame" if why == "another fingerprint" else why
+            if why == "another fingerprint":
+                why = "another take-wide prior" if prov.get("extra") != extra else "other marker data for this frame"
+            redo[f] = why
         else:
             ok[f] = rec
     return ok, redo
@@ -197,7 +205,9 @@ class ResumePlan:
         return text
 
 
-def resume_plan(out_dir: str | Path, frames, targets_m, run: dict) -> ResumePlan:
+def resume_plan(
+    out_dir: str | Path, frames, targets_m, run: dict, *, folder: str = FRAMES_DIR, extra: str | None = None
+) -> ResumePlan:
     """The ``ResumePlan`` of a run over ``frames`` with marker data ``targets_m`` (see ``verified_frames``)."""
-    ok, redo = verified_frames(out_dir, frames, targets_m, run)
+    ok, redo = verified_frames(out_dir, frames, targets_m, run, folder=folder, extra=extra)
     return ResumePlan(len(list(frames)), sorted(ok), redo)

@@ -22,13 +22,16 @@ from __future__ import annotations
 
 import hashlib
 import json
+from pathlib import Path
 
 import numpy as np
 
 from wface import __version__
+from wface.model import model_sha256
 
 __all__ = [
     "array_sha256",
+    "command_provenance",
     "explain_mismatch",
     "frame_fingerprint",
     "run_provenance",
@@ -67,11 +70,15 @@ def run_provenance(*, kind: str, model_sha256: str, source: dict, options: dict)
     return body
 
 
-def frame_fingerprint(run: dict, frame: int, target_m: np.ndarray | None) -> str:
+def frame_fingerprint(run: dict, frame: int, target_m: np.ndarray | None, *, extra: str | None = None) -> str:
     """Fingerprint of one frame of a run: the run's fingerprint, the frame number and the bytes of
-    that frame's marker data ((k, 3) metres, or None where a frame has no data of its own)."""
+    that frame's marker data ((k, 3) metres, or None where a frame has no data of its own); ``extra``:
+    what else the frame depends on (e.g. the digest of a prior fitted over the whole take)."""
     data = "none" if target_m is None else array_sha256(np.asarray(target_m, dtype=np.float64))
-    return _digest({"run": run["fingerprint"], "frame": int(frame), "data": data})
+    body = {"run": run["fingerprint"], "frame": int(frame), "data": data}
+    if extra is not None:
+        body["extra"] = str(extra)
+    return _digest(body)
 
 
 def same_take(a: dict | None, b: dict | None) -> bool:
@@ -116,3 +123,23 @@ def explain_mismatch(expected: dict, found: dict | None) -> str:
     if found.get("wface_version") != expected.get("wface_version"):
         return f"another wface version ({found.get('wface_version')})"
     return "another fingerprint"
+
+
+_NOT_OPTIONS = ("func", "out", "overwrite", "resume", "debug", "command", "json", "no_pictures", "no_movie", "no_usd")
+_SOURCE_KEYS = ("take", "model", "tets", "mocap", "from_", "to", "mix", "expression", "add", "activation", "frames")
+
+
+def command_provenance(kind: str, model, args) -> dict:
+    """The provenance of a command run from its parsed arguments (``argparse.Namespace``): the inputs
+    (take, model, expressions, ...) are its source, the other options its options. A ``--take``
+    input is named by its own recorded fingerprint where it has one."""
+    values = {k: v for k, v in sorted(vars(args).items()) if k not in _NOT_OPTIONS and not callable(v)}
+    source = {k: values.pop(k) for k in _SOURCE_KEYS if k in values}
+    take = source.get("take")
+    if take:
+        try:
+            recorded = json.loads((Path(take) / "provenance.json").read_text())
+            source["take"] = {"path": str(take), "fingerprint": recorded.get("fingerprint")}
+        except (OSError, ValueError):
+            source["take"] = {"path": str(take)}
+    return run_provenance(kind=kind, model_sha256=model_sha256(model), source=source, options=values)

@@ -43,6 +43,7 @@ from wface.model import FaceModel
 from wface.takes.dynamic import ResimResult
 from wface.takes.frames import (
     FRAMES_DIR,
+    SURVEY_DIR,
     FrameRecord,
     ResumePlan,
     decode_json,
@@ -64,6 +65,7 @@ __all__ = [
     "DEFAULT_FPS",
     "FRAMES_DIR",
     "PROVENANCE",
+    "SURVEY_DIR",
     "REPORT",
     "USD",
     "FrameRecord",
@@ -127,16 +129,17 @@ def recorded_run(out_dir: str | Path) -> dict | None:
 
 
 def _has_results(out: Path) -> bool:
-    return any((out / name).exists() for name in (*TAKE_FILES, PROVENANCE)) or bool(frame_numbers_on_disk(out))
+    frames = frame_numbers_on_disk(out) or frame_numbers_on_disk(out, folder=SURVEY_DIR)
+    return any((out / name).exists() for name in (*TAKE_FILES, PROVENANCE)) or bool(frames)
 
 
 def _clear_results(out: Path) -> None:
     for name in (*TAKE_FILES, PROVENANCE):
         if (out / name).is_file():
             (out / name).unlink()
-    folder = out / FRAMES_DIR
-    if folder.is_dir():
-        shutil.rmtree(folder)
+    for name in (FRAMES_DIR, SURVEY_DIR):
+        if (out / name).is_dir():
+            shutil.rmtree(out / name)
 
 
 def claim_take_dir(out_dir: str | Path, run: dict, *, resume: bool = False, overwrite: bool = False) -> str:
@@ -176,8 +179,9 @@ def claim_take_dir(out_dir: str | Path, run: dict, *, resume: bool = False, over
             n = len(frame_numbers_on_disk(out))
             _clear_results(out)
             note = f"starting this take again in {out} (removed its {n} earlier frames; --resume reuses them)"
-    for tmp in (out / FRAMES_DIR).glob(".*.part-*") if (out / FRAMES_DIR).is_dir() else ():
-        tmp.unlink(missing_ok=True)  # a killed writer's temporary file
+    for name in (FRAMES_DIR, SURVEY_DIR):
+        for tmp in (out / name).glob(".*.part-*") if (out / name).is_dir() else ():
+            tmp.unlink(missing_ok=True)  # a killed writer's temporary file
     write_json(out / PROVENANCE, run)
     return note
 

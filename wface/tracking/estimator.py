@@ -69,7 +69,8 @@ class TrackOptions:
     robust_mm: float | None = (
         3.0  # Tukey cut-off on marker residuals (mm) once the fit is close; None: plain least squares
     )
-    temporal_prior: str = "auto"  # "auto": the data-chosen temporal prior of wface.tracking.prior; "off"
+    prior: str = "auto"  # data-chosen priors (wface.tracking.prior): "auto" temporal + usage (two passes),
+    # "temporal" the temporal prior alone (one pass), "off" none
     temporal_weight: float = 0.0  # lam: pull of activations toward the previous frame (m^2 per unit^2)
     activation_prior: float = 0.0  # mu: pull of activations toward zero (m^2 per unit^2), a small prior
     extrapolate: bool = True  # start each frame from a constant-velocity prediction of the controls

@@ -33,9 +33,9 @@ from wface.controls import params_from_affine
 from wface.mesh.align import embed_markers, umeyama
 from wface.model import model_sha256
 from wface.takes.provenance import array_sha256, frame_fingerprint, run_provenance
-from wface.takes.store import FrameRecord, verified_frames, write_frame
+from wface.takes.store import FRAMES_DIR, SURVEY_DIR, FrameRecord, verified_frames, write_frame
 from wface.tracking.estimator import FrameEstimator, MarkerMap, TrackOptions
-from wface.tracking.prior import TemporalPrior
+from wface.tracking.prior import GaussianPrior, TemporalPrior, fit_usage_prior, usage_prior
 from wface.tracking.rig import FaceRig
 
 __all__ = [
@@ -132,7 +132,7 @@ class _Tracker:
         self.options, self.names, self.min_markers, self.run = options, marker_names, min_markers, run
         self.M = self.rig.n_muscles
         self.c = self.y = self.c_older = self.x = None
-        self.prior = TemporalPrior(self.M) if options.temporal_prior == "auto" else None
+        self.prior = TemporalPrior(self.M) if options.prior in ("auto", "temporal") else None
 
     def resume_from(self, rec: FrameRecord) -> None:
         """Continue from a record on disk (its stored state makes the continuation bit-identical)."""
@@ -173,6 +173,9 @@ class _Tracker:
         if self.prior is not None:
             self.prior.update(self.rig.model.jaw_joint, res)
         self.c_older, self.c, self.y, self.x = c_last, res.controls, res.state.y_m, res.state.x_m
+        state = self._state()
+        if self.prior is not None and self.prior.last_information is not None:
+            state["information"] = 0.5 * self.prior.last_information  # J^T W J on the activations
         stats = {
             "gauss_newton_steps": res.gauss_newton_steps,
             "quasistatic_solves": res.quasistatic_solves,
@@ -185,12 +188,14 @@ class _Tracker:
             "seconds": res.seconds,
             "markers_present": present,
             "carried": False,
+            "weighted_rss_m2": float(res.system.get("weighted_rss_m2", 0.0)),
+            "weighted_count": float(res.system.get("weighted_count", 0.0)),
             **{k: float(v) for k, v in res.timings.items()},
         }
         if self.prior is not None and self.prior.noise_var_m2 is not None:
             stats["noise_mm_estimate"] = float(np.sqrt(3.0 * self.prior.noise_var_m2) * 1e3)
         st, err = res.state, res.marker_error_m
-        return FrameRecord(int(frame), res.controls, st.x_m, st.y_m, res.markers_m, err, stats, self._state())
+        return FrameRecord(int(frame), res.controls, st.x_m, st.y_m, res.markers_m, err, stats, state)
 
     def _carry(self, frame: int, target: np.ndarray, present: int) -> FrameRecord:
         """A frame with too few markers: hold the previous frame (the rest pose at the start)."""
@@ -221,18 +226,33 @@ class _Tracker:
 
 
 def _track_chunk(
-    model, embedding, targets, frames, marker_names, options, rig_kwargs, out_dir, run, reuse, min_markers, progress
+    model,
+    embedding,
+    targets,
+    frames,
+    marker_names,
+    options,
+    rig_kwargs,
+    out_dir,
+    run,
+    reuse,
+    min_markers,
+    folder,
+    progress,
 ):
     """Track consecutive frames (runs in a worker): ``targets`` holds ``len(targets) - len(frames)``
     warm-up frames (tracked, not kept) and then the chunk's frames. Returns the chunk's FrameRecords."""
     tracker = _Tracker(model, embedding, marker_names, options, rig_kwargs, min_markers, run)
     n_warm = len(targets) - len(frames)
-    done = verified_frames(out_dir, frames, targets[n_warm:], run)[0] if (out_dir is not None and reuse) else {}
+    done = {}
+    if out_dir is not None and reuse:
+        done = verified_frames(out_dir, frames, targets[n_warm:], run, folder=folder)[0]
     if n_warm and int(frames[0]) not in done:
         for j in range(n_warm):
             tracker.step(int(frames[0]) - n_warm + j, targets[j])
     out = []
-    for j, f in enumerate(tqdm(frames, desc="tracking", disable=not progress, unit="frame")):
+    desc = "tracking" if folder == FRAMES_DIR else "tracking (pass 1 of 2)"
+    for j, f in enumerate(tqdm(frames, desc=desc, disable=not progress, unit="frame")):
         if f in done:
             tracker.resume_from(done[f])
             out.append(done[f])
@@ -241,9 +261,66 @@ def _track_chunk(
         if out_dir is not None:
             fingerprint = frame_fingerprint(run, f, targets[n_warm + j])
             rec.provenance = {"run": run, "frame": int(f), "fingerprint": fingerprint}
+            write_frame(out_dir, rec, folder=folder)
+        out.append(rec)
+    return out
+
+
+def _refine_chunk(model, embedding, targets, survey, options, rig_kwargs, out_dir, run, reuse, prior, extra, progress):
+    """The second pass over consecutive frames (runs in a worker): each frame estimated again from its
+    first-pass solution (``survey``: its FrameRecords) under the take-wide usage prior."""
+    frames = [r.frame for r in survey]
+    done = verified_frames(out_dir, frames, targets, run, extra=extra)[0] if (out_dir is not None and reuse) else {}
+    rig = FaceRig(model, **rig_kwargs)
+    est = FrameEstimator(rig, MarkerMap(model, embedding), options)
+    out = []
+    for j, first in enumerate(tqdm(survey, desc="tracking (pass 2 of 2)", disable=not progress, unit="frame")):
+        f = first.frame
+        if f in done:
+            out.append(done[f])
+            continue
+        stats = dict(first.stats, pass1_seconds=first.stats["seconds"])
+        if first.stats.get("carried"):
+            rec = FrameRecord(f, first.controls, first.x_m, first.y_m, first.markers_m, first.marker_error_m, stats)
+        else:
+            res = est.estimate(f, targets[j], first.controls, first.y_m, steps=options.gn_steps, prior=prior)
+            for k in ("gauss_newton_steps", "quasistatic_solves", "linear_solves", "seconds"):
+                stats[k] = first.stats[k] + getattr(res, k)
+            stats.update(
+                {k: first.stats.get(k, 0.0) + float(v) for k, v in res.timings.items()},
+                newton_iterations=res.state.newton_iterations,
+                residual_rel=res.state.residual_rel,
+                inverted_elements=res.state.inverted_elements,
+                penalty=res.penalty,
+                rho=res.rho,
+            )
+            st = res.state
+            rec = FrameRecord(f, res.controls, st.x_m, st.y_m, res.markers_m, res.marker_error_m, stats)
+        if out_dir is not None:
+            fingerprint = frame_fingerprint(run, f, targets[j], extra=extra)
+            rec.provenance = {"run": run, "frame": int(f), "fingerprint": fingerprint, "extra": extra, "pass": 2}
             write_frame(out_dir, rec)
         out.append(rec)
     return out
+
+
+def _fit_usage(records) -> tuple[GaussianPrior | None, str | None, dict]:
+    """The usage prior of a first pass (``wface.tracking.prior.fit_usage_prior``), its digest and a summary."""
+    rows = [r for r in records if not r.stats.get("carried") and "information" in r.state]
+    if len(rows) < 2:
+        return None, None, {"frames_fitted": len(rows)}
+    rss = sum(r.stats["weighted_rss_m2"] for r in rows)
+    dof = sum(max(r.stats["weighted_count"] - r.state["information"].shape[0] - 9.0, 1.0) for r in rows)
+    sigma2 = rss / dof
+    M = rows[0].state["information"].shape[0]
+    A = np.array([r.controls[:M] for r in rows])
+    gamma = fit_usage_prior(A, np.array([r.state["information"] for r in rows]), sigma2)
+    summary = {
+        "frames_fitted": len(rows),
+        "noise_mm": float(np.sqrt(3.0 * sigma2) * 1e3),
+        "activation_sd": np.sqrt(gamma).tolist(),
+    }
+    return usage_prior(gamma, sigma2), array_sha256(gamma, np.array([sigma2]))[:16], summary
 
 
 def track_sequence(
@@ -310,6 +387,8 @@ def track_sequence(
     frames = np.arange(first_frame, first_frame + F)
     size = F if not chunk_size else max(1, int(chunk_size))
     chunks = [(s, min(F, s + size)) for s in range(0, F, size)]
+    two_pass = options.prior == "auto" and F >= 2
+    folder = SURVEY_DIR if two_pass else FRAMES_DIR
     args = [
         (
             model,
@@ -323,13 +402,31 @@ def track_sequence(
             run,
             bool(resume),
             min_markers,
+            folder,
         )
         for s, e in chunks
     ]
+    records = _run_chunks(_track_chunk, args, executor, progress)
+    if not two_pass:
+        return records
+    prior, extra, summary = _fit_usage(records)
+    args = [
+        (model, markers.embedding, targets[s:e], records[s:e], options, rig_kwargs, out_dir, run, bool(resume))
+        + (prior, extra)
+        for s, e in chunks
+    ]
+    refined = _run_chunks(_refine_chunk, args, executor, progress)
+    for rec in refined:
+        rec.stats["usage_prior"] = summary
+    return refined
+
+
+def _run_chunks(fn, args, executor, progress) -> list[FrameRecord]:
+    """``fn(*a, progress)`` for every chunk's arguments, in-process or on the executor; the records in order."""
     if executor is None:
-        results = [_track_chunk(*a, progress) for a in args]
+        results = [fn(*a, progress) for a in args]
     else:
-        futures = [executor.submit(_track_chunk, *a, False) for a in args]
+        futures = [executor.submit(fn, *a, False) for a in args]
         results = [fut.result() for fut in futures]
     return [rec for chunk in results for rec in chunk]
 
