@@ -34,6 +34,7 @@ __all__ = [
     "is_temporary",
     "load_npz",
     "read_json",
+    "save_layer",
     "save_npz",
     "write_bytes",
     "write_csv",
@@ -125,6 +126,16 @@ def save_npz(path: str | Path, *, compressed: bool = False, **arrays) -> Path:
         raise ValueError(f"{path}: npz archives must end in .npz")
     with atomic_path(path) as tmp:
         (np.savez_compressed if compressed else np.savez)(tmp, **arrays)
+    return path
+
+
+def save_layer(layer, path: str | Path) -> Path:
+    """Save a USD layer (``pxr.Sdf.Layer``, e.g. ``stage.GetRootLayer()``) to ``path`` atomically: the layer
+    is exported to a temporary file of the same format and renamed into place. Returns the path."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        if not layer.Export(str(tmp)):
+            raise OSError(f"{path}: USD could not write the stage")
     return path
 
 

@@ -16,6 +16,7 @@ from wface.basis.physical import basis_from_face
 from wface.basis.pipeline import analyze_take, refine_basis, write_analysis
 from wface.cli.validate import positive_float, positive_fraction, positive_int
 from wface.faces.builtin import build_face
+from wface.files import write_json
 from wface.io.mocap import read_mocap
 from wface.model import load_model
 
@@ -185,7 +186,7 @@ def _refine(args) -> int:
         **info,
     }
     report_path = out.with_name(out.name + ".report.json")
-    report_path.write_text(json.dumps(report, indent=2) + "\n")
+    write_json(report_path, report)
     print(f"training RMS {res.errors_mm[0]:.3f} -> {min(res.errors_mm):.3f} mm in {res.iterations} iterations "
           f"(regularization {info['regularization']}); wrote {out} and {report_path}")  # fmt: skip
     return 0

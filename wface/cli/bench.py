@@ -9,6 +9,7 @@ import sys
 
 from wface.bench import SUITES
 from wface.cli.validate import positive_int
+from wface.files import write_text
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,8 +32,7 @@ def _run(args: argparse.Namespace) -> int:
     result = module.run(args)  # wface.bench.suite_result: {"suite", "machine", "device", "results", "notes"?}
     text = json.dumps(result, indent=2)
     if args.out:
-        with open(args.out, "w") as f:
-            f.write(text + "\n")
+        write_text(args.out, text + "\n")
     if args.json:
         print(text)
     else:

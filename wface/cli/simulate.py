@@ -12,6 +12,7 @@ import numpy as np
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.validate import non_negative_float, positive_float, positive_int
 from wface.controls import attached_positions_from_affines, jaw_opening_affine
+from wface.files import save_npz, write_json
 from wface.model import load_model
 from wface.physics import Simulator
 from wface.physics.contact import MeshObstacle, bone_affines_from_attached
@@ -111,7 +112,7 @@ def _run(args: argparse.Namespace) -> int:
     eq = sim.solve(activations, targets, tol=args.tol, max_iterations=args.max_iterations, contact=contact)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    np.savez(
+    save_npz(
         out / "equilibrium.npz",
         positions_m=eq.x,
         rest_positions_m=model.rest_positions_m,
@@ -153,7 +154,7 @@ def _run(args: argparse.Namespace) -> int:
             contact_force_n=eq.contact_force_n,
             contact_sources=eq.contact_stats,
         )
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(out / "summary.json", summary)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

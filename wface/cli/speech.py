@@ -7,13 +7,13 @@ of the driven muscles), lip_opening.png, animation.usdc (skin, markers, per-musc
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.validate import positive_float, positive_int
 from wface.faces.artisynth import import_artisynth
+from wface.files import write_json
 from wface.model import load_model
 from wface.speech.gestures import map_gesture_to_model, read_gesture
 from wface.speech.output import write_gesture_usd, write_lip_opening
@@ -179,7 +179,7 @@ def run_speech(args: argparse.Namespace) -> int:
             "files": files,
         }
     )
-    (out / "report.json").write_text(json.dumps(report, indent=2))
+    write_json(out / "report.json", report)
     lo = report["lip_opening_mm"]
     print(
         f"{result.gesture}: lip opening {lo['first']:.2f} -> {lo['last']:.2f} mm (min {lo['min']:.2f}, "

@@ -179,8 +179,8 @@ def claim_take_dir(out_dir: str | Path, run: dict, *, resume: bool = False, over
             n = len(frame_numbers_on_disk(out))
             _clear_results(out)
             note = f"starting this take again in {out} (removed its {n} earlier frames; --resume reuses them)"
-    for name in (FRAMES_DIR, SURVEY_DIR):
-        for tmp in (out / name).glob(".*.part-*") if (out / name).is_dir() else ():
+    for where in (out, out / FRAMES_DIR, out / SURVEY_DIR):
+        for tmp in where.glob(".*.part-*") if where.is_dir() else ():
             tmp.unlink(missing_ok=True)  # a killed writer's temporary file
     write_json(out / PROVENANCE, run)
     return note

@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from wface.facs import all_muscle_names
+from wface.files import write_json
 from wface.waters.muscles import LinearMuscle, SphincterMuscle
 
 __all__ = [
@@ -379,5 +380,5 @@ def load_layout(path_or_name: str | Path) -> MuscleLayout:
 def save_layout(layout: MuscleLayout, path: str | Path, *, units: str = "m") -> Path:
     """Write a layout as JSON (lengths in ``units``)."""
     path = Path(path)
-    path.write_text(json.dumps(layout_to_dict(layout, units=units), indent=1) + "\n")
+    write_json(path, layout_to_dict(layout, units=units), indent=1)
     return path

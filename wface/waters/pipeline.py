@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.files import write_json
 from wface.waters.expressions import expression_pose
 from wface.waters.fit import fit_layout
 from wface.waters.layout import MuscleLayout, load_layout
@@ -123,5 +124,5 @@ def pose_mesh(
         "deform_seconds": seconds,
         "files": files,
     }
-    (out / f"{stem}.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(out / f"{stem}.json", summary)
     return summary
