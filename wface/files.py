@@ -190,7 +190,7 @@ def read_json(path: str | Path, *, what: str = "a JSON file"):
         raise FileFormatError(f"{path}: not {what}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     except json.JSONDecodeError as exc:
         raise FileFormatError(
-            f"{path}: not {what}: invalid JSON at line {exc.lineno}, column {exc.colno} ({exc.msg})"
+            f"{path}: not valid JSON at line {exc.lineno}, column {exc.colno} ({exc.msg}); expected {what}"
         ) from None
 
 

@@ -16,7 +16,7 @@ from wface.basis.physical import basis_from_face
 from wface.basis.pipeline import analyze_take, refine_basis, write_analysis
 from wface.cli.validate import positive_float, positive_fraction, positive_int
 from wface.faces.builtin import build_face
-from wface.files import write_json
+from wface.files import read_json, write_json
 from wface.io.mocap import read_mocap
 from wface.model import load_model
 
@@ -124,7 +124,7 @@ def _load(args):
         path = Path(args.landmarks)
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such landmark file")
-        landmarks = {str(k): int(v) for k, v in json.loads(path.read_text()).items()}
+        landmarks = {str(k): int(v) for k, v in read_json(path, what="a landmark JSON file").items()}
     return basis, landmarks
 
 

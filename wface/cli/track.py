@@ -51,6 +51,12 @@ Markers whose names the model also has (the built-in face uses the AnimFace name
 alignment of the first frame; all markers are embedded in the skin. Rigid head motion is carried
 by the cranium controls.
 
+Before tracking, samples no face can produce (non-finite, far outside the head, one-frame jumps
+faster than 2 m/s) become missing and are counted per marker in report.json; a frame left with too
+few markers is carried from the frame before. OUT records what made it (provenance.json): --resume
+reuses only frames this same run made (same model, capture file, range and options), and a
+directory holding another take is refused unless --overwrite.
+
 examples:
   wface track --mocap take.c3d --out run1                      # on the built-in face (5000 tets)
   wface track --model face.npz --mocap take.c3d --out run1 --frames 0:300
