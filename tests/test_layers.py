@@ -18,7 +18,8 @@ PACKAGE = ROOT / "wface"
 
 # lowest first; a unit is a top-level module or subpackage of wface
 LAYERS: list[tuple[str, ...]] = [
-    ("wface", "wface.kernels", "wface.warp_runtime", "wface.model", "wface.facs"),
+    ("wface", "wface.files"),
+    ("wface.kernels", "wface.warp_runtime", "wface.model", "wface.facs"),
     ("wface.controls",),
     ("wface.mesh",),
     ("wface.solvers",),

@@ -165,8 +165,14 @@ def jaw_opening_affine(model: FaceModel, opening_deg: float) -> np.ndarray:
 
     Returns:
         3x4 affine [R | m - R m].
+
+    Raises:
+        ValueError: ``opening_deg`` outside the joint's range [0, asin(max_opening_sine)].
     """
     jj = model.jaw_joint
+    limit_deg = float(np.degrees(np.arcsin(min(1.0, jj.max_opening_sine))))
+    if not (np.isfinite(opening_deg) and 0.0 <= opening_deg <= limit_deg + 1e-9):
+        raise ValueError(f"jaw opening {opening_deg:g} deg is outside this model's jaw range [0, {limit_deg:.1f}] deg")
     R = rotation_about_axis(np.asarray(jj.u), np.deg2rad(opening_deg))
     m = np.asarray(jj.midpoint_m, dtype=np.float64)
     return np.hstack([R, (m - R @ m)[:, None]])

@@ -11,11 +11,14 @@ follow it (Dirichlet nodes), and bone surfaces serve contact and rendering.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
+
+from wface.files import FileFormatError, load_npz, save_npz
 
 __all__ = [
     "BONES",
@@ -26,6 +29,7 @@ __all__ = [
     "Material",
     "ModelError",
     "load_model",
+    "model_sha256",
     "save_model",
 ]
 
@@ -361,11 +365,8 @@ _ARRAY_FIELDS = (
 )
 
 
-def save_model(model: FaceModel, path: str | Path) -> Path:
-    """Write a model to ``.npz`` (uncompressed arrays: bit-exact round trip). Returns the path."""
-    path = Path(path)
-    if path.suffix != ".npz":
-        raise ValueError(f"face models are saved as .npz, got {path.name!r}")
+def _model_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
+    """(arrays, header) of a model: what ``save_model`` writes and ``model_sha256`` hashes."""
     arrays = {name: getattr(model, name) for name in _ARRAY_FIELDS}
     for name, mesh in model.bone_meshes.items():
         arrays[f"bone/{name}/vertices_m"] = mesh.vertices_m
@@ -384,41 +385,68 @@ def save_model(model: FaceModel, path: str | Path) -> Path:
         "facs": model.facs,
         "metadata": model.metadata,
     }
+    return arrays, header
+
+
+def model_sha256(model: FaceModel) -> str:
+    """Hex SHA-256 of a model's content (every array's dtype, shape and bytes, and the header), the same
+    for a model and its ``save_model`` / ``load_model`` round trip; the fingerprint takes record."""
+    arrays, header = _model_arrays(model)
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
+        h.update(a.tobytes())
+    h.update(json.dumps(header, sort_keys=True, default=str).encode())
+    return h.hexdigest()
+
+
+def save_model(model: FaceModel, path: str | Path) -> Path:
+    """Write a model to ``.npz`` (uncompressed arrays: bit-exact round trip; written to a temporary
+    file renamed into place, ``wface.files``). Returns the path."""
+    path = Path(path)
+    if path.suffix != ".npz":
+        raise ValueError(f"face models are saved as .npz, got {path.name!r}")
+    arrays, header = _model_arrays(model)
     arrays["header_json"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".part.npz")
-    np.savez(tmp, **arrays)
-    tmp.replace(path)  # never leave a half-written model under the real name
-    return path
+    return save_npz(path, **arrays)
 
 
 def load_model(path: str | Path, *, validate: bool = True) -> FaceModel:
-    """Read a model written by ``save_model``. A newer format version is refused."""
+    """Read a model written by ``save_model``. A newer format version is refused; an unreadable,
+    truncated or corrupted file raises ``ModelError`` naming the file."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"face model file not found: {path}")
     try:
-        data = np.load(path, allow_pickle=False)
-    except Exception as exc:  # noqa: BLE001 - report any unreadable file the same way
-        raise ModelError(f"{path}: not a readable .npz face model ({exc})") from exc
-    with data:
-        if "header_json" not in data.files:
-            raise ModelError(f"{path}: not a wface face model (no header)")
+        data = load_npz(path, what="a wface face model (.npz)")
+    except FileFormatError as exc:
+        raise ModelError(str(exc)) from None
+    if "header_json" not in data:
+        raise ModelError(f"{path}: not a wface face model (no header)")
+    try:
         header = json.loads(bytes(data["header_json"]).decode())
-        version = int(header.get("format_version", -1))
-        if header.get("format") != "wface.FaceModel":
-            raise ModelError(f"{path}: not a wface face model (format {header.get('format')!r})")
-        if version > FORMAT_VERSION:
-            raise ModelError(
-                f"{path}: written by a newer wface (model format {version}; this version reads up to "
-                f"{FORMAT_VERSION}). Upgrade wface to load it."
-            )
-        arrays = {name: data[name] for name in _ARRAY_FIELDS}
-        bones = {
-            name: BoneMesh(data[f"bone/{name}/vertices_m"], data[f"bone/{name}/triangles"], bone)
-            for name, bone in header["bones"].items()
-        }
-        surfaces = {name: data[f"surface/{name}"] for name in header["surface_groups"]}
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ModelError(f"{path}: the face model's header is corrupted ({exc})") from None
+    version = int(header.get("format_version", -1))
+    if header.get("format") != "wface.FaceModel":
+        raise ModelError(f"{path}: not a wface face model (format {header.get('format')!r})")
+    if version > FORMAT_VERSION:
+        raise ModelError(
+            f"{path}: written by a newer wface (model format {version}; this version reads up to "
+            f"{FORMAT_VERSION}). Upgrade wface to load it."
+        )
+    missing = [k for k in _ARRAY_FIELDS if k not in data]
+    missing += [f"bone/{n}/vertices_m" for n in header.get("bones", {}) if f"bone/{n}/vertices_m" not in data]
+    missing += [f"surface/{n}" for n in header.get("surface_groups", []) if f"surface/{n}" not in data]
+    if missing:
+        raise ModelError(f"{path}: the face model lacks {', '.join(missing)} (truncated or not written by wface?)")
+    arrays = {name: data[name] for name in _ARRAY_FIELDS}
+    bones = {
+        name: BoneMesh(data[f"bone/{name}/vertices_m"], data[f"bone/{name}/triangles"], bone)
+        for name, bone in header["bones"].items()
+    }
+    surfaces = {name: data[f"surface/{name}"] for name in header["surface_groups"]}
     jj = header["jaw_joint"]
     model = FaceModel(
         **arrays,

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.files import load_npz, save_npz
+
 __all__ = ["ActuationBasis", "FORMAT_VERSION", "load_basis", "polygons_to_triangles"]
 
 FORMAT_VERSION = 1
@@ -240,9 +242,9 @@ class ActuationBasis:
     def save(self, path: str | Path) -> None:
         """Write a compressed npz (metres, float64) that :func:`load_basis` reads back exactly."""
         extra = {} if self.skin_vertices is None else {"skin_vertices": self.skin_vertices}
-        np.savez_compressed(
-            path, format="wface.actuation_basis", format_version=FORMAT_VERSION, neutral_m=self.neutral_m,
-            shapes_m=self.shapes_m, names=np.array(self.names), face_counts=self.face_counts,
+        save_npz(
+            path, compressed=True, format="wface.actuation_basis", format_version=FORMAT_VERSION,
+            neutral_m=self.neutral_m, shapes_m=self.shapes_m, names=np.array(self.names), face_counts=self.face_counts,
             face_indices=self.face_indices, source=self.source, **extra,
         )  # fmt: skip
 
@@ -278,22 +280,22 @@ def load_basis(path: str | Path) -> ActuationBasis:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such basis file")
-    with np.load(path) as d:
-        files = set(d.files)
-        if "format" in files and str(d["format"]) == "wface.actuation_basis":
-            version = int(d["format_version"])
-            if version > FORMAT_VERSION:
-                raise ValueError(f"{path}: basis format version {version} is newer than this wface ({FORMAT_VERSION})")
-            skin = d["skin_vertices"] if "skin_vertices" in files else None
-            return ActuationBasis(
-                d["neutral_m"],
-                d["shapes_m"],
-                [str(n) for n in d["names"]],
-                d["face_counts"],
-                d["face_indices"],
-                skin,
-                str(d["source"]),
-            )
+    d = load_npz(path, what="an actuation basis (.npz)")  # named errors for empty, truncated, corrupted files
+    files = set(d)
+    if "format" in files and str(d["format"]) == "wface.actuation_basis":
+        version = int(d["format_version"])
+        if version > FORMAT_VERSION:
+            raise ValueError(f"{path}: basis format version {version} is newer than this wface ({FORMAT_VERSION})")
+        skin = d["skin_vertices"] if "skin_vertices" in files else None
+        return ActuationBasis(
+            d["neutral_m"],
+            d["shapes_m"],
+            [str(n) for n in d["names"]],
+            d["face_counts"],
+            d["face_indices"],
+            skin,
+            str(d["source"]),
+        )
     if {"neutral", "deltas", "names"} <= files:
         return ActuationBasis.from_ict_npz(path)
     raise ValueError(f"{path}: neither a wface actuation basis nor an ICT expression npz (keys: {sorted(files)})")

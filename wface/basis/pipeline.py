@@ -6,8 +6,6 @@ Units: the basis is in metres (ICT npz centimetres are converted on load), takes
 
 from __future__ import annotations
 
-import csv
-import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +18,7 @@ from wface.basis.core import ActuationBasis
 from wface.basis.landmarks import load_ict_animface_landmarks
 from wface.basis.plots import plot_analysis
 from wface.basis.refine import RefinementResult, interpolate_to_mesh, refine_marker_basis, select_regularization
+from wface.files import save_npz, write_csv, write_json
 
 __all__ = ["TakeAnalysis", "analyze_take", "default_landmarks", "refine_basis", "write_analysis"]
 
@@ -81,21 +80,24 @@ def write_analysis(out_dir: str | Path, result: TakeAnalysis, *, extra: dict | N
     out.mkdir(parents=True, exist_ok=True)
     an, cap = result.analysis, result.capture
     times = np.arange(an.contractions.shape[0]) / cap.rate_hz
-    np.savez_compressed(
-        out / "contractions.npz", contractions=an.contractions, element_names=np.array(an.element_names),
-        marker_names=np.array(an.marker_names), marker_error_mm=an.error_m * 1e3, marker_rms_mm=an.marker_rms_mm,
-        times_s=times, rate_hz=cap.rate_hz,
+    save_npz(
+        out / "contractions.npz", compressed=True, contractions=an.contractions,
+        element_names=np.array(an.element_names), marker_names=np.array(an.marker_names),
+        marker_error_mm=an.error_m * 1e3, marker_rms_mm=an.marker_rms_mm, times_s=times, rate_hz=cap.rate_hz,
     )  # fmt: skip
-    with (out / "contractions.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["frame", "time_s", *an.element_names])
-        for f, row in enumerate(an.contractions):
-            w.writerow([f, f"{times[f]:.6f}", *(f"{v:.6g}" for v in row)])
-    with (out / "marker_error_mm.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["frame", "time_s", "marker_rms_mm", *an.marker_names])
-        for f, row in enumerate(an.error_m * 1e3):
-            w.writerow([f, f"{times[f]:.6f}", f"{an.marker_rms_mm[f]:.6g}", *(f"{v:.6g}" for v in row)])
+    write_csv(
+        out / "contractions.csv",
+        ["frame", "time_s", *an.element_names],
+        ([f, f"{times[f]:.6f}", *(f"{v:.6g}" for v in row)] for f, row in enumerate(an.contractions)),
+    )
+    write_csv(
+        out / "marker_error_mm.csv",
+        ["frame", "time_s", "marker_rms_mm", *an.marker_names],
+        (
+            [f, f"{times[f]:.6f}", f"{an.marker_rms_mm[f]:.6g}", *(f"{v:.6g}" for v in row)]
+            for f, row in enumerate(an.error_m * 1e3)
+        ),
+    )
     x = an.contractions
     report = {
         "frames": int(x.shape[0]),
@@ -121,7 +123,7 @@ def write_analysis(out_dir: str | Path, result: TakeAnalysis, *, extra: dict | N
     if plot:
         plot_analysis(an, out / "analysis.png", rate_hz=cap.rate_hz, title=Path(cap.source).name)
         report["plot"] = "analysis.png"
-    (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    write_json(out / "report.json", report)
     return report
 
 

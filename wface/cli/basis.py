@@ -14,7 +14,9 @@ from pathlib import Path
 from wface.basis.core import load_basis
 from wface.basis.physical import basis_from_face
 from wface.basis.pipeline import analyze_take, refine_basis, write_analysis
+from wface.cli.validate import positive_float, positive_fraction, positive_int
 from wface.faces.builtin import build_face
+from wface.files import read_json, write_json
 from wface.io.mocap import read_mocap
 from wface.model import load_model
 
@@ -71,14 +73,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--out", required=True, help="refined basis .npz")
     r.add_argument("--regularization", default="auto",
                    help="ridge weight towards the initial shapes, or 'auto' (leave-one-take-out; default)")  # fmt: skip
-    r.add_argument("--support", type=float, default=None,
+    r.add_argument("--support", type=positive_float, default=None,
                    help="locality: an element may only change at markers it moves by at least this fraction "
                    "of its largest marker displacement (e.g. 0.1; default off)")  # fmt: skip
     r.add_argument("--carry-metric", choices=("surface", "euclidean"), default="surface",
                    help="distances of the RBF carry-over to the mesh: along the surface (default; touching "
                    "lips and eyelids stay apart) or straight (the paper's thin-plate spline)")  # fmt: skip
-    r.add_argument("--max-iterations", type=int, default=30, help="cap on refinement iterations (default 30)")
-    r.add_argument("--rel-tol", type=float, default=1e-3, help="stop when the error falls less than this fraction")
+    r.add_argument("--max-iterations", type=positive_int, default=30, help="cap on refinement iterations (default 30)")
+    r.add_argument(
+        "--rel-tol", type=positive_float, default=1e-3, help="stop when the error falls less than this fraction"
+    )
     r.set_defaults(func=_refine)
 
     i = bsub.add_parser("info", help="summarise a basis file")
@@ -91,8 +95,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "alone at --activation (quasistatic solve). Element names are the muscle names.",
     )
     f.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
-    f.add_argument("--tets", type=int, default=5000, help="size of the built-in face when --model is not given")
-    f.add_argument("--activation", type=float, default=1.0, help="activation of each muscle (default 1)")
+    f.add_argument(
+        "--tets", type=positive_int, default=5000, help="size of the built-in face when --model is not given"
+    )
+    f.add_argument("--activation", type=positive_fraction, default=1.0, help="activation of each muscle (default 1)")
     f.add_argument("--out", required=True, help="basis file to write (.npz)")
     f.set_defaults(func=_from_face)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
@@ -118,7 +124,7 @@ def _load(args):
         path = Path(args.landmarks)
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such landmark file")
-        landmarks = {str(k): int(v) for k, v in json.loads(path.read_text()).items()}
+        landmarks = {str(k): int(v) for k, v in read_json(path, what="a landmark JSON file").items()}
     return basis, landmarks
 
 
@@ -180,7 +186,7 @@ def _refine(args) -> int:
         **info,
     }
     report_path = out.with_name(out.name + ".report.json")
-    report_path.write_text(json.dumps(report, indent=2) + "\n")
+    write_json(report_path, report)
     print(f"training RMS {res.errors_mm[0]:.3f} -> {min(res.errors_mm):.3f} mm in {res.iterations} iterations "
           f"(regularization {info['regularization']}); wrote {out} and {report_path}")  # fmt: skip
     return 0

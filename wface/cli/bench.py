@@ -8,6 +8,8 @@ import json
 import sys
 
 from wface.bench import SUITES
+from wface.cli.validate import positive_int
+from wface.files import write_text
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -17,10 +19,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Benchmarks. Suites: " + ", ".join(SUITES) + ". Numbers are wall-clock seconds on this machine.",
     )
     p.add_argument("--suite", required=True, choices=SUITES, help="which benchmark to run")
-    p.add_argument("--tets", type=int, action="append", help="mesh size(s) in tetrahedra (repeatable)")
+    p.add_argument("--tets", type=positive_int, action="append", help="mesh size(s) in tetrahedra (repeatable)")
     p.add_argument("--device", default="auto", help="Warp device: cpu, cuda:0 or auto (default)")
-    p.add_argument("--repeat", type=int, default=3, help="repetitions per timing; the median is reported")
-    p.add_argument("--frames", type=int, help="frames to track (track suite; default 6)")
+    p.add_argument("--repeat", type=positive_int, default=3, help="repetitions per timing; the median is reported")
+    p.add_argument("--frames", type=positive_int, help="frames to track (track suite; default 6)")
     p.add_argument("--json", action="store_true", help="print JSON only")
     p.add_argument("--out", help="also write the JSON to this file")
     p.set_defaults(func=_run)
@@ -31,8 +33,7 @@ def _run(args: argparse.Namespace) -> int:
     result = module.run(args)  # wface.bench.suite_result: {"suite", "machine", "device", "results", "notes"?}
     text = json.dumps(result, indent=2)
     if args.out:
-        with open(args.out, "w") as f:
-            f.write(text + "\n")
+        write_text(args.out, text + "\n")
     if args.json:
         print(text)
     else:

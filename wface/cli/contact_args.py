@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 
+from wface.cli.validate import finite_float, non_negative_float, positive_float
 from wface.physics.contact import Contact
 
 __all__ = ["add_contact_arguments", "contact_from_args"]
@@ -51,21 +52,21 @@ def add_contact_arguments(
         )
     p.add_argument(
         "--contact-stiffness",
-        type=float,
+        type=positive_float,
         default=None,
         metavar="N_PER_M",
         help="contact penalty stiffness in N/m (default: 100 x flesh Young's modulus x median edge length)",
     )
     p.add_argument(
         "--contact-smoothing-mm",
-        type=float,
+        type=non_negative_float,
         default=smoothing_mm,
         metavar="MM",
         help=f"width of the C2 penalty ramp in mm (default {smoothing_mm:g}; 0: the plain penalty)",
     )
     p.add_argument(
         "--freeze-below",
-        type=float,
+        type=finite_float,
         default=-1.0 if freeze_below is None else freeze_below,
         metavar="R",
         help="relative residual below which Newton freezes the lip contact features "

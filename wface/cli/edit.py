@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.cli.validate import finite_float, non_negative_int, positive_float, positive_int
 from wface.faces.builtin import build_face
 from wface.model import load_model
 from wface.takes import (
@@ -29,6 +30,8 @@ from wface.takes import (
     simulate_poses,
     write_edit,
 )
+from wface.takes.provenance import command_provenance
+from wface.takes.store import claim_take_dir
 from wface.warp_runtime import quiet_warp
 
 _EPILOG = """\
@@ -57,17 +60,20 @@ examples:
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
-    p.add_argument("--tets", type=int, default=5000, help="size of the built-in face when --model is not given")
+    p.add_argument(
+        "--tets", type=positive_int, default=5000, help="size of the built-in face when --model is not given"
+    )
     p.add_argument("--device", default="cpu", help="Warp device: cpu, cuda:0 or auto")
     p.add_argument("--solver", default="auto", choices=["auto", "direct", "cg"], help="linear solver")
-    p.add_argument("--tol", type=float, default=1e-6, help="relative residual of each solve (default 1e-6)")
-    p.add_argument("--fps", type=float, help="frame rate (default: the take's, else 30)")
+    p.add_argument("--tol", type=positive_float, default=1e-6, help="relative residual of each solve (default 1e-6)")
+    p.add_argument("--fps", type=positive_float, help="frame rate (default: the take's, else 30)")
     p.add_argument(
         "--neutral", default="neutral", help="the neutral expression edits are measured from (default: rest face)"
     )
     p.add_argument("--usda", action="store_true", help="write animation.usda (text) instead of .usdc")
     p.add_argument("--mesh-only", action="store_true", help="USD with the skin mesh only (write_mesh_animation)")
     p.add_argument("--no-pictures", action="store_true", help="skip the contact sheet")
+    p.add_argument("--overwrite", action="store_true", help="replace the results of another take that OUT holds")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -98,7 +104,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     b.add_argument("--from", dest="from_", metavar="EXPR", help="start expression")
     b.add_argument("--to", metavar="EXPR", help="end expression")
-    b.add_argument("--frames", type=int, default=24, help="frames of the transition, ends included (default 24)")
+    b.add_argument(
+        "--frames", type=positive_int, default=24, help="frames of the transition, ends included (default 24)"
+    )
     b.add_argument("--ease", action="store_true", help="smoothstep timing instead of linear")
     b.add_argument(
         "--mix", action="append", default=[], metavar="EXPR:WEIGHT", help="one frame mixing expressions (repeatable)"
@@ -114,7 +122,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     src = x.add_mutually_exclusive_group(required=True)
     src.add_argument("--expression", metavar="EXPR", help="expression to exaggerate")
     src.add_argument("--take", metavar="DIR", help="tracked take (output directory of wface track / demo / edit)")
-    x.add_argument("--factor", type=float, required=True, help="1: unchanged, 1.5: 50%% more, 0: neutral")
+    x.add_argument("--factor", type=finite_float, required=True, help="1: unchanged, 1.5: 50%% more, 0: neutral")
     x.add_argument(
         "--scale-mode",
         default="muscle",
@@ -122,7 +130,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="where drives above 1 go: each muscle's own force-length scale (default) or one shared scale",
     )
     x.add_argument(
-        "--frames", type=int, default=1, help="with --expression: ramp the factor from 0 over N frames (default 1)"
+        "--frames",
+        type=positive_int,
+        default=1,
+        help="with --expression: ramp the factor from 0 over N frames (default 1)",
     )
     x.set_defaults(func=run_exaggerate)
 
@@ -134,8 +145,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     lay.add_argument("--take", required=True, metavar="DIR", help="tracked take")
     lay.add_argument("--add", required=True, metavar="EXPR", help="expression to add")
-    lay.add_argument("--weight", type=float, default=1.0, help="amount of the expression (default 1; < 0 removes)")
-    lay.add_argument("--fade", type=int, default=0, metavar="FRAMES", help="fade the layer in and out over N frames")
+    lay.add_argument(
+        "--weight", type=finite_float, default=1.0, help="amount of the expression (default 1; < 0 removes)"
+    )
+    lay.add_argument(
+        "--fade", type=non_negative_int, default=0, metavar="FRAMES", help="fade the layer in and out over N frames"
+    )
     lay.set_defaults(func=run_layer)
 
     r = add(
@@ -145,8 +160,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "  wface edit retime --take TRACK_OUT --fps-out 60 --out DIR\n",
     )
     r.add_argument("--take", required=True, metavar="DIR", help="tracked take")
-    r.add_argument("--speed", type=float, default=1.0, help="playback speed (2: twice as fast, half the frames)")
-    r.add_argument("--fps-out", type=float, help="output frame rate (default: the take's)")
+    r.add_argument(
+        "--speed", type=positive_float, default=1.0, help="playback speed (2: twice as fast, half the frames)"
+    )
+    r.add_argument("--fps-out", type=positive_float, help="output frame rate (default: the take's)")
     r.set_defaults(func=run_retime)
 
 
@@ -178,6 +195,7 @@ def _load(args, model):
 
 def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> int:
 
+    claim_take_dir(args.out, command_provenance(f"edit {args.edit_command}", model, args), overwrite=args.overwrite)
     t0 = time.perf_counter()
     result = simulate_poses(model, take, device=args.device, solver=args.solver, tol=args.tol, progress=True)
     wall = time.perf_counter() - t0

@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+from wface.cli.validate import positive_int
 from wface.faces.artisynth import import_artisynth
 from wface.faces.builtin import build_face
 from wface.faces.summary import model_summary
@@ -36,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=_BUILD_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    b.add_argument("--tets", type=int, default=20000, help="target number of tetrahedra (default 20000)")
+    b.add_argument("--tets", type=positive_int, default=20000, help="target number of tetrahedra (default 20000)")
     b.add_argument("--out", required=True, help="output model file (.npz)")
     b.add_argument("--vtu", help="also export the tet mesh (with muscle and bone data) to this .vtu/.msh file")
     b.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -9,11 +9,13 @@ from pathlib import Path
 
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.simulate import parse_activations
+from wface.cli.validate import non_negative_float, non_negative_int, positive_float, positive_int
 from wface.faces.builtin import build_face
 from wface.model import load_model
 from wface.physics import Damping, Simulator
 from wface.takes.dynamic import compare_with_quasistatic, quasistatic_reference, resimulate
-from wface.takes.store import USD, load_take, write_report, write_resim_npz
+from wface.takes.provenance import command_provenance
+from wface.takes.store import USD, claim_take_dir, load_take, write_report, write_resim_npz
 from wface.takes.synthetic import step_take
 from wface.takes.usd import skin_mesh, write_take_usd
 from wface.warp_runtime import quiet_warp
@@ -87,9 +89,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--take", help="tracking output directory (from `wface track` / `wface demo`); omit for synthetic")
     p.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
-    p.add_argument("--tets", type=int, default=5000, help="size of the built-in face when --model is not given")
+    p.add_argument(
+        "--tets", type=positive_int, default=5000, help="size of the built-in face when --model is not given"
+    )
     p.add_argument("--scheme", default="midpoint", choices=["midpoint", "be"], help="time integrator (see below)")
-    p.add_argument("--substeps", type=int, default=16, help="implicit time steps per frame (default 16)")
+    p.add_argument("--substeps", type=positive_int, default=16, help="implicit time steps per frame (default 16)")
     p.add_argument("--damping", default="0,2e-4", metavar="ALPHA,BETA", help="Rayleigh alpha (1/s), beta (s), or none")
     p.add_argument(
         "--frame",
@@ -97,7 +101,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=["world", "cranium"],
         help="simulate in the world (head motion shakes the flesh; default) or in the cranium's frame",
     )
-    p.add_argument("--fps", type=float, help="frame rate (take: default from its animation.usdc, else 30)")
+    p.add_argument("--fps", type=positive_float, help="frame rate (take: default from its animation.usdc, else 30)")
     p.add_argument("--frames", help="take: range A:B; synthetic: number of frames (default 30)")
     p.add_argument(
         "--activation",
@@ -106,13 +110,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="NAME=VALUE",
         help="synthetic: activation (repeatable; 'none' for no muscle)",
     )
-    p.add_argument("--jaw-open", type=float, default=0.0, metavar="DEG", help="synthetic: jaw opening at the onset")
+    p.add_argument(
+        "--jaw-open", type=non_negative_float, default=0.0, metavar="DEG", help="synthetic: jaw opening at the onset"
+    )
     p.add_argument(
         "--head-shake",
         metavar="DEG,HZ",
         help="synthetic: shake the head (yaw amplitude in degrees, frequency in Hz) from the onset on",
     )
-    p.add_argument("--onset-frame", type=int, default=1, help="synthetic: first frame with the activations on")
+    p.add_argument(
+        "--onset-frame", type=non_negative_int, default=1, help="synthetic: first frame with the activations on"
+    )
     p.add_argument(
         "--onset",
         default="step",
@@ -122,7 +130,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_contact_arguments(p, where="every time step and reference frame")
     p.add_argument("--no-reference", action="store_true", help="skip the quasistatic reference frames")
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
-    p.add_argument("--tol", type=float, default=1e-6, help="relative Newton tolerance per step (default 1e-6)")
+    p.add_argument("--overwrite", action="store_true", help="replace the results of another take that OUT holds")
+    p.add_argument("--tol", type=positive_float, default=1e-6, help="relative Newton tolerance per step (default 1e-6)")
     p.add_argument("--device", default="cpu", help="Warp device: cpu (default), cuda:0 or auto")
     p.add_argument("--solver", default="auto", choices=["auto", "direct", "cg"], help="linear solver")
     p.add_argument("--json", action="store_true", help="print the report summary as JSON")
@@ -198,7 +207,7 @@ def _run(args: argparse.Namespace) -> int:
             head_shake=_head_shake(args.head_shake),
         )
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    claim_take_dir(out, command_provenance("resim", model, args), overwrite=args.overwrite)
     sim = Simulator(model, device=args.device, solver=args.solver)
     contact = contact_from_args(args, model)
     skin_nodes, _ = skin_mesh(model)

@@ -10,7 +10,9 @@ from pathlib import Path
 import numpy as np
 
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
+from wface.cli.validate import non_negative_float, positive_float, positive_int
 from wface.controls import attached_positions_from_affines, jaw_opening_affine
+from wface.files import save_npz, write_json
 from wface.model import load_model
 from wface.physics import Simulator
 from wface.physics.contact import MeshObstacle, bone_affines_from_attached
@@ -51,7 +53,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="NAME=VALUE",
         help="muscle activation in [0, 1] (repeatable)",
     )
-    p.add_argument("--jaw-open", type=float, default=0.0, metavar="DEG", help="jaw opening angle in degrees")
+    p.add_argument(
+        "--jaw-open", type=non_negative_float, default=0.0, metavar="DEG", help="jaw opening angle in degrees"
+    )
     add_contact_arguments(p)
     p.add_argument(
         "--picture",
@@ -61,8 +65,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--device", default="cpu", help="Warp device: cpu (default), cuda:0 or auto")
     p.add_argument("--solver", default="auto", choices=["auto", "cg", "direct"], help="linear solver")
-    p.add_argument("--tol", type=float, default=1e-6, help="relative residual tolerance (default 1e-6)")
-    p.add_argument("--max-iterations", type=int, default=40, help="Newton iteration cap (default 40)")
+    p.add_argument("--tol", type=positive_float, default=1e-6, help="relative residual tolerance (default 1e-6)")
+    p.add_argument("--max-iterations", type=positive_int, default=40, help="Newton iteration cap (default 40)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=_run)
@@ -108,7 +112,7 @@ def _run(args: argparse.Namespace) -> int:
     eq = sim.solve(activations, targets, tol=args.tol, max_iterations=args.max_iterations, contact=contact)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    np.savez(
+    save_npz(
         out / "equilibrium.npz",
         positions_m=eq.x,
         rest_positions_m=model.rest_positions_m,
@@ -150,7 +154,7 @@ def _run(args: argparse.Namespace) -> int:
             contact_force_n=eq.contact_force_n,
             contact_sources=eq.contact_stats,
         )
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(out / "summary.json", summary)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

@@ -9,12 +9,13 @@ area as metadata and time samples) and report.json.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
+from wface.cli.validate import non_negative_float, positive_float, positive_int
 from wface.faces.artisynth import import_artisynth
+from wface.files import write_json
 from wface.mesh.surface import boundary_faces
 from wface.model import load_model
 from wface.physics.contact import Contact
@@ -65,9 +66,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="folder holding the gesture folders (default: MODEL_DATA/speech, or ../shared/data/artisynth-face/speech)",
     )
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--fps", type=float, default=100.0, help="frame rate (default 100, the original's output rate)")
-    p.add_argument("--max-frames", type=int, help="subsample to at most this many frames (first and last kept)")
-    p.add_argument("--tol", type=float, default=1e-4, help="relative force residual of each solve (default 1e-4)")
+    p.add_argument(
+        "--fps", type=positive_float, default=100.0, help="frame rate (default 100, the original's output rate)"
+    )
+    p.add_argument(
+        "--max-frames", type=positive_int, help="subsample to at most this many frames (first and last kept)"
+    )
+    p.add_argument(
+        "--tol", type=positive_float, default=1e-4, help="relative force residual of each solve (default 1e-4)"
+    )
     p.add_argument("--all-probes", action="store_true", help="also play probes marked active=false")
     p.add_argument(
         "--lower-oom",
@@ -98,9 +105,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--scheme", choices=["be", "midpoint"], default="be", help="dynamic scheme (default be, ArtiSynth's)"
     )
-    p.add_argument("--max-step-ms", type=float, default=5.0, help="longest dynamic time step in ms (default 5)")
-    p.add_argument("--damping-alpha", type=float, default=19.0, help="mass damping alpha in 1/s (default 19)")
-    p.add_argument("--damping-beta", type=float, default=0.055, help="stiffness damping beta in s (default 0.055)")
+    p.add_argument(
+        "--max-step-ms", type=positive_float, default=5.0, help="longest dynamic time step in ms (default 5)"
+    )
+    p.add_argument(
+        "--damping-alpha", type=non_negative_float, default=19.0, help="mass damping alpha in 1/s (default 19)"
+    )
+    p.add_argument(
+        "--damping-beta", type=non_negative_float, default=0.055, help="stiffness damping beta in s (default 0.055)"
+    )
     p.add_argument("--no-gravity", action="store_true", help="dynamic playback without gravity")
     p.add_argument(
         "--area-view",
@@ -110,11 +123,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--area-resolution-mm",
-        type=float,
+        type=positive_float,
         default=0.05,
         help="scanline spacing of the area measure in mm (default 0.05)",
     )
-    p.add_argument("--max-iterations", type=int, default=40, help="Newton iteration cap per frame (default 40)")
+    p.add_argument(
+        "--max-iterations", type=positive_int, default=40, help="Newton iteration cap per frame (default 40)"
+    )
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
     p.set_defaults(func=run_speech)
 
@@ -182,13 +197,24 @@ def _speech_contact(args, model):
 def run_speech(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     model = _load_model(Path(args.model))
     if args.setup == "artisynth":
         model = lip_opening_demo_model(model, _data_dir(args))
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
     mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
+    if not any(mapping.muscles.values()):
+        wanted = ", ".join(sorted({p.target for p in gesture.probes})) or "none"
+        raise ValueError(
+            f"{args.model}: the model has none of the muscles the gesture drives ({wanted}); it has "
+            f"{', '.join(model.muscle_names[:8])}...: play speech on the Badin face (wface model import artisynth)"
+        )
+    lacking = [n for n in ("Mouth_Up", "Mouth_Down") if n not in model.marker_names]
+    if lacking:
+        raise ValueError(
+            f"{args.model}: the lip opening is measured between markers the model lacks: {', '.join(lacking)}"
+        )
+    out.mkdir(parents=True, exist_ok=True)
     t_load = time.perf_counter() - t_start
     contact = _speech_contact(args, model)
     dynamics = None
@@ -277,7 +303,7 @@ def run_speech(args: argparse.Namespace) -> int:
             "files": files,
         }
     )
-    (out / "report.json").write_text(json.dumps(report, indent=2))
+    write_json(out / "report.json", report)
     lo, ar = report["lip_opening_mm"], report["lip_opening_area_summary_mm2"]
     print(
         f"{result.gesture} ({result.mode}): lip opening area {ar['first']:.2f} -> {ar['last']:.2f} mm^2 "

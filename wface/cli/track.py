@@ -9,21 +9,30 @@ from __future__ import annotations
 
 import argparse
 import time
+import warnings
 from pathlib import Path
 
-import numpy as np
-
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
+from wface.cli.validate import (
+    frame_range,
+    non_negative_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    probability,
+)
 from wface.faces.builtin import build_face
+from wface.files import file_sha256, save_npz
 from wface.io.mocap import read_mocap
 from wface.model import load_model
-from wface.tracking.capture import prepare_capture
+from wface.takes.store import claim_take_dir, resume_plan
+from wface.tracking.capture import check_capture, prepare_capture
 from wface.tracking.estimator import TrackOptions
 from wface.tracking.identifiability import rig_identifiability_mm
 from wface.tracking.output import write_tracking_outputs
 from wface.tracking.report import build_report
 from wface.tracking.rig import FaceRig
-from wface.tracking.sequence import dask_executor, embed_model_markers, track_sequence
+from wface.tracking.sequence import dask_executor, embed_model_markers, track_sequence, tracking_provenance
 from wface.tracking.synthetic import synthesize_performance
 
 _DEMO_EPILOG = """\
@@ -42,6 +51,12 @@ Markers whose names the model also has (the built-in face uses the AnimFace name
 alignment of the first frame; all markers are embedded in the skin. Rigid head motion is carried
 by the cranium controls.
 
+Before tracking, samples no face can produce (non-finite, far outside the head, one-frame jumps
+faster than 2 m/s) become missing and are counted per marker in report.json; a frame left with too
+few markers is carried from the frame before. OUT records what made it (provenance.json): --resume
+reuses only frames this same run made (same model, capture file, range and options), and a
+directory holding another take is refused unless --overwrite.
+
 examples:
   wface track --mocap take.c3d --out run1                      # on the built-in face (5000 tets)
   wface track --model face.npz --mocap take.c3d --out run1 --frames 0:300
@@ -55,15 +70,37 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default="cpu", help="Warp device: cpu, cuda:0 or auto")
     p.add_argument("--solver", default="auto", choices=["auto", "direct", "cg"], help="linear solver")
     p.add_argument(
-        "--workers", type=int, default=1, help="split the take into chunks on a local Dask cluster of N workers"
+        "--workers",
+        type=positive_int,
+        default=1,
+        help="split the take into chunks on a local Dask cluster of N workers",
     )
     p.add_argument("--scheduler", help="address of a running Dask scheduler (instead of a local cluster)")
-    p.add_argument("--chunk-size", type=int, help="frames per chunk (default: frames / workers)")
-    p.add_argument("--resume", action="store_true", help="reuse frames already written under OUT/frames")
+    p.add_argument("--chunk-size", type=positive_int, help="frames per chunk (default: frames / workers)")
     p.add_argument(
-        "--robust-mm", type=float, default=3.0, help="Tukey cut-off on marker residuals in mm (0: plain least squares)"
+        "--resume",
+        action="store_true",
+        help="reuse the frames under OUT/frames that this same run made (checked by fingerprint)",
     )
-    p.add_argument("--temporal-weight", type=float, default=0.0, help="pull of activations toward the previous frame")
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace the results of another take that OUT already holds"
+    )
+    p.add_argument(
+        "--prior",
+        choices=["auto", "temporal", "off"],
+        default="auto",
+        help="priors on the activations whose strength the take itself sets: auto (default) a temporal prior, "
+        "then a second pass with each muscle's usage; temporal: the first alone (one pass, faster); off",
+    )
+    p.add_argument(
+        "--robust-mm",
+        type=non_negative_float,
+        default=3.0,
+        help="Tukey cut-off on marker residuals in mm (0: plain least squares)",
+    )
+    p.add_argument(
+        "--temporal-weight", type=non_negative_float, default=0.0, help="pull of activations toward the previous frame"
+    )
     p.add_argument("--no-movie", action="store_true", help="skip the mp4 movie")
     p.add_argument("--no-pictures", action="store_true", help="skip pictures, plots, movie and HTML")
     add_contact_arguments(
@@ -84,13 +121,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     _common(d)
-    d.add_argument("--tets", type=int, default=5000, help="size of the built-in face in tets (default 5000)")
-    d.add_argument("--frames", type=int, default=30, help="frames in the performance (default 30)")
-    d.add_argument("--fps", type=float, default=30.0, help="frame rate (default 30)")
-    d.add_argument("--noise-mm", type=float, default=0.5, help="RMS marker noise in mm (default 0.5)")
-    d.add_argument("--outliers", type=float, default=0.02, help="fraction of outlier marker samples (default 0.02)")
-    d.add_argument("--dropout", type=float, default=0.05, help="fraction of missing marker samples (default 0.05)")
-    d.add_argument("--seed", type=int, default=0, help="random seed of the performance")
+    d.add_argument("--tets", type=positive_int, default=5000, help="size of the built-in face in tets (default 5000)")
+    d.add_argument("--frames", type=positive_int, default=30, help="frames in the performance (default 30)")
+    d.add_argument("--fps", type=positive_float, default=30.0, help="frame rate (default 30)")
+    d.add_argument("--noise-mm", type=non_negative_float, default=0.5, help="RMS marker noise in mm (default 0.5)")
+    d.add_argument(
+        "--outliers", type=probability, default=0.02, help="fraction of outlier marker samples (default 0.02)"
+    )
+    d.add_argument(
+        "--dropout", type=probability, default=0.05, help="fraction of missing marker samples (default 0.05)"
+    )
+    d.add_argument("--seed", type=non_negative_int, default=0, help="random seed of the performance")
     d.set_defaults(func=run_demo)
 
     t = sub.add_parser(
@@ -101,12 +142,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     _common(t)
     t.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
-    t.add_argument("--tets", type=int, default=5000, help="size of the built-in face when --model is not given")
+    t.add_argument(
+        "--tets", type=positive_int, default=5000, help="size of the built-in face when --model is not given"
+    )
     t.add_argument("--mocap", required=True, help="marker file: .c3d, .trc or .csv")
-    t.add_argument("--frames", help="frame range A:B (Python slice of the file's frames)")
+    t.add_argument("--frames", type=frame_range, help="frame range A:B (Python slice of the file's frames)")
     t.add_argument(
         "--neutral-frame",
-        type=int,
+        type=non_negative_int,
         help="file frame showing the neutral face, which anchors the alignment and the marker embedding "
         "(default: the first frame of the range; it may lie outside the range)",
     )
@@ -114,16 +157,33 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _options(args) -> TrackOptions:
-    return TrackOptions(robust_mm=args.robust_mm or None, temporal_weight=args.temporal_weight)
+    return TrackOptions(robust_mm=args.robust_mm or None, temporal_weight=args.temporal_weight, prior=args.prior)
 
 
-def _run(args, model, targets, marker_names, markers, fps, truth=None, first_frame=0) -> int:
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+def _rig_kwargs(args, model) -> dict:
     rig_kwargs = {"device": args.device, "solver": args.solver, "tol": 1e-6}
     contact = _contact(args, model)
     if contact is not None:
         rig_kwargs["contact"] = contact
+    return rig_kwargs
+
+
+def _claim(args, model, markers, targets, source: dict, first_frame: int = 0) -> dict:
+    """Provenance of this run; claims --out (refusing another take's directory) and says what --resume reuses."""
+    run = tracking_provenance(
+        model, markers, options=_options(args), rig_kwargs=_rig_kwargs(args, model), kind=args.command, source=source
+    )
+    note = claim_take_dir(args.out, run, resume=args.resume, overwrite=args.overwrite)
+    if note:
+        print(note)
+    if args.resume:
+        print(resume_plan(args.out, range(first_frame, first_frame + len(targets)), targets, run).summary())
+    return run
+
+
+def _run(args, model, targets, marker_names, markers, fps, truth=None, first_frame=0, run=None, info=None) -> int:
+    out = Path(args.out)
+    rig_kwargs = _rig_kwargs(args, model)
     executor, chunk, close = dask_executor(
         workers=args.workers, scheduler=args.scheduler, n_frames=len(targets), chunk_size=args.chunk_size
     )
@@ -142,17 +202,21 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
             resume=args.resume,
             progress=True,
             first_frame=first_frame,
+            provenance=run,
         )
         wall = time.perf_counter() - t0
     finally:
         close()
     rig = FaceRig(model, **rig_kwargs)
+    carried = [r.frame for r in records if r.stats.get("carried")]
     info = {
         "device": rig.sim.device,
         "solver": rig.sim.linear_solver,
         "wall_seconds": wall,
         "workers": args.workers if not args.scheduler else "scheduler",
         "contact": getattr(args, "contact", None) or None,
+        **(info or {}),
+        "carried_frames": carried,
     }
     report = build_report(
         model,
@@ -183,6 +247,12 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         "jaw_angle_error_deg",
         "seconds_per_frame_median",
     )
+    if carried:
+        warnings.warn(
+            f"{len(carried)} frames had too few usable markers and were carried from the frame before "
+            f"(first: frame {carried[0]}; listed in report.json under carried_frames)",
+            stacklevel=1,
+        )
     print("  ".join(f"{k}={report[k]:.4g}" for k in keys if report.get(k) is not None))
     print(f"wrote {out / 'report.json'}")
     return 0
@@ -192,6 +262,13 @@ def run_demo(args: argparse.Namespace) -> int:
     model = build_face(args.tets, progress=True)
     rig = FaceRig(model, device=args.device, solver=args.solver, tol=1e-6, contact=_contact(args, model))
     markers = embed_model_markers(model)
+    source = {
+        "synthetic": "wface.tracking.synthetic",
+        **{k: getattr(args, k) for k in ("seed", "tets", "frames", "fps", "noise_mm", "outliers", "dropout")},
+        "contact": args.contact or None,
+    }
+    if args.out and Path(args.out).is_file():
+        raise NotADirectoryError(f"--out {args.out}: is a file, not a directory")
     perf = synthesize_performance(
         rig,
         markers,
@@ -203,37 +280,51 @@ def run_demo(args: argparse.Namespace) -> int:
         dropout=args.dropout,
         progress=True,
     )
-    np.savez(
-        Path(args.out).mkdir(parents=True, exist_ok=True) or Path(args.out) / "truth.npz",
+    run = _claim(args, model, markers, perf.markers_m, source)
+    save_npz(
+        Path(args.out) / "truth.npz",
         activations=perf.activations,
         bones=perf.bones,
         clean_markers_m=perf.clean_markers_m,
         markers_m=perf.markers_m,
         outlier_mask=perf.outlier_mask,
     )
-    return _run(args, model, perf.markers_m, model.marker_names, markers, args.fps, truth=perf)
+    return _run(args, model, perf.markers_m, model.marker_names, markers, args.fps, truth=perf, run=run)
 
 
 def run_track(args: argparse.Namespace) -> int:
+    take = read_mocap(args.mocap)  # a bad file fails before the face is built
     model = load_model(args.model) if args.model else build_face(args.tets, progress=True)
-    take = read_mocap(args.mocap)
     neutral = args.neutral_frame
     if neutral is not None and not 0 <= neutral < take.n_frames:
         raise ValueError(f"--neutral-frame {neutral} is outside {args.mocap}'s {take.n_frames} frames")
-    reference = take.positions_m[neutral] if neutral is not None else None
-    first = 0
+    full = take
+    a, b = args.frames or (None, None)
+    first = range(take.n_frames)[slice(a, b)].start if take.n_frames else 0
     if args.frames:
-        try:
-            a, b = (int(v) if v else None for v in args.frames.split(":"))
-        except ValueError:
-            raise ValueError(f"--frames must look like A:B, got {args.frames!r}") from None
-        first = a or 0
         take = take.frames(a, b)
     if take.n_frames == 0:
         raise ValueError(f"{args.mocap}: no frames in the range {args.frames}")
-    cap = prepare_capture(model, take.positions_m, take.marker_names, reference_positions_m=reference)
+    neutral_frame = first if neutral is None else neutral
+    ref = full.positions_m[neutral_frame]
+    check = check_capture(full.positions_m, full.marker_names, rate_hz=full.rate_hz, reference_positions_m=ref)
+    if check.removed:
+        warnings.warn(check.summary(), stacklevel=1)
+    clean = check.positions_m[first : first + take.n_frames]
+    reference = check.positions_m[neutral] if neutral is not None else None
+    cap = prepare_capture(model, clean, take.marker_names, reference_positions_m=reference)
     print(
         f"aligned {take.n_markers} markers ({len(cap.matched_names)} by name), scale {cap.scale:.3f}, "
         f"rest fit {cap.alignment_rms_mm:.2f} mm RMS"
     )
-    return _run(args, model, cap.targets_m, take.marker_names, cap.markers, take.rate_hz, first_frame=first)
+    source = {
+        "file": Path(args.mocap).name,
+        "sha256": file_sha256(args.mocap),
+        "frames": f"{first}:{first + take.n_frames}",
+        "neutral_frame": neutral_frame,
+    }
+    run = _claim(args, model, cap.markers, cap.targets_m, source, first_frame=first)
+    info = {"capture_check": check.report()}
+    return _run(
+        args, model, cap.targets_m, take.marker_names, cap.markers, take.rate_hz, first_frame=first, run=run, info=info
+    )

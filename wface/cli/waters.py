@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.cli.validate import positive_int, probability
 from wface.faces.builtin import build_face
 from wface.facs import ACTION_UNITS, EXPRESSIONS
 from wface.waters.expressions import expression_pose, interpolate_poses, parse_au_assignments
@@ -34,20 +35,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="surface mesh (OBJ, or any format meshio reads), or 'builtin' for the built-in face's skin "
         "(the ICT layout fitted to its markers, jaw weights from its bones)",
     )
-    p.add_argument("--tets", type=int, default=20000, help="resolution of the built-in face (with --mesh builtin)")
+    p.add_argument(
+        "--tets", type=positive_int, default=20000, help="resolution of the built-in face (with --mesh builtin)"
+    )
     p.add_argument("--expression", default="neutral", help="expression preset (default: neutral)")
-    p.add_argument("--intensity", type=float, default=1.0, help="scale of the preset's action units, 0..1")
+    p.add_argument("--intensity", type=probability, default=1.0, help="scale of the preset's action units, 0..1")
     p.add_argument(
         "--au", action="append", metavar="AU=VALUE", help="extra action unit, e.g. --au AU26=0.5 (repeatable)"
     )
     p.add_argument("--layout", help="muscle layout JSON, or a packaged name: ict (default), builtin")
     p.add_argument("--landmarks", help="JSON {AnimFace marker name: vertex index} on --mesh: fit the layout to it")
     p.add_argument("--units", default="auto", choices=("auto", "m", "cm", "mm"), help="length unit of --mesh")
-    p.add_argument("--size", type=int, default=600, help="render size in pixels")
+    p.add_argument("--size", type=positive_int, default=600, help="render size in pixels")
     p.add_argument("--no-render", action="store_true", help="skip the PNG renders")
     p.add_argument("--usdc", action="store_true", help="write binary .usdc instead of text .usda")
     p.add_argument("--blend-to", metavar="EXPRESSION", help="also write an animation from --expression to this preset")
-    p.add_argument("--frames", type=int, default=24, help="frames of the --blend-to animation (24 fps)")
+    p.add_argument("--frames", type=positive_int, default=24, help="frames of the --blend-to animation (24 fps)")
     p.add_argument("--out", required=True, help="output directory")
     p.set_defaults(func=_run)
 

@@ -2,9 +2,12 @@
 
 A take directory (what ``wface track``, ``wface demo``, ``wface edit`` and ``wface resim`` write)::
 
+    provenance.json           what made the take (``wface.takes.provenance``), written when a run
+                              claims the directory (``claim_take_dir``)
     frames/frame_NNNNNN.npz   one tracked frame each (``FrameRecord``: frame number, controls, world
                               and cranium-frame node positions, simulated markers, marker errors,
-                              stats), written atomically as soon as the frame is done
+                              stats, the tracker's carried state, the frame's provenance), written
+                              atomically as soon as the frame is done
     controls.npz              the take (``write_controls``): frames (the capture's frame numbers),
                               activations (T, M), bones (T, 24), muscle_names, fps, the jaw in
                               intuitive parameters, and force_length_scale (T, M) for exaggerated edits
@@ -17,31 +20,58 @@ A take directory (what ``wface track``, ``wface demo``, ``wface edit`` and ``wfa
 the frame files of an interrupted run; the tracked world positions of the frame files become the
 take's ``reference_positions_m``. The frame rate comes from controls.npz, else from the USD stage's
 timeCodesPerSecond (``read_fps``), else 30.
+
+Every file is written through ``wface.files`` (a temporary file renamed into place: a kill leaves the
+old file or the new one, never a torn one) and every read error names the file. controls.npz and
+report.json carry the run's provenance; ``--resume`` reuses a frame file only when its fingerprint
+matches the run's (``verified_frames``), and a directory holding another take is not written unless
+asked (``claim_take_dir``).
 """
 
 from __future__ import annotations
 
-import csv
-import json
 import os
-from dataclasses import dataclass
+import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from wface.controls import IDENTITY_BONES, jaw_to_intuitive
+from wface.files import FileFormatError, load_npz, read_json, save_npz, write_csv, write_json
 from wface.model import FaceModel
 from wface.takes.dynamic import ResimResult
+from wface.takes.frames import (
+    FRAMES_DIR,
+    SURVEY_DIR,
+    FrameRecord,
+    ResumePlan,
+    decode_json,
+    frame_numbers_on_disk,
+    frame_path,
+    json_bytes,
+    load_frame_records,
+    read_frame,
+    resume_plan,
+    verified_frames,
+    write_frame,
+)
 from wface.takes.pose import bone_projection_error_m
+from wface.takes.provenance import describe_source, same_take
 from wface.takes.take import Take
 
 __all__ = [
     "CONTROLS",
     "DEFAULT_FPS",
     "FRAMES_DIR",
+    "PROVENANCE",
+    "SURVEY_DIR",
     "REPORT",
     "USD",
     "FrameRecord",
+    "ResumePlan",
+    "TakeDirectoryError",
+    "claim_take_dir",
     "frame_numbers_on_disk",
     "frame_path",
     "load_frame_records",
@@ -49,92 +79,111 @@ __all__ = [
     "read_fps",
     "read_frame",
     "read_report",
+    "recorded_run",
+    "resume_plan",
     "take_from_records",
+    "verified_frames",
     "write_controls",
     "write_frame",
     "write_report",
     "write_resim_npz",
 ]
 
-FRAMES_DIR = "frames"
 CONTROLS = "controls.npz"
 REPORT = "report.json"
 USD = "animation.usdc"
+PROVENANCE = "provenance.json"
 DEFAULT_FPS = 30.0
+# what a take directory's results are (cleared by --overwrite or a restart of the same take)
+TAKE_FILES = (CONTROLS, "controls.csv", REPORT, USD, "resim.npz", "truth.npz", "report.html")
 
 
-# ---------------------------------------------------------------------- frame files
-@dataclass
-class FrameRecord:
-    """What is kept of a tracked frame (also what a frame file holds)."""
-
-    frame: int
-    controls: np.ndarray
-    x_m: np.ndarray  # (n, 3) world positions
-    y_m: np.ndarray  # (n, 3) cranium-frame equilibrium
-    markers_m: np.ndarray  # (k, 3)
-    marker_error_m: np.ndarray  # (k,)
-    stats: dict
+class TakeDirectoryError(ValueError):
+    """An output directory holds another take's results (or cannot hold a take)."""
 
 
-def frame_path(out_dir: str | Path, frame: int) -> Path:
-    """``out_dir/frames/frame_NNNNNN.npz`` of a frame number."""
-    return Path(out_dir) / FRAMES_DIR / f"frame_{int(frame):06d}.npz"
+# ---------------------------------------------------------------------- the take directory
+def recorded_run(out_dir: str | Path) -> dict | None:
+    """The provenance of the run that owns ``out_dir``: provenance.json, else report.json's or
+    controls.npz's ``provenance``, else a frame file's; None when nothing records one."""
+    out = Path(out_dir)
+    try:
+        if (out / PROVENANCE).exists():
+            return read_json(out / PROVENANCE, what="a take's provenance")
+        report = read_report(out)
+        if report and report.get("provenance"):
+            return report["provenance"]
+        if (out / CONTROLS).exists():
+            d = load_npz(out / CONTROLS, what="a take's controls")
+            if "provenance_json" in d:
+                return decode_json(d, "provenance_json", out / CONTROLS)
+    except FileFormatError:
+        return None
+    for f in frame_numbers_on_disk(out)[:1]:
+        try:
+            prov = read_frame(frame_path(out, f)).provenance
+        except (FileFormatError, OSError):
+            return None
+        return (prov or {}).get("run")
+    return None
 
 
-def write_frame(out_dir: str | Path, rec: FrameRecord) -> Path:
-    """Write one frame file atomically (a temporary file renamed into place)."""
-    path = frame_path(out_dir, rec.frame)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".part.npz")
-    np.savez(
-        tmp,
-        frame=rec.frame,
-        controls=rec.controls,
-        x_m=rec.x_m,
-        y_m=rec.y_m,
-        markers_m=rec.markers_m,
-        marker_error_m=rec.marker_error_m,
-        stats_json=np.frombuffer(json.dumps(rec.stats).encode(), dtype=np.uint8),
-    )
-    os.replace(tmp, path)
-    return path
+def _has_results(out: Path) -> bool:
+    frames = frame_numbers_on_disk(out) or frame_numbers_on_disk(out, folder=SURVEY_DIR)
+    return any((out / name).exists() for name in (*TAKE_FILES, PROVENANCE)) or bool(frames)
 
 
-def read_frame(path: str | Path) -> FrameRecord:
-    """One frame file back into a ``FrameRecord``."""
-    with np.load(path) as d:
-        return FrameRecord(
-            int(d["frame"]),
-            d["controls"],
-            d["x_m"],
-            d["y_m"],
-            d["markers_m"],
-            d["marker_error_m"],
-            json.loads(bytes(d["stats_json"]).decode()),
-        )
+def _clear_results(out: Path) -> None:
+    for name in (*TAKE_FILES, PROVENANCE):
+        if (out / name).is_file():
+            (out / name).unlink()
+    for name in (FRAMES_DIR, SURVEY_DIR):
+        if (out / name).is_dir():
+            shutil.rmtree(out / name)
 
 
-def frame_numbers_on_disk(out_dir: str | Path) -> list[int]:
-    """Frame numbers of the complete frame files under ``out_dir/frames`` (sorted)."""
-    folder = Path(out_dir) / FRAMES_DIR
-    if not folder.is_dir():
-        return []
-    return sorted(int(p.stem.split("_")[1]) for p in folder.glob("frame_*.npz") if ".part" not in p.name)
+def claim_take_dir(out_dir: str | Path, run: dict, *, resume: bool = False, overwrite: bool = False) -> str:
+    """Make ``out_dir`` the directory of this run's take, or refuse.
 
+    A directory that holds another take's results (another kind of run, model or input, or results
+    without provenance) is refused unless ``overwrite``, which clears them first. The same take
+    again is continued with ``resume`` (frames are then reused only where their fingerprints match,
+    ``verified_frames``) and started again without it (its old results are cleared, so no stale
+    frame survives). Writes provenance.json.
 
-def load_frame_records(out_dir: str | Path, frames) -> dict[int, FrameRecord]:
-    """Frame records already written under ``out_dir`` for the given frame numbers (a torn or
-    unreadable file is left out, so that frame is tracked again)."""
-    found = {}
-    for f in frames:
-        p = frame_path(out_dir, int(f))
-        if p.exists():
-            try:
-                found[int(f)] = read_frame(p)
-            except Exception:  # noqa: BLE001 - a torn file is simply redone
-                continue
-    return found
+    Returns:
+        A line saying what was found and done ("" for a new directory).
+
+    Raises:
+        TakeDirectoryError: another take is there, or ``out_dir`` is a file.
+        PermissionError: ``out_dir`` cannot be written.
+    """
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise TakeDirectoryError(f"{out}: is a file, not a directory: give --out a directory")
+    out.mkdir(parents=True, exist_ok=True)
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise PermissionError(f"{out}: directory is not writable")
+    note = ""
+    if _has_results(out):
+        found = recorded_run(out)
+        if overwrite:
+            _clear_results(out)
+            note = f"--overwrite: removed the earlier results in {out} ({describe_source(found)})"
+        elif not same_take(found, run):
+            raise TakeDirectoryError(
+                f"{out} holds another take's results ({describe_source(found)}; this run is "
+                f"{describe_source(run)}): choose another --out, or pass --overwrite to replace them"
+            )
+        elif not resume:
+            n = len(frame_numbers_on_disk(out))
+            _clear_results(out)
+            note = f"starting this take again in {out} (removed its {n} earlier frames; --resume reuses them)"
+    for where in (out, out / FRAMES_DIR, out / SURVEY_DIR):
+        for tmp in where.glob(".*.part-*") if where.is_dir() else ():
+            tmp.unlink(missing_ok=True)  # a killed writer's temporary file
+    write_json(out / PROVENANCE, run)
+    return note
 
 
 def take_from_records(model: FaceModel, records, *, fps: float = DEFAULT_FPS, source: str = "tracked") -> Take:
@@ -167,9 +216,11 @@ def write_controls(out_dir: str | Path, model: FaceModel, take: Take) -> tuple[P
     bones = take.bones if take.bones is not None else np.tile(IDENTITY_BONES, (take.n_frames, 1))
     jaw = [jaw_to_intuitive(model.jaw_joint, b[12:]) for b in bones]
     extra = {} if take.force_length_scale is None else {"force_length_scale": take.force_length_scale}
-    npz = out_dir / CONTROLS
-    np.savez(
-        npz,
+    run = _directory_run(out_dir)
+    if run is not None:
+        extra["provenance_json"] = json_bytes(run)
+    npz = save_npz(
+        out_dir / CONTROLS,
         **extra,
         fps=np.float64(take.fps),
         frames=take.frames,
@@ -180,49 +231,54 @@ def write_controls(out_dir: str | Path, model: FaceModel, take: Take) -> tuple[P
         jaw_protrusion_m=np.array([j["protrusion_m"] for j in jaw]),
         jaw_lateral_deg=np.array([j["lateral_deg"] for j in jaw]),
     )
-    path = out_dir / "controls.csv"
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(
-            [
-                "frame",
-                *model.muscle_names,
-                "jaw_opening_deg",
-                "jaw_protrusion_mm",
-                "jaw_lateral_deg",
-                *[f"cranium_{k}" for k in range(12)],
-            ]
-        )
-        for fr, a, b, j in zip(take.frames, take.activations, bones, jaw, strict=True):
-            w.writerow(
-                [
-                    int(fr),
-                    *np.round(a, 6),
-                    round(j["opening_deg"], 4),
-                    round(j["protrusion_m"] * 1e3, 4),
-                    round(j["lateral_deg"], 4),
-                    *np.round(b[:12], 6),
-                ]
-            )
+    header = [
+        "frame",
+        *model.muscle_names,
+        "jaw_opening_deg",
+        "jaw_protrusion_mm",
+        "jaw_lateral_deg",
+        *[f"cranium_{k}" for k in range(12)],
+    ]
+    rows = (
+        [
+            int(fr),
+            *np.round(a, 6),
+            round(j["opening_deg"], 4),
+            round(j["protrusion_m"] * 1e3, 4),
+            round(j["lateral_deg"], 4),
+            *np.round(b[:12], 6),
+        ]
+        for fr, a, b, j in zip(take.frames, take.activations, bones, jaw, strict=True)
+    )
+    path = write_csv(out_dir / "controls.csv", header, rows)
     return npz, path
 
 
+def _directory_run(out_dir: Path) -> dict | None:
+    """provenance.json of a take directory (what ``claim_take_dir`` wrote), or None."""
+    path = Path(out_dir) / PROVENANCE
+    try:
+        return read_json(path, what="a take's provenance") if path.exists() else None
+    except FileFormatError:
+        return None
+
+
 def write_report(out_dir: str | Path, report: dict) -> Path:
-    """report.json (indented, with a final newline)."""
-    path = Path(out_dir) / REPORT
-    path.write_text(json.dumps(report, indent=2) + "\n")
-    return path
+    """report.json (indented, with a final newline, written atomically); it records the directory's
+    provenance (provenance.json) under ``provenance`` unless the report already has one."""
+    run = _directory_run(Path(out_dir))
+    if run is not None and "provenance" not in report:
+        report = {**report, "provenance": run}
+    return write_json(Path(out_dir) / REPORT, report)
 
 
 def read_report(out_dir: str | Path) -> dict | None:
-    """report.json of a take directory, or None when there is none."""
+    """report.json of a take directory, or None when there is none (``FileFormatError`` naming the
+    file when it is empty or not JSON)."""
     path = Path(out_dir) / REPORT
     if not path.exists():
         return None
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    return read_json(path, what="a take's report.json")
 
 
 def read_fps(path: str | Path) -> float | None:
@@ -231,9 +287,12 @@ def read_fps(path: str | Path) -> float | None:
     path = Path(path)
     controls = path / CONTROLS
     if controls.exists():
-        with np.load(controls) as d:
-            if "fps" in d.files:
-                return float(d["fps"])
+        try:
+            d = load_npz(controls, what="a take's controls")
+        except FileFormatError:
+            d = {}
+        if "fps" in d:
+            return float(d["fps"])
     for name in ("animation.usdc", "animation.usda", "animation.usd"):
         p = path / name
         if p.exists():
@@ -248,16 +307,17 @@ def read_fps(path: str | Path) -> float | None:
 
 # ---------------------------------------------------------------------- a whole take
 def _read_controls(path: Path, model: FaceModel):
-    """(frames, activations, bones, scale or None) of controls.npz."""
-    with np.load(path) as d:
-        if "muscle_names" in d.files and [str(s) for s in d["muscle_names"]] != list(model.muscle_names):
-            names = ", ".join(str(s) for s in d["muscle_names"])
-            raise ValueError(
-                f"{path}: muscle names differ from the model's (was it tracked on another face?): the take has "
-                f"{names}; the model has {', '.join(model.muscle_names)}: pass the --model it was tracked with"
-            )
-        scale = np.asarray(d["force_length_scale"], dtype=np.float64) if "force_length_scale" in d.files else None
-        return np.asarray(d["frames"]), d["activations"], d["bones"], scale
+    """(frames, activations, bones, scale or None, provenance or None) of controls.npz."""
+    d = load_npz(path, what="a take's controls.npz", required=("frames", "activations", "bones"))
+    if "muscle_names" in d and [str(s) for s in d["muscle_names"]] != list(model.muscle_names):
+        names = ", ".join(str(s) for s in d["muscle_names"])
+        raise ValueError(
+            f"{path}: muscle names differ from the model's (was it tracked on another face?): the take has "
+            f"{names}; the model has {', '.join(model.muscle_names)}: pass the --model it was tracked with"
+        )
+    scale = np.asarray(d["force_length_scale"], dtype=np.float64) if "force_length_scale" in d else None
+    run = decode_json(d, "provenance_json", path) if "provenance_json" in d else None
+    return np.asarray(d["frames"]), d["activations"], d["bones"], scale, run
 
 
 def load_take(
@@ -289,7 +349,11 @@ def load_take(
         raise FileNotFoundError(
             f"take directory {path} does not exist (give the --out of `wface track`, `wface demo` or `wface edit`)"
         )
-    report = read_report(path)
+    try:
+        report = read_report(path)
+    except FileFormatError as exc:
+        warnings.warn(f"{exc}; reading the take without it", stacklevel=2)
+        report = None
     if report is not None and report.get("nodes") is not None and int(report["nodes"]) != model.n_nodes:
         raise ValueError(
             f"{path} was made on a face with {report['nodes']} nodes, this model has {model.n_nodes}: "
@@ -298,21 +362,46 @@ def load_take(
     controls = path / CONTROLS
     on_disk = frame_numbers_on_disk(path)
     records = load_frame_records(path, on_disk) if on_disk and (reference or not controls.exists()) else {}
-    scale = None
+    scale = run = None
     if controls.exists():
-        numbers, acts, bones, scale = _read_controls(controls, model)
-    elif records:
+        try:
+            numbers, acts, bones, scale, run = _read_controls(controls, model)
+        except FileFormatError as exc:
+            if not on_disk:
+                raise
+            warnings.warn(f"{exc}; reading the take from its frame files instead", stacklevel=2)
+            records = records or load_frame_records(path, on_disk)
+            controls = path / "frames"  # read below from the records
+    if not controls.exists() or controls.is_dir():
+        if not records:
+            raise FileNotFoundError(
+                f"{path}: no readable controls.npz and no readable frames/frame_*.npz: not a tracking output directory"
+            )
+        if len(records) < len(on_disk):
+            bad = sorted(set(on_disk) - set(records))
+            warnings.warn(
+                f"{path}: {len(bad)} frame files are unreadable (first {frame_path(path, bad[0]).name}); "
+                "the take is read without those frames",
+                stacklevel=2,
+            )
         numbers = np.array(sorted(records))
         C = np.array([records[f].controls for f in numbers])
         acts, bones = C[:, : model.n_muscles], C[:, model.n_muscles :]
-    else:
-        raise FileNotFoundError(f"{path}: no controls.npz and no frames/frame_*.npz: not a tracking output directory")
     if acts.shape[1] != model.n_muscles or bones.shape[1] != 24:
         raise ValueError(
             f"{path}: controls have {acts.shape[1]} activations and {bones.shape[1]} bone parameters per frame; "
             f"the model has {model.n_muscles} muscles (and 24 bone parameters)"
         )
     tracked = None
+    mine = (run or {}).get("fingerprint")
+    foreign = [f for f in numbers if mine and int(f) in records and _frame_run(records[int(f)]) not in (None, mine)]
+    if foreign:
+        warnings.warn(
+            f"{path}: {len(foreign)} frame files (first {frame_path(path, foreign[0]).name}) were made by another "
+            "run than controls.npz; their tracked positions are not used as the reference",
+            stacklevel=2,
+        )
+        records = {}
     if reference and records and all(int(f) in records for f in numbers):
         tracked = np.array([records[int(f)].x_m for f in numbers])
         if tracked.shape[1] != model.n_nodes:
@@ -338,11 +427,15 @@ def load_take(
     return take
 
 
+def _frame_run(rec: FrameRecord) -> str | None:
+    """The run fingerprint a frame file records (None without provenance)."""
+    return ((rec.provenance or {}).get("run") or {}).get("fingerprint")
+
+
 def write_resim_npz(path: str | Path, result: ResimResult, *, reference_positions_m: np.ndarray | None = None) -> Path:
     """resim.npz of a dynamic replay (``wface.takes.dynamic.ResimResult``): positions_m (T, n, 3), fps,
     scheme, the per-frame stats (and the quasistatic reference)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     arrays = {
         "positions_m": result.positions_m,
         "fps": np.float64(result.fps),
@@ -350,11 +443,8 @@ def write_resim_npz(path: str | Path, result: ResimResult, *, reference_position
         "newton_iterations": result.newton_iterations,
         "residual_rel": result.residual_rel,
         "inverted_elements": result.inverted_elements,
-        "summary_json": np.frombuffer(
-            json.dumps({k: v for k, v in result.summary().items() if not isinstance(v, list)}).encode(), dtype=np.uint8
-        ),
+        "summary_json": json_bytes({k: v for k, v in result.summary().items() if not isinstance(v, list)}),
     }
     if reference_positions_m is not None:
         arrays["reference_positions_m"] = reference_positions_m
-    np.savez(path, **arrays)
-    return path
+    return save_npz(path, **arrays)

@@ -69,6 +69,8 @@ class TrackOptions:
     robust_mm: float | None = (
         3.0  # Tukey cut-off on marker residuals (mm) once the fit is close; None: plain least squares
     )
+    prior: str = "auto"  # data-chosen priors (wface.tracking.prior): "auto" temporal + usage (two passes),
+    # "temporal" the temporal prior alone (one pass), "off" none
     temporal_weight: float = 0.0  # lam: pull of activations toward the previous frame (m^2 per unit^2)
     activation_prior: float = 0.0  # mu: pull of activations toward zero (m^2 per unit^2), a small prior
     extrapolate: bool = True  # start each frame from a constant-velocity prediction of the controls
@@ -107,6 +109,8 @@ class FrameResult:
     timings: dict = field(default_factory=dict)
     counts: dict = field(default_factory=dict)  # the rig's counters used by this frame
     linearization: RigLinearization | None = None  # at ``state``: the next frame's ``start``
+    system: dict = field(default_factory=dict)  # the last Gauss-Newton system: data_hessian (p, p) = 2 J^T W J
+    # (m^2 per unit^2), weighted_rss_m2 and weighted_count (sum of w_k over the coordinates) at the solution
 
 
 class MarkerMap:
@@ -179,6 +183,7 @@ class FrameEstimator:
         steps: int | None = None,
         a_prev: np.ndarray | None = None,
         start: RigLinearization | None = None,
+        prior=None,
     ) -> FrameResult:
         """Controls for one frame of marker data.
 
@@ -193,8 +198,10 @@ class FrameEstimator:
                 the frame starts there, with no quasistatic solve and no new Jacobian, and its
                 solves take chord steps with that factor; ``c0`` and ``y0`` are then ignored.
                 The estimator owns it from here (it is freed when replaced).
+            prior: (a - mean)^T weight (a - mean) added to phi (``wface.tracking.prior.GaussianPrior``).
         """
         opt = self.options
+        self._prior = prior
         t_start, cpu_start = time.perf_counter(), time.process_time()
         rig = self.rig
         counters0 = dict(rig.counters)
@@ -214,6 +221,7 @@ class FrameEstimator:
         w = self._weights(np.where(present[:, None], m - target, 0.0))
         rho = 0.0
         gn_done = 0
+        data_hessian = None  # 2 J^T W J of the last Gauss-Newton system (for the usage prior)
         near = None  # the factorised stiffness at the accepted trial's linear prediction ("prediction")
         while True:
             if gn_done >= steps and not opt.reuse_factor:
@@ -230,7 +238,7 @@ class FrameEstimator:
             t = time.perf_counter()
             step = self._gn_step(state, lin.jy, m, target, present, w, a_prev)
             timings["gauss_newton_system_s"] += time.perf_counter() - t
-            rho = step["rho"]
+            rho, data_hessian = step["rho"], step["data_hessian"]
             if opt.reuse_factor and self._converged(step["total0"], step["predicted"], present, relative=gn_done > 0):
                 break  # the next step would change the fit by less than the tolerances: done here
             t = time.perf_counter()
@@ -259,6 +267,8 @@ class FrameEstimator:
         if lin is not None and lin.state is not state:
             lin.free()
             lin = None
+        system = {"weighted_rss_m2": self._phi(m, target, present, w), "weighted_count": 3.0 * float(w[present].sum())}
+        system.update({"data_hessian": data_hessian} if data_hessian is not None else {})
         return FrameResult(
             frame,
             c,
@@ -274,6 +284,7 @@ class FrameEstimator:
             timings,
             counts=used,
             linearization=lin,
+            system=system,
         )
 
     def _gn_step(self, state, Jy, m, target, present, w, a_prev) -> dict:
@@ -290,6 +301,11 @@ class FrameEstimator:
         r = (m - target).reshape(-1)[rows]
         A = 2.0 * (Jp.T * wr) @ Jp
         g = 2.0 * (Jp.T * wr) @ r
+        data_hessian = A.copy()
+        prior = self._prior
+        if prior is not None:
+            A[: self.M, : self.M] += 2.0 * prior.weight
+            g[: self.M] += 2.0 * prior.weight @ (c[: self.M] - prior.mean)
         if opt.temporal_weight > 0 and a_prev is not None:
             A[: self.M, : self.M] += 2.0 * opt.temporal_weight * np.eye(self.M)
             g[: self.M] += 2.0 * opt.temporal_weight * (c[: self.M] - a_prev)
@@ -300,7 +316,7 @@ class FrameEstimator:
         dc, rho = self._penalty_step(A, g, Hp, gp, c, max(phi, 1e-12))
         total0 = phi + rho * pen + self._reg(c, a_prev)
         predicted = total0 - (float(np.sum(wr * (r + Jp @ dc) ** 2)) + rho * pen + self._reg(c + dc, a_prev))
-        return {"dc": dc, "rho": rho, "total0": total0, "predicted": predicted, "Jy": Jy}
+        return {"dc": dc, "rho": rho, "total0": total0, "predicted": predicted, "Jy": Jy, "data_hessian": data_hessian}
 
     def _converged(self, total: float, decrease: float, present: np.ndarray, *, relative: bool = True) -> bool:
         """The stopping test on a decrease of the objective (achieved, or predicted for the next step):
@@ -448,9 +464,12 @@ class FrameEstimator:
         return cache
 
     def _reg(self, c: np.ndarray, a_prev: np.ndarray | None) -> float:
-        """Value of the optional regularisers (temporal smoothness, prior toward rest)."""
+        """Value of the optional regularisers (temporal smoothness, prior toward rest, Gaussian prior)."""
         a = c[: self.M]
         out = self.options.activation_prior * float(a @ a)
+        prior = getattr(self, "_prior", None)
+        if prior is not None:
+            out += float((a - prior.mean) @ prior.weight @ (a - prior.mean))
         if self.options.temporal_weight > 0 and a_prev is not None:
             out += self.options.temporal_weight * float(np.sum((a - a_prev) ** 2))
         return out

@@ -1,18 +1,32 @@
 """Tracking a whole take: frames in order with warm starts, split into chunks for parallel workers.
 
-Frames are independent given a start guess (Sifakis et al. 2005, section 9), so a take splits into chunks
-of consecutive frames; each chunk starts cold (rest controls, cranium from a rigid fit of the
-stable markers, more Gauss-Newton steps) and warm-starts frame to frame inside: each frame hands
-the next its equilibrium with the Jacobian and the factorisation there (``RigLinearization``), so a
-warm frame starts with no solve and its solves take chord steps with that factor. Chunks run on any
-``concurrent.futures``-style executor (``submit`` returning futures), e.g. a process pool or a
-Dask ``Client.get_executor()``. With ``out_dir``, each frame is written to
-``out_dir/frames/frame_NNNNNN.npz`` as soon as it is done (atomically, ``wface.takes.store``), and
-``resume=True`` skips frames already on disk, so an interrupted run loses nothing.
+Each frame starts from the previous one (a constant-velocity prediction of the controls) and, with
+``TrackOptions.temporal_prior = "auto"``, is estimated under the data-chosen temporal prior of
+``wface.tracking.prior``. A take splits into chunks of consecutive frames for any
+``concurrent.futures``-style executor (``submit`` returning futures), e.g. a process pool or a Dask
+``Client.get_executor()``. A chunk starts ``warmup_frames`` before its first frame: those frames are
+tracked from a cold start (rest controls, cranium from a rigid fit of the stable markers, more
+Gauss-Newton steps) and discarded, so that by its first frame the chunk carries the state a serial
+run would (docs/design.md, "Tracking"): the worker count does not change the result beyond the
+trackers' tolerance.
+
+Inside a chunk each frame hands the next its equilibrium with the Jacobian and the factorisation
+there (``RigLinearization``), so a warm frame starts with no solve and its solves take chord steps
+with that factor (docs/design.md, "Tracking factor reuse").
+
+A frame with fewer than ``min_markers`` usable markers is *carried*: its controls and positions are
+held from the frame before (the rest pose at the start of a take), its record says so
+(``stats["carried"]``) and the take goes on.
+
+With ``out_dir``, each frame is written to ``out_dir/frames/frame_NNNNNN.npz`` as soon as it is done
+(atomically, ``wface.takes.store``) with its provenance (``tracking_provenance``); ``resume=True``
+reuses the frames on disk whose fingerprints match (``wface.takes.store.verified_frames``), and
+the tracker's carried state is stored in each frame, so an interrupted run resumes bit for bit.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -21,13 +35,25 @@ from tqdm.auto import tqdm
 
 from wface.controls import params_from_affine
 from wface.mesh.align import embed_markers, umeyama
-from wface.takes.store import FrameRecord, load_frame_records, write_frame
+from wface.model import model_sha256
+from wface.takes.provenance import array_sha256, frame_fingerprint, run_provenance
+from wface.takes.store import FRAMES_DIR, SURVEY_DIR, FrameRecord, verified_frames, write_frame
 from wface.tracking.estimator import FrameEstimator, MarkerMap, TrackOptions
+from wface.tracking.prior import GaussianPrior, TemporalPrior, fit_usage_prior, usage_prior
 from wface.tracking.rig import FaceRig, RigState
 
-__all__ = ["dask_executor", "embed_model_markers", "initial_controls", "track_sequence"]
+__all__ = [
+    "DEFAULT_WARMUP_FRAMES",
+    "dask_executor",
+    "embed_model_markers",
+    "initial_controls",
+    "min_usable_markers",
+    "track_sequence",
+    "tracking_provenance",
+]
 
 STABLE_MARKERS = ("ForeHead_L", "ForeHead_M", "ForeHead_R", "NoseTop", "Eyebrow_Center")
+DEFAULT_WARMUP_FRAMES = 6  # frames a chunk tracks before its first one (see the module docstring)
 
 
 def embed_model_markers(model, markers_rest_m: np.ndarray | None = None):
@@ -50,37 +76,125 @@ def initial_controls(rig, markers: MarkerMap, target_m: np.ndarray, marker_names
     return c
 
 
-def _track_chunk(model, embedding, targets, frames, marker_names, options, rig_kwargs, out_dir, resume, progress):
-    """Track consecutive frames (runs in a worker). Returns the list of FrameRecords."""
-    rig = FaceRig(model, **{"factor_precision": options.factor_precision, **rig_kwargs})
-    markers = MarkerMap(model, embedding)
-    est = FrameEstimator(rig, markers, options)
-    out = []
-    done = load_frame_records(out_dir, frames) if (out_dir is not None and resume) else {}
-    c, y, a_prev, c_older, lin, resumed = None, None, None, None, None, None
-    for j, f in enumerate(tqdm(frames, desc="tracking", disable=not progress, unit="frame")):
-        if f in done:
-            rec = done[f]
-            c_older, c, y, a_prev = c, rec.controls, rec.y_m, rec.controls[: rig.n_muscles]
-            if lin is not None:
-                lin.free()
-            lin = None
-            resumed = RigState(rec.controls, rec.y_m, rec.x_m)  # linearised again if the next frame is new
-            out.append(rec)
-            continue
-        if lin is None and resumed is not None and options.reuse_factor:
-            lin = rig.linearize(resumed)  # as the interrupted run had it: a resumed take is the same take
-        resumed = None
-        first = c is None
-        c_last = c
+def min_usable_markers(n_markers: int) -> int:
+    """Fewest markers a frame needs to be tracked rather than carried: a fifth of the capture's
+    markers, and never fewer than 4 (three fix the head; the jaw and the muscles need more)."""
+    return max(4, math.ceil(0.2 * n_markers))
+
+
+def _describe(value):
+    """A JSON-able description of an option value (a ``Contact`` by its settings)."""
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, (list, tuple)):
+        return [_describe(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _describe(v) for k, v in value.items()}
+    if dataclasses.is_dataclass(value):
+        return {f.name: _describe(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, np.ndarray):
+        return array_sha256(value)[:16]
+    if isinstance(value, (np.integer, np.floating)):
+        return value.item()
+    attrs = getattr(value, "__dict__", None)
+    if attrs is None:
+        return repr(value)
+    simple = {
+        k: v for k, v in attrs.items() if not k.startswith("_") and isinstance(v, (bool, int, float, str, tuple, list))
+    }
+    return {"type": type(value).__name__, **{k: _describe(v) for k, v in sorted(simple.items())}}
+
+
+def tracking_provenance(
+    model,
+    markers: MarkerMap,
+    *,
+    options: TrackOptions | None = None,
+    rig_kwargs: dict | None = None,
+    kind: str = "track",
+    source: dict | None = None,
+) -> dict:
+    """The provenance of a tracking run (``wface.takes.provenance.run_provenance``): the model's content
+    hash, ``source`` (e.g. the capture file's name, SHA-256 and frame range, or a synthetic take's seed),
+    the tracking options, the rig's settings and the marker embedding."""
+    e = markers.embedding
+    opts = {
+        "track": _describe(options or TrackOptions()),
+        "rig": _describe(rig_kwargs or {}),
+        "embedding_sha256": array_sha256(e.triangle, e.barycentric, e.normal_offset_m)[:16],
+    }
+    return run_provenance(kind=kind, model_sha256=model_sha256(model), source=source or {}, options=opts)
+
+
+class _Tracker:
+    """The state carried from frame to frame, and one frame's estimation."""
+
+    def __init__(self, model, embedding, marker_names, options, rig_kwargs, min_markers: int, run: dict | None):
+        self.rig = FaceRig(model, **{"factor_precision": options.factor_precision, **rig_kwargs})
+        self.markers = MarkerMap(model, embedding)
+        self.est = FrameEstimator(self.rig, self.markers, options)
+        self.options, self.names, self.min_markers, self.run = options, marker_names, min_markers, run
+        self.M = self.rig.n_muscles
+        self.c = self.y = self.c_older = self.x = None
+        self.lin = None  # RigLinearization at the last frame's equilibrium (handed to the next frame)
+        self.resumed: RigState | None = None  # the state of a frame reused from disk, linearised on demand
+        self.prior = TemporalPrior(self.M) if options.prior in ("auto", "temporal") else None
+
+    def resume_from(self, rec: FrameRecord) -> None:
+        """Continue from a record on disk (its stored state makes the continuation bit-identical)."""
+        older = rec.state.get("controls_before")
+        self.c_older = None if older is None or not len(older) else np.array(older)
+        self.c, self.y, self.x = rec.controls, rec.y_m, rec.x_m
+        if self.prior is not None:
+            self.prior = TemporalPrior.from_arrays(self.M, rec.state)
+        self.free()
+        self.resumed = RigState(rec.controls, rec.y_m, rec.x_m)  # linearised again if the next frame is new
+
+    def free(self) -> None:
+        """Release the factorisation held for the next frame."""
+        if self.lin is not None:
+            self.lin.free()
+        self.lin = None
+
+    def _state(self) -> dict:
+        out = {"controls_before": np.zeros(0) if self.c_older is None else self.c_older}
+        if self.prior is not None:
+            out.update(self.prior.to_arrays())
+        return out
+
+    def step(self, frame: int, target: np.ndarray) -> FrameRecord:
+        present = int(np.isfinite(target).all(axis=1).sum())
+        if present < self.min_markers:
+            return self._carry(frame, target, present)
+        if self.lin is None and self.resumed is not None and self.options.reuse_factor:
+            self.lin = self.rig.linearize(self.resumed)  # as the interrupted run had it: the same take
+        self.resumed = None
+        first = self.c is None
+        c_last = self.c
         if first:
-            c = initial_controls(rig, markers, targets[j], marker_names)
-        elif lin is None and c_older is not None and options.extrapolate:
-            c = est.retract(2.0 * c - c_older)  # constant-velocity prediction of the controls
-        steps = options.gn_steps_first if first else options.gn_steps
-        res = est.estimate(int(f), targets[j], c, y, steps=steps, a_prev=a_prev, start=lin)
-        c_older = c_last
-        c, y, a_prev, lin = res.controls, res.state.y_m, res.controls[: rig.n_muscles], res.linearization
+            c = initial_controls(self.rig, self.markers, target, self.names)
+        elif self.lin is None and self.c_older is not None and self.options.extrapolate:
+            c = self.est.retract(2.0 * self.c - self.c_older)  # constant-velocity prediction of the controls
+        else:
+            c = self.c
+        opt = self.options
+        res = self.est.estimate(
+            int(frame),
+            target,
+            c,
+            self.y,
+            steps=opt.gn_steps_first if first else opt.gn_steps,
+            a_prev=None if self.c is None else self.c[: self.M],
+            prior=None if self.prior is None else self.prior.prior(),
+            start=self.lin,
+        )
+        self.lin = res.linearization
+        if self.prior is not None:
+            self.prior.update(self.rig.model.jaw_joint, res)
+        self.c_older, self.c, self.y, self.x = c_last, res.controls, res.state.y_m, res.state.x_m
+        state = self._state()
+        if self.prior is not None and self.prior.last_information is not None:
+            state["information"] = 0.5 * self.prior.last_information  # J^T W J on the activations
         stats = {
             "gauss_newton_steps": res.gauss_newton_steps,
             "quasistatic_solves": res.quasistatic_solves,
@@ -91,17 +205,148 @@ def _track_chunk(model, embedding, targets, frames, marker_names, options, rig_k
             "penalty": res.penalty,
             "rho": res.rho,
             "seconds": res.seconds,
+            "markers_present": present,
+            "carried": False,
+            "weighted_rss_m2": float(res.system.get("weighted_rss_m2", 0.0)),
+            "weighted_count": float(res.system.get("weighted_count", 0.0)),
             **{k: float(v) for k, v in res.timings.items()},
             **{k: res.counts.get(k, 0) for k in ("cg_iterations", "factorizations", "back_solves", "chord_steps")},
             "frame_newton_iterations": res.counts.get("newton_iterations", 0),
         }
-        rec = FrameRecord(int(f), res.controls, res.state.x_m, res.state.y_m, res.markers_m, res.marker_error_m, stats)
+        if self.prior is not None and self.prior.noise_var_m2 is not None:
+            stats["noise_mm_estimate"] = float(np.sqrt(3.0 * self.prior.noise_var_m2) * 1e3)
+        st, err = res.state, res.marker_error_m
+        return FrameRecord(int(frame), res.controls, st.x_m, st.y_m, res.markers_m, err, stats, state)
+
+    def _carry(self, frame: int, target: np.ndarray, present: int) -> FrameRecord:
+        """A frame with too few markers: hold the previous frame (the rest pose at the start)."""
+        if self.c is None:
+            state = self.rig.equilibrium(initial_controls(self.rig, self.markers, target, self.names))
+            self.c, self.y, self.x = state.controls, state.y_m, state.x_m
+        elif self.x is None:
+            self.x = self.rig.equilibrium(self.c, self.y).x_m
+        if self.prior is not None:
+            self.prior.predict_only()
+        self.c_older = self.c  # held: zero velocity into the next frame
+        m = self.markers.positions(self.x)
+        err = np.linalg.norm(m - target, axis=1)  # NaN where missing
+        stats = {
+            "gauss_newton_steps": 0,
+            "quasistatic_solves": 0,
+            "linear_solves": 0,
+            "newton_iterations": 0,
+            "residual_rel": 0.0,
+            "inverted_elements": 0,
+            "penalty": 0.0,
+            "rho": 0.0,
+            "seconds": 0.0,
+            "markers_present": present,
+            "carried": True,
+        }
+        return FrameRecord(int(frame), self.c.copy(), self.x, self.y, m, err, stats, self._state())
+
+
+def _track_chunk(
+    model,
+    embedding,
+    targets,
+    frames,
+    marker_names,
+    options,
+    rig_kwargs,
+    out_dir,
+    run,
+    reuse,
+    min_markers,
+    folder,
+    progress,
+):
+    """Track consecutive frames (runs in a worker): ``targets`` holds ``len(targets) - len(frames)``
+    warm-up frames (tracked, not kept) and then the chunk's frames. Returns the chunk's FrameRecords."""
+    tracker = _Tracker(model, embedding, marker_names, options, rig_kwargs, min_markers, run)
+    n_warm = len(targets) - len(frames)
+    done = {}
+    if out_dir is not None and reuse:
+        done = verified_frames(out_dir, frames, targets[n_warm:], run, folder=folder)[0]
+    if n_warm and int(frames[0]) not in done:
+        for j in range(n_warm):
+            tracker.step(int(frames[0]) - n_warm + j, targets[j])
+    out = []
+    desc = "tracking" if folder == FRAMES_DIR else "tracking (pass 1 of 2)"
+    for j, f in enumerate(tqdm(frames, desc=desc, disable=not progress, unit="frame")):
+        if f in done:
+            tracker.resume_from(done[f])
+            out.append(done[f])
+            continue
+        rec = tracker.step(int(f), targets[n_warm + j])
         if out_dir is not None:
+            fingerprint = frame_fingerprint(run, f, targets[n_warm + j])
+            rec.provenance = {"run": run, "frame": int(f), "fingerprint": fingerprint}
+            write_frame(out_dir, rec, folder=folder)
+        out.append(rec)
+    tracker.free()
+    return out
+
+
+def _refine_chunk(model, embedding, targets, survey, options, rig_kwargs, out_dir, run, reuse, prior, extra, progress):
+    """The second pass over consecutive frames (runs in a worker): each frame estimated again from its
+    first-pass solution (``survey``: its FrameRecords) under the take-wide usage prior."""
+    frames = [r.frame for r in survey]
+    done = verified_frames(out_dir, frames, targets, run, extra=extra)[0] if (out_dir is not None and reuse) else {}
+    rig = FaceRig(model, **{"factor_precision": options.factor_precision, **rig_kwargs})
+    est = FrameEstimator(rig, MarkerMap(model, embedding), options)
+    out = []
+    for j, first in enumerate(tqdm(survey, desc="tracking (pass 2 of 2)", disable=not progress, unit="frame")):
+        f = first.frame
+        if f in done:
+            out.append(done[f])
+            continue
+        stats = dict(first.stats, pass1_seconds=first.stats["seconds"])
+        if first.stats.get("carried"):
+            rec = FrameRecord(f, first.controls, first.x_m, first.y_m, first.markers_m, first.marker_error_m, stats)
+        else:
+            res = est.estimate(f, targets[j], first.controls, first.y_m, steps=options.gn_steps, prior=prior)
+            if res.linearization is not None:
+                res.linearization.free()  # pass 2 starts each frame from its own first-pass solution
+            for k in ("cg_iterations", "factorizations", "back_solves", "chord_steps"):
+                stats[k] = first.stats.get(k, 0) + res.counts.get(k, 0)
+            for k in ("gauss_newton_steps", "quasistatic_solves", "linear_solves", "seconds"):
+                stats[k] = first.stats[k] + getattr(res, k)
+            stats.update(
+                {k: first.stats.get(k, 0.0) + float(v) for k, v in res.timings.items()},
+                newton_iterations=res.state.newton_iterations,
+                residual_rel=res.state.residual_rel,
+                inverted_elements=res.state.inverted_elements,
+                penalty=res.penalty,
+                rho=res.rho,
+            )
+            st = res.state
+            rec = FrameRecord(f, res.controls, st.x_m, st.y_m, res.markers_m, res.marker_error_m, stats)
+        if out_dir is not None:
+            fingerprint = frame_fingerprint(run, f, targets[j], extra=extra)
+            rec.provenance = {"run": run, "frame": int(f), "fingerprint": fingerprint, "extra": extra, "pass": 2}
             write_frame(out_dir, rec)
         out.append(rec)
-    if lin is not None:
-        lin.free()
     return out
+
+
+def _fit_usage(records) -> tuple[GaussianPrior | None, str | None, dict]:
+    """The usage prior of a first pass (``wface.tracking.prior.fit_usage_prior``), its digest and a summary."""
+    rows = [r for r in records if not r.stats.get("carried") and "information" in r.state]
+    if len(rows) < 2:
+        return None, None, {"frames_fitted": len(rows)}
+    rss = sum(r.stats["weighted_rss_m2"] for r in rows)
+    dof = sum(max(r.stats["weighted_count"] - r.state["information"].shape[0] - 9.0, 1.0) for r in rows)
+    sigma2 = rss / dof
+    M = rows[0].state["information"].shape[0]
+    A = np.array([r.controls[:M] for r in rows])
+    gamma = fit_usage_prior(A, np.array([r.state["information"] for r in rows]), sigma2)
+    summary = {
+        "frames_fitted": len(rows),
+        "noise_mm": float(np.sqrt(3.0 * sigma2) * 1e3),
+        "activation_sd": np.sqrt(gamma).tolist(),
+    }
+    return usage_prior(gamma, sigma2), array_sha256(gamma, np.array([sigma2]))[:16], summary
 
 
 def track_sequence(
@@ -118,6 +363,9 @@ def track_sequence(
     resume: bool = False,
     progress: bool = False,
     first_frame: int = 0,
+    provenance: dict | None = None,
+    warmup_frames: int = DEFAULT_WARMUP_FRAMES,
+    min_markers: int | None = None,
 ) -> list[FrameRecord]:
     """Track a take. Returns one ``FrameRecord`` per frame, in order.
 
@@ -131,8 +379,13 @@ def track_sequence(
         chunk_size: frames per chunk (default: the whole take in one chunk).
         executor: ``concurrent.futures``-style executor for the chunks (default: run in-process).
         out_dir: write each frame under ``out_dir/frames`` as soon as it is done.
-        resume: reuse frames already written under ``out_dir``.
+        resume: reuse the frames already written under ``out_dir`` whose fingerprints match.
         first_frame: number of the first frame (frame files are named by it).
+        provenance: the run's provenance (``tracking_provenance``; default: one made here, with the
+            marker data's hash as its source).
+        warmup_frames: frames each chunk after the first tracks before its own and discards.
+        min_markers: fewest usable markers a frame needs to be tracked (default ``min_usable_markers``);
+            frames with fewer are carried.
     """
     targets = np.asarray(targets_m, dtype=np.float64)
     if targets.ndim != 3 or targets.shape[2] != 3:
@@ -140,31 +393,66 @@ def track_sequence(
     markers = markers or embed_model_markers(model)
     if targets.shape[1] != len(markers.embedding.triangle):
         raise ValueError(f"marker data has {targets.shape[1]} markers, the embedding {len(markers.embedding.triangle)}")
+    if targets.shape[0] == 0:
+        raise ValueError("marker data has no frames")
     options = options or TrackOptions()
     rig_kwargs = rig_kwargs or {}
     out_dir = Path(out_dir) if out_dir is not None else None
+    run = provenance
+    if out_dir is not None and run is None:
+        src = {"targets_sha256": array_sha256(targets)[:16], "first_frame": int(first_frame)}
+        run = tracking_provenance(model, markers, options=options, rig_kwargs=rig_kwargs, source=src)
+    min_markers = min_usable_markers(targets.shape[1]) if min_markers is None else int(min_markers)
+    usable = np.isfinite(targets).all(axis=2).sum(axis=1)
+    if not (usable >= min_markers).any():
+        raise ValueError(
+            f"marker data: no frame has the {min_markers} usable markers a frame needs (at most {int(usable.max())} "
+            f"of {targets.shape[1]} markers present): check the capture's marker names and units"
+        )
     F = targets.shape[0]
     frames = np.arange(first_frame, first_frame + F)
     size = F if not chunk_size else max(1, int(chunk_size))
     chunks = [(s, min(F, s + size)) for s in range(0, F, size)]
+    two_pass = options.prior == "auto" and F >= 2
+    folder = SURVEY_DIR if two_pass else FRAMES_DIR
     args = [
         (
             model,
             markers.embedding,
-            targets[s:e],
+            targets[max(0, s - warmup_frames) : e],
             frames[s:e].tolist(),
             list(marker_names),
             options,
             rig_kwargs,
             out_dir,
-            resume,
+            run,
+            bool(resume),
+            min_markers,
+            folder,
         )
         for s, e in chunks
     ]
-    if executor is None or len(chunks) == 1 and executor is None:
-        results = [_track_chunk(*a, progress) for a in args]
+    records = _run_chunks(_track_chunk, args, executor, progress)
+    if not two_pass:
+        return records
+    prior, extra, summary = _fit_usage(records)
+    args = [
+        (model, markers.embedding, targets[s:e], records[s:e], options, rig_kwargs, out_dir, run, bool(resume))
+        + (prior, extra)
+        for s, e in chunks
+    ]
+    refined = _run_chunks(_refine_chunk, args, executor, progress)
+    for rec in refined:
+        rec.stats["usage_prior"] = summary
+    return refined
+
+
+def _run_chunks(fn, args, executor, progress) -> list[FrameRecord]:
+    """``fn(*a, progress)`` for every chunk's arguments, in-process or on the executor; the records in order."""
+    if executor is None:
+        results = [fn(*a, progress) for a in args]
     else:
-        futures = [executor.submit(_track_chunk, *a, False) for a in args]
+        futures = [executor.submit(fn, *a, False) for a in args]
         results = [fut.result() for fut in futures]
     return [rec for chunk in results for rec in chunk]
 

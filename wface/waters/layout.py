@@ -39,7 +39,6 @@ AU26 rotates x by w times the jaw angle about the axis through the pivot (positi
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -47,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from wface.facs import all_muscle_names
+from wface.files import read_json, write_json
 from wface.waters.muscles import LinearMuscle, SphincterMuscle
 
 __all__ = [
@@ -369,15 +369,11 @@ def load_layout(path_or_name: str | Path) -> MuscleLayout:
         path = Path(path_or_name)
     if not path.is_file():
         raise FileNotFoundError(f"layout file not found: {path}")
-    try:
-        d = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"layout {path} is not valid JSON: {exc}") from None
-    return layout_from_dict(d)
+    return layout_from_dict(read_json(path, what="a Waters muscle layout (JSON)"))
 
 
 def save_layout(layout: MuscleLayout, path: str | Path, *, units: str = "m") -> Path:
     """Write a layout as JSON (lengths in ``units``)."""
     path = Path(path)
-    path.write_text(json.dumps(layout_to_dict(layout, units=units), indent=1) + "\n")
+    write_json(path, layout_to_dict(layout, units=units), indent=1)
     return path

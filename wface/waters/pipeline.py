@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
+from wface.files import read_json, write_json
 from wface.waters.expressions import expression_pose
 from wface.waters.fit import fit_layout
 from wface.waters.layout import MuscleLayout, load_layout
@@ -26,7 +26,7 @@ def load_landmark_vertices(path: str | Path, mesh: SurfaceMesh) -> dict[str, np.
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"landmark file not found: {path}")
-    ids = json.loads(path.read_text())
+    ids = read_json(path, what="a landmark JSON file {name: vertex index}")
     out = {}
     for name, i in ids.items():
         if not (isinstance(i, int) and 0 <= i < mesh.n_vertices):
@@ -123,5 +123,5 @@ def pose_mesh(
         "deform_seconds": seconds,
         "files": files,
     }
-    (out / f"{stem}.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(out / f"{stem}.json", summary)
     return summary

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.files import save_layer
 from wface.io.usd._common import _as_points, _check_path, _new_stage, _write_mesh, as_polygons
 
 __all__ = ["write_mesh_animation"]
@@ -53,5 +54,5 @@ def write_mesh_animation(
     n_frames = p.shape[0] if p.ndim == 3 else 1
     stage = _new_stage(path, fps=fps, n_frames=n_frames, up_axis=up_axis, root=name)
     _write_mesh(stage, f"/{name}/Mesh", p, counts, indices, colors=colors)
-    stage.GetRootLayer().Save()
+    save_layer(stage.GetRootLayer(), path)  # atomic: a temporary file renamed into place
     return path

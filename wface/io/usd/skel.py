@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.files import save_layer
 from wface.io.usd._common import (
     UsdWriteError,
     _as_points,
@@ -187,5 +188,5 @@ def write_blendshape_basis(
         path, fps=fps, n_frames=1 if w is None else len(w), up_axis=up_axis, root=name, root_type="SkelRoot"
     )
     _write_blendshapes(stage, f"/{name}", basis, w, counts, indices)
-    stage.GetRootLayer().Save()
+    save_layer(stage.GetRootLayer(), path)  # atomic: a temporary file renamed into place
     return path

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.files import save_layer
 from wface.io.usd._common import (
     UsdWriteError,
     _as_points,
@@ -165,7 +166,7 @@ def write_take(
         _write_muscles(stage, f"{root}/Muscles", model.muscle_names, act)
     if basis is not None:
         _write_blendshapes(stage, f"{root}/Basis", basis, bw, counts, indices)
-    stage.GetRootLayer().Save()
+    save_layer(stage.GetRootLayer(), path)  # atomic: a temporary file renamed into place
     return path
 
 

@@ -1,0 +1,592 @@
+"""Fault injection: bad input gets a clear error, nothing is silently wrong, no frame is lost or mixed.
+
+Each class of fault is asserted by exit code and message through ``wface.cli.main`` (or the library
+call behind it): kills during frames and during the final writes followed by ``--resume`` (results
+identical to an uninterrupted run), frames of another provenance, truncated and corrupted files of
+every kind wface reads, impossible capture samples, out-of-range options, models that lack what a
+command needs, and the top-level handler's exit codes (2 usage, 1 failure, 130 interrupt, 141
+closed pipe).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wface.cli import main
+from wface.files import FileFormatError, atomic_path, load_npz, read_json, save_npz
+from wface.takes.store import (
+    claim_take_dir,
+    frame_path,
+    load_take,
+    read_frame,
+    read_report,
+    resume_plan,
+    write_frame,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+TETS = "1000"  # the smallest built-in face: every test here is about files and messages, not accuracy
+FRAMES = "4"
+DEMO = ["demo", "--tets", TETS, "--frames", FRAMES, "--no-pictures", "--seed", "2"]
+
+
+def _cli(args, capsys) -> tuple[int, str]:
+    code = main([str(a) for a in args])
+    cap = capsys.readouterr()
+    return code, cap.out + cap.err
+
+
+def _controls(out: Path) -> dict:
+    return load_npz(out / "controls.npz")
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """An uninterrupted demo take (the results every resumed run must reproduce)."""
+    out = tmp_path_factory.mktemp("faults") / "reference"
+    assert main([*DEMO, "--out", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    from wface.faces.builtin import build_face
+    from wface.model import save_model
+
+    path = tmp_path_factory.mktemp("model") / "face.npz"
+    save_model(build_face(int(TETS)), path)
+    return path
+
+
+def _copy(src: Path, dst: Path) -> Path:
+    import shutil
+
+    shutil.copytree(src, dst)
+    return dst
+
+
+# ---------------------------------------------------------------------- kills and --resume
+def _spawn(args, env_extra=None) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONPATH=str(ROOT), **(env_extra or {}))
+    return subprocess.Popen(
+        [sys.executable, "-m", "wface", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+
+
+def _wait_for(pred, proc, timeout_s=300.0) -> None:
+    t0 = time.monotonic()
+    while not pred():
+        if proc.poll() is not None:
+            raise AssertionError(f"process ended before the fault: {proc.stderr.read().decode()[-2000:]}")
+        if time.monotonic() - t0 > timeout_s:
+            proc.kill()
+            raise AssertionError("timed out waiting for the fault point")
+        time.sleep(0.05)
+
+
+def test_kill_during_frames_then_resume_is_bit_identical(reference, tmp_path, capsys):
+    out = tmp_path / "killed"
+    proc = _spawn([*DEMO, "--out", str(out)])
+    _wait_for(lambda: len(list((out / "survey").glob("frame_*.npz"))) >= 2, proc)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not (out / "controls.npz").exists()
+    code, text = _cli([*DEMO, "--out", out, "--resume"], capsys)
+    assert code == 0, text
+    assert "resume: reusing" in text
+    a, b = _controls(reference), _controls(out)
+    np.testing.assert_array_equal(a["activations"], b["activations"])  # bitwise: PARDISO is reproducible
+    np.testing.assert_array_equal(a["bones"], b["bones"])
+
+
+_KILL_AT_REPLACE = """
+import os, signal, sys
+from pathlib import Path
+target = sys.argv[1]
+real = os.replace
+def replace(src, dst):
+    if Path(dst).name == target:
+        os.kill(os.getpid(), signal.SIGKILL)  # die with the new file written but not yet renamed
+    return real(src, dst)
+os.replace = replace
+from wface.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.parametrize("victim", ["controls.npz", "report.json"])
+def test_kill_during_final_writes_leaves_no_torn_file(reference, tmp_path, capsys, victim):
+    out = _copy(reference, tmp_path / "final")
+    for name in ("controls.npz", "controls.csv", "report.json"):
+        (out / name).unlink()
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    args = [sys.executable, "-c", _KILL_AT_REPLACE, victim, *DEMO, "--out", str(out), "--resume"]
+    proc = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, timeout=600)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr.decode()[-2000:]
+    assert not (out / victim).exists()  # never a 0-byte or torn file under the real name
+    assert list(out.glob(f".{Path(victim).stem}.part-*"))  # the killed writer's temporary file
+    code, text = _cli([*DEMO, "--out", out, "--resume"], capsys)
+    assert code == 0, text
+    assert not list(out.glob(".*.part-*"))  # the claim of the resumed run removed the leftover
+    np.testing.assert_array_equal(_controls(reference)["activations"], _controls(out)["activations"])
+    assert read_report(out)["frames"] == int(FRAMES)
+
+
+def test_exception_during_a_write_keeps_the_old_file(tmp_path):
+    path = save_npz(tmp_path / "a.npz", x=np.arange(3))
+    with pytest.raises(RuntimeError), atomic_path(path) as tmp:
+        tmp.write_bytes(b"half")
+        raise RuntimeError("disk full")
+    np.testing.assert_array_equal(load_npz(path)["x"], np.arange(3))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz"]
+
+
+# ---------------------------------------------------------------------- provenance
+def test_resume_into_another_take_is_refused(reference, tmp_path, capsys):
+    out = _copy(reference, tmp_path / "other_seed")
+    args = [a if a != "2" else "3" for a in DEMO]  # another demo seed
+    code, text = _cli([*args, "--out", out, "--resume"], capsys)
+    assert code == 1
+    assert "holds another take" in text and "--overwrite" in text
+    assert _controls(out)["activations"].shape[0] == int(FRAMES)  # nothing was touched
+
+
+def test_resume_with_another_model_is_refused(reference, tmp_path, capsys):
+    out = _copy(reference, tmp_path / "other_model")
+    args = ["demo", "--tets", "1200", "--frames", FRAMES, "--no-pictures", "--seed", "2"]
+    code, text = _cli([*args, "--out", out, "--resume"], capsys)
+    assert code == 1 and "holds another take" in text
+
+
+def test_overwrite_replaces_another_take(reference, tmp_path, capsys):
+    out = _copy(reference, tmp_path / "replaced")
+    args = [a if a != "2" else "3" for a in DEMO]
+    code, text = _cli([*args, "--out", out, "--overwrite", "--prior", "off"], capsys)
+    assert code == 0, text
+    assert "removed the earlier results" in text
+    assert json.loads((out / "provenance.json").read_text())["source"]["seed"] == 3
+    assert not (out / "survey").exists()  # nothing stale of the old take survives
+
+
+def _tracked(tmp_path, name="lib"):
+    """A small take tracked through the library (one pass) into a directory, with its inputs."""
+    from wface.faces.builtin import build_face
+    from wface.tracking.estimator import TrackOptions
+    from wface.tracking.rig import FaceRig
+    from wface.tracking.sequence import embed_model_markers, track_sequence, tracking_provenance
+    from wface.tracking.synthetic import synthesize_performance
+
+    model = build_face(int(TETS))
+    markers = embed_model_markers(model)
+    perf = synthesize_performance(FaceRig(model), markers, frames=3, seed=1)
+    opts = TrackOptions(prior="temporal")
+    run = tracking_provenance(model, markers, options=opts, source={"test": name})
+    out = tmp_path / name
+    claim_take_dir(out, run)
+    kw = dict(marker_names=model.marker_names, markers=markers, options=opts, out_dir=out, provenance=run)
+    recs = track_sequence(model, perf.markers_m, **kw)
+    return model, markers, perf, run, out, recs, kw
+
+
+def test_resume_reuses_only_matching_frames_and_says_why(tmp_path):
+    from wface.tracking.sequence import track_sequence
+
+    model, markers, perf, run, out, recs, kw = _tracked(tmp_path)
+    frames = range(3)
+    assert resume_plan(out, frames, perf.markers_m, run).reused == [0, 1, 2]
+    # frame 1's file replaced by frame 2's: a valid file under another frame's name
+    frame_path(out, 1).write_bytes(frame_path(out, 2).read_bytes())
+    # frame 2 written without provenance (an older wface)
+    rec = read_frame(frame_path(out, 2))
+    rec.provenance = None
+    write_frame(out, rec)
+    plan = resume_plan(out, frames, perf.markers_m, run)
+    assert plan.reused == [0]
+    assert plan.redo == {1: "the file holds frame 2", 2: "no provenance recorded"}
+    assert "reusing 1 of 3 frames" in plan.summary() and "redoing 2" in plan.summary()
+    again = track_sequence(model, perf.markers_m, resume=True, **kw)
+    for a, b in zip(recs, again, strict=True):
+        np.testing.assert_array_equal(a.controls, b.controls)  # frame 0's stored state continues bit for bit
+    # other marker data for a frame (e.g. a re-exported capture): that frame is redone
+    data = perf.markers_m.copy()
+    data[2, 0] += 1e-4
+    assert resume_plan(out, frames, data, run).redo == {2: "other marker data for this frame"}
+
+
+@pytest.mark.parametrize("damage", ["truncate", "flip", "empty"])
+def test_damaged_frame_files_are_redone(tmp_path, damage):
+    _, _, perf, run, out, _, _ = _tracked(tmp_path)
+    p = frame_path(out, 1)
+    data = p.read_bytes()
+    if damage == "truncate":
+        p.write_bytes(data[: len(data) // 2])
+    elif damage == "flip":
+        b = bytearray(data)
+        b[len(b) // 3] ^= 0xFF
+        p.write_bytes(bytes(b))
+    else:
+        p.write_bytes(b"")
+    with pytest.raises(FileFormatError, match=p.name):
+        read_frame(p)
+    assert resume_plan(out, range(3), perf.markers_m, run).redo == {1: "unreadable (torn or corrupted) file"}
+
+
+def test_other_options_redo_frames(tmp_path):
+    from wface.tracking.estimator import TrackOptions
+    from wface.tracking.sequence import tracking_provenance
+
+    model, markers, perf, run, out, _, _ = _tracked(tmp_path)
+    other = tracking_provenance(
+        model, markers, options=TrackOptions(prior="temporal", robust_mm=5.0), source=run["source"]
+    )
+    plan = resume_plan(out, range(3), perf.markers_m, other)
+    assert plan.reused == [] and set(plan.redo.values()) == {"other options (track)"}
+    assert claim_take_dir(out, other, resume=True) == ""  # the same take: options may change
+
+
+def test_rerun_without_resume_leaves_no_stale_frames(tmp_path):
+    _, _, _, run, out, _, _ = _tracked(tmp_path)
+    (out / "controls.npz").write_bytes(b"")
+    note = claim_take_dir(out, run)
+    assert "starting this take again" in note
+    assert not (out / "frames").exists() and not (out / "controls.npz").exists()
+
+
+def test_edit_into_a_tracked_take_is_refused(reference, tmp_path, capsys):
+    out = _copy(reference, tmp_path / "edit_into")
+    args = ["edit", "blend", "--tets", TETS, "--from", "smile", "--to", "surprise", "--frames", "2", "--no-pictures"]
+    code, text = _cli([*args, "--out", out], capsys)
+    assert code == 1 and "holds another take" in text and "wface demo" in text
+
+
+def test_mixed_frames_are_not_used_as_reference(reference, tmp_path):
+    from wface.faces.builtin import build_face
+
+    out = _copy(reference, tmp_path / "mixed")
+    rec = read_frame(frame_path(out, 1))
+    rec.provenance = dict(rec.provenance, run=dict(rec.provenance["run"], fingerprint="0" * 16))
+    write_frame(out, rec)
+    with pytest.warns(UserWarning, match="another run than controls.npz"):
+        take = load_take(out, build_face(int(TETS)))
+    assert take.reference_positions_m is None
+
+
+# ---------------------------------------------------------------------- truncated and corrupted files
+@pytest.mark.parametrize("damage", ["empty", "truncate", "flip", "text"])
+def test_damaged_model_file_is_named(model_path, tmp_path, capsys, damage):
+    data = model_path.read_bytes()
+    bad = tmp_path / "bad.npz"
+    if damage == "empty":
+        bad.write_bytes(b"")
+    elif damage == "truncate":
+        bad.write_bytes(data[: len(data) // 2])
+    elif damage == "flip":
+        b = bytearray(data)
+        b[2000] ^= 0xFF  # inside the first array's bytes: a bad CRC
+        bad.write_bytes(bytes(b))
+    else:
+        bad.write_text("not a model\n")
+    code, text = _cli(["model", "info", bad], capsys)
+    assert code == 1
+    assert text.startswith("wface model: error: ") and str(bad) in text and "Traceback" not in text
+    expected = {"empty": "file is empty", "truncate": "not an .npz archive", "flip": "bad checksum", "text": "not an"}
+    assert expected[damage] in text
+
+
+def test_zero_byte_take_outputs_are_named_or_recovered(reference, tmp_path):
+    from wface.faces.builtin import build_face
+
+    model = build_face(int(TETS))
+    out = _copy(reference, tmp_path / "zero")
+    (out / "report.json").write_bytes(b"")
+    with pytest.raises(FileFormatError, match="report.json: file is empty"):
+        read_report(out)
+    (out / "report.json").unlink()
+    (out / "controls.npz").write_bytes(b"")
+    with pytest.warns(UserWarning, match="controls.npz: file is empty"):
+        take = load_take(out, model)  # recovered from the frame files
+    np.testing.assert_array_equal(take.activations, np.clip(_controls(reference)["activations"], 0, 1))
+    import shutil
+
+    shutil.rmtree(out / "frames")
+    with pytest.raises(FileFormatError, match="controls.npz"):
+        load_take(out, model)
+
+
+def test_bad_json_names_line_and_column(tmp_path):
+    p = tmp_path / "report.json"
+    p.write_text('{"frames": 3,\n "x": }\n')
+    with pytest.raises(FileFormatError, match=r"report.json: .*line 2, column 7"):
+        read_json(p)
+
+
+@pytest.mark.parametrize("kind", ["c3d", "trc", "csv"])
+def test_damaged_capture_files_are_named(tmp_path, capsys, kind):
+    from wface.io.mocap import MocapTake, write_mocap
+
+    take = MocapTake(np.random.default_rng(0).normal(size=(5, 4, 3)) * 0.05, ["a", "b", "c", "d"], 60.0)
+    good = tmp_path / f"good.{kind}"
+    if kind == "c3d":
+        pytest.importorskip("ezc3d")
+    write_mocap(take, good)
+    data = good.read_bytes()
+    for bad_bytes, what in ((b"", "empty"), (data[: len(data) // 2], None)):
+        bad = tmp_path / f"bad.{kind}"
+        bad.write_bytes(bad_bytes)
+        code, text = _cli(["track", "--mocap", bad, "--out", tmp_path / "o", "--tets", TETS], capsys)
+        assert code == 1 and str(bad) in text and "Traceback" not in text, text
+        if what:
+            assert what in text
+
+
+def test_corrupted_basis_is_named(tmp_path):
+    from wface.basis.core import load_basis
+
+    bad = tmp_path / "basis.npz"
+    bad.write_bytes(b"PK\x03\x04 truncated")
+    with pytest.raises(FileFormatError, match="basis.npz"):
+        load_basis(bad)
+
+
+# ---------------------------------------------------------------------- impossible capture samples
+def _capture(tmp_path, positions_m, names, rate_hz=30.0, kind="csv"):
+    from wface.io.mocap import MocapTake, write_mocap
+
+    path = tmp_path / f"take.{kind}"
+    write_mocap(MocapTake(positions_m, list(names), rate_hz), path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def synthetic_capture():
+    """Clean markers of a short synthetic take on the smallest face, neutral first."""
+    from wface.faces.builtin import build_face
+    from wface.tracking.rig import FaceRig
+    from wface.tracking.sequence import embed_model_markers
+    from wface.tracking.synthetic import synthesize_performance
+
+    model = build_face(int(TETS))
+    markers = embed_model_markers(model)
+    perf = synthesize_performance(FaceRig(model), markers, frames=4, seed=6)
+    rest = markers.positions(model.rest_positions_m)[None]
+    return np.concatenate([rest, perf.clean_markers_m]), list(model.marker_names)
+
+
+def test_impossible_samples_become_missing_and_are_counted(synthetic_capture, tmp_path, capsys):
+    pos, names = synthetic_capture
+    pos = pos.copy()
+    pos[2, 3] = 1e19  # corrupted data bytes
+    pos[3, 5] += [0.3, 0.0, 0.0]  # 30 cm off the head
+    pos[2, 7] += [0.08, 0.0, 0.0]  # a one-frame jump of 8 cm at 30 Hz: 2.4 m/s
+    path = _capture(tmp_path, pos * 1.0, names)
+    out = tmp_path / "run"
+    code, text = _cli(
+        ["track", "--mocap", path, "--out", out, "--tets", TETS, "--no-pictures", "--prior", "off"], capsys
+    )
+    assert code == 0, text
+    assert "capture check: 3 impossible samples made missing" in text
+    check = read_report(out)["capture_check"]
+    assert check["per_marker"][names[3]]["far"] == 1
+    assert check["per_marker"][names[5]]["far"] == 1
+    assert check["per_marker"][names[7]]["jumps"] == 1
+    assert len(check["per_marker"]) == 3  # nothing else: the face's own motion is possible
+    assert read_report(out)["marker_max_mm"] < 50  # nothing tracked toward 1e19 m
+
+
+def test_capture_check_finds_nothing_on_real_takes():
+    from tests.conftest import data_path
+    from wface.io.mocap import read_mocap
+    from wface.tracking.capture import check_capture
+
+    take = read_mocap(data_path("animface", "JawMoCap.c3d"))
+    assert check_capture(take.positions_m, take.marker_names, rate_hz=take.rate_hz).removed == 0
+
+
+def test_wrong_units_are_refused(synthetic_capture, tmp_path, capsys):
+    pos, names = synthetic_capture
+    small = _capture(tmp_path, pos * 0.01, names)  # a metre file read as centimetres: 100x too small
+    code, text = _cli(["track", "--mocap", small, "--out", tmp_path / "b", "--tets", TETS], capsys)
+    assert code == 1 and "scale" in text and "units" in text, text
+    assert not (tmp_path / "b").exists()
+
+
+def test_names_that_match_nothing_without_a_shape_match_are_refused(tmp_path, capsys):
+    from tests.conftest import data_path
+    from wface.io.mocap import read_mocap
+
+    take = read_mocap(data_path("animface", "JawMoCap.c3d")).frames(0, 3)
+    path = _capture(tmp_path, take.positions_m, [f"m{i}" for i in range(take.n_markers)], rate_hz=take.rate_hz)
+    code, text = _cli(["track", "--mocap", path, "--out", tmp_path / "a", "--tets", TETS], capsys)
+    assert code == 1 and "marker names match the model's" in text, text
+
+
+def test_a_frame_with_too_few_markers_is_carried(synthetic_capture, tmp_path, capsys):
+    pos, names = synthetic_capture
+    pos = pos.copy()
+    pos[2, 2:] = np.nan  # frame 2 keeps 2 markers
+    path = _capture(tmp_path, pos, names)
+    out = tmp_path / "carried"
+    args = ["track", "--mocap", path, "--out", out, "--tets", TETS, "--no-pictures", "--prior", "off"]
+    code, text = _cli(args, capsys)
+    assert code == 0, text
+    assert "1 frames had too few usable markers" in text
+    report = read_report(out)
+    assert report["carried_frames"] == [2] and report["frames"] == len(pos)
+    c = _controls(out)["activations"]
+    np.testing.assert_array_equal(c[2], c[1])  # held from the frame before
+    code, text = _cli([*args, "--resume"], capsys)
+    assert code == 0 and f"reusing {len(pos)} of {len(pos)}" in text
+
+
+def test_a_take_without_usable_frames_is_an_error(synthetic_capture, tmp_path, capsys):
+    pos, names = synthetic_capture
+    pos = pos.copy()
+    pos[1:, 3:] = np.nan  # only the neutral frame 0 is complete
+    path = _capture(tmp_path, pos, names)
+    args = ["track", "--mocap", path, "--frames", "1:", "--neutral-frame", "0", "--out", tmp_path / "none"]
+    code, text = _cli([*args, "--tets", TETS], capsys)
+    assert code == 1 and "no frame has the 10 usable markers" in text, text
+
+
+# ---------------------------------------------------------------------- options out of range (usage errors)
+_USAGE = [
+    (["demo", "--outliers", "1.5"], "fraction between 0 and 1"),
+    (["demo", "--dropout", "-0.1"], "fraction between 0 and 1"),
+    (["demo", "--noise-mm", "-1"], ">= 0"),
+    (["demo", "--temporal-weight", "nan"], "finite"),
+    (["demo", "--chunk-size", "-3"], ">= 1"),
+    (["demo", "--workers", "0"], ">= 1"),
+    (["demo", "--frames", "0"], ">= 1"),
+    (["demo", "--fps", "0"], "> 0"),
+    (["demo", "--seed", "-1"], ">= 0"),
+    (["demo", "--tets", "ten"], "whole number"),
+    (["demo", "--robust-mm", "inf"], "finite"),
+    (["demo", "--contact-stiffness", "-5"], "> 0"),
+    (["demo", "--prior", "strong"], "invalid choice"),
+    (["track", "--mocap", "x.c3d", "--frames", "5:2"], "empty"),
+    (["track", "--mocap", "x.c3d", "--frames", "abc"], "A:B"),
+    (["track", "--mocap", "x.c3d", "--neutral-frame", "-1"], ">= 0"),
+    (["bench", "--suite", "forward", "--repeat", "0"], ">= 1"),
+    (["model", "build", "--tets", "0"], ">= 1"),
+    (["simulate", "--model", "m.npz", "--tol", "0"], "> 0"),
+    (["simulate", "--model", "m.npz", "--jaw-open", "-5"], ">= 0"),
+    (["resim", "--substeps", "0"], ">= 1"),
+    (["edit", "retime", "--take", "t", "--speed", "0"], "> 0"),
+    (["edit", "layer", "--take", "t", "--add", "smile", "--weight", "nan"], "finite"),
+    (["waters", "--mesh", "builtin", "--intensity", "2"], "between 0 and 1"),
+    (["basis", "from-face", "--activation", "0"], "(0, 1]"),
+    (["speech", "--model", "m", "--gesture", "closure", "--fps", "-100"], "> 0"),
+]
+
+
+@pytest.mark.parametrize(("args", "expected"), _USAGE, ids=[" ".join(a) for a, _ in _USAGE])
+def test_out_of_range_options_are_usage_errors(args, expected, capsys):
+    code, text = _cli([*args, "--out", "never_written"], capsys)
+    assert code == 2
+    assert expected in text and "error: argument" in text
+    assert not Path("never_written").exists()
+
+
+# ---------------------------------------------------------------------- what a model lacks, what no joint can do
+def test_jaw_beyond_the_joint_limit_is_refused(model_path, tmp_path, capsys):
+    code, text = _cli(["simulate", "--model", model_path, "--jaw-open", "90", "--out", tmp_path / "j"], capsys)
+    assert code == 1 and "outside this model's jaw range" in text
+    assert not (tmp_path / "j" / "equilibrium.npz").exists()
+
+
+def test_speech_on_a_face_without_its_muscles_is_refused(model_path, tmp_path, capsys):
+    from tests.conftest import data_path
+
+    speech = data_path("artisynth-face", "speech")
+    args = ["speech", "--model", model_path, "--gesture", "closure", "--speech-dir", speech, "--out", tmp_path / "s"]
+    code, text = _cli(args, capsys)
+    assert code == 1 and "none of the muscles the gesture drives" in text and "OOP" in text
+    assert not (tmp_path / "s").exists()
+
+
+def test_missing_surfaces_and_muscles_are_named(model_path, tmp_path, capsys):
+    from wface.model import load_model, save_model
+
+    model = load_model(model_path)
+    model.surface_groups = {}
+    bare = save_model(model, tmp_path / "bare.npz")
+    code, text = _cli(["simulate", "--model", bare, "--contact", "lips", "--out", tmp_path / "c"], capsys)
+    assert code == 1 and "lip" in text, text
+    code, text = _cli(["simulate", "--model", bare, "--activation", "nosuch=0.5", "--out", tmp_path / "c"], capsys)
+    assert code == 1 and "unknown muscle 'nosuch'" in text
+    code, text = _cli(["simulate", "--model", bare, "--activation", "procerus=1.5", "--out", tmp_path / "c"], capsys)
+    assert code == 1 and "[0, 1]" in text
+
+
+# ---------------------------------------------------------------------- the top-level handler
+def test_out_that_is_a_file_or_unwritable(model_path, tmp_path, capsys):
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    code, text = _cli(["simulate", "--model", model_path, "--out", a_file], capsys)
+    assert code == 1 and str(a_file) in text and "Traceback" not in text
+    code, text = _cli([*DEMO, "--out", a_file], capsys)
+    assert code == 1 and "is a file" in text
+    if os.geteuid() == 0:
+        pytest.skip("running as root: every directory is writable")
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    try:
+        code, text = _cli(["simulate", "--model", model_path, "--out", locked / "sub"], capsys)
+        assert code == 1 and "Permission denied" in text
+    finally:
+        locked.chmod(0o700)
+
+
+def test_missing_optional_package_names_the_extra(monkeypatch, tmp_path, capsys):
+    import wface.cli.model as cli_model
+
+    def boom(args):
+        raise ModuleNotFoundError("No module named 'pyvista'", name="pyvista")
+
+    monkeypatch.setattr(cli_model, "_info", boom)
+    code, text = _cli(["model", "info", "x.npz"], capsys)
+    assert code == 1 and "pip install 'wface[viz]'" in text
+
+
+@pytest.mark.parametrize(
+    ("exc", "code", "words"),
+    [(KeyboardInterrupt(), 130, "interrupted"), (BrokenPipeError(), 141, ""), (RuntimeError("bug"), 1, "internal")],
+)
+def test_interrupt_pipe_and_bugs(monkeypatch, capsys, exc, code, words):
+    import wface.cli.model as cli_model
+
+    def boom(args):
+        raise exc
+
+    monkeypatch.setattr(cli_model, "_info", boom)
+    got, text = _cli(["model", "info", "x.npz"], capsys)
+    assert got == code
+    assert (words in text) if words else text == ""
+    assert "Traceback" not in text
+
+
+def test_debug_shows_the_traceback(capsys):
+    with pytest.raises(FileNotFoundError):
+        main(["model", "info", "nowhere.npz", "--debug"])
+    code, text = _cli(["model", "info", "nowhere.npz"], capsys)
+    assert code == 1 and text.strip() == "wface model: error: face model file not found: nowhere.npz"
+
+
+def test_closed_pipe_is_quiet():
+    """`wface --help | true`: the reader is gone before wface writes; no BrokenPipeError spew."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "wface", "--help"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    proc.stdout.close()  # the reader goes away at once
+    assert proc.wait(timeout=120) in (0, 141)
+    assert b"Traceback" not in proc.stderr.read()

@@ -1,0 +1,128 @@
+"""argparse ``type=`` checkers: a bad option value is a usage error (exit code 2) that says what was expected.
+
+Each checker takes the option's text and returns the parsed value or raises
+``argparse.ArgumentTypeError``, which argparse turns into ``wface CMD: error: argument --x: ...``.
+
+Example::
+
+    p.add_argument("--outliers", type=probability, default=0.02)
+    p.add_argument("--frames", type=positive_int, default=30)
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+__all__ = [
+    "angle_deg",
+    "finite_float",
+    "frame_range",
+    "non_negative_float",
+    "non_negative_int",
+    "positive_float",
+    "positive_fraction",
+    "positive_int",
+    "probability",
+    "unit_interval",
+]
+
+
+def _float(text: str) -> float:
+    try:
+        v = float(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
+
+
+def _int(text: str) -> int:
+    try:
+        return int(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+
+
+def finite_float(text: str) -> float:
+    """Any finite number (not nan, not inf)."""
+    return _float(text)
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0 (rates, sizes, tolerances, stiffnesses)."""
+    v = _float(text)
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    return v
+
+
+def non_negative_float(text: str) -> float:
+    """A finite number >= 0 (noise levels, weights, cut-offs where 0 means off)."""
+    v = _float(text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return v
+
+
+def probability(text: str) -> float:
+    """A fraction in [0, 1]."""
+    v = _float(text)
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a fraction between 0 and 1, got {text!r}")
+    return v
+
+
+def positive_fraction(text: str) -> float:
+    """A fraction in (0, 1] (an activation that is divided by, a share that must not be empty)."""
+    v = _float(text)
+    if not 0.0 < v <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1], got {text!r}")
+    return v
+
+
+unit_interval = probability  # activations, intensities: the same range, a clearer name where it reads better
+
+
+def positive_int(text: str) -> int:
+    """A whole number >= 1 (counts: frames, tets, workers, repeats, substeps)."""
+    v = _int(text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return v
+
+
+def non_negative_int(text: str) -> int:
+    """A whole number >= 0 (frame numbers, seeds, fades where 0 means none)."""
+    v = _int(text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return v
+
+
+def frame_range(text: str) -> tuple[int | None, int | None]:
+    """``A:B`` (either side may be empty; Python slice of the file's frames, A < B when both given)."""
+    parts = str(text).split(":")
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"expected a frame range A:B (e.g. 0:300 or 100:), got {text!r}")
+    try:
+        a, b = (int(p) if p.strip() else None for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a frame range A:B of whole numbers, got {text!r}") from None
+    if a is not None and b is not None and (a >= 0) == (b >= 0) and a >= b:
+        raise argparse.ArgumentTypeError(f"frame range {text!r} is empty (A must be below B)")
+    return a, b
+
+
+def angle_deg(lo: float, hi: float):
+    """A checker for an angle in degrees within [lo, hi] (joint limits)."""
+
+    def check(text: str) -> float:
+        v = _float(text)
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"expected an angle in [{lo:g}, {hi:g}] degrees, got {text!r}")
+        return v
+
+    check.__name__ = f"angle_deg[{lo:g},{hi:g}]"
+    return check
