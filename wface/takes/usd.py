@@ -1,13 +1,16 @@
 """The one place that writes a take as USD: tracked, edited, re-simulated and spoken takes alike.
 
 ``write_take_usd`` turns a ``wface.takes.take.Take`` and its simulated node positions into the
-stage layout of ``wface.io.usd.write_take`` (``/<name>/Skin`` with model node ids,
-``Bones/Cranium`` and ``Bones/Cranium/Jaw`` from the take's bones, the ``Muscles`` activation
-curves, markers when given), so ``wface.io.usd.read_take`` reads every command's stage back and the
-tracked, edited and dynamic stages of one performance line up prim for prim. Activation curves are
-min(drive, 1) per muscle (drive = activation x force-length scale); a take with force-length scales
-also stores them in the layer metadata. ``mesh_only`` (or a model without skin triangles) writes the
-skin alone as ``/<name>/Mesh`` (``write_mesh_animation``).
+stage layout of ``wface.io.usd.write_take`` (``/<name>/Skin``: the exact point cache with model node
+ids, ``Bones/Cranium`` and ``Bones/Cranium/Jaw`` from the take's bones, the ``Muscles`` activation
+curves, named marker locators when given, and the ``Rig``: the skin as UsdSkel blend shapes, one
+per muscle from the FEM face itself (``wface.takes.shapes``), with cranium and jaw joints, driven by
+the activation curves), so ``wface.io.usd.read_take`` reads every command's stage back and the
+tracked, edited and dynamic stages of one performance line up prim for prim. Time codes are the
+take's frame numbers (the capture's for a tracked take). Activation curves are min(drive, 1) per
+muscle (drive = activation x force-length scale); a take with force-length scales also stores them
+in the layer metadata. ``mesh_only`` (or a model without skin triangles) writes the skin alone as
+``/<name>/Mesh`` (``write_mesh_animation``).
 """
 
 from __future__ import annotations
@@ -16,10 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from wface.controls import IDENTITY_AFFINE, bone_affines
+from wface.controls import IDENTITY_AFFINE, bone_affines, jaw_to_intuitive
 from wface.io.usd import write_mesh_animation, write_take
 from wface.mesh.surface import boundary_faces
 from wface.model import FaceModel
+from wface.takes.shapes import skin_rig
 from wface.takes.take import Take
 
 __all__ = ["skin_mesh", "write_take_usd"]
@@ -47,6 +51,9 @@ def write_take_usd(
     mesh_only: bool = False,
     bone_meshes: dict | None = None,
     name: str = "Face",
+    rig: bool = True,
+    simulator=None,
+    progress: bool = False,
 ) -> Path:
     """Write a take's frames as one USD stage (module docstring); time code f = frame f.
 
@@ -62,6 +69,11 @@ def write_take_usd(
             ``source``).
         mesh_only: write the skin alone (``/<name>/Mesh``).
         bone_meshes: {name: BoneMesh} to draw instead of ``model.bone_meshes`` (``{}``: none).
+        name: the root prim's name.
+        rig: also write the UsdSkel ``Rig`` (blend shapes from one quasistatic solve per muscle plus
+            one for the jaw weights, computed once per model object; ``wface.takes.shapes``).
+        simulator: a ``Simulator`` of ``model`` to reuse for the rig's solves.
+        progress: show a progress bar over the rig's solves.
     """
     positions_m = np.asarray(positions_m)
     if positions_m.ndim != 3 or positions_m.shape[1:] != (model.n_nodes, 3):
@@ -84,8 +96,21 @@ def write_take_usd(
     meta = {"source": take.source, **(metadata or {})}
     if take.force_length_scale is not None:
         meta["force_length_scale"] = take.force_length_scale.max(axis=0).tolist()
+    activations = np.minimum(take.drives, 1.0)
+    skel = skin_rig(model, simulator=simulator, progress=progress) if rig else None
+    rig_weights = None
+    if skel is not None:  # the muscle curves, then the jaw corrective: opening / the opening that makes it 1
+        opening = (
+            np.array([jaw_to_intuitive(model.jaw_joint, b[12:])["opening_deg"] for b in take.bones])
+            if (take.bones is not None)
+            else np.zeros(T)
+        )
+        rig_weights = np.column_stack([activations, np.clip(opening / skel.info["jaw_open_full_deg"], 0.0, 1.0)])
     return write_take(
         path,
+        frames=take.frames,
+        rig=skel,
+        rig_weights=rig_weights,
         model=model,
         node_positions_m=positions_m,
         fps=rate,
@@ -94,7 +119,7 @@ def write_take_usd(
         marker_names=marker_names,
         cranium_affines=cranium,
         jaw_affines=jaw,
-        activations=np.minimum(take.drives, 1.0),
+        activations=activations,
         bone_meshes=bone_meshes,
         name=name,
         metadata=meta,
