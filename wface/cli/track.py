@@ -2,7 +2,8 @@
 
 Both write into --out: report.json (the keys in the README), controls.npz / controls.csv
 (per-frame activations, bone parameters, jaw pose), frames/ (one file per tracked frame, so an
-interrupted run resumes with --resume), animation.usdc, pictures, plots, a movie and report.html.
+interrupted run resumes with --resume), animation.usdc (unless --no-usd), pictures, plots and a
+movie (unless --no-pictures / --no-movie) and report.html; the closing lines list every file.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from wface.model import load_model
 from wface.tracking.capture import prepare_capture
 from wface.tracking.estimator import TrackOptions
 from wface.tracking.identifiability import rig_identifiability_mm
-from wface.tracking.output import write_tracking_outputs
+from wface.tracking.output import describe_outputs, write_tracking_outputs
 from wface.tracking.report import build_report
 from wface.tracking.rig import FaceRig
 from wface.tracking.sequence import dask_executor, embed_model_markers, track_sequence
@@ -65,7 +66,10 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--temporal-weight", type=float, default=0.0, help="pull of activations toward the previous frame")
     p.add_argument("--no-movie", action="store_true", help="skip the mp4 movie")
-    p.add_argument("--no-pictures", action="store_true", help="skip pictures, plots, movie and HTML")
+    p.add_argument(
+        "--no-pictures", action="store_true", help="skip pictures, plots and movie (report.html keeps the numbers)"
+    )
+    p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
     add_contact_arguments(
         p, smoothing_mm=0.05, obstacles=False, where="every equilibrium and Jacobian (for demo also the ground truth)"
     )
@@ -162,8 +166,9 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         rig_info=info,
         identifiability_mm=rig_identifiability_mm(rig, markers),
         truth=truth,
+        robust_mm=args.robust_mm or None,
     )
-    write_tracking_outputs(
+    written = write_tracking_outputs(
         out,
         model,
         records,
@@ -171,9 +176,12 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         fps=fps,
         report=report,
         truth=truth,
+        usd=not args.no_usd,
         pictures=not args.no_pictures,
         movie=not args.no_movie,
         title=f"wface {args.command}",
+        marker_names=list(marker_names),
+        progress=True,
     )
     keys = (
         "marker_rms_mm_mean",
@@ -184,8 +192,18 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         "seconds_per_frame_median",
     )
     print("  ".join(f"{k}={report[k]:.4g}" for k in keys if report.get(k) is not None))
-    print(f"wrote {out / 'report.json'}")
+    _print_written(out, written)
     return 0
+
+
+def _print_written(out: Path, written) -> None:
+    """The closing lines: every file written, with what opens it (frames/ counted, not listed)."""
+    print(f"wrote {out}/:")
+    for row in describe_outputs(written):
+        print(f"  {row['file']:<22} {row['opens_in']}")
+    n = len(list((out / "frames").glob("frame_*.npz"))) if (out / "frames").is_dir() else 0
+    if n:
+        print(f"  frames/ ({n} frame files; --resume continues from them)")
 
 
 def run_demo(args: argparse.Namespace) -> int:
@@ -217,6 +235,8 @@ def run_demo(args: argparse.Namespace) -> int:
 def run_track(args: argparse.Namespace) -> int:
     model = load_model(args.model) if args.model else build_face(args.tets, progress=True)
     take = read_mocap(args.mocap)
+    for note in take.meta.get("notices", []):
+        print(f"note: {note}")
     neutral = args.neutral_frame
     if neutral is not None and not 0 <= neutral < take.n_frames:
         raise ValueError(f"--neutral-frame {neutral} is outside {args.mocap}'s {take.n_frames} frames")
