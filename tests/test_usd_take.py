@@ -77,9 +77,10 @@ def test_take_content(tmp_path, face, take):
     # Markers: one named locator each (translate op per frame, hidden while missing), coloured balls.
     cap = stage.GetPrimAtPath("/Face/Markers/Captured")
     sim = stage.GetPrimAtPath("/Face/Markers/Simulated")
-    ball = UsdGeom.Sphere(stage.GetPrimAtPath(f"/Face/Markers/Captured/{face.marker_names[0]}/Ball"))
+    m0 = face.marker_names[0]
+    ball = UsdGeom.Sphere(stage.GetPrimAtPath(f"/Face/Markers/Captured/{m0}/{m0}"))
     assert tuple(ball.GetDisplayColorPrimvar().Get()[0]) == pytest.approx((0.9, 0.05, 0.05))
-    ball = UsdGeom.Sphere(stage.GetPrimAtPath(f"/Face/Markers/Simulated/{face.marker_names[0]}/Ball"))
+    ball = UsdGeom.Sphere(stage.GetPrimAtPath(f"/Face/Markers/Simulated/{m0}_tracked/{m0}_tracked"))
     assert tuple(ball.GetDisplayColorPrimvar().Get()[0]) == pytest.approx((0.05, 0.8, 0.1))
     capm = take["captured_markers_m"]
     hidden = 0
@@ -94,6 +95,8 @@ def test_take_content(tmp_path, face, take):
                 np.testing.assert_allclose(m[3, :3], capm[f, k], atol=1e-12)
             else:
                 assert vis == UsdGeom.Tokens.invisible
+                m = np.asarray(UsdGeom.Xformable(loc).GetLocalTransformation(Usd.TimeCode(f)))
+                np.testing.assert_array_equal(m[:3, :3], 0.0)  # scaled away for DCCs that ignore visibility
                 hidden += 1
     assert hidden > 0  # the take has missing markers, so the test saw the hidden branch
     assert list(sim.GetAttribute("wface:markerNames").Get()) == face.marker_names

@@ -42,10 +42,7 @@ def kernel_cache_dir() -> Path:
 def _init_capturing_stderr(wp, *, keep_cuda_note: bool) -> None:
     """``wp.init()`` with the process's native stderr captured; lines other than the CUDA-driver
     note are written back, so no other diagnostic is lost."""
-    try:
-        fd = sys.stderr.fileno()
-    except (AttributeError, OSError, ValueError):  # a replaced sys.stderr (pytest capture, notebooks)
-        fd = 2
+    fd = 2  # the native library writes to the process's file descriptor 2, whatever sys.stderr is now
     sys.stderr.flush()
     saved = os.dup(fd)
     with tempfile.TemporaryFile(mode="w+b") as tmp:

@@ -4,13 +4,19 @@ A DCC shows each marker by its name (Blender: an Empty-like object per marker; M
 node; Houdini: a primitive with a path), which a point cloud whose point count changes per frame
 cannot give. Layout under ``prim_path`` (an Xform, e.g. ``/Face/Markers/Captured``)::
 
-    <marker>            Xform, translate op time-sampled (metres), visibility time-sampled:
-                        "invisible" in the frames where the marker is missing (NaN), where the
-                        translation holds the last seen position (the first seen one before it)
-      Ball              Sphere of radius ``radius_m`` with a constant displayColor
+    <marker><suffix>          Xform, translate op time-sampled (metres); in the frames where the
+                              marker is missing (NaN) it is hidden twice over: visibility
+                              "invisible" and a scale op of 0 (Blender's importer reads transforms
+                              but not animated visibility), and the translation holds the last
+                              seen position (the first seen one before it)
+      <marker><suffix>        Sphere of radius ``radius_m`` with a constant displayColor, named
+                              like its locator (Blender merges an Xform with its one child into a
+                              single object named after the child, so the object keeps the name)
 
 The original names (which need not be USD identifiers) are in the uniform string array
 ``wface:markerNames`` of ``prim_path``, in order, and ``wface:markerName`` of each locator.
+``suffix`` keeps the two marker sets apart in a DCC whose object names are global (Blender):
+captured ``Chin``, tracked ``Chin_tracked``.
 """
 
 from __future__ import annotations
@@ -22,7 +28,9 @@ from wface.io.usd._common import _identifier, _vt_vec3f
 __all__ = ["read_locators", "write_locators"]
 
 
-def write_locators(stage, prim_path: str, positions_m: np.ndarray, names: list[str], *, times, radius_m: float, rgb):
+def write_locators(
+    stage, prim_path: str, positions_m: np.ndarray, names: list[str], *, times, radius_m: float, rgb, suffix: str = ""
+):
     """Author one locator per marker (module docstring).
 
     Args:
@@ -33,6 +41,7 @@ def write_locators(stage, prim_path: str, positions_m: np.ndarray, names: list[s
         times: (F,) time codes.
         radius_m: sphere radius.
         rgb: (3,) linear display colour.
+        suffix: appended to every locator's prim name.
     """
     from pxr import Gf, Sdf, UsdGeom, Vt
 
@@ -44,9 +53,11 @@ def write_locators(stage, prim_path: str, positions_m: np.ndarray, names: list[s
     for k, name in enumerate(names):
         p = positions_m[:, k]
         seen = np.all(np.isfinite(p), axis=1)
-        xf = UsdGeom.Xform.Define(stage, f"{prim_path}/{_identifier(name, taken)}")
+        ident = _identifier(name, taken) + suffix
+        xf = UsdGeom.Xform.Define(stage, f"{prim_path}/{ident}")
         xf.GetPrim().CreateAttribute("wface:markerName", Sdf.ValueTypeNames.String, custom=True).Set(str(name))
         op = xf.AddTranslateOp()
+        scale = xf.AddScaleOp() if not seen.all() else None
         vis = xf.CreateVisibilityAttr()
         held = p[np.argmax(seen)] if seen.any() else np.zeros(3)
         was_seen = None
@@ -57,7 +68,9 @@ def write_locators(stage, prim_path: str, positions_m: np.ndarray, names: list[s
             if s != was_seen:  # visibility is held between samples: write it where it changes
                 vis.Set(UsdGeom.Tokens.inherited if s else UsdGeom.Tokens.invisible, float(t))
                 was_seen = s
-        ball = UsdGeom.Sphere.Define(stage, f"{xf.GetPath()}/Ball")
+            if scale is not None:
+                scale.Set(Gf.Vec3f(1.0 if s else 0.0), float(t))
+        ball = UsdGeom.Sphere.Define(stage, f"{xf.GetPath()}/{ident}")
         ball.CreateRadiusAttr(float(radius_m))
         ball.CreateExtentAttr(_vt_vec3f(np.array([[-radius_m] * 3, [radius_m] * 3])))
         ball.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(_vt_vec3f(np.asarray(rgb, dtype=float)[None]))

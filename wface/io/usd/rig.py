@@ -6,7 +6,7 @@ Layout under ``prim_path`` (a SkelRoot, e.g. ``/Face/Rig``)::
       Anim      SkelAnimation: per frame the joints' local transforms (cranium: rest to world; jaw:
                 relative to the cranium, as the 24 bone parameters of ``wface.controls``) and
                 ``blendShapeWeights`` = the muscle activation curves, one weight per muscle
-    Skin        Mesh at the rest skin, SkelBindingAPI: two joint influences per vertex
+    SkinRig     Mesh at the rest skin, SkelBindingAPI: two joint influences per vertex
                 (cranium 1 - w, jaw w) and one BlendShape child per muscle (its offsets)
 
 UsdSkel deforms the skin as (linear blend skinning of blend shapes, row vectors in USD, written
@@ -125,7 +125,8 @@ def write_skin_rig(
     cranium_affines: np.ndarray,
     jaw_affines: np.ndarray,
     times: np.ndarray,
-    visible: bool = False,
+    visible: bool = True,
+    st: np.ndarray | None = None,
 ) -> np.ndarray:
     """Author the rig (module docstring) and return its (F, s, 3) points (``rig_points``).
 
@@ -137,10 +138,11 @@ def write_skin_rig(
         weights: (F, M) blend-shape weights per frame (the activation curves).
         cranium_affines / jaw_affines: (F, 3, 4) bone affines (jaw relative to the cranium).
         times: (F,) time codes.
-        visible: author the rig's mesh visible (default invisible, so it does not overlap the exact
-            point cache in a viewport; a DCC user switches it on to drive the face from the curves).
+        visible: author the rig's mesh visible (the default: Blender's importer leaves invisible prims
+            out); it lies on the exact point cache within the rig's error, so a DCC user hides one.
+        st: (s, 2) texture coordinates of the skin vertices (``primvars:st``), or None.
     """
-    from pxr import Gf, Usd, UsdGeom, UsdSkel, Vt
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
 
     root = UsdSkel.Root.Define(stage, prim_path)
     skel = UsdSkel.Skeleton.Define(stage, f"{prim_path}/Skel")
@@ -153,9 +155,13 @@ def write_skin_rig(
     for t, mats in zip(times, _joint_matrices(cranium_affines, jaw_affines), strict=True):
         anim.SetTransforms(Vt.Matrix4dArray(mats), Usd.TimeCode(float(t)))
 
-    mesh = _write_mesh(stage, f"{prim_path}/Skin", rig.rest_m, counts, indices)
+    mesh = _write_mesh(stage, f"{prim_path}/SkinRig", rig.rest_m, counts, indices)
     if not visible:
         mesh.CreateVisibilityAttr(UsdGeom.Tokens.invisible)
+    if st is not None:
+        UsdGeom.PrimvarsAPI(mesh.GetPrim()).CreatePrimvar(
+            "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex
+        ).Set(Vt.Vec2fArray.FromNumpy(np.asarray(st, dtype=np.float32)))
     binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
     binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
     s = rig.rest_m.shape[0]

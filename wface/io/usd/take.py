@@ -184,6 +184,7 @@ def write_take(
             cranium_affines=affines.get("Cranium", eye),
             jaw_affines=jaw_rel,
             times=times,
+            st=_cylindrical_st(model.rest_positions_m[skin_nodes]),
         )
         err_mm = np.linalg.norm(pts - skin_x, axis=2) * 1e3
         _set_layer_info(
@@ -339,6 +340,7 @@ def _write_markers(stage, prim_path: str, model, markers: dict, marker_names, ma
             times=times,
             radius_m=marker_radius_m,
             rgb=colours[label],
+            suffix="" if label == "Captured" else "_tracked",
         )
 
 
