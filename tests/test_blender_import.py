@@ -188,3 +188,20 @@ def test_markers_are_named_locators_hidden_while_missing(stages):
         np.testing.assert_array_equal(np.array(o["scale"]) == 0.0, missing)
         hidden += int(missing.sum())
     assert hidden > 0  # the demo drops samples, so the hidden branch was seen
+
+
+def test_waters_on_the_ict_head_keeps_uvs_and_materials_in_blender(blender, tmp_path):
+    from conftest import data_path
+
+    obj = data_path("ict-facekit", "generic_neutral_mesh.obj")
+    args = ["waters", "--mesh", str(obj), "--expression", "happy", "--blend-to", "surprise", "--frames", "2"]
+    assert main([*args, "--no-render", "--out", str(tmp_path)]) == 0
+    paths = [tmp_path / "happy.usda", tmp_path / "happy_to_surprise.usdc"]
+    run = subprocess.run([blender, str(_PROBE), *map(str, paths)], capture_output=True, text=True, timeout=600)
+    probes = [json.loads(ln[6:]) for ln in run.stdout.splitlines() if ln.startswith("PROBE ")]
+    assert len(probes) == 2, run.stderr[-2000:]
+    for probe in probes:
+        mesh = probe["objects"]["Mesh"]
+        assert (mesh["vertices"], mesh["uv_layers"], len(mesh["materials"])) == (26719, 1, 12)
+        assert "M_Face" in mesh["materials"]
+    assert probes[1]["objects"]["Mesh"]["moved_m"] > 1e-3  # happy -> surprise moves the mouth by millimetres

@@ -11,10 +11,10 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 
+from wface.cli.closing import print_outputs
 from wface.faces.builtin import build_face
 from wface.model import load_model
 from wface.takes import (
@@ -177,6 +177,7 @@ def _load(args, model):
 
 
 def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> int:
+    started = time.time()
 
     t0 = time.perf_counter()
     result = simulate_poses(model, take, device=args.device, solver=args.solver, tol=args.tol, progress=True)
@@ -199,7 +200,7 @@ def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> i
         f"activations in [{report['activation_min']:.3g}, {report['activation_max']:.3g}], force-length scale "
         f"<= {report['force_length_scale_max']:.3g}, {report['seconds_per_frame_median']:.2f} s/frame"
     )
-    print(f"wrote {Path(args.out) / report['usd']} and {Path(args.out) / 'report.json'}")
+    print_outputs(args.out, since=started)
     return 0 if report["converged"] else 3
 
 

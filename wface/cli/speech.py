@@ -11,6 +11,7 @@ import json
 import time
 from pathlib import Path
 
+from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.faces.artisynth import import_artisynth
 from wface.model import load_model
@@ -96,6 +97,7 @@ def _gesture_dir(args) -> Path:
 
 
 def run_speech(args: argparse.Namespace) -> int:
+    started = time.time()
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -170,5 +172,5 @@ def run_speech(args: argparse.Namespace) -> int:
             f"lip gap min {report['lip_gap_mm_min']:+.3f} mm, max penetration "
             f"{report['max_penetration_mm_max']:.3f} mm (contact: {args.contact or 'none'})"
         )
-    print(f"wrote {out / 'report.json'}")
+    print_outputs(out, since=started)
     return 0

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.faces.builtin import build_face
 from wface.io.mocap import read_mocap
@@ -21,7 +22,7 @@ from wface.model import load_model
 from wface.tracking.capture import prepare_capture
 from wface.tracking.estimator import TrackOptions
 from wface.tracking.identifiability import rig_identifiability_mm
-from wface.tracking.output import describe_outputs, write_tracking_outputs
+from wface.tracking.output import write_tracking_outputs
 from wface.tracking.report import build_report
 from wface.tracking.rig import FaceRig
 from wface.tracking.sequence import dask_executor, embed_model_markers, track_sequence
@@ -192,18 +193,8 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         "seconds_per_frame_median",
     )
     print("  ".join(f"{k}={report[k]:.4g}" for k in keys if report.get(k) is not None))
-    _print_written(out, written)
+    print_outputs(out, written)
     return 0
-
-
-def _print_written(out: Path, written) -> None:
-    """The closing lines: every file written, with what opens it (frames/ counted, not listed)."""
-    print(f"wrote {out}/:")
-    for row in describe_outputs(written):
-        print(f"  {row['file']:<22} {row['opens_in']}")
-    n = len(list((out / "frames").glob("frame_*.npz"))) if (out / "frames").is_dir() else 0
-    if n:
-        print(f"  frames/ ({n} frame files; --resume continues from them)")
 
 
 def run_demo(args: argparse.Namespace) -> int:

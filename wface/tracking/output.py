@@ -34,8 +34,15 @@ OUTPUT_TOOLS = {
     "report.json": ("every number of the run", "any text editor, jq, Python json"),
     "report.html": ("this report, pictures embedded", "a web browser"),
     "truth.npz": ("the synthetic take's ground truth", "numpy"),
+    "resim.npz": ("the dynamic replay: positions and per-frame stats", "numpy; wface.takes.store"),
+    ".usdc": ("USD stage", "Blender (File > Import > USD), Maya, Houdini, usdview"),
+    ".usda": ("USD stage (text)", "Blender (File > Import > USD), Maya, Houdini, usdview, a text editor"),
+    ".obj": ("mesh (units in its first line)", "Blender, Maya, Houdini, MeshLab"),
     ".png": ("picture or plot", "any image viewer"),
     ".mp4": ("movie of the take", "a video player, a browser"),
+    ".csv": ("table", "a spreadsheet, pandas"),
+    ".json": ("numbers of the run", "any text editor, jq, Python json"),
+    ".npz": ("arrays", "numpy"),
 }
 
 
