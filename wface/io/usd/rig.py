@@ -18,7 +18,8 @@ with C, J the cranium and jaw transforms (rotation and translation), p0 the rest
 muscle shapes and w the jaw weights. The rig linearises the face about rest (Choe & Ko 2001; the
 shapes of Sifakis et al. 2005's FEM face, see ``wface.takes.shapes``), so it differs from the exact
 point cache beside it by the muscles' interaction and the flesh's nonlinearity; ``rig_points``
-evaluates it in numpy so writers can report that difference.
+evaluates it in numpy so writers can report that difference (docs/design.md, "Take rig", has the
+measured errors).
 """
 
 from __future__ import annotations
