@@ -4,6 +4,31 @@ Display colours (``primvars:displayColor``, linear RGB), the same as the picture
 (Sifakis et al. 2005's convention): the skin is skin-coloured with a heat map over the muscles under
 it (red tint over an inactive muscle, yellow over a fully active one, ``wface.viz.muscles``); the
 captured markers are red, the simulated / tracked markers green; bones and teeth are bone white.
+
+Prims under the default prim ``/<name>`` (an Xform) of ``write_take``:
+
+- ``Skin`` (Mesh): the exact point cache. The nodes used by ``model.skin_triangles``,
+  renumbered compactly (their model node ids in the primvar ``wface:nodeId``); topology once,
+  points, extent and vertex normals per frame, ``primvars:st`` texture coordinates (a
+  cylindrical projection about the model's +y axis: u = angle / 2 pi, v = height over the
+  skin's range). With ``activations``: ``primvars:wface:activation`` (float per vertex per
+  frame, max_m w_m a_m over nearby muscles) and a ``displayColor`` heat map (above).
+  Without: a constant skin colour.
+- ``Markers/Captured`` and ``Markers/Simulated``: one named locator per marker (Xform with a
+  time-sampled translate op, hidden in the frames where the marker is missing, and a small
+  sphere; red and green), ``wface.io.usd.locators``; the tracked ones named ``<marker>_tracked``.
+- ``Bones/Cranium`` and ``Bones/Cranium/Jaw`` (Xforms with one time-sampled transform op
+  from the per-frame affines; the jaw's op is relative to the cranium, as the 24 bone
+  parameters of ``wface.controls``) holding the model's ``bone_meshes`` at rest position, each
+  rewound so that its normals face outward (``wface.mesh.signed_distance.oriented_outward``).
+  With ``jaw_frame="world"`` the jaw Xform is ``Bones/Jaw``, a sibling of the cranium.
+- ``Muscles`` (Scope): per muscle a time-sampled float ``wface:activation:<muscle>`` (the name
+  made a valid identifier; the original names in ``wface:muscleNames``), and all of them as
+  a float[] ``wface:activations``.
+- ``Rig`` (SkelRoot) when ``rig`` is given: the skin (``SkinRig``) bound to the rig's blend shapes
+  and to the cranium and jaw joints, weights from ``rig_weights`` / ``activations`` (``wface.io.usd.rig``); the layer
+  metadata then holds ``rig_rms_error_mm`` / ``rig_max_error_mm`` against the point cache.
+- ``Basis`` (SkelRoot) when ``basis`` is given: see ``write_blendshape_basis``.
 """
 
 from __future__ import annotations
@@ -74,31 +99,7 @@ def write_take(
 
     Frame i is written at time code ``frames[i]`` (the capture's frame numbers; default i); the
     stage's timeCodesPerSecond is ``fps``, its start/end time codes the first and last frame, and
-    customLayerData["wface"]["first_frame"] the first. Prims under the default prim ``/<name>``
-    (an Xform):
-
-    - ``Skin`` (Mesh): the exact point cache. The nodes used by ``model.skin_triangles``,
-      renumbered compactly (their model node ids in the primvar ``wface:nodeId``); topology once,
-      points, extent and vertex normals per frame, ``primvars:st`` texture coordinates (a
-      cylindrical projection about the model's +y axis: u = angle / 2 pi, v = height over the
-      skin's range). With ``activations``: ``primvars:wface:activation`` (float per vertex per
-      frame, max_m w_m a_m over nearby muscles) and a ``displayColor`` heat map (module docstring).
-      Without: a constant skin colour.
-    - ``Markers/Captured`` and ``Markers/Simulated``: one named locator per marker (Xform with a
-      time-sampled translate op, hidden in the frames where the marker is missing, and a small
-      sphere; red and green), ``wface.io.usd.locators``.
-    - ``Bones/Cranium`` and ``Bones/Cranium/Jaw`` (Xforms with one time-sampled transform op
-      from the per-frame affines; the jaw's op is relative to the cranium, as the 24 bone
-      parameters of ``wface.controls``) holding the model's ``bone_meshes`` at rest position, each
-      rewound so that its normals face outward (``wface.mesh.signed_distance.oriented_outward``).
-      With ``jaw_frame="world"`` the jaw Xform is ``Bones/Jaw``, a sibling of the cranium.
-    - ``Muscles`` (Scope): per muscle a time-sampled float ``wface:activation:<muscle>`` (the name
-      made a valid identifier; the original names in ``wface:muscleNames``), and all of them as
-      a float[] ``wface:activations``.
-    - ``Rig`` (SkelRoot) when ``rig`` is given: the skin bound to one blend shape per muscle and to
-      the cranium and jaw joints, weights from ``activations`` (``wface.io.usd.rig``); the layer
-      metadata then holds ``rig_rms_error_mm`` / ``rig_max_error_mm`` against the point cache.
-    - ``Basis`` (SkelRoot) when ``basis`` is given: see ``write_blendshape_basis``.
+    customLayerData["wface"]["first_frame"] the first. The prims are listed in the module docstring.
 
     Args:
         path: ``.usdc`` (binary, default) or ``.usda`` (text).
@@ -170,35 +171,35 @@ def write_take(
     if act is not None:
         _write_muscles(stage, f"{root}/Muscles", model.muscle_names, act, times)
     if rig is not None:
-        eye = np.tile(np.hstack([np.eye(3), np.zeros((3, 1))]), (n_frames, 1, 1))
-        jaw_rel = affines.get("Jaw", eye)
-        if jaw_frame == "world" and "Jaw" in affines:
-            jaw_rel = _relative_to(affines.get("Cranium", eye), jaw_rel)
-        pts = write_skin_rig(
-            stage,
-            f"{root}/Rig",
-            rig,
-            counts,
-            indices,
-            weights=rw,
-            cranium_affines=affines.get("Cranium", eye),
-            jaw_affines=jaw_rel,
-            times=times,
-            st=_cylindrical_st(model.rest_positions_m[skin_nodes]),
-        )
-        err_mm = np.linalg.norm(pts - skin_x, axis=2) * 1e3
-        _set_layer_info(
-            stage,
-            {
-                "rig_rms_error_mm": float(np.sqrt(np.mean(err_mm**2))),
-                "rig_max_error_mm": float(err_mm.max()),
-                "rig_source": rig.source,
-            },
-        )
+        _write_rig(stage, f"{root}/Rig", rig, rw, affines, jaw_frame, skin_x, counts, indices, times, model, skin_nodes)
     if basis is not None:
         _write_blendshapes(stage, f"{root}/Basis", basis, bw, counts, indices, times=times)
     stage.GetRootLayer().Save()
     return path
+
+
+def _write_rig(stage, prim_path, rig, weights, affines, jaw_frame, skin_x, counts, indices, times, model, skin_nodes):
+    """The UsdSkel rig (``wface.io.usd.rig``) and its error against the point cache in the layer metadata."""
+    n_frames = len(times)
+    eye = np.tile(np.hstack([np.eye(3), np.zeros((3, 1))]), (n_frames, 1, 1))
+    jaw_rel = affines.get("Jaw", eye)
+    if jaw_frame == "world" and "Jaw" in affines:
+        jaw_rel = _relative_to(affines.get("Cranium", eye), jaw_rel)
+    pts = write_skin_rig(
+        stage,
+        prim_path,
+        rig,
+        counts,
+        indices,
+        weights=weights,
+        cranium_affines=affines.get("Cranium", eye),
+        jaw_affines=jaw_rel,
+        times=times,
+        st=_cylindrical_st(model.rest_positions_m[skin_nodes]),
+    )
+    err_mm = np.linalg.norm(pts - skin_x, axis=2) * 1e3
+    info = {"rig_rms_error_mm": float(np.sqrt(np.mean(err_mm**2))), "rig_max_error_mm": float(err_mm.max())}
+    _set_layer_info(stage, {**info, "rig_source": rig.source})
 
 
 def _checked_rig_weights(rig, rig_weights, act, n_skin: int, n_frames: int):
