@@ -48,6 +48,8 @@ examples:
   wface track --mocap take.c3d --out run1                      # on the built-in face (5000 tets)
   wface track --model face.npz --mocap take.c3d --out run1 --frames 0:300
   wface track --mocap take.trc --out run1 --workers 4 --resume
+  wface track --mocap nexus_export.csv --out run1 --frames 100:400 --neutral-frame 0   # Vicon / Motive CSV
+  wface track --mocap take.c3d --out run1 --no-pictures          # numbers and animation.usdc only
   wface track --mocap take.c3d --out run1 --scheduler tcp://10.0.0.5:8786
 """
 
