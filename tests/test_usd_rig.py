@@ -93,3 +93,50 @@ def test_jaw_weights_follow_the_bones(face, rig):
         assert nodes, bone
         np.testing.assert_allclose(rig.jaw_weights[nodes], expected, atol=1e-6)
     assert 0.2 < np.median(rig.jaw_weights) < 0.8 or np.ptp(rig.jaw_weights) == pytest.approx(1.0)
+
+
+def test_a_mesh_carried_by_the_skin_joins_the_rig(tmp_path, face, rig):
+    """A render mesh bound to the skin (here: the skin triangles' centroids, barycentric weights 1/3)
+    gets the same joints and shape names, and USD skins it as ``rig_points`` of the carried rig."""
+    import scipy.sparse as sp
+    from pxr import Usd, UsdSkel, Vt
+
+    from wface.io.usd import write_take
+
+    skin = np.unique(face.skin_triangles)
+    local = np.searchsorted(skin, face.skin_triangles)  # (t, 3) compact skin ids
+    t = len(local)
+    W = sp.csr_matrix((np.full(3 * t, 1 / 3), (np.repeat(np.arange(t), 3), local.ravel())), shape=(t, skin.size))
+    render = rig.carried(W, W @ rig.rest_m)
+    assert render.names == rig.names and render.deltas_m.shape == (len(rig.names), t, 3)
+    tri = np.arange(t - t % 3).reshape(-1, 3)  # any topology over the centroids will do
+    a = np.zeros((2, face.n_muscles))
+    a[1, face.muscle_index("zygomaticus_major_r")] = 0.7
+    take = _take(face, a, [0.0, 10.0], [0.0, 5.0])
+    C, J = (np.stack(p) for p in zip(*(bone_affines(b) for b in take.bones), strict=True))
+    w = np.column_stack([a, [0.0, 10.0 / rig.info["jaw_open_full_deg"]]])
+    x = np.repeat(face.rest_positions_m[None], 2, axis=0)
+    path = write_take(
+        tmp_path / "r.usda",
+        model=face,
+        node_positions_m=x,
+        fps=30.0,
+        activations=a,
+        cranium_affines=C,
+        jaw_affines=J,
+        rig=rig,
+        rig_weights=w,
+        rig_meshes={"RenderMesh": (render, np.full(len(tri), 3), tri.ravel())},
+    )
+    stage = Usd.Stage.Open(str(path))
+    cache = UsdSkel.Cache()
+    cache.Populate(UsdSkel.Root(stage.GetPrimAtPath("/Face/Rig")), Usd.PrimDefaultPredicate)
+    mesh = stage.GetPrimAtPath("/Face/Rig/RenderMesh")
+    skel_query = cache.GetSkelQuery(UsdSkel.BindingAPI(mesh).GetInheritedSkeleton())
+    expected = rig_points(render, w, C, J)
+    for f in range(2):
+        pts = Vt.Vec3fArray.FromNumpy(blendshape_points(stage, str(mesh.GetPath()), float(f)).astype(np.float32))
+        code = Usd.TimeCode(float(f))
+        assert cache.GetSkinningQuery(mesh).ComputeSkinnedPoints(skel_query.ComputeSkinningTransforms(code), pts, code)
+        np.testing.assert_allclose(np.asarray(pts), expected[f], atol=5 * _F32_M)
+    assert np.abs(expected[1] - expected[0]).max() > 1e-3  # the render mesh moves with the curves and the jaw

@@ -55,6 +55,22 @@ class SkinRig:
     source: str = ""
     info: dict = field(default_factory=dict)
 
+    def carried(self, weights, rest_m: np.ndarray) -> SkinRig:
+        """The rig carried to another mesh bound to the skin by linear weights (e.g. barycentric).
+
+        Args:
+            weights: (r, s) matrix (dense or scipy sparse), rows summing to 1: vertex j of the other
+                mesh follows sum_v W_jv (skin vertex v).
+            rest_m: (r, 3) the other mesh's rest positions (it keeps its own offsets from the skin).
+
+        Returns:
+            A ``SkinRig`` on the r vertices: shapes W d_i, jaw weights W w (clipped into [0, 1]).
+        """
+        rest = np.asarray(rest_m, dtype=np.float64)
+        deltas = np.stack([np.asarray(weights @ d) for d in self.deltas_m])
+        jaw = np.clip(np.asarray(weights @ self.jaw_weights).reshape(-1), 0.0, 1.0)
+        return SkinRig(rest, deltas, list(self.names), jaw, source=self.source, info=dict(self.info))
+
     def __post_init__(self):
         self.rest_m = np.asarray(self.rest_m, dtype=np.float64)
         self.deltas_m = np.asarray(self.deltas_m, dtype=np.float64)
@@ -128,22 +144,26 @@ def write_skin_rig(
     times: np.ndarray,
     visible: bool = True,
     st: np.ndarray | None = None,
+    extra_meshes: dict | None = None,
 ) -> np.ndarray:
-    """Author the rig (module docstring) and return its (F, s, 3) points (``rig_points``).
+    """Author the rig (module docstring) and return its (F, s, 3) skin points (``rig_points``).
 
     Args:
         stage: the open ``Usd.Stage``.
         prim_path: path of the SkelRoot.
         rig: rest skin, muscle shapes, jaw weights.
         counts / indices: the skin's polygon topology over the s vertices.
-        weights: (F, M) blend-shape weights per frame (the activation curves).
+        weights: (F, B) blend-shape weights per frame (the activation curves).
         cranium_affines / jaw_affines: (F, 3, 4) bone affines (jaw relative to the cranium).
         times: (F,) time codes.
         visible: author the rig's mesh visible (the default: Blender's importer leaves invisible prims
             out); it lies on the exact point cache within the rig's error, so a DCC user hides one.
         st: (s, 2) texture coordinates of the skin vertices (``primvars:st``), or None.
+        extra_meshes: {prim name: (SkinRig, counts, indices)}: more meshes bound to the same joints
+            and weights, e.g. a render mesh carried by its binding to the skin (``SkinRig.carried``);
+            their shape names must be the skin rig's.
     """
-    from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+    from pxr import Gf, Usd, UsdGeom, UsdSkel, Vt
 
     root = UsdSkel.Root.Define(stage, prim_path)
     skel = UsdSkel.Skeleton.Define(stage, f"{prim_path}/Skel")
@@ -156,7 +176,32 @@ def write_skin_rig(
     for t, mats in zip(times, _joint_matrices(cranium_affines, jaw_affines), strict=True):
         anim.SetTransforms(Vt.Matrix4dArray(mats), Usd.TimeCode(float(t)))
 
-    mesh = _write_mesh(stage, f"{prim_path}/SkinRig", rig.rest_m, counts, indices)
+    meshes = {"SkinRig": (rig, counts, indices, st), **{k: (*v, None) for k, v in (extra_meshes or {}).items()}}
+    boxes = []
+    tokens = None
+    for name, (mesh_rig, c, i, uv) in meshes.items():
+        if mesh_rig.names != rig.names:
+            raise UsdWriteError(f"rig mesh {name}: shapes {mesh_rig.names[:3]}... are not the skin rig's")
+        tokens = _bind_mesh(stage, f"{prim_path}/{name}", skel, mesh_rig, c, i, visible=visible, st=uv)
+        pts = rig_points(mesh_rig, weights, cranium_affines, jaw_affines)
+        shapes_only = mesh_rig.rest_m[None] + np.tensordot(weights, mesh_rig.deltas_m, axes=(1, 0))  # as validators
+        boxes.append(_extent(np.concatenate([pts.reshape(-1, 3), shapes_only.reshape(-1, 3), mesh_rig.rest_m])))
+        if name == "SkinRig":
+            skin_pts = pts
+    anim.CreateBlendShapesAttr(Vt.TokenArray(tokens))
+    w_attr = anim.CreateBlendShapeWeightsAttr()
+    for t, w in zip(times, weights, strict=True):
+        w_attr.Set(_vt_float(w), Usd.TimeCode(float(t)))
+    UsdGeom.ModelAPI.Apply(root.GetPrim()).SetExtentsHint(_vt_vec3f(_extent(np.concatenate(boxes))))
+    return skin_pts
+
+
+def _bind_mesh(stage, mesh_path: str, skel, rig: SkinRig, counts, indices, *, visible: bool, st) -> list[str]:
+    """A Mesh at the rig's rest points bound to ``skel`` (two joint influences per vertex) with one
+    BlendShape child per shape; returns the shapes' tokens."""
+    from pxr import Gf, Sdf, UsdGeom, UsdSkel, Vt
+
+    mesh = _write_mesh(stage, mesh_path, rig.rest_m, counts, indices)
     if not visible:
         mesh.CreateVisibilityAttr(UsdGeom.Tokens.invisible)
     if st is not None:
@@ -170,7 +215,6 @@ def write_skin_rig(
     jw = np.stack([1.0 - rig.jaw_weights, rig.jaw_weights], axis=1).reshape(-1)
     binding.CreateJointWeightsPrimvar(constant=False, elementSize=2).Set(_vt_float(jw))
     binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
-
     taken: set[str] = set()
     tokens, targets = [], []
     for name, delta in zip(rig.names, rig.deltas_m, strict=True):
@@ -183,13 +227,4 @@ def write_skin_rig(
         targets.append(shape.GetPath())
     binding.CreateBlendShapesAttr(Vt.TokenArray(tokens))
     binding.CreateBlendShapeTargetsRel().SetTargets(targets)
-    anim.CreateBlendShapesAttr(Vt.TokenArray(tokens))
-    w_attr = anim.CreateBlendShapeWeightsAttr()
-    for t, w in zip(times, weights, strict=True):
-        w_attr.Set(_vt_float(w), Usd.TimeCode(float(t)))
-
-    pts = rig_points(rig, weights, cranium_affines, jaw_affines)
-    shapes_only = rig.rest_m[None] + np.tensordot(weights, rig.deltas_m, axes=(1, 0))  # what validators compute
-    box = _extent(np.concatenate([pts.reshape(-1, 3), shapes_only.reshape(-1, 3), rig.rest_m]))
-    UsdGeom.ModelAPI.Apply(root.GetPrim()).SetExtentsHint(_vt_vec3f(box))
-    return pts
+    return tokens

@@ -94,6 +94,7 @@ def write_take(
     frames: np.ndarray | None = None,
     rig: SkinRig | None = None,
     rig_weights: np.ndarray | None = None,
+    rig_meshes: dict | None = None,
 ) -> Path:
     """Write a tracked or simulated take of a ``FaceModel`` as one USD stage.
 
@@ -132,6 +133,8 @@ def write_take(
         rig: blend shapes and jaw weights on the skin vertices.
         rig_weights: (F, B) weights of the rig's B shapes per frame; default ``activations`` (when
             the rig holds one shape per muscle).
+        rig_meshes: {prim name: (SkinRig, counts, indices)}: more meshes under ``Rig`` driven by the
+            same joints and weights (a render mesh: ``rig.carried(binding_weights, rest)``).
 
     Returns:
         The path written.
@@ -171,15 +174,17 @@ def write_take(
     if act is not None:
         _write_muscles(stage, f"{root}/Muscles", model.muscle_names, act, times)
     if rig is not None:
-        _write_rig(stage, f"{root}/Rig", rig, rw, affines, jaw_frame, skin_x, counts, indices, times, model, skin_nodes)
+        topo = (counts, indices, skin_nodes)
+        _write_rig(stage, f"{root}/Rig", rig, rw, affines, jaw_frame, skin_x, topo, times, model, rig_meshes)
     if basis is not None:
         _write_blendshapes(stage, f"{root}/Basis", basis, bw, counts, indices, times=times)
     stage.GetRootLayer().Save()
     return path
 
 
-def _write_rig(stage, prim_path, rig, weights, affines, jaw_frame, skin_x, counts, indices, times, model, skin_nodes):
+def _write_rig(stage, prim_path, rig, weights, affines, jaw_frame, skin_x, topo, times, model, rig_meshes):
     """The UsdSkel rig (``wface.io.usd.rig``) and its error against the point cache in the layer metadata."""
+    counts, indices, skin_nodes = topo
     n_frames = len(times)
     eye = np.tile(np.hstack([np.eye(3), np.zeros((3, 1))]), (n_frames, 1, 1))
     jaw_rel = affines.get("Jaw", eye)
@@ -196,6 +201,7 @@ def _write_rig(stage, prim_path, rig, weights, affines, jaw_frame, skin_x, count
         jaw_affines=jaw_rel,
         times=times,
         st=_cylindrical_st(model.rest_positions_m[skin_nodes]),
+        extra_meshes=rig_meshes,
     )
     err_mm = np.linalg.norm(pts - skin_x, axis=2) * 1e3
     info = {"rig_rms_error_mm": float(np.sqrt(np.mean(err_mm**2))), "rig_max_error_mm": float(err_mm.max())}
