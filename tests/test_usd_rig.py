@@ -48,7 +48,7 @@ def test_usd_skinning_equals_rig_points(tmp_path, face, rig):
     a[:, face.muscle_index("orbicularis_oris_lower")] = [0.2, 0.0, 0.7]
     take = _take(face, a, [0.0, 6.0, 12.0], [0.0, 4.0, -3.0])
     x = simulate_poses(face, take).x_m
-    path = write_take_usd(tmp_path / "t.usda", face, x, take=take)
+    path = write_take_usd(tmp_path / "t.usda", face, x, take=take, rig="all")
     stage = Usd.Stage.Open(str(path))
     cache = UsdSkel.Cache()
     cache.Populate(UsdSkel.Root(stage.GetPrimAtPath("/Face/Rig")), Usd.PrimDefaultPredicate)
@@ -140,3 +140,18 @@ def test_a_mesh_carried_by_the_skin_joins_the_rig(tmp_path, face, rig):
         assert cache.GetSkinningQuery(mesh).ComputeSkinnedPoints(skel_query.ComputeSkinningTransforms(code), pts, code)
         np.testing.assert_allclose(np.asarray(pts), expected[f], atol=5 * _F32_M)
     assert np.abs(expected[1] - expected[0]).max() > 1e-3  # the render mesh moves with the curves and the jaw
+
+
+def test_the_default_rig_holds_the_shapes_the_take_uses(tmp_path, face):
+    from pxr import Usd, UsdSkel
+
+    a = np.zeros((2, face.n_muscles))
+    a[1, face.muscle_index("mentalis_l")] = 0.4
+    take = _take(face, a, [0.0, 0.0], [0.0, 0.0])  # the jaw stays shut
+    x = np.repeat(face.rest_positions_m[None], 2, axis=0)
+    stage = Usd.Stage.Open(str(write_take_usd(tmp_path / "a.usda", face, x, take=take)))
+    anim = UsdSkel.Animation(stage.GetPrimAtPath("/Face/Rig/Skel/Anim"))
+    assert list(anim.GetBlendShapesAttr().Get()) == ["mentalis_l"]  # no jaw_open: the jaw does not move
+    assert list(anim.GetBlendShapeWeightsAttr().Get(6.0)) == pytest.approx([0.4])
+    still = write_take_usd(tmp_path / "b.usda", face, x, take=_take(face, np.zeros_like(a), [0.0, 0.0], [0.0, 0.0]))
+    assert not Usd.Stage.Open(str(still)).GetPrimAtPath("/Face/Rig")  # nothing moves: no rig

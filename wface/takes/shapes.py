@@ -23,7 +23,7 @@ driven by the weight theta / theta_max (so 0 at rest and 1 at theta_max, exact a
 
 ``skin_rig`` bundles all of it into the ``wface.io.usd.rig.SkinRig`` that ``write_take_usd``
 writes as UsdSkel blend shapes and joints; it is computed once per model object and kept while it
-lives.
+lives, one muscle at a time.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ __all__ = ["JAW_SHAPE", "jaw_corrective", "jaw_skin_weights", "muscle_shapes", "
 
 JAW_SHAPE = "jaw_open"  # name of the corrective shape, after the muscle shapes
 
-_RIGS: dict[int, tuple[weakref.ref, SkinRig]] = {}
+_RIGS: dict[int, tuple[weakref.ref, dict]] = {}  # id(model) -> (weak reference, solved shapes)
 
 
 def muscle_shapes(
@@ -116,24 +116,60 @@ def jaw_corrective(
     return np.linalg.solve(M, rhs[..., None])[..., 0] - p, float(theta_max)
 
 
-def skin_rig(model: FaceModel, *, simulator: Simulator | None = None, progress: bool = False) -> SkinRig:
-    """The ``SkinRig`` of a model: its muscle shapes and jaw weights (cached per model object)."""
+def skin_rig(
+    model: FaceModel,
+    *,
+    muscles: list[str] | None = None,
+    jaw: bool = True,
+    simulator: Simulator | None = None,
+    progress: bool = False,
+) -> SkinRig:
+    """The ``SkinRig`` of a model: its muscle shapes, then (with ``jaw``) the jaw weights and the
+    ``jaw_open`` corrective; without ``jaw`` the skin follows the cranium alone.
+
+    Each muscle's shape and the jaw's are solved once per model object and kept while it lives, so
+    a rig over other muscles of the same model costs only the muscles not yet solved.
+
+    Args:
+        model: the face.
+        muscles: the muscles to give shapes (default all, in the model's order).
+        jaw: add the jaw weights and corrective (two more solves).
+        simulator: a ``Simulator`` of ``model`` to reuse.
+        progress: show a progress bar over the muscles' solves.
+    """
+    names = list(model.muscle_names) if muscles is None else list(muscles)
     hit = _RIGS.get(id(model))
-    if hit is not None and hit[0]() is model:
-        return hit[1]
-    sim = simulator or Simulator(model)
-    skin_nodes, shapes = muscle_shapes(model, simulator=sim, progress=progress)
-    weights = jaw_skin_weights(model, simulator=sim)
-    corrective, theta_max = jaw_corrective(model, weights, simulator=sim)
-    rig = SkinRig(
+    if hit is None or hit[0]() is not model:
+        key = id(model)
+        hit = (weakref.ref(model, lambda _ref: _RIGS.pop(key, None)), {"shapes": {}})
+        _RIGS[key] = hit
+    cache = hit[1]
+    sim = simulator
+    todo = [n for n in names if n not in cache["shapes"]]
+    if todo:
+        sim = sim or Simulator(model)
+        _, shapes = muscle_shapes(model, muscles=todo, simulator=sim, progress=progress)
+        cache["shapes"].update(zip(todo, shapes, strict=True))
+    skin_nodes = np.unique(model.skin_triangles)
+    deltas = [cache["shapes"][n] for n in names]
+    weights = np.zeros(len(skin_nodes))
+    source = f"wface FEM face ({model.n_tets} tets): each muscle alone at activation 1"
+    info: dict = {}
+    if jaw:
+        if "jaw" not in cache:
+            sim = sim or Simulator(model)
+            w = jaw_skin_weights(model, simulator=sim)
+            cache["jaw"] = (w, *jaw_corrective(model, w, simulator=sim))
+        weights, corrective, theta_max = cache["jaw"]
+        deltas.append(corrective)
+        names = [*names, JAW_SHAPE]
+        source += f", jaw weights at 5 deg, '{JAW_SHAPE}' corrective at {theta_max:.3g} deg"
+        info["jaw_open_full_deg"] = theta_max
+    return SkinRig(
         rest_m=model.rest_positions_m[skin_nodes],
-        deltas_m=np.concatenate([shapes, corrective[None]]),
-        names=[*model.muscle_names, JAW_SHAPE],
+        deltas_m=np.stack(deltas) if deltas else np.zeros((0, len(skin_nodes), 3)),
+        names=names,
         jaw_weights=weights,
-        source=f"wface FEM face ({model.n_tets} tets): each muscle alone at activation 1, jaw weights at 5 deg, "
-        f"'{JAW_SHAPE}' corrective at {theta_max:.3g} deg",
-        info={"jaw_open_full_deg": theta_max},
+        source=source,
+        info=info,
     )
-    key = id(model)
-    _RIGS[key] = (weakref.ref(model, lambda _ref: _RIGS.pop(key, None)), rig)
-    return rig

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wface.controls import IDENTITY_AFFINE, bone_affines, jaw_to_intuitive
+from wface.controls import IDENTITY_AFFINE, bone_affines, jaw_to_intuitive, params_from_affine
 from wface.io.usd import write_mesh_animation, write_take
 from wface.mesh.surface import boundary_faces
 from wface.model import FaceModel
@@ -27,6 +27,8 @@ from wface.takes.shapes import skin_rig
 from wface.takes.take import Take
 
 __all__ = ["skin_mesh", "write_take_usd"]
+
+_ACTIVE = 1e-6  # a curve above this in some frame makes a muscle "used" by the take
 
 
 def skin_mesh(model: FaceModel) -> tuple[np.ndarray, np.ndarray]:
@@ -51,7 +53,7 @@ def write_take_usd(
     mesh_only: bool = False,
     bone_meshes: dict | None = None,
     name: str = "Face",
-    rig: bool = True,
+    rig: bool | str = "active",
     simulator=None,
     progress: bool = False,
 ) -> Path:
@@ -70,8 +72,10 @@ def write_take_usd(
         mesh_only: write the skin alone (``/<name>/Mesh``).
         bone_meshes: {name: BoneMesh} to draw instead of ``model.bone_meshes`` (``{}``: none).
         name: the root prim's name.
-        rig: also write the UsdSkel ``Rig`` (blend shapes from one quasistatic solve per muscle plus
-            one for the jaw weights, computed once per model object; ``wface.takes.shapes``).
+        rig: the UsdSkel ``Rig`` (``wface.takes.shapes``: one quasistatic solve per muscle shape, two
+            for the jaw, each once per model object): "active" (default) gives shapes to the muscles
+            the take uses (curve above 1e-6) and the jaw shapes when the jaw moves; "all" or True
+            to every muscle and the jaw; False writes no rig.
         simulator: a ``Simulator`` of ``model`` to reuse for the rig's solves.
         progress: show a progress bar over the rig's solves.
     """
@@ -85,8 +89,15 @@ def write_take_usd(
         raise ValueError("write_take_usd needs fps when no take is given")
     if take is None or mesh_only or not model.skin_triangles.size:
         nodes, tri = skin_mesh(model)
+        frames = None if take is None else take.frames
         return write_mesh_animation(
-            path, points_m=positions_m[:, nodes], face_vertex_counts=None, face_vertex_indices=tri, fps=rate, name=name
+            path,
+            points_m=positions_m[:, nodes],
+            face_vertex_counts=None,
+            face_vertex_indices=tri,
+            fps=rate,
+            name=name,
+            frames=frames,
         )
     T = take.n_frames
     if take.bones is not None:
@@ -97,15 +108,7 @@ def write_take_usd(
     if take.force_length_scale is not None:
         meta["force_length_scale"] = take.force_length_scale.max(axis=0).tolist()
     activations = np.minimum(take.drives, 1.0)
-    skel = skin_rig(model, simulator=simulator, progress=progress) if rig else None
-    rig_weights = None
-    if skel is not None:  # the muscle curves, then the jaw corrective: opening / the opening that makes it 1
-        opening = (
-            np.array([jaw_to_intuitive(model.jaw_joint, b[12:])["opening_deg"] for b in take.bones])
-            if (take.bones is not None)
-            else np.zeros(T)
-        )
-        rig_weights = np.column_stack([activations, np.clip(opening / skel.info["jaw_open_full_deg"], 0.0, 1.0)])
+    skel, rig_weights = _rig(model, take, activations, jaw, rig, simulator, progress)
     return write_take(
         path,
         frames=take.frames,
@@ -124,3 +127,24 @@ def write_take_usd(
         name=name,
         metadata=meta,
     )
+
+
+def _rig(model: FaceModel, take: Take, activations: np.ndarray, jaw: np.ndarray, rig, simulator, progress: bool):
+    """(the take's ``SkinRig`` or None, its (T, B) weights): muscle curves, then the jaw corrective's
+    opening / the opening that makes it 1."""
+    if rig is False:
+        return None, None
+    if rig not in (True, "all", "active"):
+        raise ValueError(f"rig must be 'active', 'all', True or False; got {rig!r}")
+    used = activations.max(axis=0) > _ACTIVE if rig == "active" else np.ones(model.n_muscles, dtype=bool)
+    jaw_moves = bool(np.abs(jaw - IDENTITY_AFFINE).max() > 1e-12) if rig == "active" else True
+    if not used.any() and not jaw_moves:
+        return None, None
+    names = [n for n, u in zip(model.muscle_names, used, strict=True) if u]
+    skel = skin_rig(model, muscles=names, jaw=jaw_moves, simulator=simulator, progress=progress)
+    columns = [activations[:, used]]
+    if jaw_moves:
+        params = (params_from_affine(j[:, :3], j[:, 3]) for j in jaw)
+        opening = np.array([jaw_to_intuitive(model.jaw_joint, p)["opening_deg"] for p in params])
+        columns.append(np.clip(opening / skel.info["jaw_open_full_deg"], 0.0, 1.0)[:, None])
+    return skel, np.concatenate(columns, axis=1)
