@@ -74,21 +74,33 @@ def test_take_content(tmp_path, face, take):
     assert act_pv.GetInterpolation() == "vertex" and len(act_pv.Get(0)) == node_id.size
     assert len(skin.GetDisplayColorPrimvar().GetAttr().GetTimeSamples()) == F
 
-    # Markers: one width per point; missing captured markers left out via ids; colours.
-    cap = UsdGeom.Points(stage.GetPrimAtPath("/Face/Markers/Captured"))
-    sim = UsdGeom.Points(stage.GetPrimAtPath("/Face/Markers/Simulated"))
-    assert tuple(cap.GetDisplayColorPrimvar().Get()[0]) == pytest.approx((0.9, 0.05, 0.05))
-    assert tuple(sim.GetDisplayColorPrimvar().Get()[0]) == pytest.approx((0.05, 0.8, 0.1))
-    for f in range(F):
-        ids = np.asarray(cap.GetIdsAttr().Get(f))
-        present = np.flatnonzero(np.all(np.isfinite(take["captured_markers_m"][f]), axis=1))
-        np.testing.assert_array_equal(ids, present)
-        assert len(cap.GetWidthsAttr().Get(f)) == len(cap.GetPointsAttr().Get(f)) == present.size
-        np.testing.assert_allclose(
-            np.asarray(cap.GetPointsAttr().Get(f)), take["captured_markers_m"][f, present], atol=_F32
-        )
-    assert any(len(cap.GetIdsAttr().Get(f)) < take["captured_markers_m"].shape[1] for f in range(F))
-    assert list(sim.GetPrim().GetAttribute("wface:markerNames").Get()) == face.marker_names
+    # Markers: one named locator each (translate op per frame, hidden while missing), coloured balls.
+    cap = stage.GetPrimAtPath("/Face/Markers/Captured")
+    sim = stage.GetPrimAtPath("/Face/Markers/Simulated")
+    m0 = face.marker_names[0]
+    ball = UsdGeom.Sphere(stage.GetPrimAtPath(f"/Face/Markers/Captured/{m0}/{m0}"))
+    assert tuple(ball.GetDisplayColorPrimvar().Get()[0]) == pytest.approx((0.9, 0.05, 0.05))
+    ball = UsdGeom.Sphere(stage.GetPrimAtPath(f"/Face/Markers/Simulated/{m0}_tracked/{m0}_tracked"))
+    assert tuple(ball.GetDisplayColorPrimvar().Get()[0]) == pytest.approx((0.05, 0.8, 0.1))
+    capm = take["captured_markers_m"]
+    hidden = 0
+    for k, name in enumerate(face.marker_names):
+        loc = stage.GetPrimAtPath(f"/Face/Markers/Captured/{name}")
+        assert loc.GetAttribute("wface:markerName").Get() == name
+        for f in range(F):
+            vis = UsdGeom.Imageable(loc).ComputeVisibility(Usd.TimeCode(f))
+            if np.all(np.isfinite(capm[f, k])):
+                assert vis == UsdGeom.Tokens.inherited
+                m = np.asarray(UsdGeom.Xformable(loc).GetLocalTransformation(Usd.TimeCode(f)))
+                np.testing.assert_allclose(m[3, :3], capm[f, k], atol=1e-12)
+            else:
+                assert vis == UsdGeom.Tokens.invisible
+                m = np.asarray(UsdGeom.Xformable(loc).GetLocalTransformation(Usd.TimeCode(f)))
+                np.testing.assert_array_equal(m[:3, :3], 0.0)  # scaled away for DCCs that ignore visibility
+                hidden += 1
+    assert hidden > 0  # the take has missing markers, so the test saw the hidden branch
+    assert list(sim.GetAttribute("wface:markerNames").Get()) == face.marker_names
+    assert list(cap.GetAttribute("wface:markerNames").Get()) == face.marker_names
 
     # Bones: the jaw Xform sits under the cranium's (its affines are relative, as wface.controls);
     # the composed world transform of each bone moves its attached nodes where the take has them.

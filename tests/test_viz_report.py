@@ -32,7 +32,8 @@ def test_report_embeds_images_and_tabulates_numbers(tmp_path):
         "marker_rms_mm_mean": 0.6,
         "muscle_identifiability": {"zygomatic<L>": 0.93, "frontalis": 0.12},
         "solver": {"name": "gn", "steps": 3},
-        "nested": {"a": {"b": 1}},
+        "nested": {"a": {"b": {"c": 1}}},
+        "per_marker": {"Chin": {"seen": 3, "rms_mm": 0.25}, "Nose": {"seen": 2, "rms_mm": None}},
     }
     out = write_html_report(tmp_path / "out", report, {"activations": a, "marker error": "../b.png"})
     text = out.read_text()
@@ -44,7 +45,10 @@ def test_report_embeds_images_and_tabulates_numbers(tmp_path):
         assert key in text
     assert "zygomatic&lt;L&gt;" in text and "0.93" in text  # names escaped, numbers shown
     assert "<h2>solver</h2>" in text and "<td>gn</td>" in text  # a dict of scalars: its own table
-    assert "<code>{&quot;a&quot;: {&quot;b&quot;: 1}}</code>" in text  # deeper: JSON
+    assert "<code>{&quot;a&quot;: {&quot;b&quot;: {&quot;c&quot;: 1}}}</code>" in text  # deeper: JSON
+    # records with the same keys: one table, a column per key
+    assert "<h2>per_marker</h2><table><tr><th>name</th><th>seen</th><th>rms_mm</th></tr>" in text
+    assert '<tr><td>Chin</td><td class="num">3</td><td class="num">0.25</td></tr>' in text
     assert "n=4, mean 0.6" in text  # per-frame list summarised over finite values
     assert "<svg" in text
     assert re.search(r'class="card"><div class="v">0.6 mm</div><div class="k">marker RMS', text)

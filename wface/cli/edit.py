@@ -11,10 +11,10 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 
+from wface.cli.closing import print_outputs
 from wface.cli.validate import finite_float, non_negative_int, positive_float, positive_int
 from wface.faces.builtin import build_face
 from wface.model import load_model
@@ -194,6 +194,7 @@ def _load(args, model):
 
 
 def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> int:
+    started = time.time()
 
     claim_take_dir(args.out, command_provenance(f"edit {args.edit_command}", model, args), overwrite=args.overwrite)
     t0 = time.perf_counter()
@@ -217,7 +218,7 @@ def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> i
         f"activations in [{report['activation_min']:.3g}, {report['activation_max']:.3g}], force-length scale "
         f"<= {report['force_length_scale_max']:.3g}, {report['seconds_per_frame_median']:.2f} s/frame"
     )
-    print(f"wrote {Path(args.out) / report['usd']} and {Path(args.out) / 'report.json'}")
+    print_outputs(args.out, since=started)
     return 0 if report["converged"] else 3
 
 

@@ -7,6 +7,7 @@ import json
 import time
 from pathlib import Path
 
+from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.simulate import parse_activations
 from wface.cli.validate import non_negative_float, non_negative_int, positive_float, positive_int
@@ -178,6 +179,7 @@ def _head_shake(text: str | None):
 def _run(args: argparse.Namespace) -> int:
     quiet_warp()
     start = time.perf_counter()
+    started = time.time()
     damping = parse_damping(args.damping)
     if args.substeps < 1:
         raise ValueError(f"--substeps must be >= 1, got {args.substeps}")
@@ -277,5 +279,5 @@ def _run(args: argparse.Namespace) -> int:
     print(line)
     if not report["converged"]:
         print("warning: some steps did not reach --tol (see residual_rel in report.json)")
-    print(f"wrote {out / 'report.json'}")
+    print_outputs(out, since=started)
     return 0

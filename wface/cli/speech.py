@@ -12,6 +12,7 @@ import argparse
 import time
 from pathlib import Path
 
+from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.validate import non_negative_float, positive_float, positive_int
 from wface.faces.artisynth import import_artisynth
@@ -195,6 +196,7 @@ def _speech_contact(args, model):
 
 
 def run_speech(args: argparse.Namespace) -> int:
+    started = time.time()
 
     out = Path(args.out)
     t_start = time.perf_counter()
@@ -322,5 +324,5 @@ def run_speech(args: argparse.Namespace) -> int:
             f"lip gap min {report['lip_gap_mm_min']:+.3f} mm, max penetration "
             f"{report['max_penetration_mm_max']:.3f} mm (contact: {args.contact or 'none'})"
         )
-    print(f"wrote {out / 'report.json'}")
+    print_outputs(out, since=started)
     return 0

@@ -2,7 +2,8 @@
 
 Both write into --out: report.json (the keys in the README), controls.npz / controls.csv
 (per-frame activations, bone parameters, jaw pose), frames/ (one file per tracked frame, so an
-interrupted run resumes with --resume), animation.usdc, pictures, plots, a movie and report.html.
+interrupted run resumes with --resume), animation.usdc (unless --no-usd), pictures, plots and a
+movie (unless --no-pictures / --no-movie) and report.html; the closing lines list every file.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import time
 import warnings
 from pathlib import Path
 
+from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.validate import (
     frame_range,
@@ -61,6 +63,8 @@ examples:
   wface track --mocap take.c3d --out run1                      # on the built-in face (5000 tets)
   wface track --model face.npz --mocap take.c3d --out run1 --frames 0:300
   wface track --mocap take.trc --out run1 --workers 4 --resume
+  wface track --mocap nexus_export.csv --out run1 --frames 100:400 --neutral-frame 0   # Vicon / Motive CSV
+  wface track --mocap take.c3d --out run1 --no-pictures          # numbers and animation.usdc only
   wface track --mocap take.c3d --out run1 --scheduler tcp://10.0.0.5:8786
 """
 
@@ -102,7 +106,10 @@ def _common(p: argparse.ArgumentParser) -> None:
         "--temporal-weight", type=non_negative_float, default=0.0, help="pull of activations toward the previous frame"
     )
     p.add_argument("--no-movie", action="store_true", help="skip the mp4 movie")
-    p.add_argument("--no-pictures", action="store_true", help="skip pictures, plots, movie and HTML")
+    p.add_argument(
+        "--no-pictures", action="store_true", help="skip pictures, plots and movie (report.html keeps the numbers)"
+    )
+    p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
     add_contact_arguments(
         p, smoothing_mm=0.05, obstacles=False, where="every equilibrium and Jacobian (for demo also the ground truth)"
     )
@@ -226,8 +233,9 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         rig_info=info,
         identifiability_mm=rig_identifiability_mm(rig, markers),
         truth=truth,
+        robust_mm=args.robust_mm or None,
     )
-    write_tracking_outputs(
+    written = write_tracking_outputs(
         out,
         model,
         records,
@@ -235,9 +243,12 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         fps=fps,
         report=report,
         truth=truth,
+        usd=not args.no_usd,
         pictures=not args.no_pictures,
         movie=not args.no_movie,
         title=f"wface {args.command}",
+        marker_names=list(marker_names),
+        progress=True,
     )
     keys = (
         "marker_rms_mm_mean",
@@ -254,7 +265,7 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
             stacklevel=1,
         )
     print("  ".join(f"{k}={report[k]:.4g}" for k in keys if report.get(k) is not None))
-    print(f"wrote {out / 'report.json'}")
+    print_outputs(out, written)
     return 0
 
 
@@ -295,6 +306,8 @@ def run_demo(args: argparse.Namespace) -> int:
 def run_track(args: argparse.Namespace) -> int:
     take = read_mocap(args.mocap)  # a bad file fails before the face is built
     model = load_model(args.model) if args.model else build_face(args.tets, progress=True)
+    for note in take.meta.get("notices", []):
+        print(f"note: {note}")
     neutral = args.neutral_frame
     if neutral is not None and not 0 <= neutral < take.n_frames:
         raise ValueError(f"--neutral-frame {neutral} is outside {args.mocap}'s {take.n_frames} frames")

@@ -4,9 +4,16 @@ Everything is held in metres: each reader converts from the file's declared unit
 m). Gaps are NaN. In C3D a point is invalid when its residual is negative or all three
 coordinates are exactly zero (the usual "not seen" convention of capture systems).
 
-CSV layout (written and read here): optional comment lines ``# key: value`` (``units``,
-``rate_hz``), then a header ``frame,time_s,<marker>_x,<marker>_y,<marker>_z,...`` and one row per
-frame; an empty cell is a gap. ``frame`` and ``time_s`` columns are optional on read.
+CSV layout (written and read here): comment lines ``# key: value`` (``units``, required unless
+given to ``read_csv``; ``rate_hz``), then a header ``frame,time_s,<marker>_x,<marker>_y,<marker>_z,...``
+and one row per frame; an empty cell is a gap. ``frame`` and ``time_s`` columns are optional on
+read. ``read_csv`` also reads the CSV exports of Vicon Nexus and OptiTrack Motive
+(``wface.io.mocap_vendor``), recognised by their first line.
+
+Units are read from the file (C3D ``POINT:UNITS``, TRC ``Units``, the CSV units line or row) and
+a file whose units are missing or unknown is refused, never guessed. Subject-prefixed labels
+(``Face:Chin``, as Vicon and Motive write them) lose their prefix when one subject's markers are
+read, with a notice in ``take.meta["notices"]`` (``strip_subject_prefix``).
 """
 
 from __future__ import annotations
@@ -19,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.io.mocap_vendor import is_motive, is_vicon, parse_motive, parse_vicon
+
 __all__ = [
     "MocapTake",
     "UNITS_TO_M",
@@ -26,6 +35,7 @@ __all__ = [
     "read_csv",
     "read_mocap",
     "read_trc",
+    "strip_subject_prefix",
     "write_c3d",
     "write_csv",
     "write_mocap",
@@ -34,13 +44,57 @@ __all__ = [
 
 #: Length unit name -> metres.
 UNITS_TO_M: dict[str, float] = {"mm": 1e-3, "cm": 1e-2, "dm": 1e-1, "m": 1.0}
+_UNIT_ALIASES = {
+    "millimeters": "mm",
+    "millimetres": "mm",
+    "centimeters": "cm",
+    "centimetres": "cm",
+    "decimeters": "dm",
+    "decimetres": "dm",
+    "meters": "m",
+    "metres": "m",
+}
+FORMATS_READ = (
+    "C3D (.c3d), TRC (.trc), and CSV (.csv): the wface layout ('# units: mm' line, then "
+    "<marker>_x,<marker>_y,<marker>_z columns), a Vicon Nexus trajectories export or an OptiTrack Motive export"
+)
 
 
 def _unit_scale(units: str, path: Path | str) -> float:
     key = str(units).strip().lower()
+    key = _UNIT_ALIASES.get(key, key)
     if key not in UNITS_TO_M:
-        raise ValueError(f"{path}: unknown length units {units!r} (known: {', '.join(UNITS_TO_M)})")
+        known = ", ".join([*UNITS_TO_M, *_UNIT_ALIASES])
+        raise ValueError(f"{path}: unknown length units {units!r} (known: {known})")
     return UNITS_TO_M[key]
+
+
+def strip_subject_prefix(names: list[str]) -> tuple[list[str], str | None]:
+    """(names without a shared ``Subject:`` prefix, a notice or None).
+
+    The prefix goes only when every prefixed name has the same subject and the stripped names stay
+    unique; with several subjects the names keep their prefixes (and the notice says so).
+    """
+    prefixed = [n for n in names if ":" in n]
+    if not prefixed:
+        return list(names), None
+    subjects = sorted({n.split(":", 1)[0] for n in prefixed})
+    if len(subjects) > 1:
+        return list(names), f"markers of {len(subjects)} subjects ({', '.join(subjects)}): names keep their prefixes"
+    stripped = [n.split(":", 1)[1] if ":" in n else n for n in names]
+    if len(set(stripped)) != len(stripped):
+        return list(names), f"subject prefix '{subjects[0]}:' kept: without it marker names would repeat"
+    return stripped, f"stripped the subject prefix '{subjects[0]}:' from {len(prefixed)} marker names"
+
+
+def _named(take: MocapTake) -> MocapTake:
+    """The take with subject prefixes stripped (``strip_subject_prefix``), the notice in meta."""
+    names, note = strip_subject_prefix(take.marker_names)
+    if note is None:
+        return take
+    take.marker_names = names
+    take.meta.setdefault("notices", []).append(note)
+    return take
 
 
 @dataclass
@@ -175,7 +229,9 @@ def read_c3d(path: str | Path) -> MocapTake:
     names = names[: pts.shape[1]]
     if len(names) < pts.shape[1]:
         names += [f"marker_{i}" for i in range(len(names), pts.shape[1])]
-    units = params["UNITS"]["value"][0] if params.get("UNITS", {}).get("value") else "mm"
+    if not params.get("UNITS", {}).get("value"):
+        raise ValueError(f"{path}: C3D file has no POINT:UNITS parameter, so its length unit is unknown")
+    units = params["UNITS"]["value"][0]
     scale = _unit_scale(units, path)
     rate = float(params["RATE"]["value"][0])
     xyz = pts[:3].transpose(2, 1, 0).copy()
@@ -184,7 +240,8 @@ def read_c3d(path: str | Path) -> MocapTake:
     if res is not None and np.size(res):
         invalid |= np.asarray(res, dtype=np.float64)[0].T < 0
     xyz[invalid] = np.nan
-    return MocapTake(xyz * scale, names, rate, str(path), int(c["header"]["points"]["first_frame"]), {"units": units})
+    first = int(c["header"]["points"]["first_frame"])
+    return _named(MocapTake(xyz * scale, names, rate, str(path), first, {"units": units, "format": "c3d"}))
 
 
 def _check_c3d_size(c, path: Path) -> None:
@@ -280,7 +337,8 @@ def read_trc(path: str | Path) -> MocapTake:
                     data[i, j] = float(cell)
                 except ValueError:
                     raise ValueError(f"{path}: TRC data row {i + 1}, column {j + 3}: not a number: {cell!r}") from None
-    return MocapTake(data.reshape(n_frames, n_markers, 3) * scale, names, rate, str(path), 0, {"units": units})
+    take = MocapTake(data.reshape(n_frames, n_markers, 3) * scale, names, rate, str(path), 0, {"units": units})
+    return _named(take)
 
 
 def write_trc(take: MocapTake, path: str | Path, *, units: str = "mm") -> None:
@@ -307,18 +365,33 @@ def write_trc(take: MocapTake, path: str | Path, *, units: str = "mm") -> None:
 
 
 def read_csv(path: str | Path, *, units: str | None = None, rate_hz: float | None = None) -> MocapTake:
-    """Read the CSV layout described in the module docstring.
+    """Read a CSV take: the wface layout, a Vicon Nexus or an OptiTrack Motive export (module docstring).
 
     Args:
         path: file.
-        units: length units when the file has no ``# units:`` line (default mm).
+        units: length units of a wface-layout file without a ``# units:`` line (no default: a
+            file whose units are unknown is refused).
         rate_hz: frame rate when the file has no ``# rate_hz:`` line and no ``time_s`` column.
+
+    Raises:
+        ValueError: a layout none of the readers knows (the message names the formats read), unknown
+            or missing units, a broken row.
     """
     path = Path(path)
     _check_file(path)
-    meta: dict[str, str] = {}
-    with path.open(newline="") as fh:
+    with path.open(newline="", errors="replace") as fh:
         lines = fh.read().splitlines()
+    for sniff, parse in ((is_vicon, parse_vicon), (is_motive, parse_motive)):
+        if sniff(lines):
+            xyz, names, rate, unit, meta = parse(lines, str(path))
+            scale = _unit_scale(unit, path)
+            return _named(MocapTake(xyz * scale, names, rate, str(path), 0, {"units": unit, **meta}))
+    return _named(_read_wface_csv(path, lines, units=units, rate_hz=rate_hz))
+
+
+def _read_wface_csv(path: Path, lines: list[str], *, units: str | None, rate_hz: float | None) -> MocapTake:
+    """The wface CSV layout (module docstring)."""
+    meta: dict[str, str] = {}
     body = []
     for ln in lines:
         if ln.startswith("#"):
@@ -334,15 +407,20 @@ def read_csv(path: str | Path, *, units: str | None = None, rate_hz: float | Non
     skip = [i for i, h in enumerate(header) if h.lower() in ("frame", "time_s", "time")]
     coords = [i for i in range(len(header)) if i not in skip]
     if not coords:
-        raise ValueError(f"{path}: CSV has no marker columns (expected <name>_x,<name>_y,<name>_z)")
+        raise ValueError(
+            f"{path}: CSV has no marker columns (expected <name>_x,<name>_y,<name>_z). Read: {FORMATS_READ}"
+        )
     if len(coords) % 3:
-        raise ValueError(f"{path}: CSV has {len(coords)} coordinate columns, not a multiple of 3")
+        raise ValueError(
+            f"{path}: CSV has {len(coords)} coordinate columns, not a multiple of 3: not a layout wface reads. "
+            f"Read: {FORMATS_READ}"
+        )
     names = []
     for a in range(0, len(coords), 3):
         trip = [header[coords[a + j]] for j in range(3)]
         base = [t[:-2] for t in trip]
         if [t[-2:].lower() for t in trip] != ["_x", "_y", "_z"] or len(set(base)) != 1:
-            raise ValueError(f"{path}: CSV columns {trip} are not <name>_x,<name>_y,<name>_z")
+            raise ValueError(f"{path}: CSV columns {trip} are not <name>_x,<name>_y,<name>_z. Read: {FORMATS_READ}")
         names.append(base[0])
     data = np.full((len(rows) - 1, len(coords)), np.nan)
     if len(rows) < 2:
@@ -357,7 +435,12 @@ def read_csv(path: str | Path, *, units: str | None = None, rate_hz: float | Non
                     data[i, j] = float(cell)
                 except ValueError:
                     raise ValueError(f"{path}: CSV row {i + 2}, column {header[c]!r}: not a number: {cell!r}") from None
-    unit = meta.get("units", units or "mm")
+    unit = meta.get("units", units)
+    if unit is None:
+        raise ValueError(
+            f"{path}: CSV gives no length units: add a line '# units: mm' (or cm, m) before the header, "
+            "or pass units= to read_csv"
+        )
     scale = _unit_scale(unit, path)
     rate = meta.get("rate_hz")
     if rate is not None:
@@ -393,11 +476,11 @@ _WRITERS = {".c3d": write_c3d, ".trc": write_trc, ".csv": write_csv}
 
 
 def read_mocap(path: str | Path) -> MocapTake:
-    """Read a C3D, TRC or CSV take, chosen by the file suffix."""
+    """Read a C3D, TRC or CSV take (``FORMATS_READ``), chosen by the file suffix."""
     path = Path(path)
     reader = _READERS.get(path.suffix.lower())
     if reader is None:
-        raise ValueError(f"{path}: unknown motion-capture format {path.suffix!r} (use .c3d, .trc or .csv)")
+        raise ValueError(f"{path}: unknown motion-capture format {path.suffix!r}. Read: {FORMATS_READ}")
     return reader(path)
 
 

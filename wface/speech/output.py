@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.files import save_layer
 from wface.model import FaceModel
 from wface.speech.aperture import ApertureResult, ApertureView, aperture_area
 from wface.speech.playback import GestureResult
@@ -125,7 +126,7 @@ def _area_samples(path: Path, area_mm2: np.ndarray) -> None:
     attr.SetDocumentation("mouth aperture in an orthographic view, mm^2 (wface.speech.aperture)")
     for f, v in enumerate(area_mm2):
         attr.Set(float(v), Usd.TimeCode(f))
-    stage.GetRootLayer().Save()
+    save_layer(stage.GetRootLayer(), path)  # atomic: a temporary file renamed into place
 
 
 def write_aperture_picture(

@@ -1,13 +1,16 @@
 """The one place that writes a take as USD: tracked, edited, re-simulated and spoken takes alike.
 
 ``write_take_usd`` turns a ``wface.takes.take.Take`` and its simulated node positions into the
-stage layout of ``wface.io.usd.write_take`` (``/<name>/Skin`` with model node ids,
-``Bones/Cranium`` and ``Bones/Cranium/Jaw`` from the take's bones, the ``Muscles`` activation
-curves, markers when given), so ``wface.io.usd.read_take`` reads every command's stage back and the
-tracked, edited and dynamic stages of one performance line up prim for prim. Activation curves are
-min(drive, 1) per muscle (drive = activation x force-length scale); a take with force-length scales
-also stores them in the layer metadata. ``mesh_only`` (or a model without skin triangles) writes the
-skin alone as ``/<name>/Mesh`` (``write_mesh_animation``).
+stage layout of ``wface.io.usd.write_take`` (``/<name>/Skin``: the exact point cache with model node
+ids, ``Bones/Cranium`` and ``Bones/Cranium/Jaw`` from the take's bones, the ``Muscles`` activation
+curves, named marker locators when given, and the ``Rig``: the skin as UsdSkel blend shapes, one
+per muscle from the FEM face itself (``wface.takes.shapes``), with cranium and jaw joints, driven by
+the activation curves), so ``wface.io.usd.read_take`` reads every command's stage back and the
+tracked, edited and dynamic stages of one performance line up prim for prim. Time codes are the
+take's frame numbers (the capture's for a tracked take). Activation curves are min(drive, 1) per
+muscle (drive = activation x force-length scale); a take with force-length scales also stores them
+in the layer metadata. ``mesh_only`` (or a model without skin triangles) writes the skin alone as
+``/<name>/Mesh`` (``write_mesh_animation``).
 """
 
 from __future__ import annotations
@@ -16,13 +19,16 @@ from pathlib import Path
 
 import numpy as np
 
-from wface.controls import IDENTITY_AFFINE, bone_affines
+from wface.controls import IDENTITY_AFFINE, bone_affines, jaw_to_intuitive, params_from_affine
 from wface.io.usd import write_mesh_animation, write_take
 from wface.mesh.surface import boundary_faces
 from wface.model import FaceModel
+from wface.takes.shapes import skin_rig
 from wface.takes.take import Take
 
 __all__ = ["skin_mesh", "write_take_usd"]
+
+_ACTIVE = 1e-6  # a curve above this in some frame makes a muscle "used" by the take
 
 
 def skin_mesh(model: FaceModel) -> tuple[np.ndarray, np.ndarray]:
@@ -47,6 +53,9 @@ def write_take_usd(
     mesh_only: bool = False,
     bone_meshes: dict | None = None,
     name: str = "Face",
+    rig: bool | str = "active",
+    simulator=None,
+    progress: bool = False,
 ) -> Path:
     """Write a take's frames as one USD stage (module docstring); time code f = frame f.
 
@@ -62,6 +71,13 @@ def write_take_usd(
             ``source``).
         mesh_only: write the skin alone (``/<name>/Mesh``).
         bone_meshes: {name: BoneMesh} to draw instead of ``model.bone_meshes`` (``{}``: none).
+        name: the root prim's name.
+        rig: the UsdSkel ``Rig`` (``wface.takes.shapes``: one quasistatic solve per muscle shape, two
+            for the jaw, each once per model object): "active" (default) gives shapes to the muscles
+            the take uses (curve above 1e-6) and the jaw shapes when the jaw moves; "all" or True
+            to every muscle and the jaw; False writes no rig.
+        simulator: a ``Simulator`` of ``model`` to reuse for the rig's solves.
+        progress: show a progress bar over the rig's solves.
     """
     positions_m = np.asarray(positions_m)
     if positions_m.ndim != 3 or positions_m.shape[1:] != (model.n_nodes, 3):
@@ -73,8 +89,15 @@ def write_take_usd(
         raise ValueError("write_take_usd needs fps when no take is given")
     if take is None or mesh_only or not model.skin_triangles.size:
         nodes, tri = skin_mesh(model)
+        frames = None if take is None else take.frames
         return write_mesh_animation(
-            path, points_m=positions_m[:, nodes], face_vertex_counts=None, face_vertex_indices=tri, fps=rate, name=name
+            path,
+            points_m=positions_m[:, nodes],
+            face_vertex_counts=None,
+            face_vertex_indices=tri,
+            fps=rate,
+            name=name,
+            frames=frames,
         )
     T = take.n_frames
     if take.bones is not None:
@@ -84,8 +107,13 @@ def write_take_usd(
     meta = {"source": take.source, **(metadata or {})}
     if take.force_length_scale is not None:
         meta["force_length_scale"] = take.force_length_scale.max(axis=0).tolist()
+    activations = np.minimum(take.drives, 1.0)
+    skel, rig_weights = _rig(model, take, activations, jaw, rig, simulator, progress)
     return write_take(
         path,
+        frames=take.frames,
+        rig=skel,
+        rig_weights=rig_weights,
         model=model,
         node_positions_m=positions_m,
         fps=rate,
@@ -94,8 +122,29 @@ def write_take_usd(
         marker_names=marker_names,
         cranium_affines=cranium,
         jaw_affines=jaw,
-        activations=np.minimum(take.drives, 1.0),
+        activations=activations,
         bone_meshes=bone_meshes,
         name=name,
         metadata=meta,
     )
+
+
+def _rig(model: FaceModel, take: Take, activations: np.ndarray, jaw: np.ndarray, rig, simulator, progress: bool):
+    """(the take's ``SkinRig`` or None, its (T, B) weights): muscle curves, then the jaw corrective's
+    opening / the opening that makes it 1."""
+    if rig is False:
+        return None, None
+    if rig not in (True, "all", "active"):
+        raise ValueError(f"rig must be 'active', 'all', True or False; got {rig!r}")
+    used = activations.max(axis=0) > _ACTIVE if rig == "active" else np.ones(model.n_muscles, dtype=bool)
+    jaw_moves = bool(np.abs(jaw - IDENTITY_AFFINE).max() > 1e-12) if rig == "active" else True
+    if not used.any() and not jaw_moves:
+        return None, None
+    names = [n for n, u in zip(model.muscle_names, used, strict=True) if u]
+    skel = skin_rig(model, muscles=names, jaw=jaw_moves, simulator=simulator, progress=progress)
+    columns = [activations[:, used]]
+    if jaw_moves:
+        params = (params_from_affine(j[:, :3], j[:, 3]) for j in jaw)
+        opening = np.array([jaw_to_intuitive(model.jaw_joint, p)["opening_deg"] for p in params])
+        columns.append(np.clip(opening / skel.info["jaw_open_full_deg"], 0.0, 1.0)[:, None])
+    return skel, np.concatenate(columns, axis=1)

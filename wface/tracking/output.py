@@ -1,11 +1,17 @@
 """The files of a tracked take: controls and report (``wface.takes.store``), the USD stage
-(``wface.takes.usd``), pictures, plots, a movie and the HTML report (``wface.viz``)."""
+(``wface.takes.usd``), pictures, plots, a movie and the HTML report (``wface.viz``).
+
+The USD stage is written unless ``usd=False``; ``pictures=False`` / ``movie=False`` skip the
+pictures and plots / the movie only, and report.html is always written (with whatever pictures
+there are) together with the list of every file and what opens it (``OUTPUT_TOOLS``).
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from wface.controls import bone_affines
 from wface.model import FaceModel
@@ -14,7 +20,40 @@ from wface.takes.usd import write_take_usd
 from wface.viz.figures import write_take_figures
 from wface.viz.report import write_html_report
 
-__all__ = ["write_tracking_outputs"]
+__all__ = ["OUTPUT_TOOLS", "describe_outputs", "write_tracking_outputs"]
+
+#: suffix or file name -> (what it is, what opens it)
+OUTPUT_TOOLS = {
+    "animation.usdc": (
+        "the take as USD: exact skin point cache, UsdSkel rig (one blend shape per muscle, cranium and jaw "
+        "joints), named marker locators, bones",
+        "Blender (File > Import > USD), Maya, Houdini, usdview",
+    ),
+    "controls.npz": ("activations, bone parameters, jaw pose per frame", "numpy; wface edit / resim --take"),
+    "controls.csv": ("the same per frame, one column per muscle", "a spreadsheet, pandas, DCC scripts"),
+    "report.json": ("every number of the run", "any text editor, jq, Python json"),
+    "report.html": ("this report, pictures embedded", "a web browser"),
+    "truth.npz": ("the synthetic take's ground truth", "numpy"),
+    "resim.npz": ("the dynamic replay: positions and per-frame stats", "numpy; wface.takes.store"),
+    ".usdc": ("USD stage", "Blender (File > Import > USD), Maya, Houdini, usdview"),
+    ".usda": ("USD stage (text)", "Blender (File > Import > USD), Maya, Houdini, usdview, a text editor"),
+    ".obj": ("mesh (units in its first line)", "Blender, Maya, Houdini, MeshLab"),
+    ".png": ("picture or plot", "any image viewer"),
+    ".mp4": ("movie of the take", "a video player, a browser"),
+    ".csv": ("table", "a spreadsheet, pandas"),
+    ".json": ("numbers of the run", "any text editor, jq, Python json"),
+    ".npz": ("arrays", "numpy"),
+}
+
+
+def describe_outputs(paths) -> list[dict]:
+    """[{"file", "what", "opens_in"}] of the files written (names relative to their take directory)."""
+    rows = []
+    for p in paths:
+        p = Path(p)
+        what, tool = OUTPUT_TOOLS.get(p.name) or OUTPUT_TOOLS.get(p.suffix.lower(), ("", ""))
+        rows.append({"file": p.name, "what": what, "opens_in": tool})
+    return rows
 
 
 def write_tracking_outputs(
@@ -26,12 +65,15 @@ def write_tracking_outputs(
     fps: float,
     report: dict,
     truth=None,
+    usd: bool = True,
     pictures: bool = True,
     movie: bool = True,
     title: str = "wface track",
+    marker_names: list[str] | None = None,
+    progress: bool = False,
 ) -> list[Path]:
-    """Write controls.npz / .csv and report.json, and with ``pictures`` animation.usdc, the figures,
-    the movie (``movie``) and report.html. Returns the paths written.
+    """Write controls.npz / .csv, report.json, animation.usdc (``usd``), pictures and plots
+    (``pictures``), the movie (``pictures and movie``) and report.html. Returns every path written.
 
     Args:
         out_dir: the take directory.
@@ -41,23 +83,56 @@ def write_tracking_outputs(
         fps: the capture rate.
         report: the report (``wface.tracking.report.build_report``).
         truth: a ``wface.tracking.synthetic.SyntheticPerformance`` (its curves join the plots).
+        usd: write animation.usdc (the take's frame numbers as time codes).
+        pictures / movie: write the pictures and plots / the movie.
+        title: the HTML report's title.
+        marker_names: the k captured markers' names (locators in the USD stage).
+        progress: show a progress bar over the stages (USD, pictures, movie, report).
     """
     out = Path(out_dir)
     take = take_from_records(model, records, fps=fps)
     written = list(write_controls(out, model, take))
     written.append(write_report(out, report))
-    if not pictures:
-        return written
+    if (out / "truth.npz").exists():
+        written.append(out / "truth.npz")
     X = np.array([r.x_m for r in records])
     simulated = np.array([r.markers_m for r in records])
-    written.append(
-        write_take_usd(out / USD, model, X, take=take, captured_markers_m=targets_m, simulated_markers_m=simulated)
-    )
+    stages = [s for s, on in (("USD", usd), ("pictures", pictures), ("movie", pictures and movie)) if on]
+    bar = tqdm(total=len(stages) + 1, desc="outputs", unit="step", disable=not progress)
+    images: dict = {}
+    try:
+        if usd:
+            bar.set_postfix_str("animation.usdc (rig: one solve per muscle)")
+            written.append(
+                write_take_usd(
+                    out / USD,
+                    model,
+                    X,
+                    take=take,
+                    captured_markers_m=targets_m,
+                    simulated_markers_m=simulated,
+                    marker_names=marker_names,
+                )
+            )
+            bar.update()
+        if pictures:
+            images = _figures(out, model, records, X, simulated, targets_m, fps, truth, movie, bar)
+            written.extend(Path(p) for p in images.values())
+        bar.set_postfix_str("report.html")
+        files = describe_outputs([*written, out / "report.html"])
+        written.append(write_html_report(out, report, images, title=title, outputs=files))
+        bar.update()
+    finally:
+        bar.close()
+    return written
+
+
+def _figures(out, model, records, X, simulated, targets_m, fps, truth, movie: bool, bar) -> dict:
+    """Pictures and plots, then the movie (``wface.viz.figures``), one progress step each."""
     M = model.n_muscles
     C = np.array([r.controls for r in records])
     cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(c[M:]) for c in C), strict=True))
-    images = write_take_figures(
-        out,
+    common = dict(
         model=model,
         node_positions_m=X,
         fps=fps,
@@ -68,7 +143,13 @@ def write_tracking_outputs(
         jaw_affines=jaw,
         truth_activations=None if truth is None else truth.activations,
         truth_jaw_angle_deg=None if truth is None else truth.jaw_opening_deg,
-        movie=movie,
+        first_frame=int(records[0].frame) if records else 0,
     )
-    written.append(write_html_report(out, report, images, title=title))
-    return written
+    bar.set_postfix_str("pictures and plots")
+    images = write_take_figures(out, **common, movie=False)
+    bar.update()
+    if movie:
+        bar.set_postfix_str("take.mp4")
+        images.update(write_take_figures(out, **common, movie=True, stills=False, progress=not bar.disable))
+        bar.update()
+    return images

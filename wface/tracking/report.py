@@ -20,14 +20,54 @@ def _per_marker_rms_mm(err_mm: np.ndarray, marker_names) -> dict:
     return {n: (float(r) if c else None) for n, r, c in zip(marker_names, rms, count, strict=True)}
 
 
+def _marker_stats(err_mm: np.ndarray, marker_names, robust_mm: float | None) -> tuple[dict, dict]:
+    """({marker: seen, missing, outliers, rms_mm (inliers), max_mm}, totals) of the (F, k) errors.
+
+    A sample is an outlier when its error exceeds ``robust_mm``, the Tukey cut-off the tracker ends
+    with (such a marker pulls on the fit with weight 0); without ``robust_mm`` none is.
+    """
+    seen = np.isfinite(err_mm)
+    outlier = seen & (err_mm > robust_mm) if robust_mm else np.zeros_like(seen)
+    inlier = seen & ~outlier
+    stats = {}
+    for j, name in enumerate(marker_names):
+        e_in = err_mm[inlier[:, j], j]
+        e_seen = err_mm[seen[:, j], j]
+        stats[str(name)] = {
+            "seen": int(seen[:, j].sum()),
+            "missing": int((~seen[:, j]).sum()),
+            "outliers": int(outlier[:, j].sum()),
+            "rms_mm": float(np.sqrt(np.mean(e_in**2))) if e_in.size else None,
+            "max_mm": float(e_seen.max()) if e_seen.size else None,
+        }
+    e_in = err_mm[inlier]
+    totals = {
+        "marker_rms_mm_inliers": float(np.sqrt(np.mean(e_in**2))) if e_in.size else None,
+        "marker_samples": int(err_mm.size),
+        "missing_samples": int((~seen).sum()),
+        "outlier_samples": int(outlier.sum()),
+        "outlier_threshold_mm": robust_mm,
+    }
+    return stats, totals
+
+
 def _jaw_deg(model, bones: np.ndarray) -> np.ndarray:
     return np.array([jaw_to_intuitive(model.jaw_joint, b[12:])["opening_deg"] for b in bones])
 
 
 def build_report(
-    model, records, *, markers_data_m, marker_names, rig_info: dict, identifiability_mm: np.ndarray, truth=None
+    model,
+    records,
+    *,
+    markers_data_m,
+    marker_names,
+    rig_info: dict,
+    identifiability_mm: np.ndarray,
+    truth=None,
+    robust_mm: float | None = 3.0,
 ) -> dict:
-    """The report dict. ``truth`` (a SyntheticPerformance) adds the ground-truth errors."""
+    """The report dict. ``truth`` (a SyntheticPerformance) adds the ground-truth errors; ``robust_mm``
+    (the tracker's Tukey cut-off) separates inlier from outlier samples."""
     M = model.n_muscles
     C = np.array([r.controls for r in records])
     A, B = C[:, :M], C[:, M:]
@@ -35,6 +75,7 @@ def build_report(
     per_frame = np.sqrt(np.nanmean(err**2, axis=1))
     secs = np.array([r.stats["seconds"] for r in records])
     observable = identifiability_mm >= OBSERVABLE_MM
+    marker_stats, totals = _marker_stats(err, marker_names, robust_mm)
     rep = {
         "frames": len(records),
         "markers": int(np.asarray(markers_data_m).shape[1]),
@@ -46,6 +87,8 @@ def build_report(
         "marker_rms_mm_mean": float(np.mean(per_frame)),
         "marker_max_mm": float(np.nanmax(err)),
         "marker_rms_mm_per_marker": _per_marker_rms_mm(err, marker_names),
+        **totals,
+        "marker_stats": marker_stats,
         "seconds_per_frame": secs.tolist(),
         "seconds_per_frame_median": float(np.median(secs)),
         "seconds_breakdown_median": {

@@ -47,6 +47,9 @@ def write_take_figures(
     movie: bool = True,
     movie_max_frames: int = 240,
     panel_size: tuple[int, int] = (720, 800),
+    stills: bool = True,
+    first_frame: int = 0,
+    progress: bool = False,
 ) -> dict[str, Path]:
     """Write stills, plots and a movie of a take into ``out_dir``.
 
@@ -65,6 +68,10 @@ def write_take_figures(
         movie: also write ``take.mp4`` (every frame up to ``movie_max_frames``, else evenly
             subsampled at a reduced frame rate so the duration stays right).
         panel_size: pixel size of one picture panel.
+        stills: write the pictures and plots (False with ``movie``: the movie alone).
+        first_frame: the number of the first frame (captions and the movie's frame counter show
+            the capture's frame numbers).
+        progress: show a progress bar over the movie's frames.
 
     Returns:
         caption -> path, in display order (pass to ``write_html_report``).
@@ -89,9 +96,15 @@ def write_take_figures(
     )
     jaw_rel = _jaw_relative(jaw_affines, cranium_affines, jaw_frame)
     markers = (captured_markers_m, simulated_markers_m)
-    images = _write_pictures(out, model, x, fps, activations, markers, cranium_affines, jaw_rel, panel_size)
+    images: dict[str, Path] = {}
+    if stills:
+        images.update(
+            _write_pictures(out, model, x, fps, activations, markers, cranium_affines, jaw_rel, panel_size, first_frame)
+        )
     images.update(
-        _write_plots(
+        {}
+        if not stills
+        else _write_plots(
             out,
             model,
             fps,
@@ -118,6 +131,8 @@ def write_take_figures(
             jaw_frame,
             movie_max_frames,
             panel_size,
+            first_frame,
+            progress,
         )
     return images
 
@@ -144,7 +159,7 @@ def _at(arr, f):
     return None if arr is None else np.asarray(arr)[f]
 
 
-def _write_pictures(out: Path, model, x, fps, activations, markers, cranium_affines, jaw_rel, panel_size):
+def _write_pictures(out: Path, model, x, fps, activations, markers, cranium_affines, jaw_rel, panel_size, first_frame):
     """Stills of the most expressive frame (expression, muscles) and of the first frame beside it."""
     captured_markers_m, simulated_markers_m = markers
 
@@ -162,23 +177,26 @@ def _write_pictures(out: Path, model, x, fps, activations, markers, cranium_affi
     images: dict[str, Path] = {}
     f = peak_frame(x, model.rest_positions_m, activations)
     t = f / fps
-    images[f"Expression at frame {f} ({t:.2f} s): captured markers red, tracked green"] = render.render_expression(
-        model,
-        x[f],
-        out / "expression.png",
-        activations=_at(activations, f),
-        captured_markers_m=_at(captured_markers_m, f),
-        simulated_markers_m=_at(simulated_markers_m, f),
-        panel_size=panel_size,
+    n = first_frame + f  # the capture's frame number
+    images[f"Expression at frame {n} ({t:.2f} s into the take): captured markers red, tracked green"] = (
+        render.render_expression(
+            model,
+            x[f],
+            out / "expression.png",
+            activations=_at(activations, f),
+            captured_markers_m=_at(captured_markers_m, f),
+            simulated_markers_m=_at(simulated_markers_m, f),
+            panel_size=panel_size,
+        )
     )
     if activations is not None:
-        images[f"Muscles at frame {f}: yellow active, red inactive"] = render.render_panels(
+        images[f"Muscles at frame {n}: yellow active, red inactive"] = render.render_panels(
             model, [panel(f, "")], out / "muscles.png", style="muscles", panel_size=panel_size
         )
     images["First frame and most expressive frame"] = render.render_before_after(
         model,
-        panel(0, "frame 0"),
-        panel(f, f"frame {f}"),
+        panel(0, f"frame {first_frame}"),
+        panel(f, f"frame {n}"),
         out / "before_after.png",
         panel_size=panel_size,
     )
@@ -234,6 +252,8 @@ def _write_movie(
     jaw_frame,
     movie_max_frames,
     panel_size,
+    first_frame: int = 0,
+    progress: bool = False,
 ) -> Path:
     """``take.mp4``: every frame up to ``movie_max_frames``, else evenly subsampled at a reduced rate."""
     captured_markers_m, simulated_markers_m = markers
@@ -256,4 +276,6 @@ def _write_movie(
         jaw_affines=sub(jaw_affines),
         jaw_frame=jaw_frame,
         window_size=panel_size,
+        frame_numbers=first_frame + sel,
+        progress=progress,
     )

@@ -1,7 +1,8 @@
 """Off-screen pictures and movies of a face with pyvista (VTK): stills, comparisons, takes.
 
 Conventions (the figures of Sifakis et al. 2005): captured markers red, simulated / tracked markers green; muscles
-yellow when fully active, red when inactive. Two styles:
+yellow when fully active, red when inactive, with a colour bar (``ACTIVATION_LEGEND``) whenever activations are
+shown. Two styles:
 
 - ``"skin"``: the skin surface coloured by the muscles under it (``wface.viz.muscles``);
 - ``"muscles"``: the muscle volumes (surfaces of their tets at the deformed positions) coloured
@@ -20,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
+from tqdm.auto import tqdm
 
 from wface.viz.muscles import ACTIVE_RGB, INACTIVE_RGB, SKIN_RGB, activation_colors, skin_muscle_influence
 from wface.viz.offscreen import offscreen_pyvista
@@ -284,6 +286,43 @@ def _place_camera(plotter, points: np.ndarray, view, *, fill: float, pad_m: floa
     plotter.renderer.ResetCameraClippingRange()
 
 
+ACTIVATION_LEGEND = "muscle activation (0-1, dimensionless)"
+
+
+def _add_activation_legend(pv, plotter) -> None:
+    """A colour bar for the muscle heat map: red (inactive, 0) to yellow (fully active, 1).
+
+    The skin and muscle colours are written as RGB, which VTK cannot label, so an invisible
+    two-point mesh carries the lookup table of the bar.
+    """
+    from matplotlib.colors import LinearSegmentedColormap
+
+    cmap = LinearSegmentedColormap.from_list("activation", [INACTIVE_RGB, ACTIVE_RGB])
+    probe = pv.PolyData(np.zeros((2, 3)))
+    probe["activation"] = np.array([0.0, 1.0])
+    plotter.add_mesh(
+        probe,
+        scalars="activation",
+        cmap=cmap,
+        clim=(0.0, 1.0),
+        opacity=0.0,
+        reset_camera=False,
+        scalar_bar_args={
+            "title": ACTIVATION_LEGEND,
+            "n_labels": 2,
+            "fmt": "%.1f",
+            "color": "black",
+            "vertical": False,
+            "position_x": 0.2,
+            "position_y": 0.01,
+            "width": 0.6,
+            "height": 0.1,
+            "title_font_size": 14,
+            "label_font_size": 12,
+        },
+    )
+
+
 def _new_plotter(pv, shape, window_size):
     p = pv.Plotter(off_screen=True, shape=shape, window_size=list(window_size), border=False, lighting="light_kit")
     p.set_background(_BACKGROUND)
@@ -363,6 +402,8 @@ def render_panels(
         )
         if pnl.title:
             p.add_text(pnl.title, position="upper_left", font_size=14, color="black")
+        if pnl.activations is not None:
+            _add_activation_legend(pv, p)
         _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom)
     p.enable_anti_aliasing("ssaa")
     p.screenshot(str(out_path))
@@ -428,6 +469,8 @@ def render_take_movie(
     muscle_smoothing: int = 4,
     label: str = "",
     quality: int = 7,
+    frame_numbers=None,
+    progress: bool = False,
 ) -> Path:
     """An mp4 (H.264 via imageio-ffmpeg) of a take, one video frame per take frame.
 
@@ -445,6 +488,8 @@ def render_take_movie(
         window_size: video size in pixels (each rounded down to a multiple of 16).
         label: text shown with the frame number.
         quality: imageio-ffmpeg quality 0-10.
+        frame_numbers: (F,) numbers shown in the frame counter (default 1..F).
+        progress: show a progress bar over the frames.
 
     Returns:
         The movie path.
@@ -488,12 +533,16 @@ def render_take_movie(
         muscle_radius_m=None,
         muscle_smoothing=muscle_smoothing,
     )
+    if activations is not None:
+        _add_activation_legend(pv, p)
     _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom)
     p.enable_anti_aliasing("msaa", multi_samples=8)  # ssaa costs ~4x per frame; fxaa is not in OSMesa builds
     p.open_movie(str(out_path), framerate=int(round(fps)), quality=quality)
     text = None
+    numbers = np.arange(1, F + 1) if frame_numbers is None else np.asarray(frame_numbers)
+    last = int(numbers[-1]) if frame_numbers is not None else F
     try:
-        for f in range(F):
+        for f in tqdm(range(F), desc="movie", unit="frame", disable=not progress, leave=False):
             bone = _bone_world_affines(
                 None if cranium_affines is None else cranium_affines[f],
                 None if jaw_affines is None else jaw_affines[f],
@@ -506,7 +555,7 @@ def render_take_movie(
                 None if simulated_markers_m is None else simulated_markers_m[f],
                 bone_affines=bone,
             )
-            caption = f"{label}  frame {f + 1}/{F}".strip()
+            caption = f"{label}  frame {int(numbers[f])}/{last}".strip()
             if text is None:
                 text = p.add_text(caption, position="upper_left", font_size=12, color="black")
             else:

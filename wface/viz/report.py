@@ -3,7 +3,13 @@
 Images (PNG, JPEG, GIF, SVG) and movies (MP4, WebM) are embedded as base64 data URIs, so the one
 ``report.html`` file can be mailed or attached to a ticket. Per-frame lists are summarised
 (count, mean, min, max) and drawn as a small inline sparkline; dicts of scalars (per muscle,
-status blocks) become their own tables.
+status blocks) become their own tables, and so do dicts of records with the same keys (the
+per-marker table).
+
+The headline cards show the error a person should read first (``headline_cards``): on a synthetic
+take the tracked markers against the clean truth (``truth_marker_rms_mm``), on a real take the
+error over the inlier samples (``marker_rms_mm_inliers``) with the outlier and missing sample
+counts beside it; the error against the raw input, outliers included, stays in the table.
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ import os
 from datetime import datetime, timezone
 from pathlib import Path
 
-__all__ = ["HEADLINE", "write_html_report"]
+__all__ = ["HEADLINE", "headline_cards", "write_html_report"]
 
 _MIME = {
     ".png": "image/png",
@@ -28,11 +34,10 @@ _MIME = {
     ".webm": "video/webm",
 }
 
-# report.json keys shown first, as large numbers (docs/design.md, "Takes"), when present and scalar.
+# report.json keys shown first, as large numbers (docs/design.md, "Takes"), when present and scalar;
+# the marker error card comes first (``headline_cards``).
 HEADLINE = {
-    "marker_rms_mm_mean": ("marker RMS", "mm"),
-    "marker_max_mm": ("marker max", "mm"),
-    "activation_rms_error": ("activation RMS error", ""),
+    "activation_rms_error": ("activation RMS error (observable muscles)", ""),
     "jaw_angle_error_deg": ("jaw angle error", "deg"),
     "seconds_per_frame_median": ("time per frame", "s"),
     "inverted_elements": ("inverted elements", ""),
@@ -106,6 +111,56 @@ def _value_cell(v) -> str:
     return f"<td>{_fmt(v)}</td>"
 
 
+def headline_cards(report: dict) -> list[tuple[str, str, str]]:
+    """[(value, unit, label)] of the headline cards (module docstring), in display order."""
+    cards = []
+    if _is_number(report.get("truth_marker_rms_mm")):
+        cards.append((_fmt(report["truth_marker_rms_mm"]), "mm", "marker RMS error vs the clean truth"))
+    elif _is_number(report.get("marker_rms_mm_inliers")):
+        thr = report.get("outlier_threshold_mm")
+        cards.append((_fmt(report["marker_rms_mm_inliers"]), "mm", f"marker RMS, inliers (error <= {_fmt(thr)} mm)"))
+    elif _is_number(report.get("marker_rms_mm_mean")):
+        cards.append((_fmt(report["marker_rms_mm_mean"]), "mm", "marker RMS vs input"))
+    if _is_number(report.get("marker_samples")):
+        cards.append(
+            (
+                f"{report.get('outlier_samples', 0)} / {report.get('missing_samples', 0)}",
+                "",
+                f"outlier / missing samples of {report['marker_samples']}",
+            )
+        )
+    for key, (label, unit) in HEADLINE.items():
+        if key in report and _is_number(report[key]):
+            cards.append((_fmt(report[key]), unit, label))
+    return cards
+
+
+def _record_table(key: str, v: dict) -> str | None:
+    """A dict of records with the same keys (e.g. per marker) as one table; None if it is not one."""
+    rows = list(v.values())
+    if not rows or not all(isinstance(r, dict) for r in rows):
+        return None
+    cols = list(rows[0])
+    if not all(list(r) == cols for r in rows) or not all(
+        isinstance(x, (int, float, str, bool)) or x is None for r in rows for x in r.values()
+    ):
+        return None
+    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in ["name", *cols])
+    body = "".join(
+        f"<tr><td>{html.escape(str(k))}</td>" + "".join(_value_cell(r[c]) for c in cols) + "</tr>" for k, r in v.items()
+    )
+    return f"<h2>{html.escape(key)}</h2><table><tr>{head}</tr>{body}</table>"
+
+
+def _outputs_table(outputs: list[dict]) -> str:
+    body = "".join(
+        f"<tr><td><code>{html.escape(str(o.get('file', '')))}</code></td><td>{html.escape(str(o.get('what', '')))}"
+        f"</td><td>{html.escape(str(o.get('opens_in', '')))}</td></tr>"
+        for o in outputs
+    )
+    return f"<h2>Files</h2><table><tr><th>file</th><th>what</th><th>opens in</th></tr>{body}</table>"
+
+
 def _embed(path: Path, caption: str) -> str:
     mime = _MIME.get(path.suffix.lower())
     if mime is None:
@@ -124,6 +179,7 @@ def write_html_report(
     *,
     title: str = "wface report",
     filename: str = "report.html",
+    outputs: list[dict] | None = None,
 ) -> Path:
     """Write ``out_dir/report.html``: report.json's numbers in tables, images and movies embedded.
 
@@ -137,6 +193,7 @@ def write_html_report(
         images: caption -> file (PNG/JPEG/GIF/SVG, MP4/WebM), embedded in the given order.
         title: page title.
         filename: name of the HTML file.
+        outputs: the files of the run, [{"file", "what", "opens_in"}], listed in a "Files" table.
 
     Returns:
         The path of the HTML file.
@@ -159,7 +216,10 @@ def write_html_report(
 
     rows, sub_tables = [], []
     for key, v in report.items():
-        if isinstance(v, dict) and v and all(isinstance(x, (int, float, str, bool)) or x is None for x in v.values()):
+        records = _record_table(str(key), v) if isinstance(v, dict) else None
+        if records is not None:
+            sub_tables.insert(0, records)
+        elif isinstance(v, dict) and v and all(isinstance(x, (int, float, str, bool)) or x is None for x in v.values()):
             body = "".join(f"<tr><td>{html.escape(str(k))}</td>{_value_cell(x)}</tr>" for k, x in v.items())
             sub_tables.append(
                 f"<h2>{html.escape(str(key))}</h2><table><tr><th>name</th><th>value</th></tr>{body}</table>"
@@ -167,9 +227,8 @@ def write_html_report(
         else:
             rows.append(f"<tr><th>{html.escape(str(key))}</th>{_value_cell(v)}</tr>")
     cards = "".join(
-        f'<div class="card"><div class="v">{_fmt(report[key])} {unit}</div><div class="k">{label}</div></div>'
-        for key, (label, unit) in HEADLINE.items()
-        if key in report and _is_number(report[key])
+        f'<div class="card"><div class="v">{value} {unit}</div><div class="k">{html.escape(label)}</div></div>'
+        for value, unit, label in headline_cards(report)
     )
     figures = "".join(_embed(p, c) for c, p in paths.items())
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
@@ -181,6 +240,7 @@ def write_html_report(
         + (f"<h2>Pictures and plots</h2>{figures}" if figures else "")
         + f"<h2>Numbers</h2><table>{''.join(rows)}</table>"
         + "".join(sub_tables)
+        + (_outputs_table(outputs) if outputs else "")
         + "</body></html>\n"
     )
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -108,7 +108,7 @@ def pose_mesh(
         files["png"] = str(render_mesh(out / f"{stem}.png", x, tri, title=stem, **view))
         files["png_displacement"] = str(
             render_mesh(
-                out / f"{stem}_displacement.png", x, tri, displacement_mm=disp_mm, title=f"{stem}: |d| mm", **view
+                out / f"{stem}_displacement.png", x, tri, displacement_mm=disp_mm, title=f"{stem}: displacement", **view
             )
         )
     summary = {

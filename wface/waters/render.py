@@ -58,9 +58,21 @@ def render_mesh(
             mesh,
             scalars="displacement_mm",
             cmap="magma",
-            clim=clim_mm,
+            clim=clim_mm if clim_mm is not None else (0.0, max(float(np.max(displacement_mm)), 1e-6)),
             smooth_shading=True,
-            scalar_bar_args={"title": "|d| mm", "n_labels": 3},
+            scalar_bar_args={
+                "title": "displacement (mm)",
+                "n_labels": 3,
+                "fmt": "%.1f",
+                "color": "black",
+                "vertical": True,
+                "position_x": 0.84,
+                "position_y": 0.25,
+                "width": 0.08,
+                "height": 0.5,
+                "title_font_size": 14,
+                "label_font_size": 12,
+            },
         )
     else:
         plotter.add_mesh(mesh, color=(0.87, 0.72, 0.62), smooth_shading=True, specular=0.2)

@@ -90,8 +90,38 @@ def _vt_float(a: np.ndarray):
     return Vt.FloatArray.FromNumpy(np.ascontiguousarray(a, dtype=np.float32))
 
 
-def _new_stage(path: Path, *, fps: float, n_frames: int, up_axis: str, root: str, root_type: str = "Xform"):
-    """Create a stage (replacing any file there) with wface's metadata and a root prim (the default prim)."""
+def _time_codes(frames, n_frames: int) -> np.ndarray:
+    """(F,) float time codes of the frames: the frame numbers given (the capture's), else 0..F-1.
+
+    Raises:
+        UsdWriteError: wrong length, or numbers that are not finite and strictly increasing.
+    """
+    if frames is None:
+        return np.arange(n_frames, dtype=np.float64)
+    tc = np.asarray(frames, dtype=np.float64).reshape(-1)
+    if tc.shape != (n_frames,):
+        raise UsdWriteError(f"frames must hold one number per frame ({n_frames}); got {tc.shape[0]}")
+    if not np.all(np.isfinite(tc)) or np.any(np.diff(tc) <= 0):
+        raise UsdWriteError("frames must be finite and strictly increasing (the capture's frame numbers)")
+    return tc
+
+
+def _new_stage(
+    path: Path,
+    *,
+    fps: float,
+    n_frames: int,
+    up_axis: str,
+    root: str,
+    root_type: str = "Xform",
+    time_codes: np.ndarray | None = None,
+    meters_per_unit: float = 1.0,
+):
+    """Create a stage (replacing any file there) with wface's metadata and a root prim (the default prim).
+
+    ``time_codes`` (F,) are the frames' time codes (default 0..F-1): start/end time codes are the
+    first and last, and the layer's customLayerData["wface"]["first_frame"] the first.
+    """
     from pxr import Sdf, Usd, UsdGeom, UsdSkel
 
     if not (np.isfinite(fps) and fps > 0):
@@ -114,12 +144,19 @@ def _new_stage(path: Path, *, fps: float, n_frames: int, up_axis: str, root: str
         stage = Usd.Stage.Open(layer)
     else:
         stage = Usd.Stage.CreateNew(str(path))
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up_axis == "Y" else UsdGeom.Tokens.z)
     stage.SetTimeCodesPerSecond(float(fps))
     stage.SetFramesPerSecond(float(fps))
-    stage.SetStartTimeCode(0.0)
-    stage.SetEndTimeCode(float(max(n_frames - 1, 0)))
+    tc = (
+        _time_codes(time_codes, max(n_frames, 1))
+        if time_codes is not None
+        else np.arange(max(n_frames, 1), dtype=float)
+    )
+    stage.SetStartTimeCode(float(tc[0]))
+    stage.SetEndTimeCode(float(tc[-1]))
+    first = int(tc[0]) if float(tc[0]).is_integer() else float(tc[0])
+    stage.GetRootLayer().customLayerData = {"wface": {"first_frame": first}}
     schema = UsdSkel.Root if root_type == "SkelRoot" else UsdGeom.Xform
     root_xf = schema.Define(stage, f"/{root}")
     if up_axis == "Z":  # data stay +y up; the root turns them so that world +z is up (front: -y)
@@ -128,9 +165,15 @@ def _new_stage(path: Path, *, fps: float, n_frames: int, up_axis: str, root: str
     return stage
 
 
-def _write_mesh(stage, prim_path: str, points: np.ndarray, counts, indices, colors=None):
-    """Author a UsdGeom.Mesh: topology once; points and extent static (n,3) or per frame (F,n,3)."""
+def _write_mesh(stage, prim_path: str, points: np.ndarray, counts, indices, colors=None, *, times=None, normals=None):
+    """Author a UsdGeom.Mesh: topology once; points and extent static (n,3) or per frame (F,n,3).
+
+    ``times``: (F,) time codes of the frames (default 0..F-1). ``normals``: (n, 3) or (F, n, 3)
+    unit vertex normals (``normals`` attribute, vertex interpolation), or None.
+    """
     from pxr import UsdGeom
+
+    times = np.arange(points.shape[0], dtype=float) if points.ndim == 3 and times is None else times
 
     mesh = UsdGeom.Mesh.Define(stage, prim_path)
     mesh.CreateFaceVertexCountsAttr(_vt_int(counts))
@@ -142,18 +185,30 @@ def _write_mesh(stage, prim_path: str, points: np.ndarray, counts, indices, colo
         pts_attr.Set(_vt_vec3f(points))
         ext_attr.Set(_vt_vec3f(_extent(points)))
     else:
-        for f, p in enumerate(points):
-            pts_attr.Set(_vt_vec3f(p), float(f))
-            ext_attr.Set(_vt_vec3f(_extent(p)), float(f))
+        for t, p in zip(times, points, strict=True):
+            pts_attr.Set(_vt_vec3f(p), float(t))
+            ext_attr.Set(_vt_vec3f(_extent(p)), float(t))
+    if normals is not None:
+        n_attr = mesh.CreateNormalsAttr()
+        mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+        if normals.ndim == 2:
+            n_attr.Set(_vt_vec3f(normals))
+        else:
+            for t, n in zip(times, normals, strict=True):
+                n_attr.Set(_vt_vec3f(n), float(t))
     if colors is not None:
         _set_display_color(
-            mesh, colors, n_points=points.shape[-2], n_frames=points.shape[0] if points.ndim == 3 else None
+            mesh,
+            colors,
+            n_points=points.shape[-2],
+            n_frames=points.shape[0] if points.ndim == 3 else None,
+            times=times,
         )
     return mesh
 
 
-def _set_display_color(gprim, colors, *, n_points: int, n_frames: int | None) -> None:
-    """displayColor: (3,) constant, (n,3) per vertex, or (F,n,3) per vertex per frame."""
+def _set_display_color(gprim, colors, *, n_points: int, n_frames: int | None, times=None) -> None:
+    """displayColor: (3,) constant, (n,3) per vertex, or (F,n,3) per vertex per frame (at ``times``)."""
     from pxr import UsdGeom
 
     c = np.asarray(colors, dtype=np.float64)
@@ -167,8 +222,9 @@ def _set_display_color(gprim, colors, *, n_points: int, n_frames: int | None) ->
         pv.Set(_vt_vec3f(c))
     elif c.ndim == 3 and c.shape[1:] == (n_points, 3) and n_frames is not None and c.shape[0] == n_frames:
         pv.SetInterpolation(UsdGeom.Tokens.vertex)
-        for f, cf in enumerate(c):
-            pv.Set(_vt_vec3f(cf), float(f))
+        times = np.arange(len(c), dtype=float) if times is None else times
+        for t, cf in zip(times, c, strict=True):
+            pv.Set(_vt_vec3f(cf), float(t))
     else:
         raise UsdWriteError(
             f"colors must have shape (3,), ({n_points}, 3) or (frames, {n_points}, 3) with frames = {n_frames}; "
@@ -224,15 +280,25 @@ def _check_frames(name: str, a, n_frames: int, tail: tuple, *, allow_nan: bool =
     return arr
 
 
-def _write_float_primvar(gprim, name: str, values: np.ndarray, interpolation: str) -> None:
+def _write_float_primvar(gprim, name: str, values: np.ndarray, interpolation: str, *, times=None) -> None:
     from pxr import Sdf, UsdGeom
 
     pv = UsdGeom.PrimvarsAPI(gprim.GetPrim()).CreatePrimvar(name, Sdf.ValueTypeNames.FloatArray, interpolation)
     if values.ndim == 1:
         pv.Set(_vt_float(values))
     else:
-        for f, v in enumerate(values):
-            pv.Set(_vt_float(v), float(f))
+        times = np.arange(len(values), dtype=float) if times is None else times
+        for t, v in zip(times, values, strict=True):
+            pv.Set(_vt_float(v), float(t))
+
+
+def _set_layer_info(stage, info: dict) -> None:
+    """Merge ``info`` into the root layer's customLayerData["wface"] (JSON-safe values)."""
+    data = dict(stage.GetRootLayer().customLayerData)
+    merged = dict(data.get("wface", {}))
+    merged.update({str(k): _json_safe(v) for k, v in info.items()})
+    data["wface"] = merged
+    stage.GetRootLayer().customLayerData = data
 
 
 def _json_safe(v):

@@ -7,7 +7,16 @@ from pathlib import Path
 import numpy as np
 
 from wface.files import save_layer
-from wface.io.usd._common import _as_points, _check_path, _new_stage, _write_mesh, as_polygons
+from wface.io.usd._common import (
+    UsdWriteError,
+    _as_points,
+    _check_path,
+    _identifier,
+    _new_stage,
+    _vt_vec3f,
+    _write_mesh,
+    as_polygons,
+)
 
 __all__ = ["write_mesh_animation"]
 
@@ -22,6 +31,14 @@ def write_mesh_animation(
     name: str = "Face",
     up_axis: str = "Y",
     colors: np.ndarray | None = None,
+    frames: np.ndarray | None = None,
+    meters_per_unit: float = 1.0,
+    uv: np.ndarray | None = None,
+    uv_indices: np.ndarray | None = None,
+    normals: np.ndarray | None = None,
+    normal_indices: np.ndarray | None = None,
+    material_faces: dict[str, np.ndarray] | None = None,
+    material_colors: dict | None = None,
 ) -> Path:
     """Write one polygon mesh, static or animated, to a new USD stage.
 
@@ -41,6 +58,16 @@ def write_mesh_animation(
             op so that the model's +y points along world +z (points are written unchanged).
         colors: optional displayColor: (3,) constant, (n, 3) per vertex or (F, n, 3) per vertex
             and frame; linear RGB in [0, 1].
+        frames: (F,) frame numbers written as the time codes (default 0..F-1).
+        meters_per_unit: the stage's unit (e.g. 0.01 for a centimetre source mesh); points are
+            written as ``points_m / meters_per_unit``.
+        uv / uv_indices: (k, 2) texture coordinates and one index per face corner: ``primvars:st``,
+            face-varying, indexed.
+        normals / normal_indices: (j, 3) normals and one index per face corner (face-varying).
+        material_faces: {material name: polygon indices}: one ``GeomSubset`` per material (family
+            "materialBind") bound to a ``UsdPreviewSurface`` material of that name under
+            ``/<name>/Materials``.
+        material_colors: {material name: (3,) diffuse colour} for those materials (default grey).
 
     Returns:
         The path written.
@@ -49,10 +76,61 @@ def write_mesh_animation(
         UsdWriteError: wrong shapes, NaN/inf, out-of-range indices or a bad suffix.
     """
     path = _check_path(path)
-    p = _as_points(points_m)
+    if not (np.isfinite(meters_per_unit) and meters_per_unit > 0):
+        raise UsdWriteError(f"meters_per_unit must be positive, got {meters_per_unit}")
+    p = _as_points(points_m) / meters_per_unit
     counts, indices = as_polygons(face_vertex_counts, face_vertex_indices, p.shape[-2])
     n_frames = p.shape[0] if p.ndim == 3 else 1
-    stage = _new_stage(path, fps=fps, n_frames=n_frames, up_axis=up_axis, root=name)
-    _write_mesh(stage, f"/{name}/Mesh", p, counts, indices, colors=colors)
+    stage = _new_stage(
+        path, fps=fps, n_frames=n_frames, up_axis=up_axis, root=name, time_codes=frames, meters_per_unit=meters_per_unit
+    )
+    times = None if p.ndim == 2 or frames is None else np.asarray(frames, dtype=float)
+    mesh = _write_mesh(stage, f"/{name}/Mesh", p, counts, indices, colors=colors, times=times)
+    _write_face_varying(mesh, "st", uv, uv_indices, indices.size, 2)
+    if normals is not None:
+        _write_face_varying(mesh, "normals", normals, normal_indices, indices.size, 3)
+    if material_faces:
+        _write_materials(stage, f"/{name}", mesh, material_faces, material_colors or {}, counts.size)
     save_layer(stage.GetRootLayer(), path)  # atomic: a temporary file renamed into place
     return path
+
+
+def _write_face_varying(mesh, primvar: str, values, corner_indices, n_corners: int, width: int) -> None:
+    """An indexed face-varying primvar (``st``: texture coordinates; ``normals``)."""
+    from pxr import Sdf, UsdGeom, Vt
+
+    if values is None:
+        return
+    v = np.asarray(values, dtype=np.float32).reshape(-1, width)
+    i = np.asarray(corner_indices, dtype=np.int32).reshape(-1)
+    if i.size != n_corners or (i.size and (i.min() < 0 or i.max() >= len(v))):
+        raise UsdWriteError(f"{primvar}: one index per face corner ({n_corners}) into {len(v)} values is needed")
+    kind = Sdf.ValueTypeNames.TexCoord2fArray if width == 2 else Sdf.ValueTypeNames.Normal3fArray
+    pv = UsdGeom.PrimvarsAPI(mesh.GetPrim()).CreatePrimvar(primvar, kind, UsdGeom.Tokens.faceVarying)
+    pv.Set(Vt.Vec2fArray.FromNumpy(v) if width == 2 else _vt_vec3f(v))
+    pv.SetIndices(Vt.IntArray.FromNumpy(i))
+
+
+def _write_materials(stage, root: str, mesh, material_faces: dict, colors: dict, n_faces: int) -> None:
+    """One GeomSubset per material, bound to a UsdPreviewSurface material of the same name."""
+    from pxr import Gf, Sdf, UsdGeom, UsdShade, Vt
+
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
+    taken: set[str] = set()
+    for name, faces in material_faces.items():
+        ident = _identifier(name, taken)
+        f = np.asarray(faces, dtype=np.int32).reshape(-1)
+        if f.size and (f.min() < 0 or f.max() >= n_faces):
+            raise UsdWriteError(f"material {name!r}: face indices outside [0, {n_faces})")
+        subset = UsdGeom.Subset.Define(stage, mesh.GetPath().AppendChild(ident))
+        subset.CreateElementTypeAttr(UsdGeom.Tokens.face)
+        subset.CreateFamilyNameAttr(UsdShade.Tokens.materialBind)
+        subset.CreateIndicesAttr(Vt.IntArray.FromNumpy(f))
+        material = UsdShade.Material.Define(stage, f"{root}/Materials/{ident}")
+        shader = UsdShade.Shader.Define(stage, f"{root}/Materials/{ident}/PreviewSurface")
+        shader.CreateIdAttr("UsdPreviewSurface")
+        rgb = colors.get(name, (0.7, 0.7, 0.7))
+        shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*map(float, rgb)))
+        material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+        UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(material)
+    UsdGeom.Subset.SetFamilyType(mesh, UsdShade.Tokens.materialBind, UsdGeom.Tokens.nonOverlapping)

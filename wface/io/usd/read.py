@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.io.usd.locators import read_locators
 from wface.io.usd.validate import _open
 
 __all__ = ["read_take"]
@@ -23,21 +24,6 @@ def _get(attr, t):
     return attr.Get() if t is None else attr.Get(t)
 
 
-def _markers(prim, n_frames: int) -> tuple[np.ndarray, list[str]]:
-    from pxr import UsdGeom
-
-    pts = UsdGeom.Points(prim)
-    names = list(prim.GetAttribute("wface:markerNames").Get() or [])
-    k = len(names)
-    out = np.full((n_frames, k, 3), np.nan)
-    for f in range(n_frames):
-        p = np.asarray(pts.GetPointsAttr().Get(f), dtype=np.float64).reshape(-1, 3)
-        ids = pts.GetIdsAttr().Get(f)
-        ids = np.arange(len(p)) if ids is None else np.asarray(ids, dtype=np.int64)
-        out[f, ids] = p
-    return out, names
-
-
 def read_take(path: str | Path, *, name: str | None = None) -> dict:
     """Arrays of a take stage (see ``write_take`` for the layout).
 
@@ -46,7 +32,8 @@ def read_take(path: str | Path, *, name: str | None = None) -> dict:
         name: root prim name (default: the stage's default prim).
 
     Returns:
-        dict with ``fps``, ``n_frames``, ``skin_node_ids`` (v,), ``skin_triangles`` (t, 3) in
+        dict with ``fps``, ``n_frames``, ``time_codes`` (F,) (the frame numbers written),
+        ``skin_node_ids`` (v,), ``skin_triangles`` (t, 3) in
         compact skin numbering, ``skin_points_m`` (F, v, 3), and when present:
         ``activations`` (F, M) with ``muscle_names``, ``vertex_activation`` (F, v),
         ``captured_markers_m`` / ``simulated_markers_m`` (F, k, 3; NaN = missing) with
@@ -65,8 +52,9 @@ def read_take(path: str | Path, *, name: str | None = None) -> dict:
     if not skin_prim:
         raise ValueError(f"{path}: no {rp}/Skin mesh: not a take written by write_take")
     skin = UsdGeom.Mesh(skin_prim)
-    n_frames = int(round(stage.GetEndTimeCode() - stage.GetStartTimeCode())) + 1
-    out: dict = {"fps": stage.GetTimeCodesPerSecond(), "n_frames": n_frames}
+    times = list(skin.GetPointsAttr().GetTimeSamples()) or [stage.GetStartTimeCode()]
+    n_frames = len(times)
+    out: dict = {"fps": stage.GetTimeCodesPerSecond(), "n_frames": n_frames, "time_codes": np.asarray(times)}
     out["metadata"] = dict(stage.GetRootLayer().customLayerData.get("wface", {}))
     pv = UsdGeom.PrimvarsAPI(skin_prim)
     node_id = pv.GetPrimvar("wface:nodeId")
@@ -74,26 +62,24 @@ def read_take(path: str | Path, *, name: str | None = None) -> dict:
     if np.any(counts != 3):
         raise ValueError(f"{path}: the skin is not a triangle mesh")
     out["skin_triangles"] = np.asarray(skin.GetFaceVertexIndicesAttr().Get(), dtype=np.int64).reshape(-1, 3)
-    out["skin_points_m"] = np.stack(
-        [np.asarray(skin.GetPointsAttr().Get(f), dtype=np.float64) for f in range(n_frames)]
-    )
+    out["skin_points_m"] = np.stack([np.asarray(skin.GetPointsAttr().Get(t), dtype=np.float64) for t in times])
     out["skin_node_ids"] = (
         np.asarray(node_id.Get(), dtype=np.int64) if node_id else np.arange(out["skin_points_m"].shape[1])
     )
     act_pv = pv.GetPrimvar("wface:activation")
     if act_pv:
-        out["vertex_activation"] = np.stack([np.asarray(act_pv.Get(f), dtype=np.float64) for f in range(n_frames)])
+        out["vertex_activation"] = np.stack([np.asarray(act_pv.Get(t), dtype=np.float64) for t in times])
 
     muscles = stage.GetPrimAtPath(rp.AppendChild("Muscles"))
     if muscles:
         out["muscle_names"] = list(muscles.GetAttribute("wface:muscleNames").Get())
         attr = muscles.GetAttribute("wface:activations")
-        out["activations"] = np.stack([np.asarray(attr.Get(f), dtype=np.float64) for f in range(n_frames)])
+        out["activations"] = np.stack([np.asarray(attr.Get(t), dtype=np.float64) for t in times])
 
     for label, key in (("Captured", "captured_markers_m"), ("Simulated", "simulated_markers_m")):
         prim = stage.GetPrimAtPath(rp.AppendPath(f"Markers/{label}"))
         if prim:
-            out[key], out["marker_names"] = _markers(prim, n_frames)
+            out[key], out["marker_names"] = read_locators(prim, times)
 
     for sub, key in (("Cranium", "cranium_affines"), ("Cranium/Jaw", "jaw_affines"), ("Jaw", "jaw_affines")):
         prim = stage.GetPrimAtPath(rp.AppendPath(f"Bones/{sub}"))
@@ -105,8 +91,8 @@ def read_take(path: str | Path, *, name: str | None = None) -> dict:
         if not ops:
             continue
         aff = np.zeros((n_frames, 3, 4))
-        for f in range(n_frames):
-            m = np.asarray(UsdGeom.Xformable(prim).GetLocalTransformation(Usd.TimeCode(f)))
+        for f, t in enumerate(times):
+            m = np.asarray(UsdGeom.Xformable(prim).GetLocalTransformation(Usd.TimeCode(t)))
             aff[f, :, :3] = m[:3, :3].T
             aff[f, :, 3] = m[3, :3]
         out[key] = aff
@@ -116,5 +102,5 @@ def read_take(path: str | Path, *, name: str | None = None) -> dict:
         anim = UsdSkel.Animation(stage.GetPrimAtPath(rp.AppendPath("Basis/Skel/Anim")))
         out["basis_names"] = list(anim.GetBlendShapesAttr().Get())
         w = anim.GetBlendShapeWeightsAttr()
-        out["basis_weights"] = np.stack([np.asarray(w.Get(f), dtype=np.float64) for f in range(n_frames)])
+        out["basis_weights"] = np.stack([np.asarray(w.Get(t), dtype=np.float64) for t in times])
     return out

@@ -86,6 +86,7 @@ def _write_blendshapes(
     indices,
     *,
     sparse_tol_m: float = 0.0,
+    times=None,
 ):
     """SkelRoot with a one-joint Skeleton, a SkelAnimation (blendShapeWeights per frame) and a bound Mesh.
 
@@ -131,8 +132,9 @@ def _write_blendshapes(
     if weights is None:
         w_attr.Set(_vt_float(np.zeros(basis.n_shapes)))
     else:
-        for f, w in enumerate(weights):
-            w_attr.Set(_vt_float(w), float(f))
+        times = np.arange(len(weights), dtype=float) if times is None else times
+        for t, w in zip(times, weights, strict=True):
+            w_attr.Set(_vt_float(w), float(t))
     # The skinned points move with the weights: give the SkelRoot a bound over all frames.
     if weights is not None and len(weights):
         all_pts = basis.synthesize(weights).reshape(-1, 3)

@@ -1,4 +1,35 @@
-"""A whole take of a FaceModel: skin, markers, bones, muscle activations, an optional basis."""
+"""A whole take of a FaceModel: skin, markers, bones, muscle activations, a muscle rig, an optional basis.
+
+Display colours (``primvars:displayColor``, linear RGB), the same as the pictures of ``wface.viz``
+(Sifakis et al. 2005's convention): the skin is skin-coloured with a heat map over the muscles under
+it (red tint over an inactive muscle, yellow over a fully active one, ``wface.viz.muscles``); the
+captured markers are red, the simulated / tracked markers green; bones and teeth are bone white.
+
+Prims under the default prim ``/<name>`` (an Xform) of ``write_take``:
+
+- ``Skin`` (Mesh): the exact point cache. The nodes used by ``model.skin_triangles``,
+  renumbered compactly (their model node ids in the primvar ``wface:nodeId``); topology once,
+  points, extent and vertex normals per frame, ``primvars:st`` texture coordinates (a
+  cylindrical projection about the model's +y axis: u = angle / 2 pi, v = height over the
+  skin's range). With ``activations``: ``primvars:wface:activation`` (float per vertex per
+  frame, max_m w_m a_m over nearby muscles) and a ``displayColor`` heat map (above).
+  Without: a constant skin colour.
+- ``Markers/Captured`` and ``Markers/Simulated``: one named locator per marker (Xform with a
+  time-sampled translate op, hidden in the frames where the marker is missing, and a small
+  sphere; red and green), ``wface.io.usd.locators``; the tracked ones named ``<marker>_tracked``.
+- ``Bones/Cranium`` and ``Bones/Cranium/Jaw`` (Xforms with one time-sampled transform op
+  from the per-frame affines; the jaw's op is relative to the cranium, as the 24 bone
+  parameters of ``wface.controls``) holding the model's ``bone_meshes`` at rest position, each
+  rewound so that its normals face outward (``wface.mesh.signed_distance.oriented_outward``).
+  With ``jaw_frame="world"`` the jaw Xform is ``Bones/Jaw``, a sibling of the cranium.
+- ``Muscles`` (Scope): per muscle a time-sampled float ``wface:activation:<muscle>`` (the name
+  made a valid identifier; the original names in ``wface:muscleNames``), and all of them as
+  a float[] ``wface:activations``.
+- ``Rig`` (SkelRoot) when ``rig`` is given: the skin (``SkinRig``) bound to the rig's blend shapes
+  and to the cranium and jaw joints, weights from ``rig_weights`` / ``activations`` (``wface.io.usd.rig``); the layer
+  metadata then holds ``rig_rms_error_mm`` / ``rig_max_error_mm`` against the point cache.
+- ``Basis`` (SkelRoot) when ``basis`` is given: see ``write_blendshape_basis``.
+"""
 
 from __future__ import annotations
 
@@ -14,49 +45,29 @@ from wface.io.usd._common import (
     _check_frames,
     _check_path,
     _identifier,
-    _json_safe,
     _new_stage,
     _set_display_color,
+    _set_layer_info,
+    _time_codes,
     _vt_float,
     _vt_int,
-    _vt_vec3f,
     _write_float_primvar,
     _write_mesh,
     affine_to_matrix4d,
     as_polygons,
 )
+from wface.io.usd.locators import write_locators
+from wface.io.usd.rig import SkinRig, write_skin_rig
 from wface.io.usd.skel import BlendShapeBasis, _write_blendshapes
+from wface.mesh.signed_distance import oriented_outward
+from wface.mesh.surface import vertex_normals
 from wface.viz.muscles import SKIN_RGB, activation_colors, skin_muscle_influence
 
-__all__ = ["write_take"]
+CAPTURED_RGB = (0.9, 0.05, 0.05)
+SIMULATED_RGB = (0.05, 0.8, 0.1)
+BONE_RGB = (0.93, 0.91, 0.84)
 
-
-def _write_points(stage, prim_path: str, points: np.ndarray, *, radius_m: float, rgb, names: list[str]):
-    """UsdGeom.Points per frame; NaN rows (missing markers) are left out and ``ids`` says which remain."""
-    from pxr import Sdf, UsdGeom, Vt
-
-    pts = UsdGeom.Points.Define(stage, prim_path)
-    pts.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(_vt_vec3f(np.asarray(rgb)[None]))
-    w_attr = pts.CreateWidthsAttr()
-    pts.SetWidthsInterpolation(UsdGeom.Tokens.vertex)  # one width per point
-    pts.GetPrim().CreateAttribute(
-        "wface:markerNames", Sdf.ValueTypeNames.StringArray, custom=True, variability=Sdf.VariabilityUniform
-    ).Set(Vt.StringArray(list(names)))
-    p_attr, i_attr, e_attr = pts.CreatePointsAttr(), pts.CreateIdsAttr(), pts.CreateExtentAttr()
-    last_extent = None
-    for f, pf in enumerate(points):
-        present = np.flatnonzero(np.all(np.isfinite(pf), axis=1))
-        p32 = _vt_vec3f(pf[present])
-        widths = _vt_float(np.full(present.size, 2.0 * radius_m))
-        p_attr.Set(p32, float(f))
-        w_attr.Set(widths, float(f))
-        i_attr.Set(Vt.Int64Array([int(i) for i in present]), float(f))
-        ext = UsdGeom.Points.ComputeExtent(p32, widths) if present.size else None
-        if ext is None or len(ext) != 2:
-            ext = last_extent if last_extent is not None else _vt_vec3f(np.zeros((2, 3)))
-        e_attr.Set(ext, float(f))
-        last_extent = ext
-    return pts
+__all__ = ["BONE_RGB", "CAPTURED_RGB", "SIMULATED_RGB", "write_take"]
 
 
 def write_take(
@@ -81,28 +92,16 @@ def write_take(
     name: str = "Face",
     up_axis: str = "Y",
     metadata: dict | None = None,
+    frames: np.ndarray | None = None,
+    rig: SkinRig | None = None,
+    rig_weights: np.ndarray | None = None,
+    rig_meshes: dict | None = None,
 ) -> Path:
     """Write a tracked or simulated take of a ``FaceModel`` as one USD stage.
 
-    Frame f (0-based) is time code f; the stage's timeCodesPerSecond is ``fps``. Prims under the
-    default prim ``/<name>`` (an Xform):
-
-    - ``Skin`` (Mesh): the nodes used by ``model.skin_triangles``, renumbered compactly (their
-      model node ids in the constant primvar ``wface:nodeId``); topology once, points and extent
-      per frame. With ``activations``: ``primvars:wface:activation`` (float per vertex per frame,
-      max_m w_m a_m over nearby muscles) and a ``displayColor`` heat map (skin; muscles red when
-      inactive, yellow when active). Without: a constant skin colour.
-    - ``Markers/Captured`` and ``Markers/Simulated`` (Points, red and green, one width per point,
-      ``ids`` = marker indices; NaN captured positions, i.e. missing markers, are left out of
-      that frame). Marker names in the uniform attribute ``wface:markerNames``.
-    - ``Bones/Cranium`` and ``Bones/Cranium/Jaw`` (Xforms with one time-sampled transform op
-      from the per-frame affines; the jaw's op is relative to the cranium, as the 24 bone
-      parameters of ``wface.controls``) holding the model's ``bone_meshes`` at rest position.
-      With ``jaw_frame="world"`` the jaw Xform is ``Bones/Jaw``, a sibling of the cranium.
-    - ``Muscles`` (Scope): per muscle a time-sampled float ``wface:activation:<muscle>`` (the name
-      made a valid identifier; the original names in ``wface:muscleNames``), and all of them as
-      a float[] ``wface:activations``.
-    - ``Basis`` (SkelRoot) when ``basis`` is given: see ``write_blendshape_basis``.
+    Frame i is written at time code ``frames[i]`` (the capture's frame numbers; default i); the
+    stage's timeCodesPerSecond is ``fps``, its start/end time codes the first and last frame, and
+    customLayerData["wface"]["first_frame"] the first. The prims are listed in the module docstring.
 
     Args:
         path: ``.usdc`` (binary, default) or ``.usda`` (text).
@@ -131,6 +130,12 @@ def write_take(
         name: root prim name.
         up_axis: "Y" (the model's convention) or "Z" (a rotateX(90) on the root prim).
         metadata: small JSON-able dict stored in the layer's customLayerData under "wface".
+        frames: (F,) strictly increasing frame numbers, the time codes (default 0..F-1).
+        rig: blend shapes and jaw weights on the skin vertices.
+        rig_weights: (F, B) weights of the rig's B shapes per frame; default ``activations`` (when
+            the rig holds one shape per muscle).
+        rig_meshes: {prim name: (SkinRig, counts, indices)}: more meshes under ``Rig`` driven by the
+            same joints and weights (a render mesh: ``rig.carried(binding_weights, rest)``).
 
     Returns:
         The path written.
@@ -150,24 +155,91 @@ def write_take(
         raise UsdWriteError(f"jaw_frame must be 'cranium' or 'world', got {jaw_frame!r}")
     if not (np.isfinite(marker_radius_m) and marker_radius_m > 0):
         raise UsdWriteError(f"marker_radius_m must be positive, got {marker_radius_m}")
+    times = _time_codes(frames, n_frames)
+    rw = _checked_rig_weights(rig, rig_weights, act, skin_nodes.size, n_frames)
 
-    stage = _new_stage(path, fps=fps, n_frames=n_frames, up_axis=up_axis, root=name)
+    stage = _new_stage(path, fps=fps, n_frames=n_frames, up_axis=up_axis, root=name, time_codes=times)
     root = f"/{name}"
     info = {"kind": "take", "frames": int(n_frames), "nodes": int(model.n_nodes), "muscles": int(model.n_muscles)}
-    info.update({str(k): _json_safe(v) for k, v in (metadata or {}).items()})
-    stage.GetRootLayer().customLayerData = {"wface": info}
+    info.update(metadata or {})
+    _set_layer_info(stage, info)
 
-    skin = _write_mesh(stage, f"{root}/Skin", x[:, skin_nodes], counts, indices)
-    _write_skin_primvars(skin, model, skin_nodes, act, n_frames, muscle_radius_m, vertex_colors)
+    skin_x = x[:, skin_nodes]
+    tri = indices.reshape(-1, 3)
+    normals = np.stack([vertex_normals(p, tri) for p in skin_x])
+    skin = _write_mesh(stage, f"{root}/Skin", skin_x, counts, indices, times=times, normals=normals)
+    _write_skin_primvars(skin, model, skin_nodes, act, times, muscle_radius_m, vertex_colors)
     if markers:
-        _write_markers(stage, f"{root}/Markers", model, markers, marker_names, marker_radius_m)
-    _write_bones(stage, root, model.bone_meshes if bone_meshes is None else bone_meshes, affines, jaw_frame)
+        _write_markers(stage, f"{root}/Markers", model, markers, marker_names, marker_radius_m, times)
+    _write_bones(stage, root, model.bone_meshes if bone_meshes is None else bone_meshes, affines, jaw_frame, times)
     if act is not None:
-        _write_muscles(stage, f"{root}/Muscles", model.muscle_names, act)
+        _write_muscles(stage, f"{root}/Muscles", model.muscle_names, act, times)
+    if rig is not None:
+        topo = (counts, indices, skin_nodes)
+        _write_rig(stage, f"{root}/Rig", rig, rw, affines, jaw_frame, skin_x, topo, times, model, rig_meshes)
     if basis is not None:
-        _write_blendshapes(stage, f"{root}/Basis", basis, bw, counts, indices)
+        _write_blendshapes(stage, f"{root}/Basis", basis, bw, counts, indices, times=times)
     save_layer(stage.GetRootLayer(), path)  # atomic: a temporary file renamed into place
     return path
+
+
+def _write_rig(stage, prim_path, rig, weights, affines, jaw_frame, skin_x, topo, times, model, rig_meshes):
+    """The UsdSkel rig (``wface.io.usd.rig``) and its error against the point cache in the layer metadata."""
+    counts, indices, skin_nodes = topo
+    n_frames = len(times)
+    eye = np.tile(np.hstack([np.eye(3), np.zeros((3, 1))]), (n_frames, 1, 1))
+    jaw_rel = affines.get("Jaw", eye)
+    if jaw_frame == "world" and "Jaw" in affines:
+        jaw_rel = _relative_to(affines.get("Cranium", eye), jaw_rel)
+    pts = write_skin_rig(
+        stage,
+        prim_path,
+        rig,
+        counts,
+        indices,
+        weights=weights,
+        cranium_affines=affines.get("Cranium", eye),
+        jaw_affines=jaw_rel,
+        times=times,
+        st=_cylindrical_st(model.rest_positions_m[skin_nodes]),
+        extra_meshes=rig_meshes,
+    )
+    err_mm = np.linalg.norm(pts - skin_x, axis=2) * 1e3
+    info = {"rig_rms_error_mm": float(np.sqrt(np.mean(err_mm**2))), "rig_max_error_mm": float(err_mm.max())}
+    _set_layer_info(stage, {**info, "rig_source": rig.source})
+
+
+def _checked_rig_weights(rig, rig_weights, act, n_skin: int, n_frames: int):
+    """The (F, B) weights of the rig's shapes, checked (None without a rig)."""
+    if rig is None:
+        if rig_weights is not None:
+            raise UsdWriteError("rig_weights given without a rig")
+        return None
+    if rig.rest_m.shape[0] != n_skin:
+        raise UsdWriteError(f"the rig has {rig.rest_m.shape[0]} vertices, the skin {n_skin}")
+    if rig_weights is None:
+        if act is None or act.shape[1] != rig.deltas_m.shape[0]:
+            raise UsdWriteError(
+                f"the rig has {rig.deltas_m.shape[0]} shapes: pass rig_weights (frames, {rig.deltas_m.shape[0]})"
+            )
+        return act
+    return _check_frames("rig_weights", rig_weights, n_frames, (rig.deltas_m.shape[0],))
+
+
+def _relative_to(cranium: np.ndarray, jaw_world: np.ndarray) -> np.ndarray:
+    """Jaw affines relative to the cranium from world ones: [Mc^-1 Mj | Mc^-1 (tj - tc)]."""
+    lin = np.linalg.solve(cranium[:, :, :3], jaw_world[:, :, :3])
+    t = np.linalg.solve(cranium[:, :, :3], (jaw_world[:, :, 3] - cranium[:, :, 3])[..., None])
+    return np.concatenate([lin, t], axis=2)
+
+
+def _cylindrical_st(points: np.ndarray) -> np.ndarray:
+    """(n, 2) texture coordinates: u = angle about +y / 2 pi (0.5 at the front, +z), v = height in [0, 1]."""
+    c = points.mean(axis=0)
+    u = 0.5 + np.arctan2(points[:, 0] - c[0], points[:, 2] - c[2]) / (2 * np.pi)
+    lo, hi = points[:, 1].min(), points[:, 1].max()
+    v = (points[:, 1] - lo) / max(hi - lo, 1e-12)
+    return np.stack([u, v], axis=1)
 
 
 def _checked_positions(model, node_positions_m) -> np.ndarray:
@@ -236,28 +308,28 @@ def _checked_basis(basis, basis_weights, model, skin_nodes: np.ndarray, n_frames
     return None, None
 
 
-def _write_skin_primvars(skin, model, skin_nodes, act, n_frames: int, muscle_radius_m, vertex_colors: bool) -> None:
-    """The skin Mesh's node ids, activation primvar and colours."""
-    from pxr import Sdf, UsdGeom
+def _write_skin_primvars(skin, model, skin_nodes, act, times, muscle_radius_m, vertex_colors: bool) -> None:
+    """The skin Mesh's node ids, texture coordinates, activation primvar and colours."""
+    from pxr import Sdf, UsdGeom, Vt
 
-    node_id = UsdGeom.PrimvarsAPI(skin.GetPrim()).CreatePrimvar(
-        "wface:nodeId", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex
-    )
+    pv_api = UsdGeom.PrimvarsAPI(skin.GetPrim())
+    node_id = pv_api.CreatePrimvar("wface:nodeId", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex)
     node_id.Set(_vt_int(skin_nodes))
+    st = pv_api.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    st.Set(Vt.Vec2fArray.FromNumpy(_cylindrical_st(model.rest_positions_m[skin_nodes]).astype(np.float32)))
+    n_frames = len(times)
     if act is not None:
         influence = skin_muscle_influence(model, skin_nodes, radius_m=muscle_radius_m)
         v_act, rgb = activation_colors(influence, act)
-        _write_float_primvar(skin, "wface:activation", v_act, UsdGeom.Tokens.vertex)
-        if vertex_colors:
-            _set_display_color(skin, rgb, n_points=skin_nodes.size, n_frames=n_frames)
-        else:
-            _set_display_color(skin, SKIN_RGB, n_points=skin_nodes.size, n_frames=n_frames)
+        _write_float_primvar(skin, "wface:activation", v_act, UsdGeom.Tokens.vertex, times=times)
+        colours = rgb if vertex_colors else SKIN_RGB
+        _set_display_color(skin, colours, n_points=skin_nodes.size, n_frames=n_frames, times=times)
     else:
         _set_display_color(skin, SKIN_RGB, n_points=skin_nodes.size, n_frames=n_frames)
 
 
-def _write_markers(stage, prim_path: str, model, markers: dict, marker_names, marker_radius_m: float) -> None:
-    """A Scope with one Points prim per marker set (captured red, simulated green)."""
+def _write_markers(stage, prim_path: str, model, markers: dict, marker_names, marker_radius_m: float, times) -> None:
+    """A Scope with one group of named locators per marker set (captured red, simulated green)."""
     from pxr import UsdGeom
 
     UsdGeom.Scope.Define(stage, prim_path)
@@ -266,14 +338,21 @@ def _write_markers(stage, prim_path: str, model, markers: dict, marker_names, ma
         marker_names = list(model.marker_names) if len(model.marker_names) == k else [f"m{i}" for i in range(k)]
     if len(marker_names) != k:
         raise UsdWriteError(f"{len(marker_names)} marker names for {k} markers")
-    colours = {"Captured": (0.9, 0.05, 0.05), "Simulated": (0.05, 0.8, 0.1)}
+    colours = {"Captured": CAPTURED_RGB, "Simulated": SIMULATED_RGB}
     for label, arr in markers.items():
-        _write_points(
-            stage, f"{prim_path}/{label}", arr, radius_m=marker_radius_m, rgb=colours[label], names=marker_names
+        write_locators(
+            stage,
+            f"{prim_path}/{label}",
+            arr,
+            list(marker_names),
+            times=times,
+            radius_m=marker_radius_m,
+            rgb=colours[label],
+            suffix="" if label == "Captured" else "_tracked",
         )
 
 
-def _write_bones(stage, root: str, bone_meshes: dict, affines: dict, jaw_frame: str) -> None:
+def _write_bones(stage, root: str, bone_meshes: dict, affines: dict, jaw_frame: str, times) -> None:
     """``Bones/Cranium`` and the jaw Xform (under the cranium or beside it), animated by ``affines``."""
     from pxr import UsdGeom
 
@@ -288,24 +367,25 @@ def _write_bones(stage, root: str, bone_meshes: dict, affines: dict, jaw_frame: 
     }
     if has_cranium or has_jaw:
         UsdGeom.Scope.Define(stage, f"{root}/Bones")
-    bone_rgb = np.array([0.93, 0.91, 0.84])
+    bone_rgb = np.array(BONE_RGB)
     for label, present in (("Cranium", has_cranium), ("Jaw", has_jaw)):
         if not present:
             continue
         xf = UsdGeom.Xform.Define(stage, bone_paths[label])
         if label in affines:
             op = xf.AddTransformOp()
-            for f, a in enumerate(affines[label]):
-                op.Set(affine_to_matrix4d(a), float(f))
+            for t, a in zip(times, affines[label], strict=True):
+                op.Set(affine_to_matrix4d(a), float(t))
         taken: set[str] = {"Jaw"} if label == "Cranium" else set()  # the jaw Xform may live under the cranium
         for mesh_name, mesh in bone_groups[label]:
             ident = _identifier(mesh_name, taken)
             v = _as_points(mesh.vertices_m, f"bone mesh {mesh_name!r} vertices_m")
-            c, i = as_polygons(None, np.asarray(mesh.triangles).reshape(-1, 3), v.shape[0])
+            tri = oriented_outward(v, np.asarray(mesh.triangles).reshape(-1, 3))
+            c, i = as_polygons(None, tri, v.shape[0])
             _write_mesh(stage, f"{bone_paths[label]}/{ident}", v, c, i, colors=bone_rgb)
 
 
-def _write_muscles(stage, prim_path: str, muscle_names, act: np.ndarray) -> None:
+def _write_muscles(stage, prim_path: str, muscle_names, act: np.ndarray, times) -> None:
     """A Scope with the muscle names and the (F, M) activations, all together and one attribute each."""
     from pxr import Sdf, UsdGeom, Vt
 
@@ -319,8 +399,8 @@ def _write_muscles(stage, prim_path: str, muscle_names, act: np.ndarray) -> None
     for m_name in muscle_names:
         ident = _identifier(m_name, taken)
         per_muscle.append(muscles.CreateAttribute(f"wface:activation:{ident}", Sdf.ValueTypeNames.Float, custom=True))
-    for f, a in enumerate(act):
-        t = float(f)
+    for t, a in zip(times, act, strict=True):
+        t = float(t)
         all_attr.Set(_vt_float(a), t)
         for attr, value in zip(per_muscle, a, strict=True):
             attr.Set(float(value), t)

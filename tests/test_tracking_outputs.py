@@ -1,0 +1,66 @@
+"""What a tracked take leaves on disk: USD without pictures, --no-usd, the closing lines, the report's headline."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from wface.cli import main
+from wface.tracking.report import _marker_stats
+from wface.viz.report import headline_cards
+
+
+def test_usd_is_written_without_pictures_and_skipped_with_no_usd(tmp_path, capsys):
+    pytest.importorskip("pxr")
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--tets", "1500", "--frames", "2", "--no-pictures"]) == 0
+    closing = capsys.readouterr().out
+    for name in ("controls.npz", "controls.csv", "report.json", "truth.npz", "animation.usdc", "report.html"):
+        assert (out / name).exists(), name
+        assert f"  {name}" in closing, name  # the closing lines name every file
+    assert "frames/ (2 frame files" in closing
+    assert not list(out.glob("*.png")) and not (out / "take.mp4").exists()
+    report = json.loads((out / "report.json").read_text())
+    assert report["marker_samples"] == 2 * report["markers"]
+    assert set(report["marker_stats"]["Chin"]) == {"seen", "missing", "outliers", "rms_mm", "max_mm"}
+    html = (out / "report.html").read_text()
+    assert "marker RMS error vs the clean truth" in html and "<h2>Files</h2>" in html
+
+    (out / "animation.usdc").unlink()
+    assert (
+        main(["demo", "--out", str(out), "--tets", "1500", "--frames", "2", "--no-pictures", "--no-usd", "--resume"])
+        == 0
+    )
+    assert not (out / "animation.usdc").exists()
+    assert "animation.usdc" not in capsys.readouterr().out
+
+
+def test_marker_stats_separate_outliers_and_missing_samples():
+    err = np.array([[0.3, 5.0, np.nan], [0.4, 0.2, np.nan], [0.5, 0.1, 1.0]])  # mm
+    stats, totals = _marker_stats(err, ["a", "b", "c"], 3.0)
+    assert totals["outlier_samples"] == 1 and totals["missing_samples"] == 2 and totals["marker_samples"] == 9
+    inliers = np.array([0.3, 0.4, 0.5, 0.2, 0.1, 1.0])
+    assert totals["marker_rms_mm_inliers"] == pytest.approx(np.sqrt(np.mean(inliers**2)))
+    assert stats["b"] == {
+        "seen": 3,
+        "missing": 0,
+        "outliers": 1,
+        "rms_mm": pytest.approx(np.sqrt(0.025)),
+        "max_mm": 5.0,
+    }
+    assert stats["c"]["missing"] == 2 and stats["c"]["rms_mm"] == pytest.approx(1.0)
+    _, plain = _marker_stats(err, ["a", "b", "c"], None)  # plain least squares: no outliers
+    assert plain["outlier_samples"] == 0
+
+
+def test_headline_is_the_error_a_person_should_read():
+    real = {"marker_rms_mm_mean": 2.3, "marker_rms_mm_inliers": 0.4, "outlier_samples": 7, "missing_samples": 3}
+    real |= {"marker_samples": 400, "outlier_threshold_mm": 3.0, "frames": 10}
+    cards = headline_cards(real)
+    assert cards[0] == ("0.4", "mm", "marker RMS, inliers (error <= 3 mm)")
+    assert cards[1] == ("7 / 3", "", "outlier / missing samples of 400")
+    synthetic = {**real, "truth_marker_rms_mm": 0.24}
+    assert headline_cards(synthetic)[0] == ("0.24", "mm", "marker RMS error vs the clean truth")
+    assert all("2.3" != c[0] for c in headline_cards(synthetic))  # the outlier-corrupted RMS is not a headline

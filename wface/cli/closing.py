@@ -1,0 +1,26 @@
+"""The closing lines of a command: every file it wrote, with what opens each."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from wface.tracking.output import describe_outputs
+
+__all__ = ["print_outputs"]
+
+
+def print_outputs(out_dir: str | Path, paths=None, *, since: float | None = None) -> None:
+    """Print ``wrote OUT/:`` and one line per file (``paths``, else the files directly in ``out_dir``
+    modified at or after ``since``, a ``time.time()``), then the count of frames/ files if any."""
+    out = Path(out_dir)
+    if paths is None:
+        paths = sorted(
+            (p for p in out.iterdir() if p.is_file() and (since is None or p.stat().st_mtime >= since - 1.0)),
+            key=lambda p: p.name,
+        )
+    print(f"wrote {out}/:")
+    for row in describe_outputs(paths):
+        print(f"  {row['file']:<24} {row['opens_in']}".rstrip())
+    n = len(list((out / "frames").glob("frame_*.npz"))) if (out / "frames").is_dir() else 0
+    if n:
+        print(f"  frames/ ({n} frame files; --resume continues from them)")
