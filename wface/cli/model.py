@@ -8,9 +8,13 @@ import sys
 import time
 from pathlib import Path
 
+from wface.basis.landmarks import load_ict_animface_landmarks
 from wface.faces.artisynth import import_artisynth
 from wface.faces.builtin import build_face
+from wface.faces.fit import fit_template, select_target_faces
 from wface.faces.summary import model_summary
+from wface.io.mocap import read_mocap
+from wface.mesh.meshfile import read_surface_mesh
 from wface.mesh.tetio import model_cell_data, write_tet_mesh
 from wface.model import load_model, save_model
 
@@ -22,6 +26,24 @@ names) and a jaw joint. Resolution goes from ~1K to 2M tets; the same --tets giv
 examples:
   wface model build --tets 20000 --out face20k.npz
   wface model build --tets 400000 --out face400k.npz --vtu face400k.vtu
+"""
+
+
+_FIT_EPILOG = """\
+Morphs a template face onto a subject: the skin onto the target (landmarks, then non-rigid
+closest-point registration with a thin-plate smoothness term), the interior by an elastic
+relaxation that keeps every tet positive, the bones by the landmark similarity; muscles,
+attachments, markers and the jaw joint are carried along. Prints (and stores in the model's
+metadata) the surface distance, landmark residuals, mesh quality before/after and inverted tets.
+
+--landmarks is a JSON map {marker name: target vertex id}; with the ICT-FaceKit head
+(generic_neutral_mesh.obj, 26,719 vertices) wface uses its own AnimFace map by default.
+
+examples:
+  wface model fit --template builtin --tets 20000 --surface ../shared/data/ict-facekit/generic_neutral_mesh.obj \\
+      --out actor.npz
+  wface model fit --template builtin --markers take.c3d --neutral-frame 0 --out actor.npz
+  wface model fit --template badin.npz --surface scan.ply --landmarks scan_landmarks.json --out actor.npz
 """
 
 
@@ -60,6 +82,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     imp.add_argument("directory", help="source directory")
     imp.add_argument("--out", required=True, help="output model file (.npz)")
     imp.set_defaults(func=_import)
+
+    f = msub.add_parser(
+        "fit",
+        help="fit a template face to a head mesh and/or a neutral marker frame",
+        description="Fit a template face to an actor's head mesh or neutral marker frame.",
+        epilog=_FIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    f.add_argument("--template", default="builtin", help="'builtin' or a face model .npz (default builtin)")
+    f.add_argument("--tets", type=int, default=20000, help="size of the built-in template (default 20000)")
+    f.add_argument("--surface", help="target head mesh: .obj, .ply, .stl, .off, ...")
+    f.add_argument("--units", default="auto", help="units of --surface: auto, m, cm, mm (default auto)")
+    f.add_argument("--surface-groups", help="material groups of --surface that are skin (default: not eyes/teeth)")
+    f.add_argument("--landmarks", help="JSON {marker name: target vertex id} for --surface")
+    f.add_argument("--markers", help="motion capture (.c3d, .trc, .csv) whose neutral frame is the actor's face")
+    f.add_argument("--neutral-frame", type=int, default=0, help="frame of --markers showing the neutral face")
+    f.add_argument("--out", required=True, help="output model file (.npz)")
+    f.add_argument("--json", action="store_true", help="print the fit report as JSON")
+    f.set_defaults(func=_fit)
     p.set_defaults(func=lambda a: p.print_help() or 2)
 
 
@@ -110,4 +151,70 @@ def _import(args: argparse.Namespace) -> int:
     model = import_artisynth(args.directory)
     path = save_model(model, args.out)
     print(f"wrote {path}: {model.n_tets} tets, {model.n_nodes} nodes, {model.n_muscles} muscles")
+    return 0
+
+
+def _fit_landmarks(args, mesh) -> dict | None:
+    if args.landmarks:
+        path = Path(args.landmarks)
+        if not path.is_file():
+            raise FileNotFoundError(f"landmark file not found: {path}")
+        return {str(k): v for k, v in json.loads(path.read_text()).items()}
+    ict = load_ict_animface_landmarks()
+    if mesh.n_points == 26719 and max(ict.values()) < mesh.n_points:  # the ICT-FaceKit head topology
+        print("landmarks: wface's AnimFace map of the ICT-FaceKit head")
+        return ict
+    return None
+
+
+def _fit(args: argparse.Namespace) -> int:
+    if not (args.surface or args.markers):
+        raise ValueError("give --surface HEAD.obj|ply|stl, --markers TAKE.c3d, or both")
+    template = build_face(args.tets, progress=True) if args.template == "builtin" else load_model(args.template)
+    mesh = faces = landmarks = markers = names = None
+    if args.surface:
+        mesh = read_surface_mesh(args.surface, units=args.units)
+        groups = [g.strip() for g in args.surface_groups.split(",")] if args.surface_groups else None
+        faces = select_target_faces(mesh, groups)
+        used = ", ".join(g for g, ids in mesh.face_groups.items() if set(ids.tolist()) <= set(faces.tolist()))
+        print(
+            f"target {args.surface}: {mesh.n_points} vertices, {mesh.n_faces} faces ({len(faces)} skin: "
+            f"{used or 'all'}), {mesh.meters_per_unit:g} m per unit"
+        )
+        landmarks = _fit_landmarks(args, mesh)
+    if args.markers:
+        take = read_mocap(args.markers)
+        if not 0 <= args.neutral_frame < take.n_frames:
+            raise ValueError(f"--neutral-frame {args.neutral_frame} is outside {args.markers}'s {take.n_frames} frames")
+        markers, names = take.positions_m[args.neutral_frame], take.marker_names
+    res = fit_template(
+        template,
+        surface=mesh,
+        surface_faces=faces,
+        landmarks=landmarks,
+        markers_m=markers,
+        marker_names=names,
+        progress=print,
+    )
+    path = save_model(res.model, args.out)
+    rep = res.report.as_dict()
+    if args.json:
+        json.dump(rep, sys.stdout, indent=2)
+        print()
+    sd = rep["surface_distance_mm"]
+    qb, qa = rep["quality_before"], rep["quality_after"]
+    if sd:
+        print(f"surface distance to the target: mean {sd['mean']:.2f} mm, max {sd['max']:.2f} mm")
+    if rep["landmark_rms_mm"] is not None:
+        worst = max(rep["landmark_residual_mm"].items(), key=lambda kv: kv[1])
+        print(f"landmarks: RMS {rep['landmark_rms_mm']:.2f} mm, worst {worst[0]} {worst[1]:.2f} mm")
+    print(
+        f"min dihedral {qb['min_dihedral_deg']:.1f} -> {qa['min_dihedral_deg']:.1f} deg, min volume ratio "
+        f"{qb['min_volume_ratio']:.3f} -> {qa['min_volume_ratio']:.3f}, inverted tets {qa['inverted']}, "
+        f"scale {rep['scale']:.3f}"
+    )
+    for bone, b in rep["bones"].items():
+        dev = b["attachment_deviation_mm"]
+        print(f"{bone}: similarity scale {b['scale']:.3f}, attached nodes {dev['mean']:.2f} mm (max {dev['max']:.2f}) off it")
+    print(f"wrote {path}: {res.model.n_tets} tets, {len(res.model.marker_names)} markers, {rep['seconds']:.1f} s")
     return 0
