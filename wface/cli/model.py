@@ -215,6 +215,8 @@ def _fit(args: argparse.Namespace) -> int:
     )
     for bone, b in rep["bones"].items():
         dev = b["attachment_deviation_mm"]
-        print(f"{bone}: similarity scale {b['scale']:.3f}, attached nodes {dev['mean']:.2f} mm (max {dev['max']:.2f}) off it")
+        print(
+            f"{bone}: similarity scale {b['scale']:.3f}, attached nodes {dev['mean']:.2f} mm (max {dev['max']:.2f}) off it"
+        )
     print(f"wrote {path}: {res.model.n_tets} tets, {len(res.model.marker_names)} markers, {rep['seconds']:.1f} s")
     return 0

@@ -209,7 +209,9 @@ def _landmark_pairs(template: FaceModel, names: list[str], target_points_m: np.n
     return list(shared), emb, tpl, tgt
 
 
-def _carry_model(template: FaceModel, x: np.ndarray, s: float, bone_sim: dict, marker_names, marker_positions, metadata):
+def _carry_model(
+    template: FaceModel, x: np.ndarray, s: float, bone_sim: dict, marker_names, marker_positions, metadata
+):
     joint = template.jaw_joint
     cr = bone_sim["cranium"]  # the joint's fossae are on the cranium
     u = cr.rotation @ np.asarray(joint.u)
@@ -363,6 +365,7 @@ def fit_template(
     meta["fit"] = {
         "template": template.metadata.get("name", ""),
         "surface": None if surface is None else surface.source,
+        "surface_vertices": None if surface is None else surface.n_points,
         "markers": len(markers_m) if markers_m is not None else 0,
         "target_to_model": to_model.tolist(),
         "bones": "similarity per bone, fitted to the relaxed flesh at its attached nodes",
@@ -382,5 +385,7 @@ def _capture_markers(x, skin_tri, template, mk_pos, names, markers_m, to_fit, su
         return list(names), to_fit.apply(m)
     known = dict(zip(template.marker_names, mk_pos, strict=True))
     lm = np.array([known.get(n, np.full(3, np.nan)) for n in names])
-    al = align_to_surface(m, x, skin_tri, landmark_points_m=lm, landmark_weight=1.0, with_scale=False, trim_fraction=0.1)
+    al = align_to_surface(
+        m, x, skin_tri, landmark_points_m=lm, landmark_weight=1.0, with_scale=False, trim_fraction=0.1
+    )
     return list(names), al.aligned_m

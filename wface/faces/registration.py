@@ -6,19 +6,23 @@ The template's skin vertices x_i (m) move by displacements d_i that minimise (do
     E(d) = 1/N_f sum_i w_i [(n_i . (x_i + d_i - p_i))^2 + beta |x_i + d_i - p_i|^2]   template -> target
          + 1/N_b sum_j w_j |sum_k b_jk (x_k + d_k) - q_j|^2                           target -> template
          + lam/N_l sum_l |sum_k c_lk (x_k + d_k) - y_l|^2                              landmarks
-         + alpha sum_{i interior} |(L d)_i|^2 / A_i                                    thin-plate smoothness
+         + alpha sum_{i interior} |(L u)_i|^2 / A_i,   u = x + d - x0                  thin-plate smoothness
 
 p_i is the closest target point of template vertex i (n_i the target normal there), q_j a target
 vertex with b_j the barycentric weights of its closest template point, c_l the barycentric
 embedding of landmark l in the template skin, y_l its target position, L the cotangent
-Laplacian and A_i the lumped vertex area. The smoothness uses interior rows only, so every affine
+Laplacian, A_i the lumped vertex area and u the whole displacement from the template x0 (the
+stiffness holds the accumulated field, not each step's increment). The smoothness uses interior rows only, so every affine
 displacement costs nothing and the stiffness penalises bending alone (a discrete thin plate; the
 point-to-plane data term with a small point-to-point share beta lets the skin slide along the
 target, Chen & Medioni 1992). Correspondences are recomputed each iteration (non-rigid ICP,
 Amberg et al. 2007) while alpha falls from stiff to supple. A pair is left out when its closest
 point lies on the other surface's boundary (the template patch does not cover the back of the
-head; the target has holes at the eyes), when the normals differ by more than 60 degrees, or when
-it is farther than the iteration's cut-off. Each iteration is one sparse symmetric solve.
+head; the target has holes at the eyes), when the normals differ by more than 60 degrees, when the
+offset between the two does not run along the normal (within 45 degrees: a point beside the other
+surface's edge), or when it is farther than the iteration's cut-off. Each iteration is one sparse symmetric solve. With a
+target surface the landmark weight falls with alpha (landmarks guide the start; the surfaces decide
+the end), and a stage after which a skin triangle has turned over is undone and ends the schedule.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ from scipy.sparse import coo_matrix, csr_matrix, diags, identity, kron
 from scipy.sparse.linalg import spsolve
 
 from wface.mesh.closest import SurfaceQuery
-from wface.mesh.surface import vertex_normals
+from wface.mesh.surface import triangle_normals, vertex_normals
 from wface.mesh.surface_fields import cotangent_laplacian
 
 __all__ = ["RegistrationResult", "boundary_vertices", "register_surface"]
@@ -39,6 +43,10 @@ __all__ = ["RegistrationResult", "boundary_vertices", "register_surface"]
 DEFAULT_SCHEDULE: tuple[tuple[float, int], ...] = ((30.0, 3), (10.0, 3), (3.0, 3), (1.0, 3), (0.3, 4))
 _BETA = 0.1  # point-to-point share of the template -> target term
 _MAX_NORMAL_DEG = 60.0
+_ALONG_COS = np.cos(np.radians(45.0))
+_FOLD_COS = -0.5  # a skin triangle turned by more than 120 degrees has folded over
+_MEMBRANE = 0.1  # step damping (membrane on the increment) relative to the bending
+_MIN_CUT_M = 5e-3  # the correspondence cut-off never falls below this
 
 
 @dataclass
@@ -93,19 +101,24 @@ def _bary_matrix(rows_tri: np.ndarray, bary: np.ndarray, n: int) -> csr_matrix:
     return coo_matrix((bary.ravel(), (np.repeat(np.arange(k), 3), rows_tri.ravel())), shape=(k, n)).tocsr()
 
 
-def _smoothness(vertices, triangles, skin_vertices) -> csr_matrix:
-    """(3n, 3n) thin-plate matrix sum over interior skin vertices of |(L d)_i|^2 / A_i, per coordinate."""
+def _smoothness(vertices, triangles, skin_vertices) -> tuple[csr_matrix, csr_matrix]:
+    """(bending, membrane), each (3n, 3n) and scaled so that the bending's mean diagonal is 1.
+
+    bending: sum over interior skin vertices of |(L u)_i|^2 / A_i per coordinate (a thin plate,
+    zero for every affine u). membrane: u^T L u (penalises stretching), applied to each step's
+    increment only: a damping that keeps a step from collapsing small triangles (the corners of
+    the mouth) without biasing the converged field.
+    """
     n = len(vertices)
     lap, area = cotangent_laplacian(vertices, triangles)
     interior = np.zeros(n, dtype=bool)
     interior[skin_vertices] = True
     interior &= ~boundary_vertices(triangles, n)
-    lap_i = diags(interior / area) @ lap
-    bend = lap.T @ lap_i
-    # A weak membrane term (d^T L d, 1e-3 of the bending scale) pins down vertices that no interior
-    # row reaches (corners of the patch) without a measurable cost to affine displacements.
-    scale = float(bend.diagonal().mean()) / max(float(lap.diagonal().mean()), 1e-300)
-    return kron(bend + 1e-3 * scale * lap, identity(3), format="csr")
+    bend = lap.T @ (diags(interior / area) @ lap)
+    d_bend = bend.diagonal()
+    s_bend = float(d_bend[d_bend > 0].mean())
+    s_lap = max(float(lap.diagonal().mean()), 1e-300)
+    return kron(bend / s_bend, identity(3), format="csr"), kron(lap / s_lap, identity(3), format="csr")
 
 
 def register_surface(
@@ -137,7 +150,7 @@ def register_surface(
         landmark_weight: lam, relative to the surface terms.
         schedule: (alpha, iterations) pairs, alpha relative to the data terms' mean diagonal.
         max_distance_m: cut-off of a correspondence in the first iteration; it shrinks to 3 x
-            the median distance (at least 2 mm) as the fit converges.
+            the median distance (at least 5 mm) as the fit converges.
         progress: optional callable(str) for one line per stage.
 
     Returns:
@@ -167,13 +180,18 @@ def register_surface(
         t_boundary = boundary_vertices(tt, len(ty))
         samples = np.unique(tt) if target_samples is None else np.asarray(target_samples, dtype=np.int64)
     boundary = boundary_vertices(tri, n)
-    R = _smoothness(x0, tri, skin)
+    bend, membrane = _smoothness(x0, tri, skin)
     x = x0.copy()
+    n_rest = triangle_normals(x0, tri)
     cut = max_distance_m
     history = []
+    alpha_first = schedule[0][0]
     used = np.zeros(n, dtype=bool)
     dist = np.full(n, np.nan)
     for alpha_rel, iters in schedule:
+        x_stage = x.copy()
+        # with a surface the landmarks only guide: their weight falls with the stiffness
+        lam = landmark_weight * (alpha_rel / alpha_first if has_surface else 1.0)
         for _ in range(iters):
             A = csr_matrix((3 * n, 3 * n))
             b = np.zeros(3 * n)
@@ -186,14 +204,15 @@ def register_surface(
             if lm_ok is not None:
                 B = kron(_bary_matrix(lm_tri, lm_b, n), identity(3), format="csr")
                 r = lm_y.ravel() - B @ x.ravel()
-                w = landmark_weight / len(lm_y)
+                w = lam / len(lm_y)
                 A = A + w * (B.T @ B)
                 b = b + w * (B.T @ r)
             diag = A.diagonal()
             scale = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
-            K = A + alpha_rel * scale * _normalised(R)
-            K = K + 1e-9 * scale * identity(3 * n, format="csr")  # vertices off the skin: d = 0
-            d = spsolve(K.tocsc(), b).reshape(n, 3)
+            Rs = alpha_rel * scale * bend
+            K = A + Rs + _MEMBRANE * alpha_rel * scale * membrane + 1e-9 * scale * identity(3 * n, format="csr")
+            # the smoothness acts on the whole displacement x + d - x0, not on this step alone
+            d = spsolve(K.tocsc(), b - Rs @ (x - x0).ravel()).reshape(n, 3)
             x = x + d
             rms = float(np.sqrt(np.nanmean(dist[used] ** 2)) * 1e3) if used.any() else None
             lm_rms = None
@@ -202,7 +221,16 @@ def register_surface(
                 lm_rms = float(np.sqrt(np.mean(np.sum((lm_p - lm_y) ** 2, axis=1))) * 1e3)
             history.append({"alpha": alpha_rel, "pairs": int(pairs), "rms_mm": rms, "landmark_rms_mm": lm_rms})
             if has_surface and used.any():
-                cut = max(2e-3, min(cut, 3.0 * float(np.median(dist[used]))))
+                cut = max(_MIN_CUT_M, min(cut, 3.0 * float(np.median(dist[used]))))
+        folded = int(np.count_nonzero(np.einsum("td,td->t", triangle_normals(x, tri), n_rest) < _FOLD_COS))
+        if folded:  # a stage that folds the skin is too supple for this target: keep the stiffer result
+            x = x_stage
+            history.append({"alpha": alpha_rel, "folded_triangles": folded, "kept": "previous stage"})
+            if progress is not None:
+                progress(
+                    f"registration alpha {alpha_rel:g}: {folded} skin triangle(s) fold; stopping at the previous stage"
+                )
+            break
         if progress is not None:
             progress(f"registration alpha {alpha_rel:g}: {history[-1]}")
     if has_surface:
@@ -217,10 +245,11 @@ def register_surface(
     return RegistrationResult(x, dist, used, lm_res, history)
 
 
-def _normalised(R: csr_matrix) -> csr_matrix:
-    diag = R.diagonal()
-    s = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
-    return R / s
+def _along_normal(offset: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(k,) bool: the offset to the closest point runs along the normal there (within 45 degrees),
+    or is under a millimetre: a point beside a surface's edge, not above or below it, has no partner."""
+    length = np.linalg.norm(offset, axis=1)
+    return (np.abs(np.einsum("kd,kd->k", offset, normals)) >= _ALONG_COS * length) | (length < 1e-3)
 
 
 def _surface_terms(x, tri, skin, boundary, t_query, ty, tt, t_normals, t_boundary, samples, cut):
@@ -231,8 +260,10 @@ def _surface_terms(x, tri, skin, boundary, t_query, ty, tt, t_normals, t_boundar
     # template -> target
     hit = t_query.closest(x[skin])
     nt = _interp_normals(ty, tt, t_normals, hit)
-    ok = (hit.distance_m < cut) & (~_on_boundary(hit, tt, t_boundary) | boundary[skin])  # border to border
+    edge = _on_boundary(hit, tt, t_boundary)
+    ok = (hit.distance_m < cut) & (~edge | boundary[skin])  # a border may meet a border
     ok &= np.einsum("kd,kd->k", nt, normals[skin]) > cos_max
+    ok &= _along_normal(hit.point_m - x[skin], nt) | (edge & boundary[skin])
     i = skin[ok]
     p, nn = hit.point_m[ok], nt[ok]
     w = 1.0 / max(len(i), 1)
@@ -253,8 +284,10 @@ def _surface_terms(x, tri, skin, boundary, t_query, ty, tt, t_normals, t_boundar
     q = ty[samples]
     back = q_query.closest(q)
     nq = _interp_normals(x, tri, normals, back)
-    ok_b = (back.distance_m < cut) & (~_on_boundary(back, tri, boundary) | t_boundary[samples])
+    edge_b = _on_boundary(back, tri, boundary)
+    ok_b = (back.distance_m < cut) & (~edge_b | t_boundary[samples])
     ok_b &= np.einsum("kd,kd->k", nq, t_normals[samples]) > cos_max
+    ok_b &= _along_normal(q - back.point_m, nq) | (edge_b & t_boundary[samples])
     if ok_b.any():
         B = kron(_bary_matrix(tri[back.triangle[ok_b]], back.barycentric[ok_b], n), identity(3), format="csr")
         r = q[ok_b].ravel() - B @ x.ravel()

@@ -78,7 +78,9 @@ class SurfaceMesh:
         ids = []
         for g in groups:
             if g not in self.face_groups:
-                raise KeyError(f"{self.source}: no material group {g!r}; it has {', '.join(self.face_groups) or 'none'}")
+                raise KeyError(
+                    f"{self.source}: no material group {g!r}; it has {', '.join(self.face_groups) or 'none'}"
+                )
             ids.append(self.face_groups[g])
         return np.unique(np.concatenate(ids)) if ids else np.zeros(0, dtype=np.int32)
 

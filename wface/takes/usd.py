@@ -18,6 +18,7 @@ import numpy as np
 
 from wface.controls import IDENTITY_AFFINE, bone_affines
 from wface.io.usd import write_mesh_animation, write_take
+from wface.io.usd.render_mesh import reference_render_mesh, write_render_mesh_layer
 from wface.mesh.surface import boundary_faces
 from wface.model import FaceModel
 from wface.takes.take import Take
@@ -47,6 +48,7 @@ def write_take_usd(
     mesh_only: bool = False,
     bone_meshes: dict | None = None,
     name: str = "Face",
+    render_mesh=None,
 ) -> Path:
     """Write a take's frames as one USD stage (module docstring); time code f = frame f.
 
@@ -62,6 +64,8 @@ def write_take_usd(
             ``source``).
         mesh_only: write the skin alone (``/<name>/Mesh``).
         bone_meshes: {name: BoneMesh} to draw instead of ``model.bone_meshes`` (``{}``: none).
+        render_mesh: a ``wface.faces.render_mesh.RenderMesh`` moved with the frames
+            (``_add_render_mesh``).
     """
     positions_m = np.asarray(positions_m)
     if positions_m.ndim != 3 or positions_m.shape[1:] != (model.n_nodes, 3):
@@ -73,9 +77,10 @@ def write_take_usd(
         raise ValueError("write_take_usd needs fps when no take is given")
     if take is None or mesh_only or not model.skin_triangles.size:
         nodes, tri = skin_mesh(model)
-        return write_mesh_animation(
+        stage = write_mesh_animation(
             path, points_m=positions_m[:, nodes], face_vertex_counts=None, face_vertex_indices=tri, fps=rate, name=name
         )
+        return _add_render_mesh(stage, render_mesh, positions_m, rate, name)
     T = take.n_frames
     if take.bones is not None:
         cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(b) for b in take.bones), strict=True))
@@ -84,7 +89,7 @@ def write_take_usd(
     meta = {"source": take.source, **(metadata or {})}
     if take.force_length_scale is not None:
         meta["force_length_scale"] = take.force_length_scale.max(axis=0).tolist()
-    return write_take(
+    stage = write_take(
         path,
         model=model,
         node_positions_m=positions_m,
@@ -99,3 +104,14 @@ def write_take_usd(
         name=name,
         metadata=meta,
     )
+    return _add_render_mesh(stage, render_mesh, positions_m, rate, name)
+
+
+def _add_render_mesh(path: Path, render_mesh, positions_m: np.ndarray, fps: float, name: str) -> Path:
+    """With a render mesh: write it to ``<stem>_render_mesh.usdc`` in its own units and reference it
+    as ``/<name>/RenderMesh`` (``wface.io.usd.render_mesh``). Returns the stage's path."""
+    if render_mesh is not None:
+        layer = Path(path).with_name(f"{Path(path).stem}_render_mesh.usdc")
+        write_render_mesh_layer(layer, render_mesh.mesh, render_mesh.source_points(positions_m), fps=fps)
+        reference_render_mesh(path, layer, source_to_model=render_mesh.source_to_model, root=name)
+    return Path(path)
