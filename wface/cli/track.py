@@ -14,11 +14,13 @@ from pathlib import Path
 import numpy as np
 
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
+from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.faces.builtin import build_face
 from wface.io.mocap import read_mocap
 from wface.model import load_model
 from wface.tracking.capture import prepare_capture
 from wface.tracking.estimator import TrackOptions
+from wface.tracking.holdout import hide, holdout_report, select_holdout
 from wface.tracking.identifiability import rig_identifiability_mm
 from wface.tracking.output import write_tracking_outputs
 from wface.tracking.report import build_report
@@ -69,6 +71,12 @@ def _common(p: argparse.ArgumentParser) -> None:
     add_contact_arguments(
         p, smoothing_mm=0.05, obstacles=False, where="every equilibrium and Jacobian (for demo also the ground truth)"
     )
+    p.add_argument(
+        "--holdout",
+        metavar="N|NAME,...",
+        help="hide markers from the fit and report their error (holdout_rms_mm): every Nth marker by height, or names",
+    )
+    add_render_mesh_arguments(p)
 
 
 def _contact(args, model):
@@ -124,6 +132,8 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
     contact = _contact(args, model)
     if contact is not None:
         rig_kwargs["contact"] = contact
+    hidden = select_holdout(args.holdout, marker_names, targets[0]) if args.holdout else None
+    render_mesh = render_mesh_from_args(args, model)
     executor, chunk, close = dask_executor(
         workers=args.workers, scheduler=args.scheduler, n_frames=len(targets), chunk_size=args.chunk_size
     )
@@ -131,7 +141,7 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         t0 = time.perf_counter()
         records = track_sequence(
             model,
-            targets,
+            targets if hidden is None else hide(targets, hidden),
             marker_names=marker_names,
             markers=markers,
             options=_options(args),
@@ -163,6 +173,8 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         identifiability_mm=rig_identifiability_mm(rig, markers),
         truth=truth,
     )
+    if hidden is not None:
+        report.update(holdout_report(records, targets, hidden, marker_names))
     write_tracking_outputs(
         out,
         model,
@@ -174,6 +186,7 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         pictures=not args.no_pictures,
         movie=not args.no_movie,
         title=f"wface {args.command}",
+        render_mesh=render_mesh,
     )
     keys = (
         "marker_rms_mm_mean",
@@ -182,6 +195,7 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         "truth_marker_rms_mm",
         "jaw_angle_error_deg",
         "seconds_per_frame_median",
+        "holdout_rms_mm_mean",
     )
     print("  ".join(f"{k}={report[k]:.4g}" for k in keys if report.get(k) is not None))
     print(f"wrote {out / 'report.json'}")

@@ -23,7 +23,7 @@ from wface.mesh.surface import boundary_faces
 from wface.model import FaceModel
 from wface.takes.take import Take
 
-__all__ = ["skin_mesh", "write_take_usd"]
+__all__ = ["add_render_mesh", "skin_mesh", "write_take_usd"]
 
 
 def skin_mesh(model: FaceModel) -> tuple[np.ndarray, np.ndarray]:
@@ -65,7 +65,7 @@ def write_take_usd(
         mesh_only: write the skin alone (``/<name>/Mesh``).
         bone_meshes: {name: BoneMesh} to draw instead of ``model.bone_meshes`` (``{}``: none).
         render_mesh: a ``wface.faces.render_mesh.RenderMesh`` moved with the frames
-            (``_add_render_mesh``).
+            (``add_render_mesh``, which also adds one to a stage already written).
     """
     positions_m = np.asarray(positions_m)
     if positions_m.ndim != 3 or positions_m.shape[1:] != (model.n_nodes, 3):
@@ -80,7 +80,7 @@ def write_take_usd(
         stage = write_mesh_animation(
             path, points_m=positions_m[:, nodes], face_vertex_counts=None, face_vertex_indices=tri, fps=rate, name=name
         )
-        return _add_render_mesh(stage, render_mesh, positions_m, rate, name)
+        return add_render_mesh(stage, render_mesh, positions_m, rate, name)
     T = take.n_frames
     if take.bones is not None:
         cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(b) for b in take.bones), strict=True))
@@ -104,10 +104,10 @@ def write_take_usd(
         name=name,
         metadata=meta,
     )
-    return _add_render_mesh(stage, render_mesh, positions_m, rate, name)
+    return add_render_mesh(stage, render_mesh, positions_m, rate, name)
 
 
-def _add_render_mesh(path: Path, render_mesh, positions_m: np.ndarray, fps: float, name: str) -> Path:
+def add_render_mesh(path: str | Path, render_mesh, positions_m: np.ndarray, fps: float, name: str = "Face") -> Path:
     """With a render mesh: write it to ``<stem>_render_mesh.usdc`` in its own units and reference it
     as ``/<name>/RenderMesh`` (``wface.io.usd.render_mesh``). Returns the stage's path."""
     if render_mesh is not None:

@@ -11,6 +11,7 @@ from wface.controls import bone_affines
 from wface.model import FaceModel
 from wface.takes.store import USD, take_from_records, write_controls, write_report
 from wface.takes.usd import write_take_usd
+from wface.tracking.holdout import plot_holdout
 from wface.viz.figures import write_take_figures
 from wface.viz.report import write_html_report
 
@@ -29,6 +30,7 @@ def write_tracking_outputs(
     pictures: bool = True,
     movie: bool = True,
     title: str = "wface track",
+    render_mesh=None,
 ) -> list[Path]:
     """Write controls.npz / .csv and report.json, and with ``pictures`` animation.usdc, the figures,
     the movie (``movie``) and report.html. Returns the paths written.
@@ -41,6 +43,8 @@ def write_tracking_outputs(
         fps: the capture rate.
         report: the report (``wface.tracking.report.build_report``).
         truth: a ``wface.tracking.synthetic.SyntheticPerformance`` (its curves join the plots).
+        render_mesh: a ``wface.faces.render_mesh.RenderMesh`` to move with the take in the USD.
+    A report with held-out markers (``wface.tracking.holdout``) also gets their plot.
     """
     out = Path(out_dir)
     take = take_from_records(model, records, fps=fps)
@@ -51,7 +55,15 @@ def write_tracking_outputs(
     X = np.array([r.x_m for r in records])
     simulated = np.array([r.markers_m for r in records])
     written.append(
-        write_take_usd(out / USD, model, X, take=take, captured_markers_m=targets_m, simulated_markers_m=simulated)
+        write_take_usd(
+            out / USD,
+            model,
+            X,
+            take=take,
+            captured_markers_m=targets_m,
+            simulated_markers_m=simulated,
+            render_mesh=render_mesh,
+        )
     )
     M = model.n_muscles
     C = np.array([r.controls for r in records])
@@ -70,5 +82,7 @@ def write_tracking_outputs(
         truth_jaw_angle_deg=None if truth is None else truth.jaw_opening_deg,
         movie=movie,
     )
+    if report.get("holdout_rms_mm"):
+        images = {**images, "held-out markers": plot_holdout(out / "holdout.png", report, fps=fps)}
     written.append(write_html_report(out, report, images, title=title))
     return written
