@@ -15,8 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.faces.builtin import build_face
 from wface.model import load_model
+from wface.takes.usd import add_render_mesh
 from wface.takes import (
     Take,
     blend,
@@ -68,6 +70,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--usda", action="store_true", help="write animation.usda (text) instead of .usdc")
     p.add_argument("--mesh-only", action="store_true", help="USD with the skin mesh only (write_mesh_animation)")
     p.add_argument("--no-pictures", action="store_true", help="skip the contact sheet")
+    add_render_mesh_arguments(p)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -178,6 +181,7 @@ def _load(args, model):
 
 def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> int:
 
+    render_mesh = render_mesh_from_args(args, model)
     t0 = time.perf_counter()
     result = simulate_poses(model, take, device=args.device, solver=args.solver, tol=args.tol, progress=True)
     wall = time.perf_counter() - t0
@@ -193,6 +197,8 @@ def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> i
         pictures=not args.no_pictures,
         labels=labels,
     )
+    if render_mesh is not None:
+        add_render_mesh(Path(args.out) / report["usd"], render_mesh, result.x_m, take.fps)
     state = "converged" if report["converged"] else "NOT all converged"
     print(
         f"{report['frames']} frames {state}, max skin displacement {max(report['skin_displacement_max_mm']):.2f} mm, "

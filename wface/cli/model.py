@@ -8,10 +8,9 @@ import sys
 import time
 from pathlib import Path
 
-from wface.basis.landmarks import load_ict_animface_landmarks
 from wface.faces.artisynth import import_artisynth
 from wface.faces.builtin import build_face
-from wface.faces.fit import fit_template, select_target_faces
+from wface.faces.fit import fit_template, ict_feature_landmarks, select_target_faces
 from wface.faces.summary import model_summary
 from wface.io.mocap import read_mocap
 from wface.mesh.meshfile import read_surface_mesh
@@ -32,12 +31,13 @@ examples:
 _FIT_EPILOG = """\
 Morphs a template face onto a subject: the skin onto the target (landmarks, then non-rigid
 closest-point registration with a thin-plate smoothness term), the interior by an elastic
-relaxation that keeps every tet positive, the bones by the landmark similarity; muscles,
+relaxation that keeps every tet positive, each bone by its best similarity; muscles,
 attachments, markers and the jaw joint are carried along. Prints (and stores in the model's
 metadata) the surface distance, landmark residuals, mesh quality before/after and inverted tets.
 
---landmarks is a JSON map {marker name: target vertex id}; with the ICT-FaceKit head
-(generic_neutral_mesh.obj, 26,719 vertices) wface uses its own AnimFace map by default.
+--landmarks is a JSON map {marker name: target vertex id, or [x, y, z] in the mesh's units}; with
+the ICT-FaceKit head (generic_neutral_mesh.obj, 26,719 vertices) wface uses 18 facial features of
+it by default. Names are the template's marker names (AnimFace names on the built-in face).
 
 examples:
   wface model fit --template builtin --tets 20000 --surface ../shared/data/ict-facekit/generic_neutral_mesh.obj \\
@@ -160,10 +160,9 @@ def _fit_landmarks(args, mesh) -> dict | None:
         if not path.is_file():
             raise FileNotFoundError(f"landmark file not found: {path}")
         return {str(k): v for k, v in json.loads(path.read_text()).items()}
-    ict = load_ict_animface_landmarks()
-    if mesh.n_points == 26719 and max(ict.values()) < mesh.n_points:  # the ICT-FaceKit head topology
-        print("landmarks: wface's AnimFace map of the ICT-FaceKit head")
-        return ict
+    if mesh.n_points == 26719:  # the ICT-FaceKit head topology
+        print("landmarks: 18 facial features of the ICT-FaceKit head (eye and mouth corners, lips, brows, nose)")
+        return ict_feature_landmarks()
     return None
 
 

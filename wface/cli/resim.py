@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
+from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.cli.simulate import parse_activations
 from wface.faces.builtin import build_face
 from wface.model import load_model
@@ -120,6 +121,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="synthetic: activations switch on within one time step (default) or ramp over one frame",
     )
     add_contact_arguments(p, where="every time step and reference frame")
+    add_render_mesh_arguments(p)
     p.add_argument("--no-reference", action="store_true", help="skip the quasistatic reference frames")
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
     p.add_argument("--tol", type=float, default=1e-6, help="relative Newton tolerance per step (default 1e-6)")
@@ -250,7 +252,14 @@ def _run(args: argparse.Namespace) -> int:
     report["kinetic_energy_peak_j"] = float(result.kinetic_energy_j.max())
     write_resim_npz(out / "resim.npz", result, reference_positions_m=reference)
     if not args.no_usd:
-        write_take_usd(out / USD, model, result.positions_m, take=take, metadata={"dynamic": True})
+        write_take_usd(
+            out / USD,
+            model,
+            result.positions_m,
+            take=take,
+            metadata={"dynamic": True},
+            render_mesh=render_mesh_from_args(args, model),
+        )
     report["seconds"] = time.perf_counter() - start
     write_report(out, report)
     if args.json:

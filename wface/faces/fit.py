@@ -30,8 +30,10 @@ inverted tets (0, or the fit raises).
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field, replace
+from importlib import resources
 
 import numpy as np
 
@@ -43,7 +45,7 @@ from wface.mesh.quality import quality_report, signed_volumes
 from wface.model import BoneMesh, FaceModel, JawJoint, Material, ModelError
 from wface.physics import Simulator
 
-__all__ = ["FitReport", "FitResult", "fit_template", "select_target_faces"]
+__all__ = ["FitReport", "FitResult", "fit_template", "ict_feature_landmarks", "select_target_faces"]
 
 #: material groups of an artist head that are not skin (eyes, mouth interior, hair cards)
 NON_SKIN_GROUP_WORDS = ("eye", "iris", "sclera", "lacrimal", "lash", "teeth", "tooth", "gum", "tongue", "occlusion")
@@ -89,6 +91,16 @@ class FitResult:
 def _rms(v) -> float | None:
     v = [x for x in v if x is not None and np.isfinite(x)]
     return float(np.sqrt(np.mean(np.square(v)))) if v else None
+
+
+def ict_feature_landmarks() -> dict[str, int]:
+    """{marker name: ICT-FaceKit vertex} for 18 facial features (eye and mouth corners, lip midpoints,
+    brows, nose), the dlib-68 landmark vertices of ICT's ``vertex_indices.json`` under the AnimFace
+    names of ``wface.basis.landmarks.ANIMFACE_DLIB_SEEDS``. Unlike the 41-marker AnimFace map (where
+    one actor's markers sit on the ICT head), these are anatomical features, which is what a fit
+    needs as correspondences."""
+    text = resources.files("wface").joinpath("data", "ict_feature_landmarks.json").read_text()
+    return {str(k): int(v) for k, v in json.loads(text).items()}
 
 
 def select_target_faces(mesh: SurfaceMesh, groups: list[str] | None = None) -> np.ndarray:

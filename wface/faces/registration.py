@@ -23,6 +23,9 @@ offset between the two does not run along the normal (within 45 degrees: a point
 surface's edge), or when it is farther than the iteration's cut-off. Each iteration is one sparse symmetric solve. With a
 target surface the landmark weight falls with alpha (landmarks guide the start; the surfaces decide
 the end), and a stage after which a skin triangle has turned over is undone and ends the schedule.
+With landmarks alone (a marker frame, no scan) the smoothness also holds a membrane term on the
+whole displacement: a thin plate would carry the markers' affine trend out to the patch's borders
+(the ears, the top of the forehead), where no data says anything; the membrane lets it fade.
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ _MAX_NORMAL_DEG = 60.0
 _ALONG_COS = np.cos(np.radians(45.0))
 _FOLD_COS = -0.5  # a skin triangle turned by more than 120 degrees has folded over
 _MEMBRANE = 0.1  # step damping (membrane on the increment) relative to the bending
+_ANCHOR = 0.1  # landmarks alone: a membrane on the whole displacement, so it fades away from them
 _MIN_CUT_M = 5e-3  # the correspondence cut-off never falls below this
 
 
@@ -209,7 +213,7 @@ def register_surface(
                 b = b + w * (B.T @ r)
             diag = A.diagonal()
             scale = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
-            Rs = alpha_rel * scale * bend
+            Rs = alpha_rel * scale * (bend if has_surface else bend + _ANCHOR * membrane)
             K = A + Rs + _MEMBRANE * alpha_rel * scale * membrane + 1e-9 * scale * identity(3 * n, format="csr")
             # the smoothness acts on the whole displacement x + d - x0, not on this step alone
             d = spsolve(K.tocsc(), b - Rs @ (x - x0).ravel()).reshape(n, 3)
