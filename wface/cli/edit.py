@@ -18,7 +18,6 @@ import numpy as np
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.faces.builtin import build_face
 from wface.model import load_model
-from wface.takes.usd import add_render_mesh
 from wface.takes import (
     Take,
     blend,
@@ -31,6 +30,7 @@ from wface.takes import (
     simulate_poses,
     write_edit,
 )
+from wface.takes.usd import add_render_mesh
 from wface.warp_runtime import quiet_warp
 
 _EPILOG = """\

@@ -154,19 +154,20 @@ def _import(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fit_landmarks(args, mesh) -> dict | None:
+def _fit_landmarks(args, mesh, say) -> dict | None:
     if args.landmarks:
         path = Path(args.landmarks)
         if not path.is_file():
             raise FileNotFoundError(f"landmark file not found: {path}")
         return {str(k): v for k, v in json.loads(path.read_text()).items()}
     if mesh.n_points == 26719:  # the ICT-FaceKit head topology
-        print("landmarks: 18 facial features of the ICT-FaceKit head (eye and mouth corners, lips, brows, nose)")
+        say("landmarks: 18 facial features of the ICT-FaceKit head (eye and mouth corners, lips, brows, nose)")
         return ict_feature_landmarks()
     return None
 
 
 def _fit(args: argparse.Namespace) -> int:
+    say = print if not args.json else (lambda msg: print(msg, file=sys.stderr))  # --json: stdout is the JSON
     if not (args.surface or args.markers):
         raise ValueError("give --surface HEAD.obj|ply|stl, --markers TAKE.c3d, or both")
     template = build_face(args.tets, progress=True) if args.template == "builtin" else load_model(args.template)
@@ -176,11 +177,11 @@ def _fit(args: argparse.Namespace) -> int:
         groups = [g.strip() for g in args.surface_groups.split(",")] if args.surface_groups else None
         faces = select_target_faces(mesh, groups)
         used = ", ".join(g for g, ids in mesh.face_groups.items() if set(ids.tolist()) <= set(faces.tolist()))
-        print(
+        say(
             f"target {args.surface}: {mesh.n_points} vertices, {mesh.n_faces} faces ({len(faces)} skin: "
             f"{used or 'all'}), {mesh.meters_per_unit:g} m per unit"
         )
-        landmarks = _fit_landmarks(args, mesh)
+        landmarks = _fit_landmarks(args, mesh, say)
     if args.markers:
         take = read_mocap(args.markers)
         if not 0 <= args.neutral_frame < take.n_frames:
@@ -193,29 +194,29 @@ def _fit(args: argparse.Namespace) -> int:
         landmarks=landmarks,
         markers_m=markers,
         marker_names=names,
-        progress=print,
+        progress=say,
     )
     path = save_model(res.model, args.out)
     rep = res.report.as_dict()
-    if args.json:
-        json.dump(rep, sys.stdout, indent=2)
-        print()
     sd = rep["surface_distance_mm"]
     qb, qa = rep["quality_before"], rep["quality_after"]
     if sd:
-        print(f"surface distance to the target: mean {sd['mean']:.2f} mm, max {sd['max']:.2f} mm")
+        say(f"surface distance to the target: mean {sd['mean']:.2f} mm, max {sd['max']:.2f} mm")
     if rep["landmark_rms_mm"] is not None:
         worst = max(rep["landmark_residual_mm"].items(), key=lambda kv: kv[1])
-        print(f"landmarks: RMS {rep['landmark_rms_mm']:.2f} mm, worst {worst[0]} {worst[1]:.2f} mm")
-    print(
+        say(f"landmarks: RMS {rep['landmark_rms_mm']:.2f} mm, worst {worst[0]} {worst[1]:.2f} mm")
+    say(
         f"min dihedral {qb['min_dihedral_deg']:.1f} -> {qa['min_dihedral_deg']:.1f} deg, min volume ratio "
         f"{qb['min_volume_ratio']:.3f} -> {qa['min_volume_ratio']:.3f}, inverted tets {qa['inverted']}, "
         f"scale {rep['scale']:.3f}"
     )
     for bone, b in rep["bones"].items():
         dev = b["attachment_deviation_mm"]
-        print(
+        say(
             f"{bone}: similarity scale {b['scale']:.3f}, attached nodes {dev['mean']:.2f} mm (max {dev['max']:.2f}) off it"
         )
-    print(f"wrote {path}: {res.model.n_tets} tets, {len(res.model.marker_names)} markers, {rep['seconds']:.1f} s")
+    say(f"wrote {path}: {res.model.n_tets} tets, {len(res.model.marker_names)} markers, {rep['seconds']:.1f} s")
+    if args.json:
+        json.dump(rep, sys.stdout, indent=2)
+        print()
     return 0

@@ -48,7 +48,9 @@ def select_holdout(spec: str, marker_names, reference_m: np.ndarray) -> np.ndarr
             raise ValueError(f"--holdout: unknown marker(s) {', '.join(unknown)}; the capture has {', '.join(names)}")
         idx = np.array([names.index(w) for w in wanted])
     if len(idx) == 0 or len(idx) >= len(names) - 2:
-        raise ValueError(f"--holdout {spec} hides {len(idx)} of {len(names)} markers; keep at least 3 and hide at least 1")
+        raise ValueError(
+            f"--holdout {spec} hides {len(idx)} of {len(names)} markers; keep at least 3 and hide at least 1"
+        )
     return np.sort(np.asarray(idx, dtype=np.int64))
 
 
@@ -84,7 +86,9 @@ def holdout_report(records, targets_m: np.ndarray, indices: np.ndarray, marker_n
         "holdout_rms_mm": per_frame,
         "holdout_rms_mm_mean": float(np.mean([v for v in per_frame if v is not None])) if seen.any() else None,
         "holdout_max_mm": float(np.nanmax(err)) if seen.any() else None,
-        "holdout_rms_mm_per_marker": {n: (float(v) if c else None) for n, v, c in zip(names, per_marker, count, strict=True)},
+        "holdout_rms_mm_per_marker": {
+            n: (float(v) if c else None) for n, v, c in zip(names, per_marker, count, strict=True)
+        },
     }
 
 
