@@ -144,7 +144,10 @@ def test_model_fit_command_on_a_mesh_file(tmp_path, capsys):
     lines = [f"v {a:.6f} {b:.6f} {c:.6f}" for a, b, c in x]
     lines += [f"f {i + 1} {j + 1} {k + 1}" for i, j, k in tpl.skin_triangles]
     (tmp_path / "head.obj").write_text("\n".join(lines) + "\n")
-    lm = {n: (_smooth_warp(p[None])[0] * 100).tolist() for n, p in zip(tpl.marker_names, tpl.marker_positions_m)}
+    lm = {
+        n: (_smooth_warp(p[None])[0] * 100).tolist()
+        for n, p in zip(tpl.marker_names, tpl.marker_positions_m, strict=True)
+    }
     (tmp_path / "lm.json").write_text(json.dumps(lm))
     rc = main(
         ["model", "fit", "--template", str(tmp_path / "tpl.npz"), "--surface", str(tmp_path / "head.obj"),

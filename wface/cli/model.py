@@ -213,7 +213,8 @@ def _fit(args: argparse.Namespace) -> int:
     for bone, b in rep["bones"].items():
         dev = b["attachment_deviation_mm"]
         say(
-            f"{bone}: similarity scale {b['scale']:.3f}, attached nodes {dev['mean']:.2f} mm (max {dev['max']:.2f}) off it"
+            f"{bone}: similarity scale {b['scale']:.3f}, attached nodes {dev['mean']:.2f} mm "
+            f"(max {dev['max']:.2f}) off it"
         )
     say(f"wrote {path}: {res.model.n_tets} tets, {len(res.model.marker_names)} markers, {rep['seconds']:.1f} s")
     if args.json:

@@ -12,20 +12,24 @@ p_i is the closest target point of template vertex i (n_i the target normal ther
 vertex with b_j the barycentric weights of its closest template point, c_l the barycentric
 embedding of landmark l in the template skin, y_l its target position, L the cotangent
 Laplacian, A_i the lumped vertex area and u the whole displacement from the template x0 (the
-stiffness holds the accumulated field, not each step's increment). The smoothness uses interior rows only, so every affine
-displacement costs nothing and the stiffness penalises bending alone (a discrete thin plate; the
-point-to-plane data term with a small point-to-point share beta lets the skin slide along the
-target, Chen & Medioni 1992). Correspondences are recomputed each iteration (non-rigid ICP,
-Amberg et al. 2007) while alpha falls from stiff to supple. A pair is left out when its closest
-point lies on the other surface's boundary (the template patch does not cover the back of the
-head; the target has holes at the eyes), when the normals differ by more than 60 degrees, when the
-offset between the two does not run along the normal (within 45 degrees: a point beside the other
-surface's edge), or when it is farther than the iteration's cut-off. Each iteration is one sparse symmetric solve. With a
-target surface the landmark weight falls with alpha (landmarks guide the start; the surfaces decide
-the end), and a stage after which a skin triangle has turned over is undone and ends the schedule.
-With landmarks alone (a marker frame, no scan) the smoothness also holds a membrane term on the
-whole displacement: a thin plate would carry the markers' affine trend out to the patch's borders
-(the ears, the top of the forehead), where no data says anything; the membrane lets it fade.
+stiffness holds the accumulated field, not each step's increment). The smoothness uses interior
+rows only, so every affine displacement costs nothing and it penalises bending alone (a discrete
+thin plate); a membrane term on each step's increment (not on u) damps steps that would collapse
+small triangles. The point-to-plane data term with a small point-to-point share beta lets the
+skin slide along the target (Chen & Medioni 1992). Correspondences are recomputed each iteration
+(non-rigid ICP, Amberg et al. 2007) while alpha falls from stiff to supple. A pair is left out
+when its closest point lies on the other surface's boundary (the template patch does not cover
+the back of the head; the target has holes at the eyes) unless both points are on a boundary,
+when the normals differ by more than 60 degrees, when the offset between the two does not run
+along the normal (within 45 degrees: a point beside the other surface's edge), or when it is
+farther than the iteration's cut-off. Each iteration is one sparse symmetric solve.
+
+With a target surface the landmark weight falls with alpha (landmarks guide the start; the
+surfaces decide the end), and a stage after which a skin triangle has turned over (by more than
+120 degrees) is undone and ends the schedule. With landmarks alone (a marker frame, no scan) the
+smoothness also holds a membrane term on the whole displacement: a thin plate would carry the
+markers' affine trend out to the patch's borders (the ears, the top of the forehead), where no
+data says anything; the membrane lets it fade.
 """
 
 from __future__ import annotations
@@ -97,6 +101,17 @@ def _on_boundary(hit, triangles: np.ndarray, boundary: np.ndarray) -> np.ndarray
 def _interp_normals(vertices, triangles, normals, hit) -> np.ndarray:
     n = np.einsum("kj,kjd->kd", hit.barycentric, normals[triangles[hit.triangle]])
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def _step(A, b, u, alpha_rel, bend, membrane, *, anchored: bool) -> np.ndarray:
+    """(n, 3) step d of one iteration: (A + S + D) d = b - S u with S the smoothness on the whole
+    displacement u (bending, plus the membrane anchor for landmarks alone) and D the membrane
+    damping of the step; both scale with the data terms' mean diagonal."""
+    diag = A.diagonal()
+    scale = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
+    S = alpha_rel * scale * (bend + _ANCHOR * membrane if anchored else bend)
+    K = A + S + _MEMBRANE * alpha_rel * scale * membrane + 1e-9 * scale * identity(A.shape[0], format="csr")
+    return spsolve(K.tocsc(), b - S @ u.ravel()).reshape(-1, 3)
 
 
 def _bary_matrix(rows_tri: np.ndarray, bary: np.ndarray, n: int) -> csr_matrix:
@@ -211,13 +226,7 @@ def register_surface(
                 w = lam / len(lm_y)
                 A = A + w * (B.T @ B)
                 b = b + w * (B.T @ r)
-            diag = A.diagonal()
-            scale = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
-            Rs = alpha_rel * scale * (bend if has_surface else bend + _ANCHOR * membrane)
-            K = A + Rs + _MEMBRANE * alpha_rel * scale * membrane + 1e-9 * scale * identity(3 * n, format="csr")
-            # the smoothness acts on the whole displacement x + d - x0, not on this step alone
-            d = spsolve(K.tocsc(), b - Rs @ (x - x0).ravel()).reshape(n, 3)
-            x = x + d
+            x = x + _step(A, b, x - x0, alpha_rel, bend, membrane, anchored=not has_surface)
             rms = float(np.sqrt(np.nanmean(dist[used] ** 2)) * 1e3) if used.any() else None
             lm_rms = None
             if lm_ok is not None:
@@ -231,9 +240,7 @@ def register_surface(
             x = x_stage
             history.append({"alpha": alpha_rel, "folded_triangles": folded, "kept": "previous stage"})
             if progress is not None:
-                progress(
-                    f"registration alpha {alpha_rel:g}: {folded} skin triangle(s) fold; stopping at the previous stage"
-                )
+                progress(f"registration alpha {alpha_rel:g}: {folded} skin triangle(s) fold; the previous stage stands")
             break
         if progress is not None:
             progress(f"registration alpha {alpha_rel:g}: {history[-1]}")
