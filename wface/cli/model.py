@@ -140,6 +140,13 @@ def _info(args: argparse.Namespace) -> int:
     print(f"  {len(s['muscles'])} muscles: {', '.join(s['muscles'])}")
     print(f"  {len(s['markers'])} markers: {', '.join(s['markers'])}")
     print(f"  bones: {', '.join(s['bones'])}; action units: {', '.join(s['action_units'])}")
+    fit = s.get("fit")
+    if fit:
+        sd = fit["surface_distance_mm"]
+        target = fit["surface"] or f"{fit['markers']} neutral markers"
+        dist = f"surface distance {sd['mean']:.2f} mm mean, {sd['max']:.2f} max, " if sd else ""
+        lm = fit["landmark_rms_mm"]
+        print(f"  fitted to {target}: {dist}landmarks {lm:.2f} mm RMS, {fit['inverted_tets']} inverted tets")
     return 0
 
 

@@ -125,18 +125,12 @@ def _initial_similarity(template_pts, target_pts, skin_x, target_v, target_t) ->
         return start
     rng = np.random.default_rng(0)
     sub = skin_x[rng.choice(len(skin_x), size=min(800, len(skin_x)), replace=False)]
-    src = sub if start is None else start.apply(sub)
-    lm = None if start is None else np.vstack([start.apply(template_pts[ok]), np.full((0, 3), np.nan)])
-    pts = src if lm is None else np.vstack([src, lm])
-    lm_points = None if lm is None else np.vstack([np.full((len(src), 3), np.nan), target_pts[ok]])
-    al = align_to_surface(
-        pts,
-        target_v,
-        target_t,
-        landmark_points_m=lm_points,
-        landmark_weight=5.0 if lm is not None else 0.0,
-        trim_fraction=0.2,
-    )
+    if start is None:  # no landmarks: principal axes and closest points alone
+        al = align_to_surface(sub, target_v, target_t, trim_fraction=0.2)
+    else:  # the skin sample and the landmarks, both through the landmark similarity first
+        pts = start.apply(np.vstack([sub, template_pts[ok]]))
+        lm = np.vstack([np.full((len(sub), 3), np.nan), target_pts[ok]])
+        al = align_to_surface(pts, target_v, target_t, landmark_points_m=lm, landmark_weight=5.0, trim_fraction=0.2)
     return al.transform if start is None else al.transform.compose(start)
 
 
