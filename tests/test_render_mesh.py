@@ -174,3 +174,27 @@ def test_the_ict_head_binds_to_the_built_in_face(face):
     with pytest.warns(UserWarning, match="Fit the face to it first"):
         rm = bind_render_mesh(face, head)  # not the face's shape: a warning, still bound
     np.testing.assert_allclose(rm.source_points(face.rest_positions_m), head.points, atol=1e-9)  # cm
+
+
+def test_resim_writes_the_render_mesh_too(tmp_path, capsys):
+    import json
+
+    from pxr import Usd, UsdGeom
+
+    from wface.cli import main
+
+    face = build_face(2000)
+    x, skin = face.rest_positions_m, face.skin_triangles
+    used = np.unique(skin[:60])
+    local = {v: i for i, v in enumerate(used)}
+    lines = [f"v {a:.9f} {b:.9f} {c:.9f}" for a, b, c in x[used]]
+    lines += [f"f {local[i] + 1} {local[j] + 1} {local[k] + 1}" for i, j, k in skin[:60]]
+    (tmp_path / "patch.obj").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "smile"
+    args = ["resim", "--out", str(out), "--tets", "2000", "--frames", "3", "--substeps", "2", "--json"]
+    assert main([*args, "--render-mesh", str(tmp_path / "patch.obj"), "--render-mesh-units", "m"]) == 0
+    json.loads(capsys.readouterr().out)  # --json: stdout still holds the summary alone
+    stage = Usd.Stage.Open(str(out / "animation.usdc"))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Face/RenderMesh/Mesh"))
+    assert mesh.GetPointsAttr().GetTimeSamples() == [0.0, 1.0, 2.0]
+    assert len(mesh.GetPointsAttr().Get(2.0)) == len(used)

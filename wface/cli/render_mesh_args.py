@@ -4,6 +4,7 @@ in the USD output of ``track``, ``demo``, ``edit`` and ``resim`` (``wface.faces.
 from __future__ import annotations
 
 import argparse
+import sys
 
 import numpy as np
 
@@ -25,7 +26,8 @@ def add_render_mesh_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def render_mesh_from_args(args, model):
-    """The bound ``RenderMesh`` of the options, or None; prints how it was placed and bound."""
+    """The bound ``RenderMesh`` of the options, or None; says on stderr how it was placed and bound
+    (stdout stays clean for ``--json``)."""
     path = getattr(args, "render_mesh", None)
     if not path:
         return None
@@ -34,6 +36,7 @@ def render_mesh_from_args(args, model):
     print(
         f"render mesh {path}: {rm.mesh.n_points} vertices, {rm.mesh.n_faces} faces, {rm.mesh.meters_per_unit:g} m "
         f"per unit, placed by {rm.placement}; {len(b.inside)} inside the tets, {len(b.outside)} outside "
-        f"(median {1e3 * float(np.median(b.distance_m[b.outside]) if len(b.outside) else 0):.1f} mm off the skin)"
+        f"(median {1e3 * float(np.median(b.distance_m[b.outside]) if len(b.outside) else 0):.1f} mm off the skin)",
+        file=sys.stderr,
     )
     return rm
