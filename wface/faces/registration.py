@@ -25,8 +25,10 @@ along the normal (within 45 degrees: a point beside the other surface's edge), o
 farther than the iteration's cut-off. Each iteration is one sparse symmetric solve.
 
 With a target surface the landmark weight falls with alpha (landmarks guide the start; the
-surfaces decide the end), and a stage after which a skin triangle has turned over (by more than
-120 degrees) is undone and ends the schedule. With landmarks alone (a marker frame, no scan) the
+surfaces decide the end). No step may turn a skin triangle over (by more than 120 degrees): where
+one would, the corners of the folding triangles and their neighbours are held by a per-vertex
+damping that grows tenfold per retry (a local trust region), and a stage that still folds the skin
+is undone and ends the schedule. With landmarks alone (a marker frame, no scan) the
 smoothness also holds a membrane term on the whole displacement: a thin plate would carry the
 markers' affine trend out to the patch's borders (the ears, the top of the forehead), where no
 data says anything; the membrane lets it fade.
@@ -54,6 +56,7 @@ _ALONG_COS = np.cos(np.radians(45.0))
 _FOLD_COS = -0.5  # a skin triangle turned by more than 120 degrees has folded over
 _MEMBRANE = 0.1  # step damping (membrane on the increment) relative to the bending
 _ANCHOR = 0.1  # landmarks alone: a membrane on the whole displacement, so it fades away from them
+_FOLD_RETRIES = 6  # solves per iteration, holding the vertices of would-be folds ever harder
 _MIN_CUT_M = 5e-3  # the correspondence cut-off never falls below this
 
 
@@ -103,15 +106,33 @@ def _interp_normals(vertices, triangles, normals, hit) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
 
-def _step(A, b, u, alpha_rel, bend, membrane, *, anchored: bool) -> np.ndarray:
-    """(n, 3) step d of one iteration: (A + S + D) d = b - S u with S the smoothness on the whole
-    displacement u (bending, plus the membrane anchor for landmarks alone) and D the membrane
-    damping of the step; both scale with the data terms' mean diagonal."""
+def _step(A, b, u, alpha_rel, bend, membrane, *, anchored: bool, hold=None) -> np.ndarray:
+    """(n, 3) step d of one iteration: (A + S + D + H) d = b - S u with S the smoothness on the
+    whole displacement u (bending, plus the membrane anchor for landmarks alone), D the membrane
+    damping of the step and H = diag(hold) per vertex; all scale with the data terms' mean diagonal."""
     diag = A.diagonal()
     scale = float(diag[diag > 0].mean()) if np.any(diag > 0) else 1.0
     S = alpha_rel * scale * (bend + _ANCHOR * membrane if anchored else bend)
-    K = A + S + _MEMBRANE * alpha_rel * scale * membrane + 1e-9 * scale * identity(A.shape[0], format="csr")
+    h = 1e-9 if hold is None else 1e-9 + np.repeat(hold, 3)
+    K = A + S + _MEMBRANE * alpha_rel * scale * membrane + diags(scale * h)
     return spsolve(K.tocsc(), b - S @ u.ravel()).reshape(-1, 3)
+
+
+def _unfolded_step(A, b, x, x0, tri, n_rest, alpha_rel, bend, membrane, *, anchored: bool) -> np.ndarray:
+    """A step that turns no skin triangle over: where the plain step would fold triangles, their
+    corners (and their neighbours) are held by a per-vertex damping that grows tenfold per retry, so
+    the rest of the skin still moves (a local trust region)."""
+    hold = np.zeros(len(x))
+    for _ in range(_FOLD_RETRIES):
+        d = _step(A, b, x - x0, alpha_rel, bend, membrane, anchored=anchored, hold=hold)
+        bad = np.einsum("td,td->t", triangle_normals(x + d, tri), n_rest) < _FOLD_COS
+        if not bad.any():
+            return d
+        near = np.zeros(len(x), dtype=bool)
+        near[tri[bad].ravel()] = True
+        near[tri[np.any(near[tri], axis=1)].ravel()] = True
+        hold[near] = np.maximum(10.0 * hold[near], 10.0)
+    return d
 
 
 def _bary_matrix(rows_tri: np.ndarray, bary: np.ndarray, n: int) -> csr_matrix:
@@ -226,7 +247,7 @@ def register_surface(
                 w = lam / len(lm_y)
                 A = A + w * (B.T @ B)
                 b = b + w * (B.T @ r)
-            x = x + _step(A, b, x - x0, alpha_rel, bend, membrane, anchored=not has_surface)
+            x = x + _unfolded_step(A, b, x, x0, tri, n_rest, alpha_rel, bend, membrane, anchored=not has_surface)
             rms = float(np.sqrt(np.nanmean(dist[used] ** 2)) * 1e3) if used.any() else None
             lm_rms = None
             if lm_ok is not None:
