@@ -11,10 +11,12 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 
 from wface.cli.closing import print_outputs
+from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.cli.validate import finite_float, non_negative_int, positive_float, positive_int
 from wface.faces.builtin import build_face
 from wface.model import load_model
@@ -32,6 +34,7 @@ from wface.takes import (
 )
 from wface.takes.provenance import command_provenance
 from wface.takes.store import claim_take_dir
+from wface.takes.usd import add_render_mesh
 from wface.warp_runtime import quiet_warp
 
 _EPILOG = """\
@@ -74,6 +77,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mesh-only", action="store_true", help="USD with the skin mesh only (write_mesh_animation)")
     p.add_argument("--no-pictures", action="store_true", help="skip the contact sheet")
     p.add_argument("--overwrite", action="store_true", help="replace the results of another take that OUT holds")
+    add_render_mesh_arguments(p)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -197,6 +201,7 @@ def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> i
     started = time.time()
 
     claim_take_dir(args.out, command_provenance(f"edit {args.edit_command}", model, args), overwrite=args.overwrite)
+    render_mesh = render_mesh_from_args(args, model)
     t0 = time.perf_counter()
     result = simulate_poses(model, take, device=args.device, solver=args.solver, tol=args.tol, progress=True)
     wall = time.perf_counter() - t0
@@ -212,6 +217,8 @@ def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> i
         pictures=not args.no_pictures,
         labels=labels,
     )
+    if render_mesh is not None:
+        add_render_mesh(Path(args.out) / report["usd"], render_mesh, result.x_m, take.fps, frames=take.frames)
     state = "converged" if report["converged"] else "NOT all converged"
     print(
         f"{report['frames']} frames {state}, max skin displacement {max(report['skin_displacement_max_mm']):.2f} mm, "

@@ -11,7 +11,10 @@ from pathlib import Path
 from wface.cli.validate import positive_int
 from wface.faces.artisynth import import_artisynth
 from wface.faces.builtin import build_face
+from wface.faces.fit import fit_template, ict_feature_landmarks, select_target_faces
 from wface.faces.summary import model_summary
+from wface.io.mocap import read_mocap
+from wface.mesh.meshfile import read_surface_mesh
 from wface.mesh.tetio import model_cell_data, write_tet_mesh
 from wface.model import load_model, save_model
 
@@ -23,6 +26,25 @@ names) and a jaw joint. Resolution goes from ~1K to 2M tets; the same --tets giv
 examples:
   wface model build --tets 20000 --out face20k.npz
   wface model build --tets 400000 --out face400k.npz --vtu face400k.vtu
+"""
+
+
+_FIT_EPILOG = """\
+Morphs a template face onto a subject: the skin onto the target (landmarks, then non-rigid
+closest-point registration with a thin-plate smoothness term), the interior by an elastic
+relaxation that keeps every tet positive, each bone by its best similarity; muscles,
+attachments, markers and the jaw joint are carried along. Prints (and stores in the model's
+metadata) the surface distance, landmark residuals, mesh quality before/after and inverted tets.
+
+--landmarks is a JSON map {marker name: target vertex id, or [x, y, z] in the mesh's units}; with
+the ICT-FaceKit head (generic_neutral_mesh.obj, 26,719 vertices) wface uses 18 facial features of
+it by default. Names are the template's marker names (AnimFace names on the built-in face).
+
+examples:
+  wface model fit --template builtin --tets 20000 --surface ../shared/data/ict-facekit/generic_neutral_mesh.obj \\
+      --out actor.npz
+  wface model fit --template builtin --markers take.c3d --neutral-frame 0 --out actor.npz
+  wface model fit --template badin.npz --surface scan.ply --landmarks scan_landmarks.json --out actor.npz
 """
 
 
@@ -61,6 +83,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     imp.add_argument("directory", help="source directory")
     imp.add_argument("--out", required=True, help="output model file (.npz)")
     imp.set_defaults(func=_import)
+
+    f = msub.add_parser(
+        "fit",
+        help="fit a template face to a head mesh and/or a neutral marker frame",
+        description="Fit a template face to an actor's head mesh or neutral marker frame.",
+        epilog=_FIT_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    f.add_argument("--template", default="builtin", help="'builtin' or a face model .npz (default builtin)")
+    f.add_argument("--tets", type=int, default=20000, help="size of the built-in template (default 20000)")
+    f.add_argument("--surface", help="target head mesh: .obj, .ply, .stl, .off, ...")
+    f.add_argument("--units", default="auto", help="units of --surface: auto, m, cm, mm (default auto)")
+    f.add_argument("--surface-groups", help="material groups of --surface that are skin (default: not eyes/teeth)")
+    f.add_argument("--landmarks", help="JSON {marker name: target vertex id} for --surface")
+    f.add_argument("--markers", help="motion capture (.c3d, .trc, .csv) whose neutral frame is the actor's face")
+    f.add_argument("--neutral-frame", type=int, default=0, help="frame of --markers showing the neutral face")
+    f.add_argument("--out", required=True, help="output model file (.npz)")
+    f.add_argument("--json", action="store_true", help="print the fit report as JSON")
+    f.set_defaults(func=_fit)
     p.set_defaults(func=lambda a: p.print_help() or 2)
 
 
@@ -100,6 +141,13 @@ def _info(args: argparse.Namespace) -> int:
     print(f"  {len(s['muscles'])} muscles: {', '.join(s['muscles'])}")
     print(f"  {len(s['markers'])} markers: {', '.join(s['markers'])}")
     print(f"  bones: {', '.join(s['bones'])}; action units: {', '.join(s['action_units'])}")
+    fit = s.get("fit")
+    if fit:
+        sd = fit["surface_distance_mm"]
+        target = fit["surface"] or f"{fit['markers']} neutral markers"
+        dist = f"surface distance {sd['mean']:.2f} mm mean, {sd['max']:.2f} max, " if sd else ""
+        lm = fit["landmark_rms_mm"]
+        print(f"  fitted to {target}: {dist}landmarks {lm:.2f} mm RMS, {fit['inverted_tets']} inverted tets")
     return 0
 
 
@@ -111,4 +159,73 @@ def _import(args: argparse.Namespace) -> int:
     model = import_artisynth(args.directory)
     path = save_model(model, args.out)
     print(f"wrote {path}: {model.n_tets} tets, {model.n_nodes} nodes, {model.n_muscles} muscles")
+    return 0
+
+
+def _fit_landmarks(args, mesh, say) -> dict | None:
+    if args.landmarks:
+        path = Path(args.landmarks)
+        if not path.is_file():
+            raise FileNotFoundError(f"landmark file not found: {path}")
+        return {str(k): v for k, v in json.loads(path.read_text()).items()}
+    if mesh.n_points == 26719:  # the ICT-FaceKit head topology
+        say("landmarks: 18 facial features of the ICT-FaceKit head (eye and mouth corners, lips, brows, nose)")
+        return ict_feature_landmarks()
+    return None
+
+
+def _fit(args: argparse.Namespace) -> int:
+    say = print if not args.json else (lambda msg: print(msg, file=sys.stderr))  # --json: stdout is the JSON
+    if not (args.surface or args.markers):
+        raise ValueError("give --surface HEAD.obj|ply|stl, --markers TAKE.c3d, or both")
+    template = build_face(args.tets, progress=True) if args.template == "builtin" else load_model(args.template)
+    mesh = faces = landmarks = markers = names = None
+    if args.surface:
+        mesh = read_surface_mesh(args.surface, units=args.units)
+        groups = [g.strip() for g in args.surface_groups.split(",")] if args.surface_groups else None
+        faces = select_target_faces(mesh, groups)
+        used = ", ".join(g for g, ids in mesh.face_groups.items() if set(ids.tolist()) <= set(faces.tolist()))
+        say(
+            f"target {args.surface}: {mesh.n_points} vertices, {mesh.n_faces} faces ({len(faces)} skin: "
+            f"{used or 'all'}), {mesh.meters_per_unit:g} m per unit"
+        )
+        landmarks = _fit_landmarks(args, mesh, say)
+    if args.markers:
+        take = read_mocap(args.markers)
+        if not 0 <= args.neutral_frame < take.n_frames:
+            raise ValueError(f"--neutral-frame {args.neutral_frame} is outside {args.markers}'s {take.n_frames} frames")
+        markers, names = take.positions_m[args.neutral_frame], take.marker_names
+    res = fit_template(
+        template,
+        surface=mesh,
+        surface_faces=faces,
+        landmarks=landmarks,
+        markers_m=markers,
+        marker_names=names,
+        progress=say,
+    )
+    path = save_model(res.model, args.out)
+    rep = res.report.as_dict()
+    sd = rep["surface_distance_mm"]
+    qb, qa = rep["quality_before"], rep["quality_after"]
+    if sd:
+        say(f"surface distance to the target: mean {sd['mean']:.2f} mm, max {sd['max']:.2f} mm")
+    if rep["landmark_rms_mm"] is not None:
+        worst = max(rep["landmark_residual_mm"].items(), key=lambda kv: kv[1])
+        say(f"landmarks: RMS {rep['landmark_rms_mm']:.2f} mm, worst {worst[0]} {worst[1]:.2f} mm")
+    say(
+        f"min dihedral {qb['min_dihedral_deg']:.1f} -> {qa['min_dihedral_deg']:.1f} deg, min volume ratio "
+        f"{qb['min_volume_ratio']:.3f} -> {qa['min_volume_ratio']:.3f}, inverted tets {qa['inverted']}, "
+        f"scale {rep['scale']:.3f}"
+    )
+    for bone, b in rep["bones"].items():
+        dev = b["attachment_deviation_mm"]
+        say(
+            f"{bone}: similarity scale {b['scale']:.3f}, attached nodes {dev['mean']:.2f} mm "
+            f"(max {dev['max']:.2f}) off it"
+        )
+    say(f"wrote {path}: {res.model.n_tets} tets, {len(res.model.marker_names)} markers, {rep['seconds']:.1f} s")
+    if args.json:
+        json.dump(rep, sys.stdout, indent=2)
+        print()
     return 0

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
+from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.cli.simulate import parse_activations
 from wface.cli.validate import non_negative_float, non_negative_int, positive_float, positive_int
 from wface.faces.builtin import build_face
@@ -129,6 +130,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="synthetic: activations switch on within one time step (default) or ramp over one frame",
     )
     add_contact_arguments(p, where="every time step and reference frame")
+    add_render_mesh_arguments(p)
     p.add_argument("--no-reference", action="store_true", help="skip the quasistatic reference frames")
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
     p.add_argument("--overwrite", action="store_true", help="replace the results of another take that OUT holds")
@@ -261,7 +263,14 @@ def _run(args: argparse.Namespace) -> int:
     report["kinetic_energy_peak_j"] = float(result.kinetic_energy_j.max())
     write_resim_npz(out / "resim.npz", result, reference_positions_m=reference)
     if not args.no_usd:
-        write_take_usd(out / USD, model, result.positions_m, take=take, metadata={"dynamic": True})
+        write_take_usd(
+            out / USD,
+            model,
+            result.positions_m,
+            take=take,
+            metadata={"dynamic": True},
+            render_mesh=render_mesh_from_args(args, model),
+        )
     report["seconds"] = time.perf_counter() - start
     write_report(out, report)
     if args.json:

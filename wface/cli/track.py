@@ -15,6 +15,7 @@ from pathlib import Path
 
 from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
+from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.cli.validate import (
     frame_range,
     non_negative_float,
@@ -30,6 +31,7 @@ from wface.model import load_model
 from wface.takes.store import claim_take_dir, resume_plan
 from wface.tracking.capture import check_capture, prepare_capture
 from wface.tracking.estimator import TrackOptions
+from wface.tracking.holdout import hide, holdout_report, select_holdout
 from wface.tracking.identifiability import rig_identifiability_mm
 from wface.tracking.output import write_tracking_outputs
 from wface.tracking.report import build_report
@@ -113,6 +115,12 @@ def _common(p: argparse.ArgumentParser) -> None:
     add_contact_arguments(
         p, smoothing_mm=0.05, obstacles=False, where="every equilibrium and Jacobian (for demo also the ground truth)"
     )
+    p.add_argument(
+        "--holdout",
+        metavar="N|NAME,...",
+        help="hide markers from the fit and report their error (holdout_rms_mm): every Nth marker by height, or names",
+    )
+    add_render_mesh_arguments(p)
 
 
 def _contact(args, model):
@@ -177,6 +185,7 @@ def _rig_kwargs(args, model) -> dict:
 
 def _claim(args, model, markers, targets, source: dict, first_frame: int = 0) -> dict:
     """Provenance of this run; claims --out (refusing another take's directory) and says what --resume reuses."""
+    source = {**source, "holdout": getattr(args, "holdout", None)}  # hidden markers change the fit
     run = tracking_provenance(
         model, markers, options=_options(args), rig_kwargs=_rig_kwargs(args, model), kind=args.command, source=source
     )
@@ -191,6 +200,8 @@ def _claim(args, model, markers, targets, source: dict, first_frame: int = 0) ->
 def _run(args, model, targets, marker_names, markers, fps, truth=None, first_frame=0, run=None, info=None) -> int:
     out = Path(args.out)
     rig_kwargs = _rig_kwargs(args, model)
+    hidden = select_holdout(args.holdout, marker_names, targets[0]) if args.holdout else None
+    render_mesh = render_mesh_from_args(args, model)
     executor, chunk, close = dask_executor(
         workers=args.workers, scheduler=args.scheduler, n_frames=len(targets), chunk_size=args.chunk_size
     )
@@ -198,7 +209,7 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         t0 = time.perf_counter()
         records = track_sequence(
             model,
-            targets,
+            targets if hidden is None else hide(targets, hidden),
             marker_names=marker_names,
             markers=markers,
             options=_options(args),
@@ -235,6 +246,8 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         truth=truth,
         robust_mm=args.robust_mm or None,
     )
+    if hidden is not None:
+        report.update(holdout_report(records, targets, hidden, marker_names))
     written = write_tracking_outputs(
         out,
         model,
@@ -249,6 +262,7 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         title=f"wface {args.command}",
         marker_names=list(marker_names),
         progress=True,
+        render_mesh=render_mesh,
     )
     keys = (
         "marker_rms_mm_mean",
@@ -257,6 +271,7 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         "truth_marker_rms_mm",
         "jaw_angle_error_deg",
         "seconds_per_frame_median",
+        "holdout_rms_mm_mean",
     )
     if carried:
         warnings.warn(

@@ -33,4 +33,13 @@ def model_summary(model: FaceModel) -> dict:
         "muscle_volume_cm3": dict(
             zip(model.muscle_names, np.round(model.muscle_volume_m3() * 1e6, 4).tolist(), strict=True)
         ),
+        "fit": _fit_summary(model.metadata.get("fit")),
     }
+
+
+def _fit_summary(fit: dict | None) -> dict | None:
+    """What ``wface model fit`` measured (``wface.faces.fit``), or None for a model never fitted."""
+    if not fit:
+        return None
+    keys = ("template", "surface", "markers", "scale", "surface_distance_mm", "landmark_rms_mm", "inverted_tets")
+    return {k: fit.get(k) for k in keys}

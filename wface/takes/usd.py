@@ -21,12 +21,13 @@ import numpy as np
 
 from wface.controls import IDENTITY_AFFINE, bone_affines, jaw_to_intuitive, params_from_affine
 from wface.io.usd import write_mesh_animation, write_take
+from wface.io.usd.render_mesh import reference_render_mesh, write_render_mesh_layer
 from wface.mesh.surface import boundary_faces
 from wface.model import FaceModel
 from wface.takes.shapes import skin_rig
 from wface.takes.take import Take
 
-__all__ = ["skin_mesh", "write_take_usd"]
+__all__ = ["add_render_mesh", "skin_mesh", "write_take_usd"]
 
 _ACTIVE = 1e-6  # a curve above this in some frame makes a muscle "used" by the take
 
@@ -56,6 +57,7 @@ def write_take_usd(
     rig: bool | str = "active",
     simulator=None,
     progress: bool = False,
+    render_mesh=None,
 ) -> Path:
     """Write a take's frames as one USD stage (module docstring); time code f = frame f.
 
@@ -78,6 +80,8 @@ def write_take_usd(
             to every muscle and the jaw; False writes no rig.
         simulator: a ``Simulator`` of ``model`` to reuse for the rig's solves.
         progress: show a progress bar over the rig's solves.
+        render_mesh: a ``wface.faces.render_mesh.RenderMesh`` moved with the frames
+            (``add_render_mesh``, which also adds one to a stage already written).
     """
     positions_m = np.asarray(positions_m)
     if positions_m.ndim != 3 or positions_m.shape[1:] != (model.n_nodes, 3):
@@ -90,7 +94,7 @@ def write_take_usd(
     if take is None or mesh_only or not model.skin_triangles.size:
         nodes, tri = skin_mesh(model)
         frames = None if take is None else take.frames
-        return write_mesh_animation(
+        stage = write_mesh_animation(
             path,
             points_m=positions_m[:, nodes],
             face_vertex_counts=None,
@@ -99,6 +103,7 @@ def write_take_usd(
             name=name,
             frames=frames,
         )
+        return add_render_mesh(stage, render_mesh, positions_m, rate, name, frames=frames)
     T = take.n_frames
     if take.bones is not None:
         cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(b) for b in take.bones), strict=True))
@@ -109,7 +114,7 @@ def write_take_usd(
         meta["force_length_scale"] = take.force_length_scale.max(axis=0).tolist()
     activations = np.minimum(take.drives, 1.0)
     skel, rig_weights = _rig(model, take, activations, jaw, rig, simulator, progress)
-    return write_take(
+    stage = write_take(
         path,
         frames=take.frames,
         rig=skel,
@@ -127,6 +132,7 @@ def write_take_usd(
         name=name,
         metadata=meta,
     )
+    return add_render_mesh(stage, render_mesh, positions_m, rate, name, frames=take.frames)
 
 
 def _rig(model: FaceModel, take: Take, activations: np.ndarray, jaw: np.ndarray, rig, simulator, progress: bool):
@@ -148,3 +154,23 @@ def _rig(model: FaceModel, take: Take, activations: np.ndarray, jaw: np.ndarray,
         opening = np.array([jaw_to_intuitive(model.jaw_joint, p)["opening_deg"] for p in params])
         columns.append(np.clip(opening / skel.info["jaw_open_full_deg"], 0.0, 1.0)[:, None])
     return skel, np.concatenate(columns, axis=1)
+
+
+def add_render_mesh(
+    path: str | Path,
+    render_mesh,
+    positions_m: np.ndarray,
+    fps: float,
+    name: str = "Face",
+    *,
+    frames: np.ndarray | None = None,
+) -> Path:
+    """With a render mesh: write it to ``<stem>_render_mesh.usdc`` in its own units and reference it
+    as ``/<name>/RenderMesh`` (``wface.io.usd.render_mesh``), time codes ``frames`` (default 0..T-1)
+    as on the take's stage. Returns the stage's path."""
+    if render_mesh is not None:
+        layer = Path(path).with_name(f"{Path(path).stem}_render_mesh.usdc")
+        points = render_mesh.source_points(positions_m)
+        write_render_mesh_layer(layer, render_mesh.mesh, points, fps=fps, frames=frames)
+        reference_render_mesh(path, layer, source_to_model=render_mesh.source_to_model, root=name)
+    return Path(path)

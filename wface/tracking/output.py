@@ -17,6 +17,7 @@ from wface.controls import bone_affines
 from wface.model import FaceModel
 from wface.takes.store import USD, take_from_records, write_controls, write_report
 from wface.takes.usd import write_take_usd
+from wface.tracking.holdout import plot_holdout
 from wface.viz.figures import write_take_figures
 from wface.viz.report import write_html_report
 
@@ -71,6 +72,7 @@ def write_tracking_outputs(
     title: str = "wface track",
     marker_names: list[str] | None = None,
     progress: bool = False,
+    render_mesh=None,
 ) -> list[Path]:
     """Write controls.npz / .csv, report.json, animation.usdc (``usd``), pictures and plots
     (``pictures``), the movie (``pictures and movie``) and report.html. Returns every path written.
@@ -88,6 +90,8 @@ def write_tracking_outputs(
         title: the HTML report's title.
         marker_names: the k captured markers' names (locators in the USD stage).
         progress: show a progress bar over the stages (USD, pictures, movie, report).
+        render_mesh: a ``wface.faces.render_mesh.RenderMesh`` to move with the take in the USD.
+    A report with held-out markers (``wface.tracking.holdout``) also gets their plot.
     """
     out = Path(out_dir)
     take = take_from_records(model, records, fps=fps)
@@ -112,11 +116,14 @@ def write_tracking_outputs(
                     captured_markers_m=targets_m,
                     simulated_markers_m=simulated,
                     marker_names=marker_names,
+                    render_mesh=render_mesh,
                 )
             )
             bar.update()
         if pictures:
             images = _figures(out, model, records, X, simulated, targets_m, fps, truth, movie, bar)
+            if report.get("holdout_rms_mm"):
+                images["held-out markers"] = plot_holdout(out / "holdout.png", report, fps=fps)
             written.extend(Path(p) for p in images.values())
         bar.set_postfix_str("report.html")
         files = describe_outputs([*written, out / "report.html"])

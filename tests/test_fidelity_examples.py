@@ -1,0 +1,51 @@
+"""examples/fidelity_animface.py and examples/cheek_puff.py run headless with tiny options on the
+real AnimFace capture (skipped without ../shared/data)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+from tests.conftest import data_path
+
+_EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def _example(name: str):
+    spec = importlib.util.spec_from_file_location(name, _EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_fidelity_table_on_two_jaw_frames(tmp_path, monkeypatch):
+    monkeypatch.setenv("WFACE_DATA", str(data_path("animface").parent))
+    out = tmp_path / "fid"
+    args = ["--out", str(out), "--takes", "Jaw", "--tets", "2000", "--frames", "4", "--step", "2"]
+    assert _example("fidelity_animface").main(args) == 0
+    res = json.loads((out / "fidelity.json").read_text())
+    assert set(res) == {"Jaw/builtin", "Jaw/fitted"}
+    for r in res.values():
+        assert r["frames"] == 2 and len(r["holdout_markers"]) == 41 // 5
+        assert 0 < r["marker_rms_mm_mean"] < 10 and 0 < r["holdout_rms_mm_mean"] < 20
+    # the fitted face passes through the neutral frame: its first frame (file frame 0) fits closer
+    fitted = json.loads((out / "Jaw_fitted" / "report.json").read_text())["marker_rms_mm"][0]
+    builtin = json.loads((out / "Jaw_builtin" / "report.json").read_text())["marker_rms_mm"][0]
+    assert fitted < builtin
+    assert "| Jaw | fitted | 2 |" in (out / "fidelity.md").read_text()
+
+
+def test_cheek_puff_analysis(tmp_path, monkeypatch):
+    monkeypatch.setenv("WFACE_DATA", str(data_path("animface").parent))
+    out = tmp_path / "cheeks"
+    assert _example("cheek_puff").main(["--out", str(out), "--tets", "2000", "--frames", "300"]) == 0
+    res = json.loads((out / "cheek_puff.json").read_text())
+    assert len(res["cheek_markers"]) == 6 and (out / "cheek_puff.png").stat().st_size > 0
+    # in the first 5 s the cheeks puff out by several mm, beyond what every outward muscle at 1 does
+    puffed = [
+        n
+        for n in res["cheek_markers"]
+        if res["capture_outward_max_mm"][n] > res["model_outward_all_pushers_on_mm"][n] + 2
+    ]
+    assert len(puffed) >= 3

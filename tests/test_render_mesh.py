@@ -1,0 +1,200 @@
+"""Render meshes: reading polygon meshes (wface.mesh.meshfile), binding them to the tet mesh
+(wface.mesh.embed, wface.faces.render_mesh) and writing them to USD (wface.io.usd.render_mesh)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.conftest import data_path
+from wface.faces import build_face
+from wface.faces.render_mesh import bind_render_mesh
+from wface.mesh.embed import bind_points
+from wface.mesh.meshfile import read_surface_mesh
+from wface.takes.take import Take
+from wface.takes.usd import write_take_usd
+
+_EXACT_M = 1e-12  # float64 round-off on positions of ~0.1 m
+_USD_M = 2e-7  # float32 points in USD, centimetres: ~1e-6 cm relative
+
+_OBJ = """\
+# two quads and a triangle, a UV seam, two materials, no .mtl file
+mtllib missing.mtl
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+v 2 0 0
+v 2 1 0
+v 3 0.5 0
+vt 0 0
+vt 1 0
+vt 1 1
+vt 0 1
+vt 0.5 0.5
+vt 0.9 0.1
+usemtl Skin
+f 1/1 2/2 3/3 4/4
+f 2/5 5/2 6/3 3/6
+usemtl Eyes
+f 5/1 7/2 6/3
+"""
+
+
+@pytest.fixture(scope="module")
+def face():
+    return build_face(2000)
+
+
+def _points_around(face, rng) -> np.ndarray:
+    """Points inside the flesh (tet centroids), on the skin, and 1-80 mm outside it."""
+    x, skin = face.rest_positions_m, face.skin_triangles
+    inside = x[face.tets[rng.choice(face.n_tets, 50, replace=False)]].mean(axis=1)
+    t = rng.choice(len(skin), 50, replace=False)
+    p = x[skin[t]].mean(axis=1)
+    n = np.cross(x[skin[t, 1]] - x[skin[t, 0]], x[skin[t, 2]] - x[skin[t, 0]])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    outside = p + n * rng.uniform(0.001, 0.08, (50, 1)) + rng.normal(0, 0.01, (50, 3))
+    return np.vstack([inside, p, outside])
+
+
+def test_a_bound_mesh_reproduces_the_rest_mesh_exactly(face):
+    pts = _points_around(face, np.random.default_rng(0))
+    b = bind_points(pts, face.rest_positions_m, face.tets, face.skin_triangles)
+    assert len(b.inside) >= 50 and len(b.outside) >= 40  # both kinds are exercised
+    np.testing.assert_allclose(b.positions(face.rest_positions_m), pts, atol=_EXACT_M, rtol=0)
+
+
+def test_a_bound_mesh_follows_an_affine_deformation_exactly(face):
+    pts = _points_around(face, np.random.default_rng(1))
+    b = bind_points(pts, face.rest_positions_m, face.tets, face.skin_triangles)
+    c, s = np.cos(0.4), np.sin(0.4)
+    A = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ np.array(
+        [[1.3, 0.2, 0.0], [0.0, 0.8, 0.1], [0.05, 0.0, 1.1]]
+    )
+    t = np.array([0.01, -0.02, 0.03])
+    moved = b.positions(face.rest_positions_m @ A.T + t)
+    np.testing.assert_allclose(moved, pts @ A.T + t, atol=_EXACT_M, rtol=0)
+
+
+def test_outside_points_turn_with_a_local_bend(face):
+    """A bend of the flesh turns the offsets of the outside points within 2 cm of the skin (a render
+    mesh's skin detail): they land far closer to where the bend itself takes them than the closest
+    skin point plus its unturned rest offset does (farther out, the bend's curvature over the
+    offset, which no local gradient carries, takes over)."""
+    pts = _points_around(face, np.random.default_rng(2))[100:]
+    b = bind_points(pts, face.rest_positions_m, face.tets, face.skin_triangles)
+    bend = lambda p: p + np.array([0, 0, 1.0]) * 2.0 * p[:, :1] ** 2  # noqa: E731 - about the vertical axis
+    x = bend(face.rest_positions_m)
+    c = np.einsum("kj,kjd->kd", b.tri_weights, x[b.tri_nodes])
+    shifted = c + b.offset_m  # the offset carried without turning
+    near = np.linalg.norm(b.offset_m, axis=1) < 0.02
+    assert near.sum() >= 10
+    err = np.linalg.norm(b.positions(x)[b.outside] - bend(pts)[b.outside], axis=1)[near]
+    err_shift = np.linalg.norm(shifted - bend(pts)[b.outside], axis=1)[near]
+    assert np.median(err) < 0.5 * np.median(err_shift)
+
+
+def test_an_obj_keeps_its_polygons_uv_seams_and_material_groups(tmp_path):
+    path = tmp_path / "quad.obj"
+    path.write_text(_OBJ)
+    m = read_surface_mesh(path, units="cm")
+    assert m.n_points == 7 and m.face_vertex_counts.tolist() == [4, 4, 3]
+    assert m.face_vertex_indices.tolist() == [0, 1, 2, 3, 1, 4, 5, 2, 4, 6, 5]
+    assert m.uv_indices.tolist() == [0, 1, 2, 3, 4, 1, 2, 5, 0, 1, 2]  # vertex 1 has two UVs: a seam
+    assert {k: v.tolist() for k, v in m.face_groups.items()} == {"Skin": [0, 1], "Eyes": [2]}
+    assert m.meters_per_unit == 0.01
+    tri, face_of = m.triangles()
+    assert tri.tolist() == [[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2], [4, 6, 5]] and face_of.tolist() == [
+        0,
+        0,
+        1,
+        1,
+        2,
+    ]
+
+
+def test_other_formats_and_bad_files(tmp_path):
+    import meshio
+
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]) * 0.1
+    meshio.write(tmp_path / "t.ply", meshio.Mesh(pts, [("triangle", np.array([[0, 1, 2], [0, 1, 3]]))]))
+    m = read_surface_mesh(tmp_path / "t.ply")
+    assert m.n_faces == 2 and m.meters_per_unit == 1.0 and m.uv is None
+    with pytest.raises(FileNotFoundError):
+        read_surface_mesh(tmp_path / "none.obj")
+    (tmp_path / "bad.obj").write_text("v 0 0 0\nf 1 2 3\n")
+    with pytest.raises(ValueError, match="outside"):
+        read_surface_mesh(tmp_path / "bad.obj")
+
+
+def test_the_render_mesh_goes_to_usd_in_its_own_units(face, tmp_path):
+    from pxr import Usd, UsdGeom
+
+    x, skin = face.rest_positions_m, face.skin_triangles
+    obj = tmp_path / "patch.obj"
+    used = np.unique(skin[:200])
+    local = {v: i for i, v in enumerate(used)}
+    lines = [f"v {a * 100:.9f} {b * 100:.9f} {c * 100:.9f}" for a, b, c in x[used]]  # centimetres
+    lines += [f"vt {u:.3f} {v:.3f}" for u, v in np.random.default_rng(0).random((len(used), 2))]
+    lines += ["usemtl Face"] + [
+        f"f {local[i] + 1}/{local[i] + 1} {local[j] + 1}/{local[j] + 1} {local[k] + 1}/{local[k] + 1}"
+        for i, j, k in skin[:200]
+    ]
+    obj.write_text("\n".join(lines) + "\n")
+    rm = bind_render_mesh(face, obj, units="cm", source_to_model=np.diag([0.01, 0.01, 0.01, 1.0]))
+    frames = np.stack([x, x + np.array([0.0, 0.01, 0.0])])  # rest, then 1 cm up
+    take = Take(
+        activations=np.zeros((2, face.n_muscles)), fps=24.0, muscle_names=face.muscle_names, joint=face.jaw_joint
+    )
+    path = write_take_usd(tmp_path / "animation.usdc", face, frames, take=take, render_mesh=rm)
+    layer = Usd.Stage.Open(str(tmp_path / "animation_render_mesh.usdc"))
+    assert UsdGeom.GetStageMetersPerUnit(layer) == 0.01 and layer.GetTimeCodesPerSecond() == 24.0
+    mesh = UsdGeom.Mesh(layer.GetPrimAtPath("/RenderMesh/Mesh"))
+    assert list(mesh.GetFaceVertexCountsAttr().Get()) == rm.mesh.face_vertex_counts.tolist()
+    assert list(mesh.GetFaceVertexIndicesAttr().Get()) == rm.mesh.face_vertex_indices.tolist()
+    st = UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetPrimvar("st")
+    assert st.GetInterpolation() == "faceVarying" and list(st.GetIndices()) == rm.mesh.uv_indices.tolist()
+    subsets = UsdGeom.Subset.GetGeomSubsets(mesh, "face", "materialBind")
+    assert [s.GetPrim().GetName() for s in subsets] == ["Face"] and len(subsets[0].GetIndicesAttr().Get()) == 200
+    p1 = np.array(mesh.GetPointsAttr().Get(1.0))
+    np.testing.assert_allclose(p1, rm.mesh.points + [0.0, 1.0, 0.0], atol=_USD_M * 100)  # moved 1 cm, in cm
+    assert mesh.GetNormalsAttr().GetTimeSamples() == [0.0, 1.0]
+    stage = Usd.Stage.Open(str(path))  # the take's stage (metres) references the layer with its placement
+    prim = stage.GetPrimAtPath("/Face/RenderMesh/Mesh")
+    world = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(0.0))
+    pts = np.array(UsdGeom.Mesh(prim).GetPointsAttr().Get(0.0))
+    np.testing.assert_allclose(np.c_[pts, np.ones(len(pts))] @ world, np.c_[x[used], np.ones(len(used))], atol=1e-8)
+
+
+def test_the_ict_head_binds_to_the_built_in_face(face):
+    head = read_surface_mesh(data_path("ict-facekit", "generic_neutral_mesh.obj"))
+    assert (head.n_points, head.n_faces, int((head.face_vertex_counts == 3).sum())) == (26719, 26384, 548)
+    assert head.meters_per_unit == 0.01 and len(head.uv) == 28911 and len(head.face_groups) == 12
+    with pytest.warns(UserWarning, match="Fit the face to it first"):
+        rm = bind_render_mesh(face, head)  # not the face's shape: a warning, still bound
+    np.testing.assert_allclose(rm.source_points(face.rest_positions_m), head.points, atol=1e-9)  # cm
+
+
+def test_resim_writes_the_render_mesh_too(tmp_path, capsys):
+    import json
+
+    from pxr import Usd, UsdGeom
+
+    from wface.cli import main
+
+    face = build_face(2000)
+    x, skin = face.rest_positions_m, face.skin_triangles
+    used = np.unique(skin[:60])
+    local = {v: i for i, v in enumerate(used)}
+    lines = [f"v {a:.9f} {b:.9f} {c:.9f}" for a, b, c in x[used]]
+    lines += [f"f {local[i] + 1} {local[j] + 1} {local[k] + 1}" for i, j, k in skin[:60]]
+    (tmp_path / "patch.obj").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "smile"
+    args = ["resim", "--out", str(out), "--tets", "2000", "--frames", "3", "--substeps", "2", "--json"]
+    assert main([*args, "--render-mesh", str(tmp_path / "patch.obj"), "--render-mesh-units", "m"]) == 0
+    json.loads(capsys.readouterr().out)  # --json: stdout still holds the summary alone
+    stage = Usd.Stage.Open(str(out / "animation.usdc"))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Face/RenderMesh/Mesh"))
+    assert mesh.GetPointsAttr().GetTimeSamples() == [0.0, 1.0, 2.0]
+    assert len(mesh.GetPointsAttr().Get(2.0)) == len(used)

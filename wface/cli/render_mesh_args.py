@@ -1,0 +1,42 @@
+"""``--render-mesh MESH`` (and ``--render-mesh-units``): the user's own mesh moved with the FEM face
+in the USD output of ``track``, ``demo``, ``edit`` and ``resim`` (``wface.faces.render_mesh``)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from wface.faces.render_mesh import bind_render_mesh
+
+__all__ = ["add_render_mesh_arguments", "render_mesh_from_args"]
+
+
+def add_render_mesh_arguments(p: argparse.ArgumentParser) -> None:
+    """Add ``--render-mesh`` and ``--render-mesh-units`` to a sub-command parser."""
+    p.add_argument(
+        "--render-mesh",
+        metavar="MESH",
+        help="a triangle/quad mesh (.obj with UVs and materials, .ply, .stl, ...) bound to the face and written "
+        "to USD beside the FEM skin (its own layer, in its own units); best on a face fitted to it "
+        "(wface model fit --surface MESH)",
+    )
+    p.add_argument("--render-mesh-units", default="auto", help="units of --render-mesh: auto, m, cm, mm")
+
+
+def render_mesh_from_args(args, model):
+    """The bound ``RenderMesh`` of the options, or None; says on stderr how it was placed and bound
+    (stdout stays clean for ``--json``)."""
+    path = getattr(args, "render_mesh", None)
+    if not path:
+        return None
+    rm = bind_render_mesh(model, path, units=args.render_mesh_units)
+    b = rm.binding
+    print(
+        f"render mesh {path}: {rm.mesh.n_points} vertices, {rm.mesh.n_faces} faces, {rm.mesh.meters_per_unit:g} m "
+        f"per unit, placed by {rm.placement}; {len(b.inside)} inside the tets, {len(b.outside)} outside "
+        f"(median {1e3 * float(np.median(b.distance_m[b.outside]) if len(b.outside) else 0):.1f} mm off the skin)",
+        file=sys.stderr,
+    )
+    return rm

@@ -1,0 +1,131 @@
+"""A render mesh as USD: its own layer in the source's units, referenced beside the FEM skin.
+
+``write_render_mesh_layer`` writes ``<name>.usdc``: a stage whose ``metersPerUnit`` is the source
+file's (0.01 for a head modelled in centimetres), upAxis Y, timeCodesPerSecond = fps, the default
+prim ``/<name>`` (Xform) with ``/<name>/Mesh``: the authored topology (faceVertexCounts /
+faceVertexIndices, quads kept), points, extent and vertex normals time-sampled (frame f at time
+code f, in the file's own frame and units), the texture coordinates as the indexed faceVarying
+primvar ``st`` (texCoord2f, seams kept), and one ``UsdGeom.Subset`` per material group (family
+``materialBind``, faces) bound to a ``UsdPreviewSurface`` material of that name under
+``/<name>/Materials``. The layer opens alone in Blender, usdview or Houdini in the asset's own
+coordinates.
+
+``reference_render_mesh`` adds ``/<root>/RenderMesh`` to a take's stage (metersPerUnit 1): an
+Xform whose transform is the source-to-model placement (units included), referencing that layer,
+so the render mesh lies on the FEM skin there.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from wface.files import save_layer
+from wface.io.usd._common import _vt_vec3f
+from wface.io.usd.mesh import _write_face_varying, _write_materials
+from wface.mesh.surface import vertex_normals
+
+__all__ = ["reference_render_mesh", "write_render_mesh_layer"]
+
+_SKIN_RGB = (0.80, 0.62, 0.52)
+_OTHER_RGB = (0.55, 0.55, 0.58)
+
+
+def _material_colors(groups) -> dict:
+    """Skin-like groups (face, head, skin, body) in a skin tone, the rest grey."""
+    return {
+        n: _SKIN_RGB if any(w in n.lower() for w in ("face", "head", "skin", "body")) else _OTHER_RGB for n in groups
+    }
+
+
+def write_render_mesh_layer(
+    path: str | Path,
+    mesh,
+    points: np.ndarray,
+    *,
+    fps: float,
+    name: str = "RenderMesh",
+    frames: np.ndarray | None = None,
+) -> Path:
+    """Write a render mesh's animation as its own USD layer (module docstring).
+
+    Args:
+        path: ``.usdc`` or ``.usda``.
+        mesh: the ``wface.mesh.meshfile.SurfaceMesh`` (topology, UVs, groups, meters_per_unit).
+        points: (T, n, 3) vertex positions per frame in the mesh file's frame and units.
+        fps: frame rate (timeCodesPerSecond).
+        frames: (T,) the frames' time codes (default 0..T-1), as on the take's stage.
+        name: the default prim's name.
+
+    Returns:
+        The path written.
+    """
+    from pxr import Sdf, Usd, UsdGeom, Vt
+
+    path = Path(path)
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 3 or pts.shape[1:] != (mesh.n_points, 3):
+        raise ValueError(f"points must have shape (frames, {mesh.n_points}, 3), got {pts.shape}")
+    if not np.all(np.isfinite(pts)):
+        raise ValueError("render mesh points contain NaN or inf")
+    if not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be a positive number, got {fps}")
+    times = np.arange(len(pts), dtype=float) if frames is None else np.asarray(frames, dtype=float)
+    if times.shape != (len(pts),):
+        raise ValueError(f"frames must have shape ({len(pts)},), got {times.shape}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    stage = Usd.Stage.CreateInMemory(path.name)
+    UsdGeom.SetStageMetersPerUnit(stage, float(mesh.meters_per_unit))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    stage.SetTimeCodesPerSecond(float(fps))
+    stage.SetFramesPerSecond(float(fps))
+    stage.SetStartTimeCode(float(times[0]))
+    stage.SetEndTimeCode(float(times[-1]))
+    root = f"/{Sdf.Path.IsValidIdentifier(name) and name or 'RenderMesh'}"
+    stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, root).GetPrim())
+    geom = UsdGeom.Mesh.Define(stage, f"{root}/Mesh")
+    geom.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(mesh.face_vertex_counts, np.int32)))
+    geom.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(mesh.face_vertex_indices, np.int32)))
+    geom.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    geom.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
+    tri, _ = mesh.triangles()
+    p_attr, n_attr, e_attr = geom.CreatePointsAttr(), geom.CreateNormalsAttr(), geom.CreateExtentAttr()
+    geom.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    for t, p in zip(times, pts, strict=True):
+        p_attr.Set(_vt_vec3f(p), t)
+        n_attr.Set(_vt_vec3f(vertex_normals(p, tri)), t)
+        e_attr.Set(_vt_vec3f(np.stack([p.min(axis=0), p.max(axis=0)])), t)
+    if mesh.uv is not None and mesh.uv_indices is not None:
+        _write_face_varying(geom, "st", mesh.uv, mesh.uv_indices, mesh.face_vertex_indices.size, 2)
+    if mesh.face_groups:
+        colors = _material_colors(mesh.face_groups)
+        _write_materials(stage, root, geom, mesh.face_groups, colors, int(mesh.n_faces))
+    stage.GetRootLayer().customLayerData = {
+        "wface": {"kind": "render_mesh", "source": str(mesh.source), "first_frame": int(times[0])}
+    }
+    save_layer(stage.GetRootLayer(), path)  # atomic: a temporary file renamed into place
+    return path
+
+
+def reference_render_mesh(
+    stage_path: str | Path, layer_path: str | Path, *, source_to_model: np.ndarray, root: str = "Face"
+) -> None:
+    """Reference a render-mesh layer from a take's stage as ``/<root>/RenderMesh`` (module docstring).
+
+    Args:
+        stage_path: the take's stage (metersPerUnit 1), edited in place.
+        layer_path: the layer ``write_render_mesh_layer`` wrote.
+        source_to_model: (4, 4) mesh file coordinates -> model metres (column vectors).
+        root: the stage's root prim name.
+    """
+    from pxr import Gf, Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(stage_path))
+    xf = UsdGeom.Xform.Define(stage, f"/{root}/RenderMesh")
+    rel = os.path.relpath(Path(layer_path).resolve(), Path(stage_path).resolve().parent)
+    xf.GetPrim().GetReferences().AddReference(Path(rel).as_posix())
+    m = np.asarray(source_to_model, dtype=np.float64)
+    xf.AddTransformOp().Set(Gf.Matrix4d(m.T.tolist()))  # USD multiplies row vectors: the transpose
+    save_layer(stage.GetRootLayer(), stage_path)

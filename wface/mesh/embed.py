@@ -1,0 +1,157 @@
+"""Points bound to a tetrahedral mesh, so that they move with it (a render mesh on the FEM face).
+
+A point inside the tet mesh keeps its barycentric weights w in the tet that contains it:
+p = sum_j w_j x_j, exact for any affine motion of the mesh. A point outside keeps its closest skin
+point c (barycentric weights in a skin triangle) and its rest offset o = p0 - c0, carried by the
+local deformation gradient of the skin triangle's neighbourhood:
+
+    p = c(x) + F_t o,    F_t = sum_k x_k g_k^T,    g_k = C^-1 (X_k - Xbar),    C = sum_k (X_k - Xbar)(X_k - Xbar)^T
+
+over the nodes k of the tets that touch the triangle's corners (rest positions X_k, current x_k):
+F_t is the least-squares affine fit of the neighbourhood's motion, so the offset turns and
+stretches with the flesh, F_t = A exactly under an affine motion x = A X + b, and F_t = I at rest.
+For a point on the skin's normal this is "closest skin point plus normal offset"; points off to the
+side (the back of a head beyond the face patch) keep their whole offset, so the rest mesh is
+reproduced exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from wface.mesh.closest import SurfaceQuery
+
+__all__ = ["PointBinding", "bind_points"]
+
+_INSIDE_TOL = 1e-9  # barycentric slack: a point on a shared face belongs to either tet
+
+
+@dataclass
+class PointBinding:
+    """Points bound to a tet mesh (module docstring). Shapes: n points, a inside, b outside."""
+
+    n_points: int
+    inside: np.ndarray  # (a,) point ids
+    tet_nodes: np.ndarray  # (a, 4) node ids of the containing tet
+    tet_weights: np.ndarray  # (a, 4) barycentric weights
+    outside: np.ndarray  # (b,) point ids
+    tri_nodes: np.ndarray  # (b, 3) node ids of the closest skin triangle
+    tri_weights: np.ndarray  # (b, 3) barycentric weights of the closest skin point
+    offset_m: np.ndarray  # (b, 3) rest offset p0 - c0
+    frame_of: np.ndarray  # (b,) row into frame_nodes / frame_g
+    frame_nodes: np.ndarray  # (f, K) neighbourhood node ids (padded with node 0)
+    frame_g: np.ndarray  # (f, K, 3) g_k (zero for padding), 1/m
+
+    @property
+    def distance_m(self) -> np.ndarray:
+        """(n,) distance of each point to the mesh at rest (0 inside)."""
+        d = np.zeros(self.n_points)
+        d[self.outside] = np.linalg.norm(self.offset_m, axis=1)
+        return d
+
+    def positions(self, x_m: np.ndarray) -> np.ndarray:
+        """(n, 3) point positions for node positions ``x_m`` (n_nodes, 3)."""
+        x = np.asarray(x_m, dtype=np.float64)
+        out = np.empty((self.n_points, 3))
+        out[self.inside] = np.einsum("kj,kjd->kd", self.tet_weights, x[self.tet_nodes])
+        if len(self.outside):
+            c = np.einsum("kj,kjd->kd", self.tri_weights, x[self.tri_nodes])
+            F = np.einsum("fkd,fke->fde", x[self.frame_nodes], self.frame_g)  # (f, 3, 3)
+            out[self.outside] = c + np.einsum("kde,ke->kd", F[self.frame_of], self.offset_m)
+        return out
+
+
+def _containing_tets(points, x, tets, k: int = 16):
+    """(tet id or -1, (n, 4) weights) of the tet containing each point (among the k nearest centroids)."""
+    tree = cKDTree(x[tets].mean(axis=1))
+    _, cand = tree.query(points, k=min(k, len(tets)))
+    cand = cand.reshape(len(points), -1)
+    found = np.full(len(points), -1, dtype=np.int64)
+    weights = np.zeros((len(points), 4))
+    for j in range(cand.shape[1]):
+        todo = np.flatnonzero(found < 0)
+        if not todo.size:
+            break
+        t = cand[todo, j]
+        p = x[tets[t]]
+        D = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]], axis=2)
+        w123 = np.linalg.solve(D, (points[todo] - p[:, 0])[:, :, None])[:, :, 0]
+        w = np.column_stack([1.0 - w123.sum(axis=1), w123])
+        hit = w.min(axis=1) >= -_INSIDE_TOL
+        found[todo[hit]] = t[hit]
+        weights[todo[hit]] = w[hit]
+    return found, weights
+
+
+def _frames(x, tets, skin_triangles, used_tris):
+    """Neighbourhood nodes and g_k of each used skin triangle (module docstring)."""
+    n = len(x)
+    node_tets = [[] for _ in range(n)]
+    for t, row in enumerate(tets):
+        for v in row:
+            node_tets[v].append(t)
+    groups = []
+    for t in used_tris:
+        ts = np.unique(np.concatenate([node_tets[v] for v in skin_triangles[t]]))
+        groups.append(np.unique(tets[ts].ravel()))
+    K = max(len(g) for g in groups)
+    nodes = np.zeros((len(groups), K), dtype=np.int64)
+    g_out = np.zeros((len(groups), K, 3))
+    for i, g in enumerate(groups):
+        X = x[g] - x[g].mean(axis=0)
+        C = X.T @ X
+        nodes[i, : len(g)] = g
+        g_out[i, : len(g)] = np.linalg.solve(C, X.T).T
+    return nodes, g_out
+
+
+def bind_points(
+    points_m: np.ndarray, rest_positions_m: np.ndarray, tets: np.ndarray, skin_triangles: np.ndarray
+) -> PointBinding:
+    """Bind (n, 3) points to a tet mesh at rest (module docstring).
+
+    Args:
+        points_m: (n, 3) points in the mesh's frame, metres.
+        rest_positions_m: (N, 3) rest node positions.
+        tets: (m, 4) tets.
+        skin_triangles: (t, 3) the skin, for points outside the tets.
+
+    Returns:
+        A ``PointBinding``; ``positions(rest_positions_m)`` gives the points back.
+    """
+    p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    x = np.asarray(rest_positions_m, dtype=np.float64)
+    tets = np.asarray(tets, dtype=np.int64)
+    skin = np.asarray(skin_triangles, dtype=np.int64)
+    if not np.all(np.isfinite(p)):
+        raise ValueError("bind_points: points contain NaN or inf")
+    tet, w = _containing_tets(p, x, tets)
+    inside = np.flatnonzero(tet >= 0)
+    outside = np.flatnonzero(tet < 0)
+    tri = np.zeros(0, dtype=np.int64)
+    bary = np.zeros((0, 3))
+    c = np.zeros((0, 3))
+    if outside.size:
+        query = SurfaceQuery(x, skin)
+        hits = [query.closest(p[outside[s : s + 256]]) for s in range(0, outside.size, 256)]  # bounded memory
+        tri = np.concatenate([h.triangle for h in hits])
+        bary = np.concatenate([h.barycentric for h in hits])
+        c = np.concatenate([h.point_m for h in hits])
+    used, frame_of = np.unique(tri, return_inverse=True)
+    nodes, g = _frames(x, tets, skin, used) if used.size else (np.zeros((0, 1), np.int64), np.zeros((0, 1, 3)))
+    return PointBinding(
+        n_points=len(p),
+        inside=inside,
+        tet_nodes=tets[tet[inside]],
+        tet_weights=w[inside],
+        outside=outside,
+        tri_nodes=skin[tri],
+        tri_weights=bary,
+        offset_m=p[outside] - c,
+        frame_of=frame_of.reshape(-1),
+        frame_nodes=nodes,
+        frame_g=g,
+    )
