@@ -33,7 +33,8 @@ def test_defaults_and_the_contact_they_build():
     track = parser.parse_args(["track", "--mocap", "t.c3d", "--out", "o", "--contact", "lips"])
     c_sim, c_speech, c_track = (contact_from_args(a, model) for a in (sim, speech, track))
     assert c_sim.smoothing_m == 0.0 and c_sim.freeze_below is None  # the plain penalty
-    assert c_speech.smoothing_m == pytest.approx(1e-4) and c_speech.freeze_below == 1.0
+    # speech: smooth lip surfaces by default (wface.physics.smooth_contact), which need no freezing
+    assert c_speech.smoothing_m == pytest.approx(1e-4) and c_speech.freeze_below is None
     assert c_track.smoothing_m == pytest.approx(5e-5) and c_track.freeze_below is None
     assert contact_from_args(parser.parse_args(["simulate", "--model", "m", "--out", "o"]), model) is None
     bad = parser.parse_args(["simulate", "--model", "m", "--out", "o", "--contact", "gums"])

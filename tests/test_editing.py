@@ -296,21 +296,21 @@ def test_cli_blend_then_chained_edits_write_valid_usd(model_path, tmp_path, caps
 
 
 @pytest.mark.parametrize(
-    ("argv", "message"),
+    ("argv", "message", "code"),
     [
-        (["exaggerate", "--expression", "grin", "--factor", "1.5"], "known: "),
-        (["exaggerate", "--expression", "smile", "--factor", "nan"], "finite"),
-        (["exaggerate", "--expression", "smile", "--factor", "-1"], ">= 0"),
-        (["layer", "--take", "/nonexistent/take", "--add", "happy"], "does not exist"),
-        (["blend", "--from", "smile", "--to", "AU12=1,buccinator_x=1"], "buccinator_l"),
+        (["exaggerate", "--expression", "grin", "--factor", "1.5"], "known: ", 1),
+        (["exaggerate", "--expression", "smile", "--factor", "nan"], "finite", 2),  # a usage error (argparse type)
+        (["exaggerate", "--expression", "smile", "--factor", "-1"], ">= 0", 1),
+        (["layer", "--take", "/nonexistent/take", "--add", "happy"], "does not exist", 1),
+        (["blend", "--from", "smile", "--to", "AU12=1,buccinator_x=1"], "buccinator_l", 1),
     ],
 )
-def test_cli_errors_are_one_line(model_path, tmp_path, capsys, argv, message):
+def test_cli_errors_are_one_line(model_path, tmp_path, capsys, argv, message, code):
     from wface.cli import main
 
     rc = main(["edit", *argv, "--model", str(model_path), "--no-pictures", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
-    assert rc == 1 and message in err and "Traceback" not in err
+    assert rc == code and message in err and "Traceback" not in err
 
 
 def test_unedited_take_resimulates_to_the_rig_equilibria(model, smile, surprise, tmp_path):

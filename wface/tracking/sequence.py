@@ -12,7 +12,7 @@ trackers' tolerance.
 
 Inside a chunk each frame hands the next its equilibrium with the Jacobian and the factorisation
 there (``RigLinearization``), so a warm frame starts with no solve and its solves take chord steps
-with that factor (docs/design.md, "Tracking factor reuse").
+with that factor (docs/design.md, "Tracking": factor reuse).
 
 A frame with fewer than ``min_markers`` usable markers is *carried*: its controls and positions are
 held from the frame before (the rest pose at the start of a take), its record says so
