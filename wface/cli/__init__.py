@@ -47,6 +47,7 @@ OPTIONAL_EXTRAS = {
     "distributed": "dask",
     "pypardiso": "direct",
 }
+RESUMABLE = ("track", "demo")  # commands whose frames survive an interrupt
 # what a user did wrong (or the machine refused), as opposed to a bug in wface
 USER_ERRORS = (OSError, ValueError, KeyError, ImportError, EOFError)
 
@@ -151,7 +152,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         if debug:
             raise
-        print(f"\nwface {command}: interrupted".rstrip(), file=sys.stderr)
+        hint = " (the frames done so far are kept: rerun with --resume to continue)" if command in RESUMABLE else ""
+        print(f"\nwface {command}: interrupted{hint}", file=sys.stderr)
         return EXIT_INTERRUPT
     except BrokenPipeError:
         return _quiet_pipe()

@@ -193,7 +193,9 @@ def _claim(args, model, markers, targets, source: dict, first_frame: int = 0) ->
     if note:
         print(note)
     if args.resume:
-        print(resume_plan(args.out, range(first_frame, first_frame + len(targets)), targets, run).summary())
+        two_pass = args.prior == "auto" and len(targets) >= 2  # as wface.tracking.sequence.track_sequence
+        frames = range(first_frame, first_frame + len(targets))
+        print(resume_plan(args.out, frames, targets, run, two_pass=two_pass).summary())
     return run
 
 

@@ -187,27 +187,51 @@ def verified_frames(
 
 @dataclass
 class ResumePlan:
-    """What ``--resume`` found: frames reused and frames present but redone (with the reason)."""
+    """What ``--resume`` found: frames reused and frames present but redone (with the reason).
+
+    For a two-pass run (``first_pass``) the frames are the first pass's; ``second_on_disk`` counts the
+    second pass's frame files, reused only if the take-wide prior fitted to the first pass comes out
+    the same (checked by fingerprint once it is fitted)."""
 
     wanted: int
     reused: list[int]
     redo: dict[int, str]
+    first_pass: bool = False
+    second_on_disk: int = 0
 
     def summary(self) -> str:
         """One line, e.g. "resume: reusing 7 of 10 frames; redoing 2 (2 another face model); 1 still to track"."""
         left = self.wanted - len(self.reused) - len(self.redo)
-        text = f"resume: reusing {len(self.reused)} of {self.wanted} frames"
+        head = "resume (first pass)" if self.first_pass else "resume"
+        text = f"{head}: reusing {len(self.reused)} of {self.wanted} frames"
         if self.redo:
             why = Counter(self.redo.values())
             text += f"; redoing {len(self.redo)} (" + ", ".join(f"{n} {r}" for r, n in why.most_common()) + ")"
         if left:
             text += f"; {left} still to track"
+        if self.first_pass:
+            text += (
+                f"; {self.second_on_disk} second-pass frames on disk, reused if the take-wide prior comes out the same"
+            )
         return text
 
 
 def resume_plan(
-    out_dir: str | Path, frames, targets_m, run: dict, *, folder: str = FRAMES_DIR, extra: str | None = None
+    out_dir: str | Path,
+    frames,
+    targets_m,
+    run: dict,
+    *,
+    folder: str = FRAMES_DIR,
+    extra: str | None = None,
+    two_pass: bool = False,
 ) -> ResumePlan:
-    """The ``ResumePlan`` of a run over ``frames`` with marker data ``targets_m`` (see ``verified_frames``)."""
+    """The ``ResumePlan`` of a run over ``frames`` with marker data ``targets_m`` (see ``verified_frames``);
+    ``two_pass``: a two-pass tracking run (``TrackOptions.prior == "auto"``), whose first pass is checked."""
+    frames = [int(f) for f in frames]
+    if two_pass:
+        ok, redo = verified_frames(out_dir, frames, targets_m, run, folder=SURVEY_DIR)
+        second = len(set(frame_numbers_on_disk(out_dir)) & set(frames))
+        return ResumePlan(len(frames), sorted(ok), redo, first_pass=True, second_on_disk=second)
     ok, redo = verified_frames(out_dir, frames, targets_m, run, folder=folder, extra=extra)
-    return ResumePlan(len(list(frames)), sorted(ok), redo)
+    return ResumePlan(len(frames), sorted(ok), redo)
