@@ -193,6 +193,7 @@ def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> i
         mesh_only=args.mesh_only,
         pictures=not args.no_pictures,
         labels=labels,
+        progress=True,
     )
     state = "converged" if report["converged"] else "NOT all converged"
     print(

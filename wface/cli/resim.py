@@ -252,7 +252,7 @@ def _run(args: argparse.Namespace) -> int:
     report["kinetic_energy_peak_j"] = float(result.kinetic_energy_j.max())
     write_resim_npz(out / "resim.npz", result, reference_positions_m=reference)
     if not args.no_usd:
-        write_take_usd(out / USD, model, result.positions_m, take=take, metadata={"dynamic": True})
+        write_take_usd(out / USD, model, result.positions_m, take=take, metadata={"dynamic": True}, progress=True)
     report["seconds"] = time.perf_counter() - start
     write_report(out, report)
     if args.json:

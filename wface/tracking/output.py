@@ -112,6 +112,7 @@ def write_tracking_outputs(
                     captured_markers_m=targets_m,
                     simulated_markers_m=simulated,
                     marker_names=marker_names,
+                    progress=progress,
                 )
             )
             bar.update()
