@@ -127,7 +127,9 @@ def run_speech(args: argparse.Namespace) -> int:
             if args.max_frames is None
             else max(1.0, (F - 1) / max(result.times_s[-1] - result.times_s[0], 1e-9))
         )
-        write_gesture_usd(out / "animation.usdc", result, model, fps=fps_out, source=str(gesture.directory))
+        write_gesture_usd(
+            out / "animation.usdc", result, model, fps=fps_out, source=str(gesture.directory), progress=True
+        )
         files.append("animation.usdc")
     report = summarize(result)
     report.update(

@@ -49,9 +49,11 @@ def write_lip_opening(out: Path, result: GestureResult, model: FaceModel) -> tup
     return csv, png
 
 
-def write_gesture_usd(path: Path, result: GestureResult, model: FaceModel, *, fps: float, source: str = "") -> Path:
+def write_gesture_usd(
+    path: Path, result: GestureResult, model: FaceModel, *, fps: float, source: str = "", progress: bool = False
+) -> Path:
     """The played gesture as a take stage (``wface.takes.usd``): skin, markers, activations; the
-    bones stay at rest."""
+    bones stay at rest. ``progress`` shows a bar over the rig's muscle solves."""
     take = Take(
         activations=result.activations,
         fps=fps,
@@ -67,4 +69,5 @@ def write_gesture_usd(path: Path, result: GestureResult, model: FaceModel, *, fp
         simulated_markers_m=result.markers_m,
         marker_names=result.marker_names,
         metadata={"gesture": result.gesture},
+        progress=progress,
     )
