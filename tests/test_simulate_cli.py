@@ -69,3 +69,12 @@ def test_malformed_activation_and_missing_model(tmp_path, capsys, model_path):
     assert "NAME=VALUE" in capsys.readouterr().err
     assert main(["simulate", "--model", str(tmp_path / "none.npz"), "--out", str(tmp_path)]) == 1
     assert "not found" in capsys.readouterr().err
+
+
+def test_closing_lines_list_every_file_written(model_path, tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["simulate", "--model", str(model_path), "--activation", "risorius_l=0.3", "--out", str(out)]) == 0
+    closing = capsys.readouterr().out
+    assert f"wrote {out}/:" in closing
+    for name in ("equilibrium.npz", "summary.json"):
+        assert (out / name).exists() and f"  {name}" in closing, name

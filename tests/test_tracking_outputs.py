@@ -21,6 +21,8 @@ def test_usd_is_written_without_pictures_and_skipped_with_no_usd(tmp_path, capsy
         assert (out / name).exists(), name
         assert f"  {name}" in closing, name  # the closing lines name every file
     assert "frames/ (2 frame files" in closing
+    summary = next(ln for ln in closing.splitlines() if "=" in ln)
+    assert summary.startswith("truth_marker_rms_mm=") and "marker_rms_mm_inliers=" in summary  # headline first
     assert not list(out.glob("*.png")) and not (out / "take.mp4").exists()
     report = json.loads((out / "report.json").read_text())
     assert report["marker_samples"] == 2 * report["markers"]

@@ -155,3 +155,22 @@ def test_the_default_rig_holds_the_shapes_the_take_uses(tmp_path, face):
     assert list(anim.GetBlendShapeWeightsAttr().Get(6.0)) == pytest.approx([0.4])
     still = write_take_usd(tmp_path / "b.usda", face, x, take=_take(face, np.zeros_like(a), [0.0, 0.0], [0.0, 0.0]))
     assert not Usd.Stage.Open(str(still)).GetPrimAtPath("/Face/Rig")  # nothing moves: no rig
+
+
+def test_a_failed_rig_solve_loses_no_take(tmp_path, face, monkeypatch):
+    from pxr import Usd
+
+    import wface.takes.usd as take_usd
+
+    def inverting(*_args, **_kwargs):
+        raise RuntimeError("muscle mentalis_l at activation 1.0 inverts 3 tets")
+
+    monkeypatch.setattr(take_usd, "skin_rig", inverting)  # what muscle_shapes raises on an inverting face
+    a = np.zeros((2, face.n_muscles))
+    a[1, face.muscle_index("mentalis_l")] = 0.4
+    x = np.repeat(face.rest_positions_m[None], 2, axis=0)
+    with pytest.warns(RuntimeWarning, match="without the UsdSkel rig"):
+        path = write_take_usd(tmp_path / "a.usda", face, x, take=_take(face, a, [0.0, 0.0], [0.0, 0.0]))
+    stage = Usd.Stage.Open(str(path))
+    assert stage.GetPrimAtPath("/Face/Skin") and not stage.GetPrimAtPath("/Face/Rig")  # the exact cache is there
+    assert "inverts 3 tets" in stage.GetRootLayer().customLayerData["wface"]["rig_skipped"]

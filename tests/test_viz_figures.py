@@ -10,7 +10,7 @@ import pytest
 pv = pytest.importorskip("pyvista")
 pytest.importorskip("matplotlib")
 
-from wface.viz.figures import peak_frame, write_take_figures  # noqa: E402
+from wface.viz.figures import comparison_frame, peak_frame, write_take_figures  # noqa: E402
 
 
 def _can_render_off_screen() -> bool:
@@ -70,3 +70,9 @@ def test_peak_frame():
     x[2] += 0.01
     assert peak_frame(x, rest) == 2
     assert peak_frame(x, rest, np.array([[0.0, 1.0], [1.0, 1.0], [0.2, 0.0]])) == 1
+
+
+def test_before_after_never_shows_one_frame_twice():
+    assert comparison_frame(2, 5) == 2  # the peak beside the first frame
+    assert comparison_frame(0, 5) == 4  # a take peaking at its first frame: the last one instead
+    assert comparison_frame(0, 1) == 0  # one frame: nothing else to show

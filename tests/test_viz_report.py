@@ -55,6 +55,15 @@ def test_report_embeds_images_and_tabulates_numbers(tmp_path):
     _assert_balanced(text)
 
 
+def test_per_marker_rms_is_shown_once_when_the_marker_stats_table_has_it(tmp_path):
+    stats = {"Chin": {"seen": 3, "outliers": 1, "rms_mm": 0.25}}
+    report = {"marker_rms_mm_per_marker": {"Chin": 0.31}, "marker_stats": stats}
+    text = write_html_report(tmp_path, report, {}).read_text()
+    assert "<h2>marker_stats</h2>" in text and "marker_rms_mm_per_marker" not in text
+    alone = write_html_report(tmp_path, {"marker_rms_mm_per_marker": {"Chin": 0.31}}, {}).read_text()
+    assert "<h2>marker_rms_mm_per_marker</h2>" in alone  # without the fuller table it stays
+
+
 def _assert_balanced(text):
     from html.parser import HTMLParser
 

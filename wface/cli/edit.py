@@ -216,6 +216,7 @@ def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> i
         mesh_only=args.mesh_only,
         pictures=not args.no_pictures,
         labels=labels,
+        progress=True,
     )
     if render_mesh is not None:
         add_render_mesh(Path(args.out) / report["usd"], render_mesh, result.x_m, take.fps, frames=take.frames)

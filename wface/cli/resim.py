@@ -270,6 +270,7 @@ def _run(args: argparse.Namespace) -> int:
             take=take,
             metadata={"dynamic": True},
             render_mesh=render_mesh_from_args(args, model),
+            progress=True,
         )
     report["seconds"] = time.perf_counter() - start
     write_report(out, report)

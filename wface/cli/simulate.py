@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.validate import non_negative_float, positive_float, positive_int
 from wface.controls import attached_positions_from_affines, jaw_opening_affine
@@ -162,11 +163,13 @@ def _run(args: argparse.Namespace) -> int:
         print(
             f"{state} in {eq.iterations} Newton iterations, residual {eq.residual_rel:.2e}, "
             f"max displacement {summary['max_displacement_mm']:.2f} mm, {eq.inverted_elements} inverted, "
-            f"{summary['seconds']:.1f} s -> {out}/equilibrium.npz"
+            f"{summary['seconds']:.1f} s"
         )
         if contact is not None:
             print(
                 f"contact: {eq.contact_active_nodes} nodes, max penetration "
                 f"{summary['contact_max_penetration_mm']:.3f} mm, force {eq.contact_force_n:.2f} N"
             )
+        written = [out / "equilibrium.npz", out / "summary.json"]
+        print_outputs(out, written + ([Path(summary["picture"])] if args.picture else []))
     return 0 if eq.converged else 3

@@ -132,6 +132,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--max-iterations", type=positive_int, default=40, help="Newton iteration cap per frame (default 40)"
     )
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
+    p.add_argument(
+        "--no-rig",
+        action="store_true",
+        help="animation.usdc without the UsdSkel rig (the rig costs one solve per muscle, ~20 s each on Badin)",
+    )
     p.set_defaults(func=run_speech)
 
 
@@ -265,7 +270,15 @@ def run_speech(args: argparse.Namespace) -> int:
             if args.max_frames is None
             else max(1.0, (F - 1) / max(result.times_s[-1] - result.times_s[0], 1e-9))
         )
-        write_gesture_usd(out / "animation.usdc", result, model, fps=fps_out, source=str(gesture.directory))
+        write_gesture_usd(
+            out / "animation.usdc",
+            result,
+            model,
+            fps=fps_out,
+            source=str(gesture.directory),
+            progress=True,
+            rig=not args.no_rig and "active",
+        )
         files.append("animation.usdc")
     report = summarize(result)
     report.update(

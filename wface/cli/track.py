@@ -267,10 +267,13 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         render_mesh=render_mesh,
     )
     keys = (
+        "truth_marker_rms_mm",
+        "marker_rms_mm_inliers",
+        "outlier_samples",
+        "missing_samples",
         "marker_rms_mm_mean",
         "activation_rms_error",
         "activation_rms_error_all",
-        "truth_marker_rms_mm",
         "jaw_angle_error_deg",
         "seconds_per_frame_median",
         "holdout_rms_mm_mean",

@@ -83,11 +83,21 @@ def _or_nan(a, n: int) -> np.ndarray:
     return np.full(n, np.nan) if a is None else np.asarray(a, dtype=np.float64)
 
 
-def write_gesture_usd(path: Path, result: GestureResult, model: FaceModel, *, fps: float, source: str = "") -> Path:
+def write_gesture_usd(
+    path: Path,
+    result: GestureResult,
+    model: FaceModel,
+    *,
+    fps: float,
+    source: str = "",
+    progress: bool = False,
+    rig: bool | str = "active",
+) -> Path:
     """The played gesture as a take stage (``wface.takes.usd``): skin, markers, activations; the
     bones stay at rest. The lip opening area goes into the layer metadata (customLayerData["wface"]:
     ``lip_opening_area_mm2`` per frame, the view, the mode) and, time-sampled like the skin, onto the
-    root prim as ``wface:lipOpeningArea_mm2`` (float, one sample per frame at time code f)."""
+    root prim as ``wface:lipOpeningArea_mm2`` (float, one sample per frame at time code f).
+    ``progress`` shows a bar over the rig's muscle solves; ``rig`` as in ``write_take_usd`` (False: none)."""
     take = Take(
         activations=result.activations,
         fps=fps,
@@ -110,6 +120,8 @@ def write_gesture_usd(path: Path, result: GestureResult, model: FaceModel, *, fp
         simulated_markers_m=result.markers_m,
         marker_names=result.marker_names,
         metadata=meta,
+        progress=progress,
+        rig=rig,
     )
     if result.lip_opening_area_mm2 is not None:
         _area_samples(path, result.lip_opening_area_mm2)

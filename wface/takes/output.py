@@ -33,18 +33,19 @@ def write_edit(
     mesh_only: bool = False,
     pictures: bool = False,
     labels: list[str] | None = None,
+    progress: bool = False,
 ) -> dict:
     """Write ``usd_name`` (a ``write_take_usd`` stage: skin, bones, activations; or with ``mesh_only``
     the skin alone), ``controls.npz`` / ``controls.csv`` (reloadable with ``load_take``),
     ``report.json`` and, with ``pictures``, ``contact_sheet.png`` (panels titled by ``labels``, one
-    per frame, default "frame k"). Returns the report."""
+    per frame, default "frame k"); ``progress`` shows a bar over the rig's solves. Returns the report."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     take = result.take
     scales = take.force_length_scales
     usd = out / usd_name
     meta = {"edit": (info or {}).get("edit", "")}
-    write_take_usd(usd, model, result.x_m, take=take, metadata=meta, mesh_only=mesh_only)
+    write_take_usd(usd, model, result.x_m, take=take, metadata=meta, mesh_only=mesh_only, progress=progress)
     write_controls(out, model, take)
     secs = result.seconds_per_frame
     disp = _skin_displacement_mm(model, result)

@@ -15,6 +15,7 @@ in the layer metadata. ``mesh_only`` (or a model without skin triangles) writes 
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -82,6 +83,10 @@ def write_take_usd(
         progress: show a progress bar over the rig's solves.
         render_mesh: a ``wface.faces.render_mesh.RenderMesh`` moved with the frames
             (``add_render_mesh``, which also adds one to a stage already written).
+
+    A rig whose solve fails (a muscle alone at activation 1 inverts tets) is left out with a
+    ``RuntimeWarning``, its reason in the layer metadata (``rig_skipped``); the rest of the stage is
+    written, so no take is lost to its rig.
     """
     positions_m = np.asarray(positions_m)
     if positions_m.ndim != 3 or positions_m.shape[1:] != (model.n_nodes, 3):
@@ -113,7 +118,12 @@ def write_take_usd(
     if take.force_length_scale is not None:
         meta["force_length_scale"] = take.force_length_scale.max(axis=0).tolist()
     activations = np.minimum(take.drives, 1.0)
-    skel, rig_weights = _rig(model, take, activations, jaw, rig, simulator, progress)
+    try:
+        skel, rig_weights = _rig(model, take, activations, jaw, rig, simulator, progress)
+    except RuntimeError as exc:  # a muscle's shape inverts tets: the exact cache still goes out, without a rig
+        warnings.warn(f"{path}: written without the UsdSkel rig ({exc})", RuntimeWarning, stacklevel=2)
+        skel, rig_weights = None, None
+        meta["rig_skipped"] = str(exc)
     stage = write_take(
         path,
         frames=take.frames,

@@ -117,6 +117,7 @@ def write_tracking_outputs(
                     simulated_markers_m=simulated,
                     marker_names=marker_names,
                     render_mesh=render_mesh,
+                    progress=progress,
                 )
             )
             bar.update()

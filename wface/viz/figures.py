@@ -16,7 +16,7 @@ import numpy as np
 
 from wface.viz import plots, render
 
-__all__ = ["peak_frame", "write_take_figures"]
+__all__ = ["comparison_frame", "peak_frame", "write_take_figures"]
 
 
 def peak_frame(
@@ -27,6 +27,12 @@ def peak_frame(
         return int(np.argmax(np.asarray(activations).sum(axis=1)))
     d = np.linalg.norm(np.asarray(node_positions_m) - rest_positions_m[None], axis=2).mean(axis=1)
     return int(np.argmax(d))
+
+
+def comparison_frame(peak: int, n_frames: int) -> int:
+    """The frame drawn beside the first one in before_after.png: the most expressive frame ``peak``,
+    or the last frame when the take peaks at its first (two copies of one frame show nothing)."""
+    return n_frames - 1 if peak == 0 and n_frames > 1 else peak
 
 
 def write_take_figures(
@@ -193,10 +199,12 @@ def _write_pictures(out: Path, model, x, fps, activations, markers, cranium_affi
         images[f"Muscles at frame {n}: yellow active, red inactive"] = render.render_panels(
             model, [panel(f, "")], out / "muscles.png", style="muscles", panel_size=panel_size
         )
-    images["First frame and most expressive frame"] = render.render_before_after(
+    g = comparison_frame(f, len(x))
+    caption = "First frame and most expressive frame" if g == f else "First frame (the most expressive) and last frame"
+    images[caption] = render.render_before_after(
         model,
         panel(0, f"frame {first_frame}"),
-        panel(f, f"frame {n}"),
+        panel(g, f"frame {first_frame + g}"),
         out / "before_after.png",
         panel_size=panel_size,
     )

@@ -4,7 +4,7 @@ Images (PNG, JPEG, GIF, SVG) and movies (MP4, WebM) are embedded as base64 data 
 ``report.html`` file can be mailed or attached to a ticket. Per-frame lists are summarised
 (count, mean, min, max) and drawn as a small inline sparkline; dicts of scalars (per muscle,
 status blocks) become their own tables, and so do dicts of records with the same keys (the
-per-marker table).
+per-marker table; a key a fuller table already shows, ``_SUPERSEDED``, stays in report.json only).
 
 The headline cards show the error a person should read first (``headline_cards``): on a synthetic
 take the tracked markers against the clean truth (``truth_marker_rms_mm``), on a real take the
@@ -70,6 +70,10 @@ def _fmt(v) -> str:
             return str(v)
         return f"{v:.4g}"
     return html.escape(str(v))
+
+
+# report.json keys a fuller table shows in the page (both stay in report.json): key -> the fuller key
+_SUPERSEDED = {"marker_rms_mm_per_marker": "marker_stats"}
 
 
 def _is_number(v) -> bool:
@@ -216,6 +220,8 @@ def write_html_report(
 
     rows, sub_tables = [], []
     for key, v in report.items():
+        if _SUPERSEDED.get(key) in report:
+            continue
         records = _record_table(str(key), v) if isinstance(v, dict) else None
         if records is not None:
             sub_tables.insert(0, records)
