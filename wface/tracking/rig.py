@@ -64,6 +64,13 @@ class RigLinearization:
             self.chord.free()
             self.chord = None
 
+    @property
+    def factored_at(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(controls, cranium-frame positions (n, 3)) where the chord's factor was taken, or None:
+        ``FaceRig.linearize(state, stiffness=rig.stiffness_at(*factored_at))`` rebuilds this
+        linearisation bit for bit (a resumed take continues as the interrupted run would have)."""
+        return getattr(self.chord, "at", None)
+
 
 class _Chord:
     """K_UU bound to its solver (factorised with the direct engine) and the coupling block K_UC at one
@@ -254,6 +261,7 @@ class FaceRig:
         self._count(counts0)
         chord = _Chord(bound, k_uc, {"tangent_s": t1 - t0, "factor_s": time.perf_counter() - t1})
         chord.projected = projected
+        chord.at = (np.array(c, dtype=np.float64), np.array(y, dtype=np.float64))  # where it was factored
         return chord
 
     def _count(self, counts0: dict) -> None:

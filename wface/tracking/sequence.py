@@ -138,6 +138,7 @@ class _Tracker:
         self.c = self.y = self.c_older = self.x = None
         self.lin = None  # RigLinearization at the last frame's equilibrium (handed to the next frame)
         self.resumed: RigState | None = None  # the state of a frame reused from disk, linearised on demand
+        self.resumed_factor: tuple | None = None  # where its handed-on factor was taken (FrameRecord.state)
         self.prior = TemporalPrior(self.M) if options.prior in ("auto", "temporal") else None
 
     def resume_from(self, rec: FrameRecord) -> None:
@@ -149,6 +150,9 @@ class _Tracker:
             self.prior = TemporalPrior.from_arrays(self.M, rec.state)
         self.free()
         self.resumed = RigState(rec.controls, rec.y_m, rec.x_m)  # linearised again if the next frame is new
+        self.resumed_factor = (
+            (rec.state["factor_controls"], rec.state["factor_y_m"]) if "factor_y_m" in rec.state else None
+        )
 
     def free(self) -> None:
         """Release the factorisation held for the next frame."""
@@ -160,6 +164,9 @@ class _Tracker:
         out = {"controls_before": np.zeros(0) if self.c_older is None else self.c_older}
         if self.prior is not None:
             out.update(self.prior.to_arrays())
+        at = None if self.lin is None else self.lin.factored_at
+        if at is not None:  # where the handed-on factor was taken: a resumed take rebuilds it exactly
+            out["factor_controls"], out["factor_y_m"] = at
         return out
 
     def step(self, frame: int, target: np.ndarray) -> FrameRecord:
@@ -167,8 +174,9 @@ class _Tracker:
         if present < self.min_markers:
             return self._carry(frame, target, present)
         if self.lin is None and self.resumed is not None and self.options.reuse_factor:
-            self.lin = self.rig.linearize(self.resumed)  # as the interrupted run had it: the same take
-        self.resumed = None
+            near = None if self.resumed_factor is None else self.rig.stiffness_at(*self.resumed_factor, warn=False)
+            self.lin = self.rig.linearize(self.resumed, stiffness=near)  # as the interrupted run had it
+        self.resumed = self.resumed_factor = None
         first = self.c is None
         c_last = self.c
         if first:
