@@ -22,7 +22,9 @@ when its closest point lies on the other surface's boundary (the template patch 
 the back of the head; the target has holes at the eyes) unless both points are on a boundary,
 when the normals differ by more than 60 degrees, when the offset between the two does not run
 along the normal (within 45 degrees: a point beside the other surface's edge), or when it is
-farther than the iteration's cut-off. Each iteration is one sparse symmetric solve.
+farther than the iteration's cut-off. Each iteration is one sparse symmetric solve. With a
+target surface the smoothness is a weight per unit area (``_spacing2_m2``): alpha means the same
+on a 5K and a 100K face.
 
 With a target surface the landmark weight falls with alpha (landmarks guide the start; the
 surfaces decide the end). No step may turn a skin triangle over (by more than 120 degrees): where
@@ -58,6 +60,7 @@ _MEMBRANE = 0.1  # step damping (membrane on the increment) relative to the bend
 _ANCHOR = 0.1  # landmarks alone: a membrane on the whole displacement, so it fades away from them
 _FOLD_RETRIES = 6  # solves per iteration, holding the vertices of would-be folds ever harder
 _MIN_CUT_M = 5e-3  # the correspondence cut-off never falls below this
+_H_REF_M = 5.5e-3  # skin spacing the schedule's alphas refer to (the 20K built-in face at the ICT head's scale)
 
 
 @dataclass
@@ -161,6 +164,19 @@ def _smoothness(vertices, triangles, skin_vertices) -> tuple[csr_matrix, csr_mat
     return kron(bend / s_bend, identity(3), format="csr"), kron(lap / s_lap, identity(3), format="csr")
 
 
+def _spacing2_m2(vertices, triangles, skin_vertices) -> float:
+    """Skin area per skin vertex (m^2): the square of the mesh spacing h.
+
+    The surface terms are means over the ~N paired vertices (each weighs ~1/N ~ h^2) and the
+    normalised bending's energy of a given smooth field scales as h^2, the membrane's as 1: the
+    bending is therefore scaled by (h_ref/h)^4 and the membrane by (h_ref/h)^2 relative to the
+    data, which makes the smoothness a weight per unit area, independent of the mesh.
+    """
+    e1 = vertices[triangles[:, 1]] - vertices[triangles[:, 0]]
+    e2 = vertices[triangles[:, 2]] - vertices[triangles[:, 0]]
+    return float(0.5 * np.linalg.norm(np.cross(e1, e2), axis=1).sum() / max(len(skin_vertices), 1))
+
+
 def register_surface(
     vertices_m: np.ndarray,
     triangles: np.ndarray,
@@ -221,6 +237,9 @@ def register_surface(
         samples = np.unique(tt) if target_samples is None else np.asarray(target_samples, dtype=np.int64)
     boundary = boundary_vertices(tri, n)
     bend, membrane = _smoothness(x0, tri, skin)
+    if has_surface:  # per unit area, so that alpha means the same at 5K and at 100K tets
+        r = _H_REF_M**2 / _spacing2_m2(x0, tri, skin)
+        bend, membrane = bend * r**2, membrane * r
     x = x0.copy()
     n_rest = triangle_normals(x0, tri)
     cut = max_distance_m
