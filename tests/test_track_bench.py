@@ -11,7 +11,10 @@ from wface.solvers.linear import direct_backend
 
 @pytest.mark.skipif(direct_backend() is None, reason="the limit is a factorisation: needs a direct backend")
 def test_track_bench_reports_the_breakdown_the_counts_and_the_limit():
-    r = bench_size(1000, frames=3, repeat=1)
+    from wface.tracking.estimator import TrackOptions
+
+    r = bench_size(1000, frames=3, repeat=1, options=TrackOptions(prior="temporal"))  # one pass: a frame's own work
+    assert r["prior"] == "temporal" and "pass1_seconds_per_frame" not in r
     assert r["frames"] == 3 and r["seconds_per_frame"] > 0
     assert set(r["breakdown_seconds_per_frame"]) == {"quasistatic_solves", "jacobians", "gauss_newton_system"}
     assert r["factorizations_per_frame"] == 1.0 and r["quasistatic_solves_per_frame"] == 1.0  # a warm frame

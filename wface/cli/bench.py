@@ -23,6 +23,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--device", default="auto", help="Warp device: cpu, cuda:0 or auto (default)")
     p.add_argument("--repeat", type=positive_int, default=3, help="repetitions per timing; the median is reported")
     p.add_argument("--frames", type=positive_int, help="frames to track (track suite; default 6)")
+    p.add_argument(
+        "--prior",
+        choices=["auto", "temporal", "off"],
+        default="auto",
+        help="the tracker's priors (track suite): auto (default, two passes, as wface track), temporal (one pass)",
+    )
     p.add_argument("--json", action="store_true", help="print JSON only")
     p.add_argument("--out", help="also write the JSON to this file")
     p.set_defaults(func=_run)
