@@ -85,7 +85,7 @@ def _or_nan(a, n: int) -> np.ndarray:
 def write_gesture_usd(path: Path, result: GestureResult, model: FaceModel, *, fps: float, source: str = "") -> Path:
     """The played gesture as a take stage (``wface.takes.usd``): skin, markers, activations; the
     bones stay at rest. The lip opening area goes into the layer metadata (customLayerData["wface"]:
-    ``lip_opening_area_mm2`` per frame, the view, the mode) and, time-sampled like the skin, onto the
+    ``lip_opening_area_mm2`` per frame as a JSON list, the view, the mode) and, time-sampled like the skin, onto the
     root prim as ``wface:lipOpeningArea_mm2`` (float, one sample per frame at time code f)."""
     take = Take(
         activations=result.activations,
