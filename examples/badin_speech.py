@@ -149,8 +149,8 @@ def figure(path: Path, summaries: dict, refs: dict) -> None:
         ax.set_title(name)
         ax.set_xlabel("time (s)")
         ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)  # each panel its own: the variants played may differ per gesture
     axes[0][0].set_ylabel("lip opening area (mm$^2$)")
-    axes[0][0].legend(fontsize=7)
     fig.suptitle("Badin face (wface import), ArtiSynth's camera and plane", fontsize=10)
     fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
