@@ -21,6 +21,7 @@ alignment puts within --select-mm of the Badin skin are used (OUT/track/report.j
 Run:
     python examples/badin_speech.py --out badin_speech_out                   # all, 25 fps (hours on 2 cores)
     python examples/badin_speech.py --gestures closure --variants quasistatic --max-frames 3 --out quick
+    python examples/badin_speech.py --variants quasistatic dynamic --resume --out badin_speech_out  # go on
     python examples/badin_speech.py --gestures --compare-artisynth --out appr  # the factor study
     python examples/badin_speech.py --gestures --track-mocap ../shared/data/animface/JawMoCap.c3d \\
         --track-frames 0:300:10 --out jaw_on_badin
@@ -99,13 +100,16 @@ def run(
     max_step_ms: float = 5.0,
     data: Path = DATA,
     model_path: Path | None = None,
+    resume: bool = False,
 ) -> dict:
-    """Play ``gestures`` in each of ``variants``; returns {gesture: {variant: summary}}, writes under ``out``."""
+    """Play ``gestures`` in each of ``variants``; returns {gesture: {variant: summary}}, writes under ``out``.
+
+    With ``resume``, a variant whose OUT/<gesture>/<variant>/report.json exists is read back instead
+    of played again (a long run can be stopped and restarted; the figure shows what exists)."""
     from wface.physics.simulator import Simulator
     from wface.speech import read_gesture
 
-    model = _model(data, model_path)
-    sim = Simulator(model)  # one simulator (kernels, sparsity pattern) for all
+    model = sim = None  # loaded when a variant is to be played
     out.mkdir(parents=True, exist_ok=True)
     summaries: dict = {}
     refs = {}
@@ -114,6 +118,13 @@ def run(
         refs[name] = g.reference_lip_area
         summaries[name] = {}
         for v in variants:
+            done = out / name / v / "report.json"
+            if resume and done.exists():
+                summaries[name][v] = json.loads(done.read_text())
+                continue
+            if model is None:
+                model = _model(data, model_path)
+                sim = Simulator(model)  # one simulator (kernels, sparsity pattern) for all
             summaries[name][v] = play(
                 model, g, out / name / v, v, fps=fps, max_frames=max_frames, max_step_ms=max_step_ms, sim=sim
             )
@@ -138,8 +149,8 @@ def figure(path: Path, summaries: dict, refs: dict) -> None:
         ax.set_title(name)
         ax.set_xlabel("time (s)")
         ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)  # each panel its own: the variants played may differ per gesture
     axes[0][0].set_ylabel("lip opening area (mm$^2$)")
-    axes[0][0].legend(fontsize=7)
     fig.suptitle("Badin face (wface import), ArtiSynth's camera and plane", fontsize=10)
     fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
@@ -286,6 +297,7 @@ def main(argv=None) -> int:
     p.add_argument("--max-step-ms", type=float, default=5.0, help="longest dynamic time step (ms)")
     p.add_argument("--data", type=Path, default=DATA, help="the artisynth-face data folder")
     p.add_argument("--model", type=Path, help="a saved Badin model (.npz) instead of importing")
+    p.add_argument("--resume", action="store_true", help="read back the variants already written under --out")
     p.add_argument("--compare-artisynth", action="store_true", help="also the approximant's factor study")
     p.add_argument("--track-mocap", type=Path, help="also track this capture (C3D/TRC/CSV) on the Badin face")
     p.add_argument("--track-frames", default="0:300:10", help="A:B:STEP of the capture to track")
@@ -313,7 +325,7 @@ def main(argv=None) -> int:
         "model_path": a.model,
     }
     if a.gestures:
-        summaries = run(a.out, gestures=a.gestures, variants=a.variants, **common)
+        summaries = run(a.out, gestures=a.gestures, variants=a.variants, resume=a.resume, **common)
         for name, per in summaries.items():
             for v, s in per.items():
                 ar = s["lip_opening_area_summary_mm2"]

@@ -49,9 +49,12 @@ contact Hessian misses the derivatives of the normals (3-6 % of the contact stif
 pair Hessian (``wface.physics.frozen.exact_self_hessian``, projected), one-pass (one lip's points
 only), leaving out the edge midpoints nor a penalty gap fixed the stall by itself. What helps:
 the C2 ramp (0.1 mm: 0.019 after 40) and freezing the closest features (``freeze_below``,
-``wface.physics.frozen``) on top of it: 0.009 after 40, 0.003 after 80 (minimum 2.7e-4). The
-lips then stay 0.0-0.05 mm inside one another, which is what a speech or tracking frame needs, but
-a tolerance of 1e-4 is not reached on Badin; ``Equilibrium.residual_rel`` reports the truth.
+``wface.physics.frozen``) on top of it: 0.009 after 40, 0.003 after 80 (minimum 2.7e-4); a
+tolerance of 1e-4 is not reached that way. ``surface="smooth"`` removes cause (2) and (3): the
+other lip's distance is a C2 blend of the planes of its Loop refinement with an exact Hessian
+(``wface.physics.smooth_contact``); with Newton restarted every 5 iterations
+(``wface.physics.contact_solve.solve_restarted``) the pose converges to 6e-9 in 56 iterations,
+quadratically at the end (docs/design.md, "Smooth lip surfaces").
 
 Teeth and bones of the model move with their bone. Nodes already inside one of those meshes at rest
 are left out of its contact (``ignore_inside_at_rest``): the Badin face's gum-side surface runs

@@ -95,7 +95,7 @@ def write_gesture_usd(
 ) -> Path:
     """The played gesture as a take stage (``wface.takes.usd``): skin, markers, activations; the
     bones stay at rest. The lip opening area goes into the layer metadata (customLayerData["wface"]:
-    ``lip_opening_area_mm2`` per frame, the view, the mode) and, time-sampled like the skin, onto the
+    ``lip_opening_area_mm2`` per frame as a JSON list, the view, the mode) and, time-sampled like the skin, onto the
     root prim as ``wface:lipOpeningArea_mm2`` (float, one sample per frame at time code f).
     ``progress`` shows a bar over the rig's muscle solves; ``rig`` as in ``write_take_usd`` (False: none)."""
     take = Take(

@@ -1,0 +1,89 @@
+"""wface.speech.artisynth_demo: the Badin face set up as ArtiSynth's BadinFaceDemoLipOpening."""
+
+import numpy as np
+import pytest
+
+from tests.conftest import data_path
+from wface.mesh.quality import signed_volumes
+from wface.speech.artisynth_demo import (
+    ARTISYNTH_MAX_STRESS_PA,
+    LIP_OPENING_RINGS,
+    lip_opening_demo_model,
+    ring_hexes,
+)
+
+# The model's tets are the import's conforming split of the hexes less the slivers it removed
+# (docs/design.md, "Speech gestures": 16,819 of 16,969 mm^3); 2 % says the right tets were found.
+_RING_VOLUME_RTOL = 0.02
+_GAUSS = np.array([-1.0, 1.0]) / np.sqrt(3.0)
+_CORNERS = np.array(
+    [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float
+)
+
+
+def _hex_volume_m3(x: np.ndarray) -> float:
+    """Volume of a trilinear hexahedron ((8, 3) corners, ANSYS order) by 2x2x2 Gauss quadrature of
+    det J (exact: det J is a polynomial of degree at most 2 in each coordinate)."""
+    vol = 0.0
+    for xi in _GAUSS:
+        for eta in _GAUSS:
+            for zeta in _GAUSS:
+                p = np.array([xi, eta, zeta])
+                f = 1.0 + _CORNERS * p  # (8, 3): N_i = f_i0 f_i1 f_i2 / 8
+                dN = _CORNERS * np.stack([f[:, 1] * f[:, 2], f[:, 0] * f[:, 2], f[:, 0] * f[:, 1]], axis=1) / 8.0
+                vol += np.linalg.det(x.T @ dN)  # Gauss weights 1
+    return abs(vol)
+
+
+@pytest.fixture(scope="module")
+def demo(badin_model):
+    return lip_opening_demo_model(badin_model, data_path("artisynth-face"))
+
+
+def test_hex_volume_quadrature():
+    box = (_CORNERS + 1.0) * np.array([0.5, 1.0, 1.5])  # 1 x 2 x 3, sheared below
+    assert _hex_volume_m3(box) == pytest.approx(6.0, rel=1e-12)
+    shear = box @ np.array([[1.0, 0.0, 0.0], [0.3, 1.0, 0.0], [0.0, 0.2, 1.0]])
+    assert _hex_volume_m3(shear) == pytest.approx(6.0, rel=1e-12)
+    wedge = box.copy()
+    wedge[[5, 6]] = wedge[[4, 7]]  # top edge collapsed: a prism of half the volume
+    assert _hex_volume_m3(wedge) == pytest.approx(3.0, rel=1e-12)
+
+
+def test_the_ring_tets_fill_the_ring_hexes(badin_model, demo):
+    x = badin_model.rest_positions_m
+    hexes = np.unique(np.concatenate(list(ring_hexes(data_path("artisynth-face")).values())), axis=0)
+    hex_volume = sum(_hex_volume_m3(x[h]) for h in hexes)
+    k = demo.muscle_names.index("OOP")
+    tets = demo.fibre_tet[demo.fibre_muscle == k]
+    assert len(np.unique(tets)) == len(tets)
+    ring_volume = np.abs(signed_volumes(x, demo.tets[tets])).sum()
+    assert ring_volume == pytest.approx(hex_volume, rel=_RING_VOLUME_RTOL)
+    # the import's tube-embedded OOP holds about a quarter of that (measured 3,745 mm^3)
+    oop = np.isin(np.asarray(badin_model.muscle_names)[badin_model.fibre_muscle], ["OOP_l", "OOP_r"])
+    imported = (
+        np.abs(signed_volumes(x, badin_model.tets[badin_model.fibre_tet[oop]])) * badin_model.fibre_fraction[oop]
+    ).sum()
+    assert imported < 0.5 * ring_volume
+    assert np.allclose(demo.fibre_fraction[demo.fibre_muscle == k], 1.0)
+    assert np.allclose(np.linalg.norm(demo.fibre_direction[demo.fibre_muscle == k], axis=1), 1.0)
+
+
+def test_muscles_stress_and_boundary(badin_model, demo):
+    assert "OOP" in demo.muscle_names and not {"OOP_l", "OOP_r"} & set(demo.muscle_names)
+    assert demo.material.sigma_max_pa == ARTISYNTH_MAX_STRESS_PA and badin_model.material.sigma_max_pa == 3e5
+    # every other muscle keeps its fibres
+    for name in ("ZYG_l", "MENT_r", "OOM_l"):
+        old = badin_model.fibre_tet[badin_model.fibre_muscle == badin_model.muscle_names.index(name)]
+        new = demo.fibre_tet[demo.fibre_muscle == demo.muscle_names.index(name)]
+        assert np.array_equal(np.sort(old), np.sort(new)), name
+    # attachFaceToSkull fixes the inner surface on top of the import's lists; jaw nodes stay on the jaw
+    old = dict(zip(badin_model.attached_nodes.tolist(), badin_model.attached_bone.tolist(), strict=True))
+    new = dict(zip(demo.attached_nodes.tolist(), demo.attached_bone.tolist(), strict=True))
+    assert set(old) <= set(new) and len(new) > 1.5 * len(old)  # measured 1,898 against 885
+    assert all(new[n] == 1 for n, b in old.items() if b == 1)
+    assert demo.metadata["artisynth_lip_opening_demo"]["ring"] == list(LIP_OPENING_RINGS)
+    partial = lip_opening_demo_model(badin_model, data_path("artisynth-face"), ring=False, boundary=False)
+    assert partial.muscle_names == badin_model.muscle_names
+    assert np.array_equal(partial.attached_nodes, badin_model.attached_nodes)
+    assert partial.material.sigma_max_pa == ARTISYNTH_MAX_STRESS_PA
