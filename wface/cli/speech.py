@@ -200,16 +200,8 @@ def _speech_contact(args, model):
     )
 
 
-def run_speech(args: argparse.Namespace) -> int:
-    started = time.time()
-
-    out = Path(args.out)
-    t_start = time.perf_counter()
-    model = _load_model(Path(args.model))
-    if args.setup == "artisynth":
-        model = lip_opening_demo_model(model, _data_dir(args))
-    gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
-    mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
+def _check_model(args, model, gesture, mapping) -> None:
+    """Refuse a model the gesture cannot be played on, naming what it lacks."""
     if not any(mapping.muscles.values()):
         wanted = ", ".join(sorted({p.target for p in gesture.probes})) or "none"
         raise ValueError(
@@ -221,35 +213,24 @@ def run_speech(args: argparse.Namespace) -> int:
         raise ValueError(
             f"{args.model}: the lip opening is measured between markers the model lacks: {', '.join(lacking)}"
         )
-    out.mkdir(parents=True, exist_ok=True)
-    t_load = time.perf_counter() - t_start
-    contact = _speech_contact(args, model)
-    dynamics = None
-    if args.dynamic:
-        dynamics = GestureDynamics(
-            scheme=args.scheme,
-            max_step_s=args.max_step_ms * 1e-3,
-            alpha_per_s=args.damping_alpha,
-            beta_s=args.damping_beta,
-            gravity_m_s2=None if args.no_gravity else (0.0, -9.8, 0.0),
-        )
-    view = ApertureView.for_model(model, frontal=args.area_view == "frontal")
-    result = simulate_gesture(
-        model,
-        gesture,
-        fps=args.fps,
-        max_frames=args.max_frames,
-        mapping=mapping,
-        tol=args.tol,
-        progress=True,
-        contact=contact,
-        max_iterations=args.max_iterations,
-        dynamics=dynamics,
-        view=view,
-        area_resolution_m=args.area_resolution_mm * 1e-3,
+
+
+def _dynamics(args) -> GestureDynamics | None:
+    """The dynamic playback's settings (``--dynamic``), or None for quasistatic."""
+    if not args.dynamic:
+        return None
+    return GestureDynamics(
+        scheme=args.scheme,
+        max_step_s=args.max_step_ms * 1e-3,
+        alpha_per_s=args.damping_alpha,
+        beta_s=args.damping_beta,
+        gravity_m_s2=None if args.no_gravity else (0.0, -9.8, 0.0),
     )
-    csv, png = write_lip_opening(out, result, model, reference=gesture.reference_lip_area)
-    files = [csv.name, png.name]
+
+
+def _write_pictures_and_usd(args, out: Path, model, result, view, gesture) -> list[str]:
+    """The aperture pictures of the first and last frames and animation.usdc; returns their names."""
+    files = []
     occluders, lips = boundary_faces(model.tets), lip_area_points(model)
     for tag, f in (("first", 0), ("last", len(result.times_s) - 1)):
         x = result.node_positions_m[f]
@@ -280,6 +261,42 @@ def run_speech(args: argparse.Namespace) -> int:
             rig=not args.no_rig and "active",
         )
         files.append("animation.usdc")
+    return files
+
+
+def run_speech(args: argparse.Namespace) -> int:
+    started = time.time()
+
+    out = Path(args.out)
+    t_start = time.perf_counter()
+    model = _load_model(Path(args.model))
+    if args.setup == "artisynth":
+        model = lip_opening_demo_model(model, _data_dir(args))
+    gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
+    mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
+    _check_model(args, model, gesture, mapping)
+    out.mkdir(parents=True, exist_ok=True)
+    t_load = time.perf_counter() - t_start
+    contact = _speech_contact(args, model)
+    dynamics = _dynamics(args)
+    view = ApertureView.for_model(model, frontal=args.area_view == "frontal")
+    result = simulate_gesture(
+        model,
+        gesture,
+        fps=args.fps,
+        max_frames=args.max_frames,
+        mapping=mapping,
+        tol=args.tol,
+        progress=True,
+        contact=contact,
+        max_iterations=args.max_iterations,
+        dynamics=dynamics,
+        view=view,
+        area_resolution_m=args.area_resolution_mm * 1e-3,
+    )
+    csv, png = write_lip_opening(out, result, model, reference=gesture.reference_lip_area)
+    files = [csv.name, png.name]
+    files += _write_pictures_and_usd(args, out, model, result, view, gesture)
     report = summarize(result)
     report.update(
         {
