@@ -209,3 +209,30 @@ def test_waters_on_the_ict_head_keeps_uvs_and_materials_in_blender(blender, tmp_
         assert (mesh["vertices"], mesh["uv_layers"], len(mesh["materials"])) == (26719, 1, 12)
         assert "M_Face" in mesh["materials"]
     assert probes[1]["objects"]["Mesh"]["moved_m"] > 1e-3  # happy -> surprise moves the mouth by millimetres
+
+
+def test_speech_on_the_badin_face_plays_in_blender(blender, badin_model_path, tmp_path):
+    """`wface speech`'s stage (two frames of the closure gesture on the 45,496-tet Badin face, with its
+    rig: one solve per muscle the gesture drives) imports into Blender: the skin's point cache and
+    the rig deform, the shape keys follow the excitation curves, the range is the stage's."""
+    out = tmp_path / "speech"
+    args = ["speech", "--model", str(badin_model_path), "--gesture", "closure", "--max-frames", "2"]
+    assert main([*args, "--out", str(out)]) == 0
+    path = out / "animation.usdc"
+    run = subprocess.run([blender, str(_PROBE), str(path)], capture_output=True, text=True, timeout=600)
+    probes = [json.loads(ln[6:]) for ln in run.stdout.splitlines() if ln.startswith("PROBE ")]
+    assert len(probes) == 1, run.stdout[-2000:] + run.stderr[-2000:]
+    probe, facts = probes[0], _usd_facts(path)
+    assert (probe["frame_start"], probe["frame_end"]) == (facts["t0"], facts["t1"])
+    for name, moves in facts["moving"].items():
+        assert name in probe["objects"], f"speech: Mesh prim {name} missing in Blender"
+        if moves:
+            assert probe["objects"][name]["moved_m"] > _MOVED_M, f"speech: {name} does not move in Blender"
+    assert facts["moving"].get("Skin") and "weights" in facts
+    rig = probe["objects"]["SkinRig"]
+    used = [n for m, n in enumerate(facts["muscles"]) if facts["activations"][:, m].max() > 1e-6]
+    assert used and set(used) <= set(rig["shape_keys"][0])
+    for i, keys in enumerate(rig["shape_keys"]):
+        for name in used:
+            m = facts["muscles"].index(name)
+            assert keys[name] == pytest.approx(min(facts["activations"][i, m], 1.0), abs=_KEY_TOL), (i, name)
