@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from wface.facs import EXPRESSIONS
+from wface.io.usd import write_surface_mesh
+from wface.mesh.meshfile import read_surface_mesh
 from wface.testing.synthetic_head import synthetic_head, synthetic_landmarks
 from wface.waters.expressions import interpolate_poses
 from wface.waters.fit import fit_layout
@@ -29,7 +31,6 @@ from wface.waters.layout import load_layout
 from wface.waters.pipeline import pose_mesh
 from wface.waters.render import render_grid, render_layout
 from wface.waters.rig import WatersRig
-from wface.waters.surface import read_surface, write_usd
 
 DEFAULT_DATA = Path(os.environ.get("WFACE_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
@@ -56,7 +57,7 @@ def main(argv: list[str] | None = None) -> dict:
         rig, mesh, _ = face_model_rig(build_face(args.tets))
         source = f"wface built-in face (~{args.tets} tets), ICT layout fitted by its markers"
     elif Path(args.mesh).is_file():
-        mesh = read_surface(args.mesh, units="cm")
+        mesh = read_surface_mesh(args.mesh, units="cm")
         source = args.mesh
     else:
         mesh = synthetic_head(90, 180)
@@ -85,7 +86,7 @@ def main(argv: list[str] | None = None) -> dict:
         for k in range(max(1, args.blend_frames)):
             pose = interpolate_poses(a, b, k / max(1, args.blend_frames), muscle_names=rig.muscle_names)
             frames.append(rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg))
-    write_usd(out / "expressions.usdc", mesh, frames_m=np.stack(frames), fps=24.0)
+    write_surface_mesh(out / "expressions.usdc", mesh, frames_m=np.stack(frames), fps=24.0, name="WatersFace")
     report = {
         "mesh": source,
         "vertices": mesh.n_vertices,

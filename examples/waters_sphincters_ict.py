@@ -94,9 +94,9 @@ def agreement_table(layout, rest_m, reference) -> dict:
 
 
 def main(argv: list[str] | None = None) -> dict:
+    from wface.mesh.meshfile import read_surface_mesh
     from wface.waters.calibrate import calibrate_muscle
     from wface.waters.layout import load_layout, save_layout
-    from wface.waters.surface import read_surface
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=str(DEFAULT_DATA))
@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = ap.parse_args(argv)
     data, out = Path(args.data), Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    mesh = read_surface(data / "ict-facekit" / "generic_neutral_mesh.obj", units="cm")
+    mesh = read_surface_mesh(data / "ict-facekit" / "generic_neutral_mesh.obj", units="cm")
     rest = mesh.vertices_m
     with np.load(data / "ict-facekit" / "ict_expressions.npz") as z:
         names = [str(n) for n in z["names"]]

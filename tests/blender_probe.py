@@ -4,7 +4,8 @@ Usage: ``python blender_probe.py STAGE.usd [STAGE...]`` (a Python with ``bpy``).
 stage, ``PROBE {json}``: the scene's frame range and rate, and per object its type, parent, the
 evaluated world-space vertices' movement between the first and the last frame (mesh sequence caches,
 armatures and shape keys applied), shape-key values per frame, signed volume (bmesh, outward
-normals positive), scale per frame (markers) and UV / material counts. ``tests/test_blender_import.py``
+normals positive), scale per frame (markers), UV / material counts and, for a small mesh with shape
+keys, its evaluated world vertices at the first and the last frame. ``tests/test_blender_import.py``
 asserts on it. Not a test module itself (pytest collects ``test_*.py`` only).
 """
 
@@ -69,6 +70,8 @@ def probe(path: str) -> dict:
             "materials": [m.name for m in ob.data.materials if m is not None],
             "modifiers": [m.type for m in ob.modifiers],
         }
+        if ob.name in keys and len(a) <= 5000:  # a blend-shape mesh's evaluated vertices, for comparison
+            out["objects"][ob.name].update(first_vertices=[list(p) for p in a], last_vertices=[list(p) for p in b])
     for ob in bpy.data.objects:
         if ob.type != "MESH":
             out["objects"][ob.name] = {"type": ob.type, "parent": ob.parent.name if ob.parent else None}

@@ -62,14 +62,22 @@ def blender():
 
 @pytest.fixture(scope="module")
 def stages(tmp_path_factory, blender):
-    """animation.usdc of demo, track (--frames 2:4), edit, resim and waters, on a 1,500-tet face."""
-    root = tmp_path_factory.mktemp("dcc")
-    small = ["--tets", "1500"]
-    assert main(["demo", "--out", str(root / "demo"), *small, "--frames", "4", "--no-pictures"]) == 0
-    truth = np.load(root / "demo" / "truth.npz")
+    """animation.usdc of demo (with a render mesh: a patch of the skin in centimetres), track
+    (--frames 2:4), edit, resim and waters, on a 1,500-tet face."""
     from wface.faces.builtin import build_face
 
-    names = build_face(1500).marker_names
+    root = tmp_path_factory.mktemp("dcc")
+    small = ["--tets", "1500"]
+    face = build_face(1500)
+    tris = face.skin_triangles[:200]
+    used, local = np.unique(tris, return_inverse=True)
+    lines = [f"v {a:.9f} {b:.9f} {c:.9f}" for a, b, c in face.rest_positions_m[used] * 100.0]
+    lines += [f"f {i + 1} {j + 1} {k + 1}" for i, j, k in local.reshape(-1, 3)]
+    (root / "patch.obj").write_text("\n".join(lines) + "\n")
+    render = ["--render-mesh", str(root / "patch.obj"), "--render-mesh-units", "cm"]
+    assert main(["demo", "--out", str(root / "demo"), *small, "--frames", "4", "--no-pictures", *render]) == 0
+    truth = np.load(root / "demo" / "truth.npz")
+    names = face.marker_names
     captured = truth["markers_m"].copy()
     captured[0] = truth["clean_markers_m"][0]  # a complete neutral frame: `track` fails on a gap there (pre-existing)
     write_mocap(MocapTake(captured, list(names), 30.0), root / "take.trc")
@@ -170,6 +178,34 @@ def test_shape_keys_follow_the_activation_curves(stages, command):
         act = np.load(path.parent / "controls.npz")["activations"]
         cols = [facts["muscles"].index(n) for n in used]
         np.testing.assert_allclose(values, np.minimum(act[:, cols], 1.0), atol=_KEY_TOL)
+
+
+def test_the_render_mesh_in_the_rig_animates_in_blender(stages):
+    """The render mesh joins the rig (``/Face/Rig/RenderMesh``, centimetres placed by its
+    geomBindTransform): in Blender its shape keys are the skin rig's, driven by the same curves, and
+    its vertices are where UsdSkel's own skinning puts them (Blender turns Y-up into Z-up)."""
+    from pxr import Usd, UsdSkel, Vt
+
+    from wface.io.usd import blendshape_points
+
+    path, probe = stages["demo"]
+    rig, mesh = probe["objects"]["SkinRig"], probe["objects"]["RenderMesh"]
+    assert mesh["parent"] == "Rig" and mesh["moved_m"] > _MOVED_M
+    assert mesh["shape_keys"] and len(mesh["shape_keys"]) == len(rig["shape_keys"])
+    for keys, skin_keys in zip(mesh["shape_keys"], rig["shape_keys"], strict=True):
+        assert keys == pytest.approx(skin_keys, abs=_KEY_TOL)
+    assert np.ptp([list(k.values()) for k in mesh["shape_keys"]], axis=0).max() > 1e-3  # the keys animate
+    stage = Usd.Stage.Open(str(path))
+    cache = UsdSkel.Cache()
+    cache.Populate(UsdSkel.Root(stage.GetPrimAtPath("/Face/Rig")), Usd.PrimDefaultPredicate)
+    prim = stage.GetPrimAtPath("/Face/Rig/RenderMesh")
+    skel_query = cache.GetSkelQuery(UsdSkel.BindingAPI(prim).GetInheritedSkeleton())
+    for f, got in ((probe["frame_start"], mesh["first_vertices"]), (probe["frame_end"], mesh["last_vertices"])):
+        pts = Vt.Vec3fArray.FromNumpy(blendshape_points(stage, str(prim.GetPath()), float(f)).astype(np.float32))
+        code = Usd.TimeCode(float(f))
+        assert cache.GetSkinningQuery(prim).ComputeSkinnedPoints(skel_query.ComputeSkinningTransforms(code), pts, code)
+        q = np.asarray(pts, dtype=np.float64)
+        np.testing.assert_allclose(np.asarray(got), np.stack([q[:, 0], -q[:, 2], q[:, 1]], axis=1), atol=1e-6)
 
 
 def test_bones_face_outward(stages):

@@ -1,4 +1,4 @@
-"""Render meshes: reading polygon meshes (wface.mesh.meshfile), binding them to the tet mesh
+"""Render meshes (read by wface.mesh.meshfile: tests/test_surface_mesh.py): binding them to the tet mesh
 (wface.mesh.embed, wface.faces.render_mesh) and writing them to USD (wface.io.usd.render_mesh)."""
 
 from __future__ import annotations
@@ -16,29 +16,6 @@ from wface.takes.usd import write_take_usd
 
 _EXACT_M = 1e-12  # float64 round-off on positions of ~0.1 m
 _USD_M = 2e-7  # float32 points in USD, centimetres: ~1e-6 cm relative
-
-_OBJ = """\
-# two quads and a triangle, a UV seam, two materials, no .mtl file
-mtllib missing.mtl
-v 0 0 0
-v 1 0 0
-v 1 1 0
-v 0 1 0
-v 2 0 0
-v 2 1 0
-v 3 0.5 0
-vt 0 0
-vt 1 0
-vt 1 1
-vt 0 1
-vt 0.5 0.5
-vt 0.9 0.1
-usemtl Skin
-f 1/1 2/2 3/3 4/4
-f 2/5 5/2 6/3 3/6
-usemtl Eyes
-f 5/1 7/2 6/3
-"""
 
 
 @pytest.fixture(scope="module")
@@ -93,39 +70,6 @@ def test_outside_points_turn_with_a_local_bend(face):
     err = np.linalg.norm(b.positions(x)[b.outside] - bend(pts)[b.outside], axis=1)[near]
     err_shift = np.linalg.norm(shifted - bend(pts)[b.outside], axis=1)[near]
     assert np.median(err) < 0.5 * np.median(err_shift)
-
-
-def test_an_obj_keeps_its_polygons_uv_seams_and_material_groups(tmp_path):
-    path = tmp_path / "quad.obj"
-    path.write_text(_OBJ)
-    m = read_surface_mesh(path, units="cm")
-    assert m.n_points == 7 and m.face_vertex_counts.tolist() == [4, 4, 3]
-    assert m.face_vertex_indices.tolist() == [0, 1, 2, 3, 1, 4, 5, 2, 4, 6, 5]
-    assert m.uv_indices.tolist() == [0, 1, 2, 3, 4, 1, 2, 5, 0, 1, 2]  # vertex 1 has two UVs: a seam
-    assert {k: v.tolist() for k, v in m.face_groups.items()} == {"Skin": [0, 1], "Eyes": [2]}
-    assert m.meters_per_unit == 0.01
-    tri, face_of = m.triangles()
-    assert tri.tolist() == [[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2], [4, 6, 5]] and face_of.tolist() == [
-        0,
-        0,
-        1,
-        1,
-        2,
-    ]
-
-
-def test_other_formats_and_bad_files(tmp_path):
-    import meshio
-
-    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]) * 0.1
-    meshio.write(tmp_path / "t.ply", meshio.Mesh(pts, [("triangle", np.array([[0, 1, 2], [0, 1, 3]]))]))
-    m = read_surface_mesh(tmp_path / "t.ply")
-    assert m.n_faces == 2 and m.meters_per_unit == 1.0 and m.uv is None
-    with pytest.raises(FileNotFoundError):
-        read_surface_mesh(tmp_path / "none.obj")
-    (tmp_path / "bad.obj").write_text("v 0 0 0\nf 1 2 3\n")
-    with pytest.raises(ValueError, match="outside"):
-        read_surface_mesh(tmp_path / "bad.obj")
 
 
 def test_the_render_mesh_goes_to_usd_in_its_own_units(face, tmp_path):

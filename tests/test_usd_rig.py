@@ -174,3 +174,89 @@ def test_a_failed_rig_solve_loses_no_take(tmp_path, face, monkeypatch):
     stage = Usd.Stage.Open(str(path))
     assert stage.GetPrimAtPath("/Face/Skin") and not stage.GetPrimAtPath("/Face/Rig")  # the exact cache is there
     assert "inverts 3 tets" in stage.GetRootLayer().customLayerData["wface"]["rig_skipped"]
+
+
+def _render_patch(face, tmp_path):
+    """A render mesh over 300 skin triangles, its vertices 1.5 mm in and out of the skin in turn (so
+    both kinds of binding are used), written in centimetres in a turned frame with UVs."""
+    from wface.faces.render_mesh import bind_render_mesh
+    from wface.mesh.surface import vertex_normals
+
+    x = face.rest_positions_m
+    tris = face.skin_triangles[:300]
+    used, local = np.unique(tris, return_inverse=True)
+    n = vertex_normals(x, face.skin_triangles)[used]
+    p_m = x[used] + n * np.where(np.arange(len(used)) % 2, 0.0015, -0.0015)[:, None]
+    c, s = np.cos(0.3), np.sin(0.3)
+    placement = np.eye(4)
+    placement[:3, :3] = 0.01 * np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])  # file cm, turned -> model m
+    placement[:3, 3] = [0.01, -0.02, 0.005]
+    p_file = (p_m - placement[:3, 3]) @ np.linalg.inv(placement[:3, :3]).T
+    lines = [f"v {a:.12g} {b:.12g} {d:.12g}" for a, b, d in p_file]
+    lines += [f"vt {u:.4f} {v:.4f}" for u, v in np.random.default_rng(0).random((3 * len(tris), 2))]
+    lines += ["usemtl Face"] + [
+        "f " + " ".join(f"{v + 1}/{3 * k + j + 1}" for j, v in enumerate(t)) for k, t in enumerate(local.reshape(-1, 3))
+    ]
+    (tmp_path / "patch.obj").write_text("\n".join(lines) + "\n")
+    rm = bind_render_mesh(face, tmp_path / "patch.obj", units="cm", source_to_model=placement)
+    assert len(rm.binding.inside) > 50 and len(rm.binding.outside) > 50
+    return rm
+
+
+def test_the_render_mesh_joins_the_rig_in_its_own_units(tmp_path, face, rig):
+    """A take written with a rig and a render mesh carries the render mesh in the SkelRoot too: its
+    own shapes (its binding on each muscle's whole equilibrium) in the file's centimetres and frame,
+    placed by geomBindTransform; UsdSkel skins it as ``rig_points``, exactly like the point cache
+    beside it where the rig is exact (a muscle alone at 1, the jaw at its largest opening)."""
+    from pxr import Usd, UsdGeom, UsdSkel, Vt
+
+    from wface.io.usd import assert_stage_valid
+    from wface.takes.shapes import render_mesh_rig
+
+    rm = _render_patch(face, tmp_path)
+    theta_max = rig.info["jaw_open_full_deg"]
+    m = face.muscle_index("zygomaticus_major_l")
+    a = np.zeros((4, face.n_muscles))
+    a[1, m] = 1.0
+    a[3, m], a[3, face.muscle_index("orbicularis_oris_lower")] = 0.6, 0.3
+    jaw_deg = [0.0, 0.0, theta_max, 9.0]
+    bones = np.tile(IDENTITY_BONES, (4, 1))
+    for i, j in enumerate(jaw_deg):
+        bones[i, 12:] = jaw_from_intuitive(face.jaw_joint, opening_deg=j)
+    bones[3, :9] = np.array([[np.cos(0.1), 0, np.sin(0.1)], [0, 1, 0], [-np.sin(0.1), 0, np.cos(0.1)]]).ravel()
+    take = Take(activations=a, fps=30.0, bones=bones, muscle_names=list(face.muscle_names), joint=face.jaw_joint)
+    x = simulate_poses(face, take).x_m
+    path = write_take_usd(tmp_path / "r.usda", face, x, take=take, rig="all", render_mesh=rm)
+    assert_stage_valid(path)  # extents, the SkelRoot's extentsHint through the geomBindTransform
+    stage = Usd.Stage.Open(str(path))
+    prim = stage.GetPrimAtPath("/Face/Rig/RenderMesh")
+    assert stage.GetPrimAtPath("/Face/RenderMesh/Mesh")  # the exact point cache stays beside it
+    usd_mesh = UsdGeom.Mesh(prim)
+    np.testing.assert_allclose(np.asarray(usd_mesh.GetPointsAttr().Get()), rm.mesh.points, atol=1e-5)  # cm
+    assert list(usd_mesh.GetFaceVertexCountsAttr().Get()) == rm.mesh.face_vertex_counts.tolist()
+    st = UsdGeom.PrimvarsAPI(prim).GetPrimvar("st")
+    assert st.GetInterpolation() == "faceVarying" and list(st.GetIndices()) == rm.mesh.uv_indices.tolist()
+    bind = np.asarray(UsdSkel.BindingAPI(prim).GetGeomBindTransformAttr().Get())
+    np.testing.assert_allclose(bind.T, rm.source_to_model, atol=1e-15)
+    assert list(UsdSkel.BindingAPI(prim).GetBlendShapesAttr().Get()) == rig.names
+
+    cache = UsdSkel.Cache()
+    cache.Populate(UsdSkel.Root(stage.GetPrimAtPath("/Face/Rig")), Usd.PrimDefaultPredicate)
+    skel_query = cache.GetSkelQuery(UsdSkel.BindingAPI(prim).GetInheritedSkeleton())
+    rm_rig = render_mesh_rig(face, rm)
+    C, J = (np.stack(p) for p in zip(*(bone_affines(b) for b in take.bones), strict=True))
+    w = np.column_stack([a, np.array(jaw_deg) / theta_max])
+    expected = rig_points(rm_rig, w, C, J)
+    exact = np.stack([rm.model_points(f) for f in x])
+    for f in range(4):
+        pts = Vt.Vec3fArray.FromNumpy(blendshape_points(stage, str(prim.GetPath()), float(f)).astype(np.float32))
+        code = Usd.TimeCode(float(f))
+        assert cache.GetSkinningQuery(prim).ComputeSkinnedPoints(skel_query.ComputeSkinningTransforms(code), pts, code)
+        np.testing.assert_allclose(np.asarray(pts), expected[f], atol=5 * _F32_M)  # USD's skinning, in metres
+    for f in range(3):  # rest, the muscle's own shape, the jaw corrective: exact
+        np.testing.assert_allclose(expected[f], exact[f], atol=_SOLVE_M, err_msg=f"frame {f}")
+    err_mm = np.linalg.norm(expected[3] - exact[3], axis=1) * 1e3
+    assert 0.0 < err_mm.max() < 3.0  # a mix: the rig's linearisation, as on the skin ("Take rig")
+    info = stage.GetRootLayer().customLayerData["wface"]
+    assert info["render_mesh_rig_max_error_mm"] == pytest.approx(err_mm.max(), rel=1e-6)
+    assert np.abs(exact[1] - exact[0]).max() > 1e-3  # the render mesh moves with the muscle

@@ -14,28 +14,14 @@ import pytest
 from conftest import REPO_ROOT, data_path
 
 from wface.cli import main
+from wface.mesh.meshfile import read_surface_mesh, write_obj
 from wface.testing.synthetic_head import synthetic_head
-from wface.waters.surface import SurfaceMesh, read_surface, write_obj
 
 
 def _env() -> dict:
     env = dict(os.environ, PYVISTA_OFF_SCREEN="true")
     env["PYTHONPATH"] = str(REPO_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     return env
-
-
-def test_obj_round_trip_and_triangulation(tmp_path):
-    head = synthetic_head(8, 12)
-    write_obj(tmp_path / "h.obj", head)
-    again = read_surface(tmp_path / "h.obj", units="m")
-    np.testing.assert_allclose(again.vertices_m, head.vertices_m, atol=1e-9)
-    np.testing.assert_array_equal(again.face_vertex_indices, head.face_vertex_indices)
-    tri = head.triangles()
-    assert len(tri) == int((head.face_vertex_counts - 2).sum())
-    quad = SurfaceMesh(np.eye(4, 3), [4], [0, 1, 2, 3])
-    np.testing.assert_array_equal(quad.triangles(), [[0, 1, 2], [0, 2, 3]])
-    with pytest.raises(FileNotFoundError, match="mesh file not found"):
-        read_surface(tmp_path / "nope.obj")
 
 
 def test_cli_poses_the_ict_head(tmp_path, capsys):
@@ -59,7 +45,7 @@ def test_cli_poses_the_ict_head(tmp_path, capsys):
     summary = json.loads((tmp_path / "happy+AU26.json").read_text())
     assert summary["jaw_open_deg"] == pytest.approx(6.0)
     assert summary["contractions"]["zygomaticus_major_l"] == 1.0
-    posed = read_surface(tmp_path / "happy+AU26.obj", units="m")
+    posed = read_surface_mesh(tmp_path / "happy+AU26.obj", units="m")
     assert posed.n_vertices == 26719 and 3.0 < summary["max_displacement_mm"] < 60.0
     for key in ("png", "png_displacement", "usd"):
         assert Path(summary["files"][key]).stat().st_size > 1000

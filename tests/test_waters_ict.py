@@ -10,15 +10,15 @@ import pytest
 from conftest import data_path
 
 from wface.facs import EXPRESSIONS
+from wface.mesh.meshfile import read_surface_mesh
 from wface.waters.expressions import expression_pose, pose_from_action_units
 from wface.waters.layout import load_layout
 from wface.waters.rig import WatersRig
-from wface.waters.surface import read_surface
 
 
 @pytest.fixture(scope="module")
 def ict():
-    mesh = read_surface(data_path("ict-facekit", "generic_neutral_mesh.obj"), units="cm")
+    mesh = read_surface_mesh(data_path("ict-facekit", "generic_neutral_mesh.obj"), units="cm")
     layout = load_layout("ict")
     return mesh, layout, WatersRig(layout, mesh.vertices_m)
 

@@ -19,12 +19,12 @@ import numpy as np
 
 from wface.bench import suite_result
 from wface.facs import EXPRESSIONS
+from wface.mesh.meshfile import read_surface_mesh
 from wface.testing.synthetic_head import synthetic_head, synthetic_landmarks
 from wface.waters.expressions import interpolate_poses
 from wface.waters.fit import fit_layout
 from wface.waters.layout import load_layout
 from wface.waters.rig import WatersRig, direct_displacement
-from wface.waters.surface import read_surface
 from wface.waters.warp_backend import WarpWaters
 
 __all__ = ["add_arguments", "run"]
@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> dict:
     layout = load_layout("ict")
     path = _ict_mesh_path()
     if path.is_file():
-        mesh = read_surface(path, units="cm")
+        mesh = read_surface_mesh(path, units="cm")
         source, note = f"ICT-FaceKit generic_neutral_mesh.obj ({path})", ""
     else:
         mesh = synthetic_head(120, 224)

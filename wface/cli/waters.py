@@ -11,11 +11,12 @@ import numpy as np
 from wface.cli.validate import positive_int, probability
 from wface.faces.builtin import build_face
 from wface.facs import ACTION_UNITS, EXPRESSIONS
+from wface.io.usd import write_surface_mesh
+from wface.mesh.meshfile import read_surface_mesh
 from wface.waters.expressions import expression_pose, interpolate_poses, parse_au_assignments
 from wface.waters.face_model import face_model_rig
 from wface.waters.pipeline import layout_for_mesh, pose_mesh
 from wface.waters.rig import WatersRig
-from wface.waters.surface import read_surface, write_usd
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -67,7 +68,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.mesh == "builtin":
         rig, mesh, _ = face_model_rig(build_face(args.tets))
     else:
-        mesh = read_surface(args.mesh, units=args.units)
+        mesh = read_surface_mesh(args.mesh, units=args.units)
         rig = WatersRig(layout_for_mesh(mesh, layout=args.layout, landmarks=args.landmarks), mesh.vertices_m)
     summary = pose_mesh(
         mesh,
@@ -95,4 +96,4 @@ def _blend(args: argparse.Namespace, summary: dict, rig, mesh):
         pose = interpolate_poses(start, args.blend_to, k / (args.frames - 1), muscle_names=rig.muscle_names)
         frames.append(rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg))
     path = Path(args.out) / f"{args.expression}_to_{args.blend_to}.usdc"
-    return write_usd(path, mesh, frames_m=np.stack(frames), fps=24.0)
+    return write_surface_mesh(path, mesh, frames_m=np.stack(frames), fps=24.0, name="WatersFace")

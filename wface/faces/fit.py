@@ -312,7 +312,7 @@ def fit_template(
     target_v = target_t = None
     if surface is not None:
         faces = select_target_faces(surface) if surface_faces is None else np.asarray(surface_faces)
-        tri, face_of = surface.triangles()
+        tri, face_of = surface.triangles(), surface.triangle_faces()
         target_t = tri[np.isin(face_of, faces)]
         target_v = surface.points_m
         names = list(landmarks or {})

@@ -23,7 +23,10 @@ driven by the weight theta / theta_max (so 0 at rest and 1 at theta_max, exact a
 
 ``skin_rig`` bundles all of it into the ``wface.io.usd.rig.SkinRig`` that ``write_take_usd``
 writes as UsdSkel blend shapes and joints; it is computed once per model object and kept while it
-lives, one muscle at a time.
+lives, one muscle at a time, every node's displacement kept. ``render_mesh_rig`` gives a render mesh
+bound to the face (``wface.faces.render_mesh``) the same rig from those same solves: its binding is
+linear in the node positions, so shape i is the mesh's own motion in muscle i's equilibrium, and the
+jaw weights and corrective follow the formulas above on its vertices (docs/design.md, "Take rig").
 """
 
 from __future__ import annotations
@@ -38,9 +41,10 @@ from wface.io.usd.rig import SkinRig
 from wface.model import FaceModel
 from wface.physics.simulator import Simulator
 
-__all__ = ["JAW_SHAPE", "jaw_corrective", "jaw_skin_weights", "muscle_shapes", "skin_rig"]
+__all__ = ["JAW_SHAPE", "jaw_corrective", "jaw_skin_weights", "muscle_shapes", "render_mesh_rig", "skin_rig"]
 
 JAW_SHAPE = "jaw_open"  # name of the corrective shape, after the muscle shapes
+_PROBE_DEG = 5.0  # the jaw opening that measures how far each vertex follows the jaw
 
 _RIGS: dict[int, tuple[weakref.ref, dict]] = {}  # id(model) -> (weak reference, solved shapes)
 
@@ -71,28 +75,42 @@ def muscle_shapes(
     names = list(model.muscle_names) if muscles is None else list(muscles)
     for name in names:
         model.muscle_index(name)
-    sim = simulator or Simulator(model)
-    rest = model.rest_positions_m
     skin_nodes = np.unique(model.skin_triangles)
-    shapes = np.empty((len(names), len(skin_nodes), 3))
+    shapes = _node_shapes(model, names, activation, simulator or Simulator(model), progress)
+    return skin_nodes, shapes[:, skin_nodes]
+
+
+def _node_shapes(model: FaceModel, names: list[str], activation: float, sim: Simulator, progress: bool) -> np.ndarray:
+    """(B, N, 3) displacement of every node per unit weight, one muscle alone at ``activation`` each."""
+    rest = model.rest_positions_m
+    shapes = np.empty((len(names), model.n_nodes, 3))
     for i, name in enumerate(tqdm(names, desc="muscle shapes", disable=not progress, unit="muscle")):
         eq = sim.solve({name: activation})
         if eq.inverted_elements:
             raise RuntimeError(f"muscle {name} at activation {activation} inverts {eq.inverted_elements} tets")
-        shapes[i] = (eq.x[skin_nodes] - rest[skin_nodes]) / activation
-    return skin_nodes, shapes
+        shapes[i] = (eq.x - rest) / activation
+    return shapes
 
 
-def jaw_skin_weights(model: FaceModel, *, simulator: Simulator | None = None, probe_deg: float = 5.0) -> np.ndarray:
+def jaw_skin_weights(
+    model: FaceModel, *, simulator: Simulator | None = None, probe_deg: float = _PROBE_DEG
+) -> np.ndarray:
     """(s,) share of the jaw's motion each skin vertex follows (module docstring), skin order of
     ``np.unique(model.skin_triangles)``."""
-    sim = simulator or Simulator(model)
-    rest = model.rest_positions_m
     skin_nodes = np.unique(model.skin_triangles)
     jaw = jaw_opening_affine(model, probe_deg)
-    eq = sim.solve(np.zeros(model.n_muscles), attached_positions_from_affines(model, None, jaw))
-    p = rest[skin_nodes]
-    d = eq.x[skin_nodes] - p
+    x = _jaw_equilibrium(model, jaw, simulator or Simulator(model))
+    return _follow_share(model.rest_positions_m[skin_nodes], x[skin_nodes], jaw)
+
+
+def _jaw_equilibrium(model: FaceModel, jaw: np.ndarray, sim: Simulator) -> np.ndarray:
+    """(N, 3) node positions with the jaw at the (3, 4) affine ``jaw`` and no activation."""
+    return sim.solve(np.zeros(model.n_muscles), attached_positions_from_affines(model, None, jaw)).x
+
+
+def _follow_share(p: np.ndarray, x: np.ndarray, jaw: np.ndarray) -> np.ndarray:
+    """(s,) w = clip(d . r / |r|^2, 0, 1) of points at rest ``p`` moved to ``x`` by the jaw ``jaw``."""
+    d = x - p
     r = p @ jaw[:, :3].T + jaw[:, 3] - p
     rr = np.einsum("ij,ij->i", r, r)
     w = np.divide(np.einsum("ij,ij->i", d, r), rr, out=np.zeros(len(p)), where=rr > 1e-24)
@@ -104,16 +122,56 @@ def jaw_corrective(
 ) -> tuple[np.ndarray, float]:
     """((s, 3) corrective offsets in rest space, theta_max in degrees): the ``jaw_open`` shape of the
     module docstring, solved at the joint's largest opening."""
-    sim = simulator or Simulator(model)
     theta_max = jaw_limits(model.jaw_joint)["opening_deg"][1]
     skin_nodes = np.unique(model.skin_triangles)
     jaw = jaw_opening_affine(model, theta_max)
-    eq = sim.solve(np.zeros(model.n_muscles), attached_positions_from_affines(model, None, jaw))
-    p = model.rest_positions_m[skin_nodes]
+    x = _jaw_equilibrium(model, jaw, simulator or Simulator(model))
+    return _corrective(model.rest_positions_m[skin_nodes], x[skin_nodes], jaw_weights, jaw), float(theta_max)
+
+
+def _corrective(p: np.ndarray, x: np.ndarray, jaw_weights: np.ndarray, jaw: np.ndarray) -> np.ndarray:
+    """(s, 3) c = M^-1 (x - w t) - p, M = (1 - w) I + w R (module docstring)."""
     w = np.asarray(jaw_weights, dtype=np.float64)[:, None, None]
     M = (1.0 - w) * np.eye(3) + w * jaw[:, :3]
-    rhs = eq.x[skin_nodes] - w[:, :, 0] * jaw[:, 3]
-    return np.linalg.solve(M, rhs[..., None])[..., 0] - p, float(theta_max)
+    rhs = x - w[:, :, 0] * jaw[:, 3]
+    return np.linalg.solve(M, rhs[..., None])[..., 0] - p
+
+
+def _solved(model: FaceModel, names: list[str], jaw: bool, simulator, progress: bool) -> dict:
+    """The model's solved shapes, kept while it lives: {"shapes": {muscle: (N, 3) node displacement},
+    "jaw": (probe affine, (N, 3) nodes there, full-opening affine, (N, 3) nodes there, theta_max)}."""
+    hit = _RIGS.get(id(model))
+    if hit is None or hit[0]() is not model:
+        key = id(model)
+        hit = (weakref.ref(model, lambda _ref: _RIGS.pop(key, None)), {"shapes": {}})
+        _RIGS[key] = hit
+    cache = hit[1]
+    sim = simulator
+    todo = [n for n in names if n not in cache["shapes"]]
+    if todo:
+        sim = sim or Simulator(model)
+        cache["shapes"].update(zip(todo, _node_shapes(model, todo, 1.0, sim, progress), strict=True))
+    if jaw and "jaw" not in cache:
+        sim = sim or Simulator(model)
+        probe = jaw_opening_affine(model, _PROBE_DEG)
+        theta_max = float(jaw_limits(model.jaw_joint)["opening_deg"][1])
+        full = jaw_opening_affine(model, theta_max)
+        cache["jaw"] = (probe, _jaw_equilibrium(model, probe, sim), full, _jaw_equilibrium(model, full, sim), theta_max)
+    return cache
+
+
+def _rig_on(model: FaceModel, points, names: list[str], jaw: bool, cache: dict) -> tuple:
+    """(rest (r, 3), deltas (B, r, 3), jaw weights (r,), names, theta_max or None) of the points that
+    ``points`` (a map linear in the (N, 3) node positions) gives: each shape is the points' own motion."""
+    x0 = model.rest_positions_m
+    rest = points(x0)
+    deltas = [points(x0 + cache["shapes"][n]) - rest for n in names]
+    if not jaw:
+        return rest, deltas, np.zeros(len(rest)), list(names), None
+    probe, x_probe, full, x_full, theta_max = cache["jaw"]
+    w = _follow_share(rest, points(x_probe), probe)
+    deltas.append(_corrective(rest, points(x_full), w, full))
+    return rest, deltas, w, [*names, JAW_SHAPE], theta_max
 
 
 def skin_rig(
@@ -128,7 +186,8 @@ def skin_rig(
     ``jaw_open`` corrective; without ``jaw`` the skin follows the cranium alone.
 
     Each muscle's shape and the jaw's are solved once per model object and kept while it lives, so
-    a rig over other muscles of the same model costs only the muscles not yet solved.
+    a rig over other muscles of the same model (or of a render mesh on it, ``render_mesh_rig``)
+    costs only the muscles not yet solved.
 
     Args:
         model: the face.
@@ -138,38 +197,51 @@ def skin_rig(
         progress: show a progress bar over the muscles' solves.
     """
     names = list(model.muscle_names) if muscles is None else list(muscles)
-    hit = _RIGS.get(id(model))
-    if hit is None or hit[0]() is not model:
-        key = id(model)
-        hit = (weakref.ref(model, lambda _ref: _RIGS.pop(key, None)), {"shapes": {}})
-        _RIGS[key] = hit
-    cache = hit[1]
-    sim = simulator
-    todo = [n for n in names if n not in cache["shapes"]]
-    if todo:
-        sim = sim or Simulator(model)
-        _, shapes = muscle_shapes(model, muscles=todo, simulator=sim, progress=progress)
-        cache["shapes"].update(zip(todo, shapes, strict=True))
+    cache = _solved(model, names, jaw, simulator, progress)
     skin_nodes = np.unique(model.skin_triangles)
-    deltas = [cache["shapes"][n] for n in names]
-    weights = np.zeros(len(skin_nodes))
+    rest, deltas, weights, names, theta_max = _rig_on(model, lambda x: x[skin_nodes], names, jaw, cache)
     source = f"wface FEM face ({model.n_tets} tets): each muscle alone at activation 1"
     info: dict = {}
     if jaw:
-        if "jaw" not in cache:
-            sim = sim or Simulator(model)
-            w = jaw_skin_weights(model, simulator=sim)
-            cache["jaw"] = (w, *jaw_corrective(model, w, simulator=sim))
-        weights, corrective, theta_max = cache["jaw"]
-        deltas.append(corrective)
-        names = [*names, JAW_SHAPE]
-        source += f", jaw weights at 5 deg, '{JAW_SHAPE}' corrective at {theta_max:.3g} deg"
+        source += f", jaw weights at {_PROBE_DEG:g} deg, '{JAW_SHAPE}' corrective at {theta_max:.3g} deg"
         info["jaw_open_full_deg"] = theta_max
     return SkinRig(
-        rest_m=model.rest_positions_m[skin_nodes],
+        rest_m=rest,
         deltas_m=np.stack(deltas) if deltas else np.zeros((0, len(skin_nodes), 3)),
         names=names,
         jaw_weights=weights,
         source=source,
         info=info,
+    )
+
+
+def render_mesh_rig(
+    model: FaceModel,
+    render_mesh,
+    *,
+    muscles: list[str] | None = None,
+    jaw: bool = True,
+    simulator: Simulator | None = None,
+    progress: bool = False,
+) -> SkinRig:
+    """The rig of a render mesh bound to ``model`` (``wface.faces.render_mesh.RenderMesh``), with the
+    skin rig's shapes: shape i is the render mesh's own motion (its binding applied to the whole
+    tet mesh's equilibrium) with muscle i alone, the jaw weights and corrective follow the same
+    formulas on its vertices, so it is exact where the skin rig is. Rest points and shapes are in
+    the mesh file's frame and units; ``bind_transform`` is the placement (file -> model metres).
+    """
+    names = list(model.muscle_names) if muscles is None else list(muscles)
+    cache = _solved(model, names, jaw, simulator, progress)
+    rest, deltas, weights, names, theta_max = _rig_on(model, render_mesh.binding.positions, names, jaw, cache)
+    m = np.asarray(render_mesh.source_to_model, dtype=np.float64)
+    to_file = np.linalg.inv(m[:3, :3]).T  # offsets are directions: the linear part alone
+    n = render_mesh.mesh.n_points
+    return SkinRig(
+        rest_m=render_mesh.mesh.points,
+        deltas_m=np.stack(deltas) @ to_file if deltas else np.zeros((0, n, 3)),
+        names=names,
+        jaw_weights=weights,
+        source=f"render mesh {render_mesh.name} on the wface FEM face ({model.n_tets} tets): its binding per shape",
+        info={} if theta_max is None else {"jaw_open_full_deg": theta_max},
+        bind_transform=m,
     )

@@ -5,7 +5,8 @@ stage layout of ``wface.io.usd.write_take`` (``/<name>/Skin``: the exact point c
 ids, ``Bones/Cranium`` and ``Bones/Cranium/Jaw`` from the take's bones, the ``Muscles`` activation
 curves, named marker locators when given, and the ``Rig``: the skin as UsdSkel blend shapes, one
 per muscle from the FEM face itself (``wface.takes.shapes``), with cranium and jaw joints, driven by
-the activation curves), so ``wface.io.usd.read_take`` reads every command's stage back and the
+the activation curves, and a render mesh's own shapes beside it when one is given), so
+``wface.io.usd.read_take`` reads every command's stage back and the
 tracked, edited and dynamic stages of one performance line up prim for prim. Time codes are the
 take's frame numbers (the capture's for a tracked take). Activation curves are min(drive, 1) per
 muscle (drive = activation x force-length scale); a take with force-length scales also stores them
@@ -21,11 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from wface.controls import IDENTITY_AFFINE, bone_affines, jaw_to_intuitive, params_from_affine
-from wface.io.usd import write_mesh_animation, write_take
+from wface.io.usd import rig_points, write_mesh_animation, write_take
 from wface.io.usd.render_mesh import reference_render_mesh, write_render_mesh_layer
 from wface.mesh.surface import boundary_faces
 from wface.model import FaceModel
-from wface.takes.shapes import skin_rig
+from wface.takes.shapes import JAW_SHAPE, render_mesh_rig, skin_rig
 from wface.takes.take import Take
 
 __all__ = ["add_render_mesh", "skin_mesh", "write_take_usd"]
@@ -82,7 +83,10 @@ def write_take_usd(
         simulator: a ``Simulator`` of ``model`` to reuse for the rig's solves.
         progress: show a progress bar over the rig's solves.
         render_mesh: a ``wface.faces.render_mesh.RenderMesh`` moved with the frames
-            (``add_render_mesh``, which also adds one to a stage already written).
+            (``add_render_mesh``, which also adds one to a stage already written); with a rig it
+            also joins the rig as ``Rig/RenderMesh`` (``wface.takes.shapes.render_mesh_rig``: its
+            own shapes, in its file's units, placed by its transform), its error against the exact
+            point cache in the layer metadata (``render_mesh_rig_rms_error_mm``, ``..._max_...``).
 
     A rig whose solve fails (a muscle alone at activation 1 inverts tets) is left out with a
     ``RuntimeWarning``, its reason in the layer metadata (``rig_skipped``); the rest of the stage is
@@ -118,17 +122,22 @@ def write_take_usd(
     if take.force_length_scale is not None:
         meta["force_length_scale"] = take.force_length_scale.max(axis=0).tolist()
     activations = np.minimum(take.drives, 1.0)
+    rig_meshes = None
     try:
         skel, rig_weights = _rig(model, take, activations, jaw, rig, simulator, progress)
+        if skel is not None and render_mesh is not None:
+            rig_meshes, errors = _render_mesh_in_rig(model, render_mesh, skel, rig_weights, positions_m, cranium, jaw)
+            meta.update(errors)
     except RuntimeError as exc:  # a muscle's shape inverts tets: the exact cache still goes out, without a rig
         warnings.warn(f"{path}: written without the UsdSkel rig ({exc})", RuntimeWarning, stacklevel=2)
-        skel, rig_weights = None, None
+        skel, rig_weights, rig_meshes = None, None, None
         meta["rig_skipped"] = str(exc)
     stage = write_take(
         path,
         frames=take.frames,
         rig=skel,
         rig_weights=rig_weights,
+        rig_meshes=rig_meshes,
         model=model,
         node_positions_m=positions_m,
         fps=rate,
@@ -164,6 +173,22 @@ def _rig(model: FaceModel, take: Take, activations: np.ndarray, jaw: np.ndarray,
         opening = np.array([jaw_to_intuitive(model.jaw_joint, p)["opening_deg"] for p in params])
         columns.append(np.clip(opening / skel.info["jaw_open_full_deg"], 0.0, 1.0)[:, None])
     return skel, np.concatenate(columns, axis=1)
+
+
+def _render_mesh_in_rig(model, render_mesh, skel, weights, positions_m, cranium, jaw) -> tuple[dict, dict]:
+    """({"RenderMesh": the render mesh's rig entry for ``write_take``}, its error against the exact
+    point cache, mm): shapes from ``render_mesh_rig``, in the file's units, placed by its transform."""
+    muscles = [n for n in skel.names if n != JAW_SHAPE]
+    rm_rig = render_mesh_rig(model, render_mesh, muscles=muscles, jaw=JAW_SHAPE in skel.names)
+    mesh = render_mesh.mesh
+    exact = np.stack([render_mesh.model_points(x) for x in positions_m])
+    err_mm = np.linalg.norm(rig_points(rm_rig, weights, cranium, jaw) - exact, axis=2) * 1e3
+    entry = (rm_rig, mesh.face_vertex_counts, mesh.face_vertex_indices, mesh.uv, mesh.uv_indices)
+    errors = {
+        "render_mesh_rig_rms_error_mm": float(np.sqrt(np.mean(err_mm**2))),
+        "render_mesh_rig_max_error_mm": float(err_mm.max()),
+    }
+    return {"RenderMesh": entry}, errors
 
 
 def add_render_mesh(

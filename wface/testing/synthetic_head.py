@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from wface.mesh.meshfile import SurfaceMesh
 from wface.waters.layout import MuscleLayout
-from wface.waters.surface import SurfaceMesh
 
 __all__ = ["ELLIPSOID_CENTRE_M", "ELLIPSOID_SEMI_AXES_M", "synthetic_head", "synthetic_landmarks"]
 

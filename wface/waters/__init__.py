@@ -10,9 +10,9 @@ ellipsoid head for data-free use is ``wface.testing.synthetic_head``.
 Quick start::
 
     from wface.waters import WatersRig, expression_pose, load_layout
-    from wface.waters.surface import read_surface
+    from wface.mesh.meshfile import read_surface_mesh
 
-    mesh = read_surface("generic_neutral_mesh.obj", units="cm")      # ICT-FaceKit head
+    mesh = read_surface_mesh("generic_neutral_mesh.obj", units="cm")      # ICT-FaceKit head
     rig = WatersRig(load_layout("ict"), mesh.vertices_m)
     pose = expression_pose("happy", muscle_names=rig.muscle_names)
     x = rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg)  # (n, 3) metres

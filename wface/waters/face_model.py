@@ -15,10 +15,10 @@ from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
 from wface.faces.builtin import build_face
+from wface.mesh.meshfile import SurfaceMesh
 from wface.waters.fit import fit_layout
 from wface.waters.layout import JawRegion, MuscleLayout, load_layout
 from wface.waters.rig import WatersRig
-from wface.waters.surface import SurfaceMesh
 
 __all__ = ["builtin_face_layout", "face_model_rig", "fit_layout_to_face_model", "harmonic_jaw_weights", "skin_surface"]
 

@@ -9,12 +9,13 @@ from pathlib import Path
 import numpy as np
 
 from wface.files import read_json, write_json
+from wface.io.usd import write_surface_mesh
+from wface.mesh.meshfile import SurfaceMesh, read_surface_mesh, write_obj
 from wface.waters.expressions import expression_pose
 from wface.waters.fit import fit_layout
 from wface.waters.layout import MuscleLayout, load_layout
 from wface.waters.render import render_mesh
 from wface.waters.rig import WatersRig
-from wface.waters.surface import SurfaceMesh, read_surface, write_obj, write_usd
 
 __all__ = ["ICT_VERTEX_COUNT", "layout_for_mesh", "load_landmark_vertices", "pose_mesh"]
 
@@ -74,7 +75,7 @@ def pose_mesh(
     """
     expression_pose(expression, intensity=intensity, extra_action_units=action_units)  # bad names fail first
     if not isinstance(mesh, SurfaceMesh):
-        mesh = read_surface(mesh, units=units)
+        mesh = read_surface_mesh(mesh, units=units)
     if rig is None:
         lay = layout if isinstance(layout, MuscleLayout) else layout_for_mesh(mesh, layout=layout, landmarks=landmarks)
         rig = WatersRig(lay, mesh.vertices_m)
@@ -92,7 +93,7 @@ def pose_mesh(
     posed = mesh.with_vertices(x)
     files = {
         "obj": str(write_obj(out / f"{stem}.obj", posed)),
-        "usd": str(write_usd(out / f"{stem}{usd_suffix}", posed)),
+        "usd": str(write_surface_mesh(out / f"{stem}{usd_suffix}", posed, name="WatersFace")),
     }
     disp_mm = np.linalg.norm(x - mesh.vertices_m, axis=1) * 1e3
     if render:

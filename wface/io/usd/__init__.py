@@ -14,7 +14,8 @@ model's +y points up in a Z-up world.
 The path's suffix picks the format: ``.usdc`` (binary crate, the default for ``.usd`` too) or
 ``.usda`` (text, diff-able).
 
-Modules: ``mesh`` (``write_mesh_animation``: also UVs, normals and material subsets), ``take``
+Modules: ``mesh`` (``write_mesh_animation``: also UVs, normals and material subsets;
+``write_surface_mesh``: a ``wface.mesh.meshfile.SurfaceMesh`` in its own units), ``take``
 (``write_take``), ``rig`` (a take's skin as UsdSkel blend shapes plus cranium and jaw joints),
 ``locators`` (markers as named Xforms), ``skel`` (actuation bases as UsdSkel blend shapes),
 ``validate`` (UsdValidation, extents, UsdSkel synthesis, stage diffs), ``read`` (``read_take``: a
@@ -23,7 +24,7 @@ here: ``from wface.io.usd import write_take``.
 """
 
 from wface.io.usd._common import UsdWriteError, affine_to_matrix4d, as_polygons
-from wface.io.usd.mesh import write_mesh_animation
+from wface.io.usd.mesh import write_mesh_animation, write_surface_mesh
 from wface.io.usd.read import read_take
 from wface.io.usd.rig import SkinRig, rig_points
 from wface.io.usd.skel import BlendShapeBasis, write_blendshape_basis
@@ -53,5 +54,6 @@ __all__ = [
     "validate_stage",
     "write_blendshape_basis",
     "write_mesh_animation",
+    "write_surface_mesh",
     "write_take",
 ]

@@ -1,4 +1,4 @@
-"""One polygon mesh, static or animated, as a USD stage."""
+"""One polygon mesh, static or animated, as a USD stage; a ``wface.mesh.meshfile.SurfaceMesh`` in its own units."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from wface.io.usd._common import (
     as_polygons,
 )
 
-__all__ = ["write_mesh_animation"]
+__all__ = ["write_mesh_animation", "write_surface_mesh"]
 
 
 def write_mesh_animation(
@@ -93,6 +93,43 @@ def write_mesh_animation(
         _write_materials(stage, f"/{name}", mesh, material_faces, material_colors or {}, counts.size)
     save_layer(stage.GetRootLayer(), path)  # atomic: a temporary file renamed into place
     return path
+
+
+def write_surface_mesh(
+    path: str | Path, mesh, *, frames_m: np.ndarray | None = None, fps: float = 24.0, name: str = "Surface"
+) -> Path:
+    """Write a ``SurfaceMesh`` (or its animation) keeping what the source has: points in the source's
+    units with ``metersPerUnit`` to match, UVs (``primvars:st``, face-varying, indexed), the source
+    normals (static only: a posed frame's normals are its own), one material subset per group with
+    the ``.mtl`` colours.
+
+    Args:
+        path: ``.usda`` / ``.usdc`` / ``.usd``.
+        mesh: the ``wface.mesh.meshfile.SurfaceMesh``.
+        frames_m: (F, n, 3) vertex positions per frame in metres, or None for the mesh itself.
+        fps: frames per second.
+        name: the root prim's name (``/<name>/Mesh``).
+
+    Returns:
+        The path written.
+    """
+    points = mesh.points_m if frames_m is None else np.asarray(frames_m, dtype=np.float64)
+    static = frames_m is None
+    return write_mesh_animation(
+        path,
+        points_m=points,
+        face_vertex_counts=mesh.face_vertex_counts,
+        face_vertex_indices=mesh.face_vertex_indices,
+        fps=fps,
+        name=name,
+        meters_per_unit=mesh.meters_per_unit,
+        uv=mesh.uv,
+        uv_indices=mesh.uv_indices,
+        normals=mesh.normals if static else None,
+        normal_indices=mesh.normal_indices if static else None,
+        material_faces=mesh.face_groups or None,
+        material_colors=mesh.material_colors,
+    )
 
 
 def _write_face_varying(mesh, primvar: str, values, corner_indices, n_corners: int, width: int) -> None:

@@ -7,7 +7,8 @@ faceVertexIndices, quads kept), points, extent and vertex normals time-sampled (
 code f, in the file's own frame and units), the texture coordinates as the indexed faceVarying
 primvar ``st`` (texCoord2f, seams kept), and one ``UsdGeom.Subset`` per material group (family
 ``materialBind``, faces) bound to a ``UsdPreviewSurface`` material of that name under
-``/<name>/Materials``. The layer opens alone in Blender, usdview or Houdini in the asset's own
+``/<name>/Materials`` (the ``.mtl`` diffuse colour where the source has one, else skin or grey).
+The layer opens alone in Blender, usdview or Houdini in the asset's own
 coordinates.
 
 ``reference_render_mesh`` adds ``/<root>/RenderMesh`` to a take's stage (metersPerUnit 1): an
@@ -90,7 +91,7 @@ def write_render_mesh_layer(
     geom.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(mesh.face_vertex_indices, np.int32)))
     geom.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
     geom.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
-    tri, _ = mesh.triangles()
+    tri = mesh.triangles()
     p_attr, n_attr, e_attr = geom.CreatePointsAttr(), geom.CreateNormalsAttr(), geom.CreateExtentAttr()
     geom.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
     for t, p in zip(times, pts, strict=True):
@@ -100,7 +101,7 @@ def write_render_mesh_layer(
     if mesh.uv is not None and mesh.uv_indices is not None:
         _write_face_varying(geom, "st", mesh.uv, mesh.uv_indices, mesh.face_vertex_indices.size, 2)
     if mesh.face_groups:
-        colors = _material_colors(mesh.face_groups)
+        colors = {**_material_colors(mesh.face_groups), **mesh.material_colors}  # the .mtl's colours win
         _write_materials(stage, root, geom, mesh.face_groups, colors, int(mesh.n_faces))
     stage.GetRootLayer().customLayerData = {
         "wface": {"kind": "render_mesh", "source": str(mesh.source), "first_frame": int(times[0])}

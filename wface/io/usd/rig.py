@@ -12,10 +12,12 @@ Layout under ``prim_path`` (a SkelRoot, e.g. ``/Face/Rig``)::
 UsdSkel deforms the skin as (linear blend skinning of blend shapes, row vectors in USD, written
 here with column vectors)::
 
-    p(t) = (1 - w) C(t) q(t) + w C(t) J(t) q(t),   q(t) = p0 + sum_i a_i(t) d_i
+    p(t) = (1 - w) C(t) q(t) + w C(t) J(t) q(t),   q(t) = G (p0 + sum_i a_i(t) d_i)
 
 with C, J the cranium and jaw transforms (rotation and translation), p0 the rest skin, d_i the
-muscle shapes and w the jaw weights. The rig linearises the face about rest (Choe & Ko 2001; the
+muscle shapes, w the jaw weights and G the mesh's geomBindTransform (identity for the skin; a
+render mesh kept in its file's units and frame has its placement there). The rig linearises the face
+about rest (Choe & Ko 2001; the
 shapes of Sifakis et al. 2005's FEM face, see ``wface.takes.shapes``), so it differs from the exact
 point cache beside it by the muscles' interaction and the flesh's nonlinearity; ``rig_points``
 evaluates it in numpy so writers can report that difference (docs/design.md, "Take rig", has the
@@ -29,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wface.io.usd._common import UsdWriteError, _extent, _identifier, _vt_float, _vt_int, _vt_vec3f, _write_mesh
+from wface.io.usd.mesh import _write_face_varying
 
 __all__ = ["JOINTS", "SkinRig", "rig_points", "write_skin_rig"]
 
@@ -46,6 +49,9 @@ class SkinRig:
         jaw_weights: (s,) share of each vertex that follows the jaw, in [0, 1].
         source: how the shapes were made (goes into the stage's metadata).
         info: small JSON-able facts the weights depend on (e.g. the opening that drives a jaw shape to 1).
+        bind_transform: (4, 4) the mesh's own coordinates -> the skin's (model metres), column
+            vectors, or None (identity): a render mesh kept in its file's frame and units
+            (UsdSkel's ``geomBindTransform``; shapes are offsets in the mesh's own coordinates).
     """
 
     rest_m: np.ndarray
@@ -54,6 +60,7 @@ class SkinRig:
     jaw_weights: np.ndarray
     source: str = ""
     info: dict = field(default_factory=dict)
+    bind_transform: np.ndarray | None = None
 
     def carried(self, weights, rest_m: np.ndarray) -> SkinRig:
         """The rig carried to another mesh bound to the skin by linear weights (e.g. barycentric).
@@ -85,6 +92,18 @@ class SkinRig:
             raise UsdWriteError(f"{len(self.names)} shape names for {self.deltas_m.shape[0]} shapes")
         if not (np.all(np.isfinite(self.deltas_m)) and np.all((self.jaw_weights >= 0) & (self.jaw_weights <= 1))):
             raise UsdWriteError("SkinRig: deltas must be finite and jaw weights in [0, 1]")
+        if self.bind_transform is not None:
+            self.bind_transform = np.asarray(self.bind_transform, dtype=np.float64)
+            b = self.bind_transform
+            if b.shape != (4, 4) or not np.all(np.isfinite(b)) or abs(np.linalg.det(b[:3, :3])) < 1e-300:
+                raise UsdWriteError(f"SkinRig: bind_transform must be an invertible (4, 4) matrix, got {b.shape}")
+
+    def bound(self, points: np.ndarray) -> np.ndarray:
+        """(..., 3) points in the mesh's own coordinates -> the skin's (``bind_transform``)."""
+        if self.bind_transform is None:
+            return np.asarray(points, dtype=np.float64)
+        b = self.bind_transform
+        return np.asarray(points, dtype=np.float64) @ b[:3, :3].T + b[:3, 3]
 
 
 def _rigid(affines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -97,7 +116,8 @@ def _rigid(affines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def rig_points(rig: SkinRig, weights: np.ndarray, cranium_affines: np.ndarray, jaw_affines: np.ndarray) -> np.ndarray:
-    """(F, s, 3) skin points the rig gives (module docstring), with the affines' nearest rotations.
+    """(F, s, 3) skin points the rig gives (module docstring), with the affines' nearest rotations,
+    in the skin's coordinates (a ``bind_transform`` applied first, as UsdSkel does).
 
     Args:
         rig: the rig.
@@ -105,7 +125,7 @@ def rig_points(rig: SkinRig, weights: np.ndarray, cranium_affines: np.ndarray, j
         cranium_affines: (F, 3, 4) cranium rest-to-world affines.
         jaw_affines: (F, 3, 4) jaw affines relative to the cranium.
     """
-    q = rig.rest_m[None] + np.tensordot(np.asarray(weights, dtype=np.float64), rig.deltas_m, axes=(1, 0))
+    q = rig.bound(rig.rest_m[None] + np.tensordot(np.asarray(weights, dtype=np.float64), rig.deltas_m, axes=(1, 0)))
     Rc, tc = _rigid(cranium_affines)
     Rj, tj = _rigid(jaw_affines)
     jaw = np.einsum("fij,fsj->fsi", Rj, q) + tj[:, None]
@@ -159,9 +179,11 @@ def write_skin_rig(
         visible: author the rig's mesh visible (the default: Blender's importer leaves invisible prims
             out); it lies on the exact point cache within the rig's error, so a DCC user hides one.
         st: (s, 2) texture coordinates of the skin vertices (``primvars:st``), or None.
-        extra_meshes: {prim name: (SkinRig, counts, indices)}: more meshes bound to the same joints
-            and weights, e.g. a render mesh carried by its binding to the skin (``SkinRig.carried``);
-            their shape names must be the skin rig's.
+        extra_meshes: {prim name: (SkinRig, counts, indices) or (SkinRig, counts, indices, uv,
+            uv_indices)}: more meshes bound to the same joints and weights, e.g. a render mesh
+            (``wface.takes.shapes.render_mesh_rig``, or one carried by linear weights on the skin,
+            ``SkinRig.carried``), with face-varying texture coordinates; their shape names must be
+            the skin rig's.
     """
     from pxr import Gf, Usd, UsdGeom, UsdSkel, Vt
 
@@ -176,16 +198,20 @@ def write_skin_rig(
     for t, mats in zip(times, _joint_matrices(cranium_affines, jaw_affines), strict=True):
         anim.SetTransforms(Vt.Matrix4dArray(mats), Usd.TimeCode(float(t)))
 
-    meshes = {"SkinRig": (rig, counts, indices, st), **{k: (*v, None) for k, v in (extra_meshes or {}).items()}}
+    meshes = {"SkinRig": (rig, counts, indices, st, None)}
+    meshes.update({k: (*v, None, None)[:5] for k, v in (extra_meshes or {}).items()})
     boxes = []
     tokens = None
-    for name, (mesh_rig, c, i, uv) in meshes.items():
+    for name, (mesh_rig, c, i, uv, uv_idx) in meshes.items():
         if mesh_rig.names != rig.names:
             raise UsdWriteError(f"rig mesh {name}: shapes {mesh_rig.names[:3]}... are not the skin rig's")
         tokens = _bind_mesh(stage, f"{prim_path}/{name}", skel, mesh_rig, c, i, visible=visible, st=uv)
+        if uv_idx is not None:
+            _write_face_varying(UsdGeom.Mesh(stage.GetPrimAtPath(f"{prim_path}/{name}")), "st", uv, uv_idx, len(i), 2)
         pts = rig_points(mesh_rig, weights, cranium_affines, jaw_affines)
         shapes_only = mesh_rig.rest_m[None] + np.tensordot(weights, mesh_rig.deltas_m, axes=(1, 0))  # as validators
-        boxes.append(_extent(np.concatenate([pts.reshape(-1, 3), shapes_only.reshape(-1, 3), mesh_rig.rest_m])))
+        shapes_only = mesh_rig.bound(np.concatenate([shapes_only.reshape(-1, 3), mesh_rig.rest_m]))
+        boxes.append(_extent(np.concatenate([pts.reshape(-1, 3), shapes_only])))
         if name == "SkinRig":
             skin_pts = pts
     anim.CreateBlendShapesAttr(Vt.TokenArray(tokens))
@@ -214,7 +240,8 @@ def _bind_mesh(stage, mesh_path: str, skel, rig: SkinRig, counts, indices, *, vi
     binding.CreateJointIndicesPrimvar(constant=False, elementSize=2).Set(_vt_int(np.tile([0, 1], s)))
     jw = np.stack([1.0 - rig.jaw_weights, rig.jaw_weights], axis=1).reshape(-1)
     binding.CreateJointWeightsPrimvar(constant=False, elementSize=2).Set(_vt_float(jw))
-    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+    bind = np.eye(4) if rig.bind_transform is None else rig.bind_transform
+    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(bind.T.tolist()))  # USD multiplies row vectors
     taken: set[str] = set()
     tokens, targets = [], []
     for name, delta in zip(rig.names, rig.deltas_m, strict=True):

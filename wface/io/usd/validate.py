@@ -78,7 +78,8 @@ def check_extents(stage_or_path, *, rtol: float = 1e-6) -> list[str]:
     ``points`` and ``extent`` (or the default time when neither is animated), the points must lie
     inside [min, max] up to ``rtol`` x the extent's size (float32 storage). For each SkelRoot with
     an ``extentsHint``, the blend-shape meshes under it, deformed by UsdSkel at every time sample
-    of their animation's weights (``blendshape_points``), must lie inside the hint.
+    of their animation's weights (``blendshape_points``) and placed by their ``geomBindTransform``,
+    must lie inside the hint.
 
     Returns:
         One line per violation (prim, time, how far outside); empty when all is well.
@@ -136,6 +137,9 @@ def _check_skel_extents_hints(stage, rtol: float) -> list[str]:
             anim = UsdSkel.Animation(stage.GetPrimAtPath(src[0])) if src else None
             times = anim.GetBlendShapeWeightsAttr().GetTimeSamples() if anim else []
             m = np.asarray(xf.ComputeRelativeTransform(prim, root)[0])
+            bind = binding.GetGeomBindTransformAttr().Get()
+            if bind is not None:  # UsdSkel skins G-transformed points (a render mesh in its own units)
+                m = np.asarray(bind) @ m
             for t in times or [Usd.TimeCode.Default().GetValue()]:
                 pts = blendshape_points(stage, str(prim.GetPath()), t)
                 worst = _outside(pts @ m[:3, :3] + m[3, :3], hint, rtol)
