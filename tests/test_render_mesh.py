@@ -142,3 +142,21 @@ def test_resim_writes_the_render_mesh_too(tmp_path, capsys):
     mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Face/RenderMesh/Mesh"))
     assert mesh.GetPointsAttr().GetTimeSamples() == [0.0, 1.0, 2.0]
     assert len(mesh.GetPointsAttr().Get(2.0)) == len(used)
+
+
+def test_demo_lists_the_render_mesh_layer_it_writes(tmp_path, capsys):
+    """The closing lines name every file written, the render mesh's own layer included."""
+    from wface.cli import main
+
+    face = build_face(1000)
+    x, skin = face.rest_positions_m, face.skin_triangles
+    used = np.unique(skin[:40])
+    local = {v: i for i, v in enumerate(used)}
+    lines = [f"v {a:.9f} {b:.9f} {c:.9f}" for a, b, c in x[used]]
+    lines += [f"f {local[i] + 1} {local[j] + 1} {local[k] + 1}" for i, j, k in skin[:40]]
+    (tmp_path / "patch.obj").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "demo"
+    args = ["demo", "--out", str(out), "--tets", "1000", "--frames", "2", "--no-pictures", "--prior", "temporal"]
+    assert main([*args, "--render-mesh", str(tmp_path / "patch.obj"), "--render-mesh-units", "m"]) == 0
+    printed = capsys.readouterr().out
+    assert (out / "animation_render_mesh.usdc").is_file() and "animation_render_mesh.usdc" in printed

@@ -29,7 +29,7 @@ from wface.model import FaceModel
 from wface.takes.shapes import JAW_SHAPE, render_mesh_rig, skin_rig
 from wface.takes.take import Take
 
-__all__ = ["add_render_mesh", "skin_mesh", "write_take_usd"]
+__all__ = ["add_render_mesh", "render_mesh_layer_path", "skin_mesh", "write_take_usd"]
 
 _ACTIVE = 1e-6  # a curve above this in some frame makes a muscle "used" by the take
 
@@ -191,6 +191,11 @@ def _render_mesh_in_rig(model, render_mesh, skel, weights, positions_m, cranium,
     return {"RenderMesh": entry}, errors
 
 
+def render_mesh_layer_path(stage_path: str | Path) -> Path:
+    """Where ``add_render_mesh`` writes a stage's render-mesh layer: ``<stem>_render_mesh.usdc`` beside it."""
+    return Path(stage_path).with_name(f"{Path(stage_path).stem}_render_mesh.usdc")
+
+
 def add_render_mesh(
     path: str | Path,
     render_mesh,
@@ -204,7 +209,7 @@ def add_render_mesh(
     as ``/<name>/RenderMesh`` (``wface.io.usd.render_mesh``), time codes ``frames`` (default 0..T-1)
     as on the take's stage. Returns the stage's path."""
     if render_mesh is not None:
-        layer = Path(path).with_name(f"{Path(path).stem}_render_mesh.usdc")
+        layer = render_mesh_layer_path(path)
         points = render_mesh.source_points(positions_m)
         write_render_mesh_layer(layer, render_mesh.mesh, points, fps=fps, frames=frames)
         reference_render_mesh(path, layer, source_to_model=render_mesh.source_to_model, root=name)

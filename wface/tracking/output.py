@@ -16,7 +16,7 @@ from tqdm.auto import tqdm
 from wface.controls import bone_affines
 from wface.model import FaceModel
 from wface.takes.store import USD, take_from_records, write_controls, write_report
-from wface.takes.usd import write_take_usd
+from wface.takes.usd import render_mesh_layer_path, write_take_usd
 from wface.tracking.holdout import plot_holdout
 from wface.viz.figures import write_take_figures
 from wface.viz.report import write_html_report
@@ -36,6 +36,10 @@ OUTPUT_TOOLS = {
     "report.html": ("this report, pictures embedded", "a web browser"),
     "truth.npz": ("the synthetic take's ground truth", "numpy"),
     "resim.npz": ("the dynamic replay: positions and per-frame stats", "numpy; wface.takes.store"),
+    "animation_render_mesh.usdc": (
+        "your render mesh moving with the take, in its own units (referenced by animation.usdc)",
+        "Blender (File > Import > USD: import animation.usdc), Maya, Houdini, usdview",
+    ),
     ".usdc": ("USD stage", "Blender (File > Import > USD), Maya, Houdini, usdview"),
     ".usda": ("USD stage (text)", "Blender (File > Import > USD), Maya, Houdini, usdview, a text editor"),
     ".obj": ("mesh (units in its first line)", "Blender, Maya, Houdini, MeshLab"),
@@ -120,6 +124,8 @@ def write_tracking_outputs(
                     progress=progress,
                 )
             )
+            if render_mesh is not None:
+                written.append(render_mesh_layer_path(out / USD))
             bar.update()
         if pictures:
             images = _figures(out, model, records, X, simulated, targets_m, fps, truth, movie, bar)
