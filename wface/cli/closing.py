@@ -19,8 +19,10 @@ def print_outputs(out_dir: str | Path, paths=None, *, since: float | None = None
             key=lambda p: p.name,
         )
     print(f"wrote {out}/:")
-    for row in describe_outputs(paths):
-        print(f"  {row['file']:<24} {row['opens_in']}".rstrip())
+    rows = describe_outputs(paths)
+    width = max([24, *(len(r["file"]) + 1 for r in rows)])  # one column for what opens each
+    for row in rows:
+        print(f"  {row['file']:<{width}} {row['opens_in']}".rstrip())
     n = len(list((out / "frames").glob("frame_*.npz"))) if (out / "frames").is_dir() else 0
     if n:
         print(f"  frames/ ({n} frame files; --resume continues from them)")
