@@ -67,3 +67,6 @@ def test_demo_with_held_out_markers(tmp_path):
     assert 0 < rep["holdout_rms_mm_mean"] < 5.0  # predicted, not fitted: small but not zero on clean data
     assert (out / "holdout.png").stat().st_size > 0
     assert "holdout_rms_mm_per_marker" in (out / "report.html").read_text()
+    # --dropout 0: the capture lacks nothing; the hidden samples are counted apart, not as missing
+    assert rep["missing_samples"] == 0 and rep["holdout_samples"] == 2 * len(hidden)
+    assert "held-out marker RMS" in (out / "report.html").read_text()

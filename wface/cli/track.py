@@ -31,7 +31,7 @@ from wface.model import load_model
 from wface.takes.store import claim_take_dir, resume_plan
 from wface.tracking.capture import check_capture, prepare_capture
 from wface.tracking.estimator import TrackOptions
-from wface.tracking.holdout import hide, holdout_report, select_holdout
+from wface.tracking.holdout import add_holdout, hide, select_holdout
 from wface.tracking.identifiability import rig_identifiability_mm
 from wface.tracking.output import write_tracking_outputs
 from wface.tracking.report import build_report
@@ -249,7 +249,7 @@ def _run(args, model, targets, marker_names, markers, fps, truth=None, first_fra
         robust_mm=args.robust_mm or None,
     )
     if hidden is not None:
-        report.update(holdout_report(records, targets, hidden, marker_names))
+        add_holdout(report, records, targets, hidden, marker_names)
     written = write_tracking_outputs(
         out,
         model,

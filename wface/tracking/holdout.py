@@ -8,7 +8,9 @@ marker. The hidden markers still take part in the neutral frame's alignment and 
 rest place on the skin is calibration, as a scan would give it); their motion is never seen.
 
 Report keys: ``holdout_markers`` (names), ``holdout_rms_mm`` (per frame), ``holdout_rms_mm_mean``,
-``holdout_max_mm``, ``holdout_rms_mm_per_marker`` ({name: mm}).
+``holdout_max_mm``, ``holdout_rms_mm_per_marker`` ({name: mm}), ``holdout_samples`` (the hidden
+samples the capture has). ``add_holdout`` puts them in a tracking report and counts the hidden
+samples apart from the capture's missing ones (``missing_samples``: what the capture lacks).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["hide", "holdout_report", "plot_holdout", "select_holdout"]
+__all__ = ["add_holdout", "hide", "holdout_report", "plot_holdout", "select_holdout"]
 
 
 def select_holdout(spec: str, marker_names, reference_m: np.ndarray) -> np.ndarray:
@@ -89,7 +91,19 @@ def holdout_report(records, targets_m: np.ndarray, indices: np.ndarray, marker_n
         "holdout_rms_mm_per_marker": {
             n: (float(v) if c else None) for n, v, c in zip(names, per_marker, count, strict=True)
         },
+        "holdout_samples": int(seen.sum()),
     }
+
+
+def add_holdout(report: dict, records, targets_m: np.ndarray, indices: np.ndarray, marker_names) -> dict:
+    """``report`` (``wface.tracking.report.build_report`` of the fit) with the ``holdout_report`` keys;
+    the hidden samples the capture has are no longer counted as missing (the fit saw them as NaN).
+    Returns the report, updated in place."""
+    hold = holdout_report(records, targets_m, indices, marker_names)
+    report.update(hold)
+    if "missing_samples" in report:
+        report["missing_samples"] = int(report["missing_samples"]) - hold["holdout_samples"]
+    return report
 
 
 def plot_holdout(path: str | Path, report: dict, *, fps: float) -> Path:

@@ -125,12 +125,17 @@ def headline_cards(report: dict) -> list[tuple[str, str, str]]:
         cards.append((_fmt(report["marker_rms_mm_inliers"]), "mm", f"marker RMS, inliers (error <= {_fmt(thr)} mm)"))
     elif _is_number(report.get("marker_rms_mm_mean")):
         cards.append((_fmt(report["marker_rms_mm_mean"]), "mm", "marker RMS vs input"))
+    if _is_number(report.get("holdout_rms_mm_mean")):  # the honest measure: markers the fit never saw
+        cards.append((_fmt(report["holdout_rms_mm_mean"]), "mm", "held-out marker RMS (hidden from the fit)"))
     if _is_number(report.get("marker_samples")):
+        held = report.get("holdout_samples")
         cards.append(
             (
-                f"{report.get('outlier_samples', 0)} / {report.get('missing_samples', 0)}",
+                f"{report.get('outlier_samples', 0)} / {report.get('missing_samples', 0)}"
+                + (f" / {held}" if held else ""),
                 "",
-                f"outlier / missing samples of {report['marker_samples']}",
+                ("outlier / missing / held-out" if held else "outlier / missing")
+                + f" samples of {report['marker_samples']}",
             )
         )
     for key, (label, unit) in HEADLINE.items():
