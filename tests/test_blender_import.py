@@ -191,6 +191,8 @@ def test_the_render_mesh_in_the_rig_animates_in_blender(stages):
     path, probe = stages["demo"]
     rig, mesh = probe["objects"]["SkinRig"], probe["objects"]["RenderMesh"]
     assert mesh["parent"] == "Rig" and mesh["moved_m"] > _MOVED_M
+    cached = probe["objects"]["RenderMeshCache"]  # the point cache beside it, under a name a TD can read
+    assert cached["parent"] == "Face" and cached["vertices"] == mesh["vertices"] and cached["moved_m"] > _MOVED_M
     assert mesh["shape_keys"] and len(mesh["shape_keys"]) == len(rig["shape_keys"])
     for keys, skin_keys in zip(mesh["shape_keys"], rig["shape_keys"], strict=True):
         assert keys == pytest.approx(skin_keys, abs=_KEY_TOL)

@@ -94,7 +94,7 @@ def test_the_render_mesh_goes_to_usd_in_its_own_units(face, tmp_path):
     path = write_take_usd(tmp_path / "animation.usdc", face, frames, take=take, render_mesh=rm)
     layer = Usd.Stage.Open(str(tmp_path / "animation_render_mesh.usdc"))
     assert UsdGeom.GetStageMetersPerUnit(layer) == 0.01 and layer.GetTimeCodesPerSecond() == 24.0
-    mesh = UsdGeom.Mesh(layer.GetPrimAtPath("/RenderMesh/Mesh"))
+    mesh = UsdGeom.Mesh(layer.GetPrimAtPath("/RenderMesh/RenderMeshCache"))
     assert list(mesh.GetFaceVertexCountsAttr().Get()) == rm.mesh.face_vertex_counts.tolist()
     assert list(mesh.GetFaceVertexIndicesAttr().Get()) == rm.mesh.face_vertex_indices.tolist()
     st = UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetPrimvar("st")
@@ -105,7 +105,7 @@ def test_the_render_mesh_goes_to_usd_in_its_own_units(face, tmp_path):
     np.testing.assert_allclose(p1, rm.mesh.points + [0.0, 1.0, 0.0], atol=_USD_M * 100)  # moved 1 cm, in cm
     assert mesh.GetNormalsAttr().GetTimeSamples() == [0.0, 1.0]
     stage = Usd.Stage.Open(str(path))  # the take's stage (metres) references the layer with its placement
-    prim = stage.GetPrimAtPath("/Face/RenderMesh/Mesh")
+    prim = stage.GetPrimAtPath("/Face/RenderMesh/RenderMeshCache")
     world = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(0.0))
     pts = np.array(UsdGeom.Mesh(prim).GetPointsAttr().Get(0.0))
     np.testing.assert_allclose(np.c_[pts, np.ones(len(pts))] @ world, np.c_[x[used], np.ones(len(used))], atol=1e-8)
@@ -139,7 +139,7 @@ def test_resim_writes_the_render_mesh_too(tmp_path, capsys):
     assert main([*args, "--render-mesh", str(tmp_path / "patch.obj"), "--render-mesh-units", "m"]) == 0
     json.loads(capsys.readouterr().out)  # --json: stdout still holds the summary alone
     stage = Usd.Stage.Open(str(out / "animation.usdc"))
-    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Face/RenderMesh/Mesh"))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Face/RenderMesh/RenderMeshCache"))
     assert mesh.GetPointsAttr().GetTimeSamples() == [0.0, 1.0, 2.0]
     assert len(mesh.GetPointsAttr().Get(2.0)) == len(used)
 

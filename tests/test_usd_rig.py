@@ -230,7 +230,7 @@ def test_the_render_mesh_joins_the_rig_in_its_own_units(tmp_path, face, rig):
     assert_stage_valid(path)  # extents, the SkelRoot's extentsHint through the geomBindTransform
     stage = Usd.Stage.Open(str(path))
     prim = stage.GetPrimAtPath("/Face/Rig/RenderMesh")
-    assert stage.GetPrimAtPath("/Face/RenderMesh/Mesh")  # the exact point cache stays beside it
+    assert stage.GetPrimAtPath("/Face/RenderMesh/RenderMeshCache")  # the exact point cache stays beside it
     usd_mesh = UsdGeom.Mesh(prim)
     np.testing.assert_allclose(np.asarray(usd_mesh.GetPointsAttr().Get()), rm.mesh.points, atol=1e-5)  # cm
     assert list(usd_mesh.GetFaceVertexCountsAttr().Get()) == rm.mesh.face_vertex_counts.tolist()

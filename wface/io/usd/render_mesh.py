@@ -2,7 +2,8 @@
 
 ``write_render_mesh_layer`` writes ``<name>.usdc``: a stage whose ``metersPerUnit`` is the source
 file's (0.01 for a head modelled in centimetres), upAxis Y, timeCodesPerSecond = fps, the default
-prim ``/<name>`` (Xform) with ``/<name>/Mesh``: the authored topology (faceVertexCounts /
+prim ``/<name>`` (Xform) with ``/<name>/RenderMeshCache`` (so named because Blender merges an Xform
+with its one child into an object named after the child): the authored topology (faceVertexCounts /
 faceVertexIndices, quads kept), points, extent and vertex normals time-sampled (frame f at time
 code f, in the file's own frame and units), the texture coordinates as the indexed faceVarying
 primvar ``st`` (texCoord2f, seams kept), and one ``UsdGeom.Subset`` per material group (family
@@ -28,7 +29,9 @@ from wface.io.usd._common import _vt_vec3f
 from wface.io.usd.mesh import _write_face_varying, _write_materials
 from wface.mesh.surface import vertex_normals
 
-__all__ = ["reference_render_mesh", "write_render_mesh_layer"]
+__all__ = ["CACHE_PRIM", "reference_render_mesh", "write_render_mesh_layer"]
+
+CACHE_PRIM = "RenderMeshCache"  # the point cache's prim under the layer's root (a DCC object name)
 
 _SKIN_RGB = (0.80, 0.62, 0.52)
 _OTHER_RGB = (0.55, 0.55, 0.58)
@@ -86,7 +89,7 @@ def write_render_mesh_layer(
     stage.SetEndTimeCode(float(times[-1]))
     root = f"/{Sdf.Path.IsValidIdentifier(name) and name or 'RenderMesh'}"
     stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, root).GetPrim())
-    geom = UsdGeom.Mesh.Define(stage, f"{root}/Mesh")
+    geom = UsdGeom.Mesh.Define(stage, f"{root}/{CACHE_PRIM}")
     geom.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(mesh.face_vertex_counts, np.int32)))
     geom.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(mesh.face_vertex_indices, np.int32)))
     geom.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
