@@ -120,6 +120,17 @@ def test_the_ict_head_binds_to_the_built_in_face(face):
     np.testing.assert_allclose(rm.source_points(face.rest_positions_m), head.points, atol=1e-9)  # cm
 
 
+def _write_skin_patch(face, path, n_triangles: int) -> np.ndarray:
+    """An OBJ (metres) of the face's first ``n_triangles`` skin triangles at rest; returns its nodes."""
+    x, skin = face.rest_positions_m, face.skin_triangles
+    used = np.unique(skin[:n_triangles])
+    local = {v: i for i, v in enumerate(used)}
+    lines = [f"v {a:.9f} {b:.9f} {c:.9f}" for a, b, c in x[used]]
+    lines += [f"f {local[i] + 1} {local[j] + 1} {local[k] + 1}" for i, j, k in skin[:n_triangles]]
+    path.write_text("\n".join(lines) + "\n")
+    return used
+
+
 def test_resim_writes_the_render_mesh_too(tmp_path, capsys):
     import json
 
@@ -127,13 +138,7 @@ def test_resim_writes_the_render_mesh_too(tmp_path, capsys):
 
     from wface.cli import main
 
-    face = build_face(2000)
-    x, skin = face.rest_positions_m, face.skin_triangles
-    used = np.unique(skin[:60])
-    local = {v: i for i, v in enumerate(used)}
-    lines = [f"v {a:.9f} {b:.9f} {c:.9f}" for a, b, c in x[used]]
-    lines += [f"f {local[i] + 1} {local[j] + 1} {local[k] + 1}" for i, j, k in skin[:60]]
-    (tmp_path / "patch.obj").write_text("\n".join(lines) + "\n")
+    used = _write_skin_patch(build_face(2000), tmp_path / "patch.obj", 60)
     out = tmp_path / "smile"
     args = ["resim", "--out", str(out), "--tets", "2000", "--frames", "3", "--substeps", "2", "--json"]
     assert main([*args, "--render-mesh", str(tmp_path / "patch.obj"), "--render-mesh-units", "m"]) == 0
@@ -148,13 +153,7 @@ def test_demo_lists_the_render_mesh_layer_it_writes(tmp_path, capsys):
     """The closing lines name every file written, the render mesh's own layer included."""
     from wface.cli import main
 
-    face = build_face(1000)
-    x, skin = face.rest_positions_m, face.skin_triangles
-    used = np.unique(skin[:40])
-    local = {v: i for i, v in enumerate(used)}
-    lines = [f"v {a:.9f} {b:.9f} {c:.9f}" for a, b, c in x[used]]
-    lines += [f"f {local[i] + 1} {local[j] + 1} {local[k] + 1}" for i, j, k in skin[:40]]
-    (tmp_path / "patch.obj").write_text("\n".join(lines) + "\n")
+    _write_skin_patch(build_face(1000), tmp_path / "patch.obj", 40)
     out = tmp_path / "demo"
     args = ["demo", "--out", str(out), "--tets", "1000", "--frames", "2", "--no-pictures", "--prior", "temporal"]
     assert main([*args, "--render-mesh", str(tmp_path / "patch.obj"), "--render-mesh-units", "m"]) == 0

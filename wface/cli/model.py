@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from wface.cli.validate import positive_int
+from wface.cli.validate import non_negative_int, positive_int
 from wface.faces.artisynth import import_artisynth
 from wface.faces.builtin import build_face
 from wface.faces.fit import fit_template, ict_feature_landmarks, select_target_faces
@@ -92,13 +92,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     f.add_argument("--template", default="builtin", help="'builtin' or a face model .npz (default builtin)")
-    f.add_argument("--tets", type=int, default=20000, help="size of the built-in template (default 20000)")
+    f.add_argument("--tets", type=positive_int, default=20000, help="size of the built-in template (default 20000)")
     f.add_argument("--surface", help="target head mesh: .obj, .ply, .stl, .off, ...")
     f.add_argument("--units", default="auto", help="units of --surface: auto, m, cm, mm (default auto)")
     f.add_argument("--surface-groups", help="material groups of --surface that are skin (default: not eyes/teeth)")
     f.add_argument("--landmarks", help="JSON {marker name: target vertex id} for --surface")
     f.add_argument("--markers", help="motion capture (.c3d, .trc, .csv) whose neutral frame is the actor's face")
-    f.add_argument("--neutral-frame", type=int, default=0, help="frame of --markers showing the neutral face")
+    f.add_argument(
+        "--neutral-frame", type=non_negative_int, default=0, help="frame of --markers showing the neutral face"
+    )
     f.add_argument("--out", required=True, help="output model file (.npz)")
     f.add_argument("--json", action="store_true", help="print the fit report as JSON")
     f.set_defaults(func=_fit)

@@ -183,11 +183,11 @@ def _rig_kwargs(args, model) -> dict:
     return rig_kwargs
 
 
-def _claim(args, model, markers, targets, source: dict, first_frame: int = 0) -> dict:
+def _claim(args, model, markers, targets, source: dict, rig_kwargs: dict, first_frame: int = 0) -> dict:
     """Provenance of this run; claims --out (refusing another take's directory) and says what --resume reuses."""
     source = {**source, "holdout": getattr(args, "holdout", None)}  # hidden markers change the fit
     run = tracking_provenance(
-        model, markers, options=_options(args), rig_kwargs=_rig_kwargs(args, model), kind=args.command, source=source
+        model, markers, options=_options(args), rig_kwargs=rig_kwargs, kind=args.command, source=source
     )
     note = claim_take_dir(args.out, run, resume=args.resume, overwrite=args.overwrite)
     if note:
@@ -199,9 +199,8 @@ def _claim(args, model, markers, targets, source: dict, first_frame: int = 0) ->
     return run
 
 
-def _run(args, model, targets, marker_names, markers, fps, truth=None, first_frame=0, run=None, info=None) -> int:
+def _run(args, model, targets, marker_names, markers, fps, rig_kwargs, truth=None, first_frame=0, run=None, info=None):
     out = Path(args.out)
-    rig_kwargs = _rig_kwargs(args, model)
     hidden = select_holdout(args.holdout, marker_names, targets[0]) if args.holdout else None
     render_mesh = render_mesh_from_args(args, model)
     executor, chunk, close = dask_executor(
@@ -311,7 +310,8 @@ def run_demo(args: argparse.Namespace) -> int:
         dropout=args.dropout,
         progress=True,
     )
-    run = _claim(args, model, markers, perf.markers_m, source)
+    rig_kwargs = _rig_kwargs(args, model)  # one Contact for the provenance and the tracking
+    run = _claim(args, model, markers, perf.markers_m, source, rig_kwargs)
     save_npz(
         Path(args.out) / "truth.npz",
         activations=perf.activations,
@@ -320,7 +320,7 @@ def run_demo(args: argparse.Namespace) -> int:
         markers_m=perf.markers_m,
         outlier_mask=perf.outlier_mask,
     )
-    return _run(args, model, perf.markers_m, model.marker_names, markers, args.fps, truth=perf, run=run)
+    return _run(args, model, perf.markers_m, model.marker_names, markers, args.fps, rig_kwargs, truth=perf, run=run)
 
 
 def run_track(args: argparse.Namespace) -> int:
@@ -356,8 +356,18 @@ def run_track(args: argparse.Namespace) -> int:
         "frames": f"{first}:{first + take.n_frames}",
         "neutral_frame": neutral_frame,
     }
-    run = _claim(args, model, cap.markers, cap.targets_m, source, first_frame=first)
+    rig_kwargs = _rig_kwargs(args, model)  # one Contact for the provenance and the tracking
+    run = _claim(args, model, cap.markers, cap.targets_m, source, rig_kwargs, first_frame=first)
     info = {"capture_check": check.report()}
     return _run(
-        args, model, cap.targets_m, take.marker_names, cap.markers, take.rate_hz, first_frame=first, run=run, info=info
+        args,
+        model,
+        cap.targets_m,
+        take.marker_names,
+        cap.markers,
+        take.rate_hz,
+        rig_kwargs,
+        first_frame=first,
+        run=run,
+        info=info,
     )
