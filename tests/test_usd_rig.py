@@ -260,3 +260,15 @@ def test_the_render_mesh_joins_the_rig_in_its_own_units(tmp_path, face, rig):
     info = stage.GetRootLayer().customLayerData["wface"]
     assert info["render_mesh_rig_max_error_mm"] == pytest.approx(err_mm.max(), rel=1e-6)
     assert np.abs(exact[1] - exact[0]).max() > 1e-3  # the render mesh moves with the muscle
+
+
+def test_a_shape_that_did_not_converge_is_named(face):
+    from wface.physics.simulator import Simulator
+    from wface.takes.shapes import muscle_shapes
+
+    class Stopping(Simulator):
+        def solve(self, *args, **kwargs):  # two Newton iterations: far from the 1e-6 tolerance
+            return super().solve(*args, **{**kwargs, "max_iterations": 2})
+
+    with pytest.warns(UserWarning, match=r"muscle mentalis_l's shape .*not converged"):
+        muscle_shapes(face, muscles=["mentalis_l"], simulator=Stopping(face))

@@ -31,6 +31,7 @@ jaw weights and corrective follow the formulas above on its vertices (docs/desig
 
 from __future__ import annotations
 
+import warnings
 import weakref
 
 import numpy as np
@@ -88,6 +89,7 @@ def _node_shapes(model: FaceModel, names: list[str], activation: float, sim: Sim
         eq = sim.solve({name: activation})
         if eq.inverted_elements:
             raise RuntimeError(f"muscle {name} at activation {activation} inverts {eq.inverted_elements} tets")
+        _warn_unconverged(eq, f"muscle {name}'s shape (activation {activation:g})")
         shapes[i] = (eq.x - rest) / activation
     return shapes
 
@@ -105,7 +107,19 @@ def jaw_skin_weights(
 
 def _jaw_equilibrium(model: FaceModel, jaw: np.ndarray, sim: Simulator) -> np.ndarray:
     """(N, 3) node positions with the jaw at the (3, 4) affine ``jaw`` and no activation."""
-    return sim.solve(np.zeros(model.n_muscles), attached_positions_from_affines(model, None, jaw)).x
+    eq = sim.solve(np.zeros(model.n_muscles), attached_positions_from_affines(model, None, jaw))
+    _warn_unconverged(eq, "the jaw's equilibrium")
+    return eq.x
+
+
+def _warn_unconverged(eq, what: str) -> None:
+    """Say so when a shape's equilibrium stopped short of its tolerance (it is used as it stands)."""
+    if not eq.converged:
+        warnings.warn(
+            f"{what}: the quasistatic solve stopped at relative residual {eq.residual_rel:.1e} after "
+            f"{eq.iterations} iterations (not converged); the shape is used as it stands",
+            stacklevel=3,
+        )
 
 
 def _follow_share(p: np.ndarray, x: np.ndarray, jaw: np.ndarray) -> np.ndarray:
