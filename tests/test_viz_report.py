@@ -49,6 +49,7 @@ def test_report_embeds_images_and_tabulates_numbers(tmp_path):
     # records with the same keys: one table, a column per key
     assert "<h2>per_marker</h2><table><tr><th>name</th><th>seen</th><th>rms_mm</th></tr>" in text
     assert '<tr><td>Chin</td><td class="num">3</td><td class="num">0.25</td></tr>' in text
+    assert "<tr><td>Nose</td>" in text and "&ndash;</td></tr>" in text and "None" not in text  # nothing to measure
     assert "n=4, mean 0.6" in text  # per-frame list summarised over finite values
     assert "<svg" in text
     assert re.search(r'class="card"><div class="v">0.6 mm</div><div class="k">marker RMS', text)

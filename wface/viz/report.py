@@ -98,6 +98,8 @@ def _sparkline(values: list[float], width: int = 160, height: int = 28) -> str:
 
 
 def _value_cell(v) -> str:
+    if v is None:  # e.g. a marker with no inlier sample: nothing to measure
+        return '<td class="num" title="no value: nothing to measure">&ndash;</td>'
     if isinstance(v, list) and v and all(_is_number(x) for x in v):
         finite = [float(x) for x in v if math.isfinite(float(x))]
         if not finite:
