@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
+from wface.cli.closing import print_outputs
 from wface.cli.validate import positive_int, probability
 from wface.faces.builtin import build_face
 from wface.facs import ACTION_UNITS, EXPRESSIONS
@@ -83,7 +83,13 @@ def _run(args: argparse.Namespace) -> int:
     )
     if args.blend_to:
         summary["files"]["animation"] = str(_blend(args, summary, rig, mesh))
-    print(json.dumps({k: summary[k] for k in ("expression", "jaw_open_deg", "max_displacement_mm", "files")}, indent=2))
+    print(
+        f"{summary['expression']}: jaw open {summary['jaw_open_deg']:.1f} deg, largest skin displacement "
+        f"{summary['max_displacement_mm']:.2f} mm"
+    )
+    obj = Path(summary["files"]["obj"])
+    written = {Path(p) for p in summary["files"].values()} | {obj.with_suffix(".json")}  # pose_mesh's summary
+    print_outputs(args.out, sorted(written, key=lambda p: p.name))
     return 0
 
 
