@@ -161,6 +161,27 @@ def test_warm_frames_cost_one_factorisation_with_the_accuracy_of_the_paper_loop(
     assert err_fast <= 1.05 * err_paper + 2e-3, (err_fast, err_paper)  # the same accuracy, up to noise
 
 
+def test_the_second_pass_reuses_the_first_passs_jacobian_rows(capture_30hz, monkeypatch):
+    """Pass 2 re-estimates each frame from its first-pass equilibrium with that pass's marker Jacobian
+    rows: one factorisation (for the line search's chord steps) and no Jacobian columns, where the
+    full path factors twice and solves every column; the activations agree to well below the error."""
+    model, markers, perf = capture_30hz
+    kw = {"marker_names": model.marker_names, "markers": markers}
+    rows = track_sequence(model, perf.markers_m, **kw)  # the default: two passes
+    with monkeypatch.context() as mp:
+        mp.setattr(FaceRig, "linearize_rows", lambda *_a, **_k: None)  # pass 2 as before: a Jacobian per frame
+        full = track_sequence(model, perf.markers_m, **kw)
+    cols = model.n_muscles + 12
+    for r, f in zip(rows, full, strict=True):
+        assert r.stats["factorizations"] <= f.stats["factorizations"] - 1, (r.stats, f.stats)
+        assert r.stats["back_solves"] <= f.stats["back_solves"] - cols + 10, (r.stats, f.stats)
+    a_rows = np.array([r.controls[: model.n_muscles] for r in rows])
+    a_full = np.array([r.controls[: model.n_muscles] for r in full])
+    err = _activation_rms(model, full, perf)
+    assert np.sqrt(np.mean((a_rows - a_full) ** 2)) < 0.05 * err, err  # Jacobians 1 % apart: far below the error
+    assert _activation_rms(model, rows, perf) <= 1.02 * err + 1e-3
+
+
 def test_a_rejected_full_step_is_not_solved_twice(capture_30hz):
     from wface.tracking.estimator import FrameEstimator, TrackOptions
 

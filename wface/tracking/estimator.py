@@ -184,6 +184,8 @@ class FrameEstimator:
         a_prev: np.ndarray | None = None,
         start: RigLinearization | None = None,
         prior=None,
+        equilibrium: RigState | None = None,
+        marker_jy: np.ndarray | None = None,
     ) -> FrameResult:
         """Controls for one frame of marker data.
 
@@ -199,6 +201,11 @@ class FrameEstimator:
                 solves take chord steps with that factor; ``c0`` and ``y0`` are then ignored.
                 The estimator owns it from here (it is freed when replaced).
             prior: (a - mean)^T weight (a - mean) added to phi (``wface.tracking.prior.GaussianPrior``).
+            equilibrium: the equilibrium at ``c0``, already solved (e.g. a first pass's): no start solve.
+            marker_jy: with ``equilibrium``, its marker nodes' Jacobian rows (k, 3, M + 12), e.g. a first
+                pass's (``FaceRig.linearize_rows``): no Jacobian for the first step, its solves chord
+                with one factor at ``equilibrium``, and the stopping test predicts the next step with
+                these rows, so a frame that converges in one step needs no Jacobian at all.
         """
         opt = self.options
         self._prior = prior
@@ -211,20 +218,18 @@ class FrameEstimator:
             raise ValueError(f"frame {frame}: only {int(present.sum())} markers present; need at least 3")
         steps = opt.gn_steps if steps is None else steps
         timings = {"quasistatic_s": 0.0, "jacobian_s": 0.0, "gauss_newton_system_s": 0.0}
-
         t = time.perf_counter()
-        lin = start
-        state = start.state if start is not None else rig.equilibrium(c0, y0)
+        state, lin = self._start(c0, y0, start, equilibrium, marker_jy)
         timings["quasistatic_s"] += time.perf_counter() - t
         c = state.controls
         m = self.markers.positions(state.x_m)
         w = self._weights(np.where(present[:, None], m - target, 0.0))
-        rho = 0.0
-        gn_done = 0
+        rho, gn_done = 0.0, 0
         data_hessian = None  # 2 J^T W J of the last Gauss-Newton system (for the usage prior)
         near = None  # the factorised stiffness at the accepted trial's linear prediction ("prediction")
         while True:
-            if gn_done >= steps and not opt.reuse_factor:
+            final_jacobian = opt.reuse_factor and (lin is None or lin.full)  # test the next step's prediction
+            if gn_done >= steps and not final_jacobian:
                 break  # the paper's loop needs no Jacobian at its last point
             if lin is None or lin.state is not state:
                 t = time.perf_counter()
@@ -236,7 +241,7 @@ class FrameEstimator:
             if gn_done >= steps:
                 break
             t = time.perf_counter()
-            step = self._gn_step(state, lin.jy, m, target, present, w, a_prev)
+            step = self._gn_step(state, lin, m, target, present, w, a_prev)
             timings["gauss_newton_system_s"] += time.perf_counter() - t
             rho, data_hessian = step["rho"], step["data_hessian"]
             if opt.reuse_factor and self._converged(step["total0"], step["predicted"], present, relative=gn_done > 0):
@@ -255,8 +260,10 @@ class FrameEstimator:
             _, state, m = cache[tau_best]
             c = state.controls
             w = self._weights(np.where(present[:, None], m - target, 0.0))
-            if not opt.reuse_factor and self._converged(total0, total0 - cache[tau_best][0], present):
-                break  # the paper's test on the achieved decrease (no Jacobian at the new point)
+            if not final_jacobian:  # stop without a Jacobian at the new point?
+                done, data_hessian = self._done_without_jacobian(lin, state, m, target, present, w, a_prev, step, cache)
+                if done:
+                    break
 
         if near is not None:
             near.free()
@@ -287,13 +294,33 @@ class FrameEstimator:
             system=system,
         )
 
-    def _gn_step(self, state, Jy, m, target, present, w, a_prev) -> dict:
+    def _start(self, c0, y0, start, equilibrium, marker_jy) -> tuple[RigState, object]:
+        """(the equilibrium a frame starts from, the linearisation there or None): see ``estimate``."""
+        if start is not None:
+            return start.state, start
+        state = equilibrium if equilibrium is not None else self.rig.equilibrium(c0, y0)
+        lin = None
+        if equilibrium is not None and marker_jy is not None and self.options.reuse_factor:
+            lin = self.rig.linearize_rows(state, self.markers.nodes, marker_jy)  # None where it cannot serve
+        return state, lin
+
+    def _done_without_jacobian(self, lin, state, m, target, present, w, a_prev, step, cache):
+        """(stop here, the Gauss-Newton data Hessian of the last system) after the step ``step`` whose new
+        point ``state`` gets no Jacobian: the next step as known Jacobian rows predict it
+        (``RowsLinearization``), else the paper's test on the achieved decrease (``cache``: the trials)."""
+        if lin is not None and not lin.full:
+            ahead = self._gn_step(state, lin, m, target, present, w, a_prev)
+            return self._converged(ahead["total0"], ahead["predicted"], present), ahead["data_hessian"]
+        total0 = step["total0"]
+        return self._converged(total0, total0 - min(v[0] for v in cache.values()), present), step["data_hessian"]
+
+    def _gn_step(self, state, lin, m, target, present, w, a_prev) -> dict:
         """The Gauss-Newton step from ``state``: dc, rho, the objective there and the decrease the
         linear model predicts for the full step (module docstring, items 1-2)."""
         opt, rig = self.options, self.rig
         c = state.controls
         phi = self._phi(m, target, present, w)
-        Jn = rig.world_jacobian(state, Jy.reshape(rig.model.n_nodes, 3, -1)[self.markers.nodes], self.markers.nodes)
+        Jn = rig.world_jacobian(state, lin.node_rows(self.markers.nodes), self.markers.nodes)
         J = self.markers.jacobian(Jn)  # (3k, p)
         rows = np.repeat(present, 3)
         wr = np.repeat(w, 3)[rows]
@@ -316,7 +343,14 @@ class FrameEstimator:
         dc, rho = self._penalty_step(A, g, Hp, gp, c, max(phi, 1e-12))
         total0 = phi + rho * pen + self._reg(c, a_prev)
         predicted = total0 - (float(np.sum(wr * (r + Jp @ dc) ** 2)) + rho * pen + self._reg(c + dc, a_prev))
-        return {"dc": dc, "rho": rho, "total0": total0, "predicted": predicted, "Jy": Jy, "data_hessian": data_hessian}
+        return {
+            "dc": dc,
+            "rho": rho,
+            "total0": total0,
+            "predicted": predicted,
+            "lin": lin,
+            "data_hessian": data_hessian,
+        }
 
     def _converged(self, total: float, decrease: float, present: np.ndarray, *, relative: bool = True) -> bool:
         """The stopping test on a decrease of the objective (achieved, or predicted for the next step):
@@ -337,18 +371,19 @@ class FrameEstimator:
         (``factor_at="prediction"``) or with that of ``lin`` (at ``state``)."""
         opt = self.options
         chord, near = (lin.chord if lin is not None else None), None
-        if opt.reuse_factor and opt.factor_at == "prediction" and self.rig.sim.linear_solver == "direct":
+        full = lin is not None and lin.full  # a RowsLinearization's solves use its own factor at ``state``
+        if opt.reuse_factor and opt.factor_at == "prediction" and self.rig.sim.linear_solver == "direct" and full:
             if chord is not None:
                 lin.free()  # its Jacobian stays; its factor is not needed any more
-            c, dc, Jy = state.controls, step["dc"], step["Jy"]
+            c, dc = state.controls, step["dc"]
             ct = self.retract(c + dc)
-            near = chord = self.rig.stiffness_at(ct, state.y_m + (Jy @ self._dc_y(ct - c)).reshape(-1, 3), warn=False)
+            near = chord = self.rig.stiffness_at(ct, state.y_m + lin.predict(self._dc_y(ct - c)), warn=False)
         trial = functools.partial(
             self._trial,
             c=state.controls,
             dc=step["dc"],
             state=state,
-            Jy=step["Jy"],
+            lin=step["lin"],
             target=target,
             present=present,
             w=w,
@@ -424,14 +459,14 @@ class FrameEstimator:
                 lo_k = mid
         return step_at(hi_k), opt.rho0 * scale * opt.rho_growth**hi_k
 
-    def _trial(self, tau, *, c, dc, state, Jy, target, present, w, rho, a_prev, chord=None) -> tuple:
+    def _trial(self, tau, *, c, dc, state, lin, target, present, w, rho, a_prev, chord=None) -> tuple:
         """(objective, state, markers) at the retracted controls ct = retract(c + tau dc), warm-started
         from the linearised equilibrium Y + dY/dc (ct - c) (chord steps with ``chord``, the factor at
         ``state``)."""
         ct = self.retract(c + tau * dc)
         # the linear prediction at the retracted controls: its attached nodes are then exactly at their
         # targets (X_C is affine in the jaw numbers), so the solve needs no lift step
-        y_guess = state.y_m + (Jy @ self._dc_y(ct - c)).reshape(-1, 3)
+        y_guess = state.y_m + lin.predict(self._dc_y(ct - c))
         st = self.rig.equilibrium(ct, y_guess, chord=chord)
         mt = self.markers.positions(st.x_m)
         value = self._phi(mt, target, present, w) + rho * self._penalty(ct)[0] + self._reg(ct, a_prev)

@@ -43,7 +43,7 @@ from wface.physics.frozen import exact_self_hessian
 from wface.physics.simulator import Simulator
 from wface.solvers import LinearSolver, MatrixOperator, NotPositiveDefiniteError
 
-__all__ = ["FaceRig", "RigLinearization", "RigState"]
+__all__ = ["FaceRig", "RigLinearization", "RigState", "RowsLinearization"]
 
 
 @dataclass
@@ -59,6 +59,8 @@ class RigLinearization:
     chord: object | None = None
     seconds: dict = field(default_factory=dict)
 
+    full = True  # dY/dc of every node (``RowsLinearization``: of a few)
+
     def free(self) -> None:
         if self.chord is not None:
             self.chord.free()
@@ -70,6 +72,70 @@ class RigLinearization:
         ``FaceRig.linearize(state, stiffness=rig.stiffness_at(*factored_at))`` rebuilds this
         linearisation bit for bit (a resumed take continues as the interrupted run would have)."""
         return getattr(self.chord, "at", None)
+
+    def node_rows(self, nodes: np.ndarray) -> np.ndarray:
+        """(k, 3, M + 12) dY/d(a, b_jaw) of the nodes ``nodes``."""
+        return self.jy.reshape(-1, 3, self.jy.shape[1])[nodes]
+
+    def predict(self, dc_y: np.ndarray) -> np.ndarray:
+        """(n, 3) dY = dY/d(a, b_jaw) dc_y: the linear change of the equilibrium (cranium frame)."""
+        return (self.jy @ dc_y).reshape(-1, 3)
+
+
+class RowsLinearization:
+    """The rig at an equilibrium whose Jacobian is known on some nodes only (a first pass's rows, kept
+    in its frame file: ``FaceRig.linearize_rows``). A Gauss-Newton step needs only the marker nodes'
+    rows; the linear prediction dY/dc dc of every node, the warm start of the line search's solves,
+    is one back-solve K_UU^-1 (f_a da - K_UC dX_C/db db) with the factor of K_UU at the equilibrium,
+    taken on first use (``chord``) and serving the solves' chord steps too. So a second pass re-estimates
+    a frame from its first-pass solution with one factorisation and no Jacobian columns."""
+
+    full = False
+
+    def __init__(self, rig: FaceRig, state: RigState, nodes: np.ndarray, rows: np.ndarray):
+        self.rig, self.state = rig, state
+        self.nodes, self.rows = np.asarray(nodes), np.asarray(rows, dtype=np.float64)
+        self._chord: _Chord | None = None
+        self._muscle_forces: np.ndarray | None = None
+        self.seconds: dict = {}
+
+    @property
+    def chord(self) -> _Chord | None:
+        """The factorised stiffness at the equilibrium (``FaceRig.stiffness_at``), made on first use."""
+        if self._chord is None:
+            self._chord = self.rig.stiffness_at(self.state.controls, self.state.y_m, warn=False)
+        return self._chord
+
+    @property
+    def factored_at(self) -> tuple[np.ndarray, np.ndarray] | None:
+        return getattr(self._chord, "at", None)
+
+    def free(self) -> None:
+        if self._chord is not None:
+            self._chord.free()
+            self._chord = None
+
+    def node_rows(self, nodes: np.ndarray) -> np.ndarray:
+        if not np.array_equal(nodes, self.nodes):
+            raise ValueError("these Jacobian rows are of other nodes")
+        return self.rows
+
+    def predict(self, dc_y: np.ndarray) -> np.ndarray:
+        rig, M = self.rig, self.rig.n_muscles
+        chord = self.chord
+        if self._muscle_forces is None:
+            self._muscle_forces = rig.sim.muscle_forces(self.state.y_m).reshape(M, -1) if M else None
+        dxc = rig._dxc_djaw @ dc_y[M:]
+        rhs = -(chord.k_uc @ dxc)
+        if M:
+            rhs += (dc_y[:M] @ self._muscle_forces)[rig._free_dofs]
+        counts0 = rig._linear.counters()
+        sol = chord.bound.solve(rhs[:, None], rtol=1e-10)[:, 0]
+        rig._count(counts0)
+        out = np.zeros(3 * rig._n)
+        out[rig._free_dofs] = sol
+        out[rig._fixed_dofs] = dxc
+        return out.reshape(-1, 3)
 
 
 class _Chord:
@@ -304,6 +370,13 @@ class FaceRig:
             chord = None
         seconds = {"stiffness_s": t1 - t0, "rhs_s": t2 - t1, "back_solve_s": t3 - t2}
         return RigLinearization(state, J, chord, seconds)
+
+    def linearize_rows(self, state: RigState, nodes: np.ndarray, rows: np.ndarray) -> RowsLinearization | None:
+        """The rig at the equilibrium ``state`` from Jacobian rows ``rows`` (k, 3, M + 12) of the nodes
+        ``nodes`` known there (``RowsLinearization``); None where it cannot serve (contact, no factor)."""
+        if self.contact is not None or self.sim.linear_solver != "direct":
+            return None
+        return RowsLinearization(self, state, nodes, rows)
 
     def _jacobian_y_contact(self, state: RigState) -> np.ndarray:
         """``jacobian_y`` with contact: the exact contact Hessian joins K (module docstring)."""

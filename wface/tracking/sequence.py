@@ -203,6 +203,8 @@ class _Tracker:
         state = self._state()
         if self.prior is not None and self.prior.last_information is not None:
             state["information"] = 0.5 * self.prior.last_information  # J^T W J on the activations
+        if opt.prior == "auto" and self.lin is not None and self.lin.state is res.state:
+            state["marker_jy"] = self.lin.node_rows(self.markers.nodes)  # the second pass's first step
         stats = {
             "gauss_newton_steps": res.gauss_newton_steps,
             "quasistatic_solves": res.quasistatic_solves,
@@ -313,7 +315,23 @@ def _refine_chunk(model, embedding, targets, survey, options, rig_kwargs, out_di
         if first.stats.get("carried"):
             rec = FrameRecord(f, first.controls, first.x_m, first.y_m, first.markers_m, first.marker_error_m, stats)
         else:
-            res = est.estimate(f, targets[j], first.controls, first.y_m, steps=options.gn_steps, prior=prior)
+            start = RigState(  # the first pass's equilibrium, solved there
+                first.controls,
+                first.y_m,
+                first.x_m,
+                residual_rel=float(first.stats["residual_rel"]),
+                inverted_elements=int(first.stats["inverted_elements"]),
+            )
+            res = est.estimate(
+                f,
+                targets[j],
+                first.controls,
+                first.y_m,
+                steps=options.gn_steps,
+                prior=prior,
+                equilibrium=start,
+                marker_jy=first.state.get("marker_jy"),
+            )
             if res.linearization is not None:
                 res.linearization.free()  # pass 2 starts each frame from its own first-pass solution
             for k in ("cg_iterations", "factorizations", "back_solves", "chord_steps"):
