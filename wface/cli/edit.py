@@ -33,7 +33,7 @@ from wface.takes import (
     write_edit,
 )
 from wface.takes.provenance import command_provenance
-from wface.takes.store import claim_take_dir
+from wface.takes.store import claim_take_dir, require_take_dir
 from wface.takes.usd import add_render_mesh
 from wface.warp_runtime import quiet_warp
 
@@ -175,6 +175,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _model(args):
 
     quiet_warp()
+    if getattr(args, "take", None):
+        require_take_dir(args.take)  # a wrong --take fails before a face is built
     if args.model:
         return load_model(args.model)
 

@@ -17,7 +17,7 @@ from wface.model import load_model
 from wface.physics import Damping, Simulator
 from wface.takes.dynamic import compare_with_quasistatic, quasistatic_reference, resimulate
 from wface.takes.provenance import command_provenance
-from wface.takes.store import USD, claim_take_dir, load_take, write_report, write_resim_npz
+from wface.takes.store import USD, claim_take_dir, load_take, require_take_dir, write_report, write_resim_npz
 from wface.takes.synthetic import step_take
 from wface.takes.usd import skin_mesh, write_take_usd
 from wface.warp_runtime import quiet_warp
@@ -187,6 +187,8 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(f"--substeps must be >= 1, got {args.substeps}")
     if args.fps is not None and not args.fps > 0:
         raise ValueError(f"--fps must be > 0, got {args.fps}")
+    if args.take:
+        require_take_dir(args.take)  # a wrong --take fails before a face is built
     model = load_model(args.model) if args.model else build_face(args.tets, progress=True)
     if args.take:
         take = load_take(

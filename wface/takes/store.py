@@ -76,6 +76,7 @@ __all__ = [
     "frame_path",
     "load_frame_records",
     "load_take",
+    "require_take_dir",
     "read_fps",
     "read_frame",
     "read_report",
@@ -320,6 +321,23 @@ def _read_controls(path: Path, model: FaceModel):
     return np.asarray(d["frames"]), d["activations"], d["bones"], scale, run
 
 
+def require_take_dir(path: str | Path) -> Path:
+    """``path`` as a Path if it is a take directory (controls.npz or frame files in it: what
+    ``load_take`` reads), else FileNotFoundError saying what it is not. Cheap: commands call it before
+    they build or load a face."""
+    path = Path(path)
+    if not path.is_dir():
+        raise FileNotFoundError(
+            f"take directory {path} does not exist (give the --out of `wface track`, `wface demo` or `wface edit`)"
+        )
+    if not (path / CONTROLS).exists() and not frame_numbers_on_disk(path):
+        raise FileNotFoundError(
+            f"{path}: no controls.npz and no frames/frame_*.npz: not a tracking output directory "
+            "(give the --out of `wface track`, `wface demo` or `wface edit`)"
+        )
+    return path
+
+
 def load_take(
     path: str | Path,
     model: FaceModel,
@@ -344,11 +362,7 @@ def load_take(
         ``info["bone_projection_error_mm"]``: the largest attached-node distance between the take's
         bones and their rigid, on-joint projection in ``take.poses``.
     """
-    path = Path(path)
-    if not path.is_dir():
-        raise FileNotFoundError(
-            f"take directory {path} does not exist (give the --out of `wface track`, `wface demo` or `wface edit`)"
-        )
+    path = require_take_dir(path)
     try:
         report = read_report(path)
     except FileFormatError as exc:
