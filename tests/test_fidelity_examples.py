@@ -49,3 +49,13 @@ def test_cheek_puff_analysis(tmp_path, monkeypatch):
         if res["capture_outward_max_mm"][n] > res["model_outward_all_pushers_on_mm"][n] + 2
     ]
     assert len(puffed) >= 3
+
+
+def test_the_imported_badin_face_fits_a_known_warp_of_its_own_skin(badin_model):
+    """examples/fit_badin.py: the Badin template onto its own skin scaled 8 / 5 / 3 % with a 3 mm bump,
+    told only that surface and its 10 markers' warped places."""
+    rep = _example("fit_badin").fit_to_warp(badin_model)
+    assert rep["surface_distance_mm"]["mean"] < 0.5 and rep["landmark_rms_mm"] < 0.5  # the issue's 0.5 mm
+    assert rep["skin_to_warped_surface_mm"]["mean"] < 0.5 and rep["skin_to_warped_surface_mm"]["max"] < 1.5
+    assert rep["inverted_tets"] == 0 and rep["quality_after"]["min_dihedral_deg"] > 5.0  # 6.7 before
+    assert 1.03 < rep["scale"] < 1.08  # the warp's mean scale, from the landmarks
