@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
 
-from wface.files import save_layer
 from wface.model import FaceModel
 from wface.speech.aperture import ApertureResult, ApertureView, aperture_area
 from wface.speech.playback import GestureResult
@@ -122,23 +122,22 @@ def write_gesture_usd(
         metadata=meta,
         progress=progress,
         rig=rig,
+        edit=None
+        if result.lip_opening_area_mm2 is None
+        else functools.partial(_area_samples, result.lip_opening_area_mm2),
     )
-    if result.lip_opening_area_mm2 is not None:
-        _area_samples(path, result.lip_opening_area_mm2)
     return path
 
 
-def _area_samples(path: Path, area_mm2: np.ndarray) -> None:
-    """Add ``wface:lipOpeningArea_mm2`` time samples to the stage's default prim."""
+def _area_samples(area_mm2: np.ndarray, stage) -> None:
+    """Add ``wface:lipOpeningArea_mm2`` time samples to the stage's default prim (before it is saved)."""
     from pxr import Sdf, Usd
 
-    stage = Usd.Stage.Open(str(path))
     prim = stage.GetDefaultPrim()
     attr = prim.CreateAttribute("wface:lipOpeningArea_mm2", Sdf.ValueTypeNames.Float)
     attr.SetDocumentation("mouth aperture in an orthographic view, mm^2 (wface.speech.aperture)")
     for f, v in enumerate(area_mm2):
         attr.Set(float(v), Usd.TimeCode(f))
-    save_layer(stage.GetRootLayer(), path)  # atomic: a temporary file renamed into place
 
 
 def write_aperture_picture(

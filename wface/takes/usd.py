@@ -22,8 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from wface.controls import IDENTITY_AFFINE, bone_affines, jaw_to_intuitive, params_from_affine
+from wface.files import save_layer
 from wface.io.usd import rig_points, write_mesh_animation, write_take
-from wface.io.usd.render_mesh import reference_render_mesh, write_render_mesh_layer
+from wface.io.usd.render_mesh import add_render_mesh_reference, reference_render_mesh, write_render_mesh_layer
 from wface.mesh.surface import boundary_faces
 from wface.model import FaceModel
 from wface.takes.shapes import JAW_SHAPE, render_mesh_rig, skin_rig
@@ -60,6 +61,7 @@ def write_take_usd(
     simulator=None,
     progress: bool = False,
     render_mesh=None,
+    edit=None,
 ) -> Path:
     """Write a take's frames as one USD stage (module docstring); time code f = frame f.
 
@@ -87,6 +89,7 @@ def write_take_usd(
             also joins the rig as ``Rig/RenderMesh`` (``wface.takes.shapes.render_mesh_rig``: its
             own shapes, in its file's units, placed by its transform), its error against the exact
             point cache in the layer metadata (``render_mesh_rig_rms_error_mm``, ``..._max_...``).
+        edit: callable(stage) run on the take's stage before its one save (``write_take``'s).
 
     A rig whose solve fails (a muscle alone at activation 1 inverts tets) is left out with a
     ``RuntimeWarning``, its reason in the layer metadata (``rig_skipped``); the rest of the stage is
@@ -112,7 +115,14 @@ def write_take_usd(
             name=name,
             frames=frames,
         )
-        return add_render_mesh(stage, render_mesh, positions_m, rate, name, frames=frames)
+        out = add_render_mesh(stage, render_mesh, positions_m, rate, name, frames=frames)
+        if edit is not None:  # a mesh alone is written by another writer: edit the saved stage
+            from pxr import Usd
+
+            saved = Usd.Stage.Open(str(out))
+            edit(saved)
+            save_layer(saved.GetRootLayer(), out)
+        return out
     T = take.n_frames
     if take.bones is not None:
         cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(b) for b in take.bones), strict=True))
@@ -134,6 +144,7 @@ def write_take_usd(
         meta["rig_skipped"] = str(exc)
     stage = write_take(
         path,
+        edit=_edits(path, render_mesh, positions_m, rate, name, take.frames, edit),
         frames=take.frames,
         rig=skel,
         rig_weights=rig_weights,
@@ -151,7 +162,27 @@ def write_take_usd(
         name=name,
         metadata=meta,
     )
-    return add_render_mesh(stage, render_mesh, positions_m, rate, name, frames=take.frames)
+    return Path(stage)
+
+
+def _edits(path, render_mesh, positions_m, fps, name, frames, edit):
+    """The edits of a take's stage before its one save: the render mesh's reference (its layer written
+    first, ``add_render_mesh``'s), then ``edit``; None when there are none."""
+    layer = None
+    if render_mesh is not None:
+        layer = render_mesh_layer_path(path)
+        points = render_mesh.source_points(positions_m)
+        write_render_mesh_layer(layer, render_mesh.mesh, points, fps=fps, frames=frames)
+    if layer is None and edit is None:
+        return None
+
+    def run(stage) -> None:
+        if layer is not None:
+            add_render_mesh_reference(stage, path, layer, source_to_model=render_mesh.source_to_model, root=name)
+        if edit is not None:
+            edit(stage)
+
+    return run
 
 
 def _rig(model: FaceModel, take: Take, activations: np.ndarray, jaw: np.ndarray, rig, simulator, progress: bool):

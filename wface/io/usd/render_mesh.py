@@ -29,7 +29,7 @@ from wface.io.usd._common import _vt_vec3f
 from wface.io.usd.mesh import _write_face_varying, _write_materials
 from wface.mesh.surface import vertex_normals
 
-__all__ = ["CACHE_PRIM", "reference_render_mesh", "write_render_mesh_layer"]
+__all__ = ["CACHE_PRIM", "add_render_mesh_reference", "reference_render_mesh", "write_render_mesh_layer"]
 
 CACHE_PRIM = "RenderMeshCache"  # the point cache's prim under the layer's root (a DCC object name)
 
@@ -124,12 +124,22 @@ def reference_render_mesh(
         source_to_model: (4, 4) mesh file coordinates -> model metres (column vectors).
         root: the stage's root prim name.
     """
-    from pxr import Gf, Usd, UsdGeom
+    from pxr import Usd
 
     stage = Usd.Stage.Open(str(stage_path))
+    add_render_mesh_reference(stage, stage_path, layer_path, source_to_model=source_to_model, root=root)
+    save_layer(stage.GetRootLayer(), stage_path)
+
+
+def add_render_mesh_reference(
+    stage, stage_path: str | Path, layer_path: str | Path, *, source_to_model: np.ndarray, root: str = "Face"
+) -> None:
+    """``reference_render_mesh`` on an open ``stage`` that will be saved at ``stage_path`` (the
+    reference is relative to it), without saving it."""
+    from pxr import Gf, UsdGeom
+
     xf = UsdGeom.Xform.Define(stage, f"/{root}/RenderMesh")
     rel = os.path.relpath(Path(layer_path).resolve(), Path(stage_path).resolve().parent)
     xf.GetPrim().GetReferences().AddReference(Path(rel).as_posix())
     m = np.asarray(source_to_model, dtype=np.float64)
     xf.AddTransformOp().Set(Gf.Matrix4d(m.T.tolist()))  # USD multiplies row vectors: the transpose
-    save_layer(stage.GetRootLayer(), stage_path)

@@ -96,6 +96,7 @@ def write_take(
     rig: SkinRig | None = None,
     rig_weights: np.ndarray | None = None,
     rig_meshes: dict | None = None,
+    edit=None,
 ) -> Path:
     """Write a tracked or simulated take of a ``FaceModel`` as one USD stage.
 
@@ -136,6 +137,8 @@ def write_take(
             the rig holds one shape per muscle).
         rig_meshes: {prim name: (SkinRig, counts, indices)}: more meshes under ``Rig`` driven by the
             same joints and weights (a render mesh: ``rig.carried(binding_weights, rest)``).
+        edit: callable(stage) run on the stage before its one save (additions such as a reference to
+            a render-mesh layer or more time-sampled attributes).
 
     Returns:
         The path written.
@@ -179,6 +182,8 @@ def write_take(
         _write_rig(stage, f"{root}/Rig", rig, rw, affines, jaw_frame, skin_x, topo, times, model, rig_meshes)
     if basis is not None:
         _write_blendshapes(stage, f"{root}/Basis", basis, bw, counts, indices, times=times)
+    if edit is not None:
+        edit(stage)
     save_layer(stage.GetRootLayer(), path)  # atomic: a temporary file renamed into place
     return path
 
