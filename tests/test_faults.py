@@ -611,3 +611,11 @@ def test_closed_pipe_is_quiet():
     proc.stdout.close()  # the reader goes away at once
     assert proc.wait(timeout=120) in (0, 141)
     assert b"Traceback" not in proc.stderr.read()
+
+
+def test_chunks_of_a_one_pass_take_say_they_may_differ_from_a_serial_run(tmp_path, capsys):
+    args = [*DEMO, "--no-usd", "--prior", "temporal", "--chunk-size", "2", "--out", tmp_path / "t"]
+    code, text = _cli(args, capsys)
+    assert code == 0 and "note: with --prior temporal each chunk" in text
+    code, text = _cli([*DEMO, "--no-usd", "--chunk-size", "2", "--out", tmp_path / "a"], capsys)
+    assert code == 0 and "--prior temporal each chunk" not in text  # the default refits over the take
