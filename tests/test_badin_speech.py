@@ -180,11 +180,12 @@ def test_closure_with_lip_contact_cli(tmp_path, badin_model_path, capsys):
     assert rep["contact"] == "lips" and rep["inverted_elements_max"] == 0
     # The lips meet without passing through each other, up to the penalty (half the 0.1 mm C2 ramp plus
     # k-dependent micrometres) and the rounding of the smooth lip surfaces, inside which the faceted
-    # lips overlap by up to 0.13 mm (measured gap on the faceted lips: +0.061, -0.129, -0.122 mm against
-    # -6 mm without contact; frames 0.5 s apart: 25 Newton iterations reach 1.1e-4, the last frame
-    # converges in 13).
-    assert len(rep["lip_gap_mm"]) == 3 and min(rep["lip_gap_mm"]) > -0.15
-    assert rep["max_penetration_mm_max"] < 0.15
+    # lips overlap by up to 0.17 mm (measured gap on the faceted lips: +0.061, -0.166, -0.130 mm against
+    # -6 mm without contact; with the old law, 1175 Pa as mu01, -0.129 and -0.122: ArtiSynth's C10 + C20
+    # flesh is 32 % softer at small strain, and so is the penalty k = 100 x 6 (mu10 + mu01) h; frames
+    # 0.5 s apart converge in 24 and 8 Newton iterations).
+    assert len(rep["lip_gap_mm"]) == 3 and min(rep["lip_gap_mm"]) > -0.2
+    assert rep["max_penetration_mm_max"] < 0.2
     assert "lip gap min" in capsys.readouterr().out
     assert main(args + ["--contact", "lips,gums", "--out", str(out)]) == 1
 
