@@ -12,7 +12,7 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
-from wface.model import Material, ModelError, load_model, model_sha256, save_model
+from wface.model import FORMAT_VERSION, Material, ModelError, load_model, model_sha256, save_model
 from wface.testing.models import box_model
 
 _MATERIALS = {
@@ -120,11 +120,13 @@ def test_model_file_keeps_c20_and_a_file_without_it_loads_as_zero(tmp_path):
     model = box_model((2, 1, 1), muscles=0)
     path = save_model(model.with_material(Material.artisynth()), tmp_path / "c20.npz")
     assert load_model(path).material == Material.artisynth()
+    # format 2 (older wface versions refuse it rather than drop the term); without it, format 1
+    assert json.loads(bytes(np.load(path)["header_json"]).decode())["format_version"] == FORMAT_VERSION == 2
     # a model without the term: header and fingerprint as before the field existed
     plain = save_model(model, tmp_path / "plain.npz")
     header = json.loads(bytes(np.load(plain)["header_json"]).decode())
     old_fields = {f.name: getattr(model.material, f.name) for f in fields(Material) if f.name != "mu20_pa"}
-    assert header["material"] == old_fields
+    assert header["material"] == old_fields and header["format_version"] == 1
     assert load_model(plain).material.mu20_pa == 0.0
     assert model_sha256(load_model(plain)) == model_sha256(model)
     assert model_sha256(model.with_material(Material(mu20_pa=1.0))) != model_sha256(model)

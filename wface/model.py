@@ -33,7 +33,9 @@ __all__ = [
     "save_model",
 ]
 
-FORMAT_VERSION = 1
+# 2: the material may carry mu20_pa. A model without it is still written as format 1, byte for byte
+# as before, so older wface versions read it; one with it is refused by them instead of losing the term.
+FORMAT_VERSION = 2
 BONES = ("cranium", "jaw")  # bone ids 0 and 1 in attachment arrays
 
 
@@ -400,7 +402,7 @@ def _model_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
         arrays[f"surface/{name}"] = tri
     header = {
         "format": "wface.FaceModel",
-        "format_version": FORMAT_VERSION,
+        "format_version": FORMAT_VERSION if model.material.mu20_pa else 1,
         "muscle_names": model.muscle_names,
         "marker_names": model.marker_names,
         "bones": {name: mesh.bone for name, mesh in model.bone_meshes.items()},
