@@ -13,7 +13,11 @@ speech``'s files) and OUT/lip_opening_area_all.png (one panel per gesture, every
 original's recorded curve where the data has one). ``--compare-artisynth`` also plays the
 approximant set up step by step towards ArtiSynth's BadinFaceDemoLipOpening (OOP rings, muscle
 stress, boundary, contact, dynamics, material) and writes OUT/artisynth/factors.json and
-factors.png: what each difference does to the lip opening area (README, "Speech gestures").
+factors.png: what each difference does to the lip opening area (README, "Speech gestures"); ``--steps``
+picks some of its steps (0-3: the quasistatic rows with ArtiSynth's flesh law, 8-11: the same with
+the old law, 1175 Pa as mu01; 12: lip contact with the old law). ``--held-oop LEVEL ...`` holds the
+approximant's OOP at each level on the demo setup with each flesh law and bulk modulus
+(OUT/held_oop/held_oop.{json,png}).
 
 With --track-mocap, also tracks an AnimFace take on the Badin face: the capture markers that the
 alignment puts within --select-mm of the Badin skin are used (OUT/track/report.json).
@@ -23,6 +27,8 @@ Run:
     python examples/badin_speech.py --gestures closure --variants quasistatic --max-frames 3 --out quick
     python examples/badin_speech.py --variants quasistatic dynamic --resume --out badin_speech_out  # go on
     python examples/badin_speech.py --gestures --compare-artisynth --out appr  # the factor study
+    python examples/badin_speech.py --gestures --compare-artisynth --steps 0 1 2 3 8 9 10 11 --out appr
+    python examples/badin_speech.py --gestures --held-oop 0.01 0.02 0.03 0.05 0.1 0.3 --out appr
     python examples/badin_speech.py --gestures --track-mocap ../shared/data/animface/JawMoCap.c3d \\
         --track-frames 0:300:10 --out jaw_on_badin
 
@@ -157,17 +163,39 @@ def figure(path: Path, summaries: dict, refs: dict) -> None:
 
 
 # the approximant, step by step from wface's import towards ArtiSynth's BadinFaceDemoLipOpening:
-# (name, setup keyword arguments of lip_opening_demo_model or None, variant, flesh mu01 scale, excitation)
+# (name, setup keyword arguments of lip_opening_demo_model or None, variant, flesh changes or None, excitation).
+# The flesh is Material.artisynth() (C10 2500 Pa, C20 1175 Pa on (I1~ - 3)^2) unless a step changes it;
+# "old law" is wface's stand-in before the C20 term existed (1175 Pa as mu01).
+OLD_LAW = {"mu01_pa": 1175.0, "mu20_pa": 0.0}
+C10_ONLY = {"mu01_pa": 0.0, "mu20_pa": 0.0}
 STEPS = (
-    ("wface import", None, "quasistatic", 1.0, "file"),
-    ("+ OOP rings", {"ring": True, "max_stress_pa": None, "boundary": False}, "quasistatic", 1.0, "file"),
-    ("+ 1e5 Pa", {"ring": True, "boundary": False}, "quasistatic", 1.0, "file"),
-    ("+ boundary", {}, "quasistatic", 1.0, "file"),
-    ("+ lip contact", {}, "quasistatic_contact", 1.0, "file"),
-    ("+ dynamics, gravity", {}, "dynamic_contact", 1.0, "file"),
-    ("+ C10-only flesh", {}, "dynamic_contact", 0.0, "file"),
-    ("inline excitation (peak 1)", {}, "dynamic_contact", 0.0, "inline"),
+    ("wface import", None, "quasistatic", None, "file"),
+    ("+ OOP rings", {"ring": True, "max_stress_pa": None, "boundary": False}, "quasistatic", None, "file"),
+    ("+ 1e5 Pa", {"ring": True, "boundary": False}, "quasistatic", None, "file"),
+    ("+ boundary", {}, "quasistatic", None, "file"),
+    ("+ lip contact", {}, "quasistatic_contact", None, "file"),
+    ("+ dynamics, gravity", {}, "dynamic_contact", None, "file"),
+    ("+ C10-only flesh", {}, "dynamic_contact", C10_ONLY, "file"),
+    ("inline excitation (peak 1)", {}, "dynamic_contact", C10_ONLY, "inline"),
+    ("wface import, old law", None, "quasistatic", OLD_LAW, "file"),
+    ("+ OOP rings, old law", {"ring": True, "max_stress_pa": None, "boundary": False}, "quasistatic", OLD_LAW, "file"),
+    ("+ 1e5 Pa, old law", {"ring": True, "boundary": False}, "quasistatic", OLD_LAW, "file"),
+    ("+ boundary, old law", {}, "quasistatic", OLD_LAW, "file"),
+    ("+ lip contact, old law", {}, "quasistatic_contact", OLD_LAW, "file"),
 )
+
+
+def _slug(name: str) -> str:
+    return "_".join("".join(c if c.isalnum() else " " for c in name).split())
+
+
+def _step_model(base, data: Path, setup: dict | None, flesh: dict | None):
+    from dataclasses import replace
+
+    from wface.speech.artisynth_demo import lip_opening_demo_model
+
+    model = base if setup is None else lip_opening_demo_model(base, data, **setup)
+    return model if not flesh else model.with_material(replace(model.material, **flesh))
 
 
 def compare_artisynth(
@@ -182,10 +210,7 @@ def compare_artisynth(
 ) -> dict:
     """The approximant set up step by step as ArtiSynth's lip-opening demo (``STEPS``); writes
     OUT/factors.json and OUT/factors.png and returns {step: summary}."""
-    from dataclasses import replace
-
     from wface.speech import read_gesture
-    from wface.speech.artisynth_demo import lip_opening_demo_model
     from wface.speech.gestures import ExcitationCurve
 
     base = _model(data, model_path)
@@ -197,13 +222,12 @@ def compare_artisynth(
     )
     out.mkdir(parents=True, exist_ok=True)
     results = {}
-    for k, (name, setup, variant, mu01, excitation) in enumerate(steps):
-        model = base if setup is None else lip_opening_demo_model(base, data, **setup)
-        if mu01 != 1.0:
-            model = model.with_material(replace(model.material, mu01_pa=model.material.mu01_pa * mu01))
+    for name, setup, variant, flesh, excitation in steps:
+        model = _step_model(base, data, setup, flesh)
         gest = g if excitation == "file" else inline
-        s = play(model, gest, out / f"step{k}", variant, fps=fps, max_frames=max_frames, max_step_ms=max_step_ms)
-        results[name] = {"variant": variant, "excitation": excitation, "mu01_scale": mu01, **s}
+        s = play(model, gest, out / _slug(name), variant, fps=fps, max_frames=max_frames, max_step_ms=max_step_ms)
+        material = {f: getattr(model.material, f) for f in ("mu10_pa", "mu01_pa", "mu20_pa", "kappa_pa")}
+        results[name] = {"variant": variant, "excitation": excitation, "flesh": material, **s}
         (out / "factors.json").write_text(json.dumps(results, indent=2))
     from wface.viz.plots import _plt
 
@@ -218,6 +242,64 @@ def compare_artisynth(
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.savefig(out / "factors.png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return results
+
+
+# the demo setup with each flesh law and bulk modulus (kappa 10x / 100x ArtiSynth's 25 kPa stands in for
+# its hard incompressibility), for the held-OOP apertures
+HELD_STEPS = (
+    ("C10 + C20 (ArtiSynth's law)", {}, "quasistatic", None, "file"),
+    ("old law (C20 as mu01)", {}, "quasistatic", OLD_LAW, "file"),
+    ("C10 + C20, kappa 10x", {}, "quasistatic", {"kappa_pa": 2.5e5}, "file"),
+    ("C10 + C20, kappa 100x", {}, "quasistatic", {"kappa_pa": 2.5e6}, "file"),
+    ("old law, kappa 100x", {}, "quasistatic", {**OLD_LAW, "kappa_pa": 2.5e6}, "file"),
+)
+
+
+def held_oop(
+    out: Path,
+    levels=(0.01, 0.02, 0.03, 0.05, 0.1, 0.3),
+    *,
+    steps=HELD_STEPS,
+    data: Path = DATA,
+    model_path: Path | None = None,
+) -> dict:
+    """The approximant's OOP held at each of ``levels`` in turn (quasistatic, each equilibrium warm-started
+    from the one before) on the models of ``steps``; writes OUT/held_oop.json and OUT/held_oop.png (area
+    against level) and returns {step: {"levels", "area_mm2", "lip_gap_mm", "converged"}}."""
+    from wface.speech import read_gesture
+    from wface.speech.gestures import held_gesture
+
+    base = _model(data, model_path)
+    held = held_gesture(read_gesture(data / "speech" / "approximant"), levels, probe="OOP")
+    out.mkdir(parents=True, exist_ok=True)
+    results = {}
+    for name, setup, _variant, flesh, _excitation in steps:
+        model = _step_model(base, data, setup, flesh)
+        s = play(model, held, out / _slug(name), "quasistatic", fps=1.0, max_frames=None, max_step_ms=5.0)
+        results[name] = {
+            "levels": [float(v) for v in levels],
+            "area_mm2": s["lip_opening_area_mm2"],
+            "lip_gap_mm": s.get("lip_gap_mm"),
+            "converged": s.get("all_converged"),
+        }
+        (out / "held_oop.json").write_text(json.dumps(results, indent=2))
+    from wface.viz.plots import _plt
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.5, 4.0))
+    for name, r in results.items():
+        ax.plot(r["levels"], r["area_mm2"], marker="o", label=name)
+    ax.plot([0.3], [15.5], "k*", ms=12, label="original at OOP 0.3 (from 53.2 mm$^2$ after its sag)")
+    if min(levels) > 0:
+        ax.set_xscale("log")
+    ax.set_xlabel("OOP excitation held")
+    ax.set_ylabel("lip opening area (mm$^2$)")
+    ax.set_title("approximant's OOP held, quasistatic, demo setup (rest: 39.5 mm$^2$)", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.savefig(out / "held_oop.png", dpi=110, bbox_inches="tight")
     plt.close(fig)
     return results
 
@@ -299,6 +381,21 @@ def main(argv=None) -> int:
     p.add_argument("--model", type=Path, help="a saved Badin model (.npz) instead of importing")
     p.add_argument("--resume", action="store_true", help="read back the variants already written under --out")
     p.add_argument("--compare-artisynth", action="store_true", help="also the approximant's factor study")
+    p.add_argument(
+        "--steps",
+        nargs="+",
+        type=int,
+        help="indices into STEPS of the factor study's steps to play (default all): 0-3 the quasistatic "
+        "rows with ArtiSynth's flesh, 8-11 the same with the old law (C20 as mu01), 12 lip contact with the old law",
+    )
+    p.add_argument(
+        "--held-oop",
+        nargs="+",
+        type=float,
+        metavar="LEVEL",
+        help="also hold the approximant's OOP at these levels on the demo setup, each flesh law and kappa "
+        "(HELD_STEPS; with --steps: on those steps), e.g. --held-oop 0.01 0.02 0.03 0.05 0.1 0.3",
+    )
     p.add_argument("--track-mocap", type=Path, help="also track this capture (C3D/TRC/CSV) on the Badin face")
     p.add_argument("--track-frames", default="0:300:10", help="A:B:STEP of the capture to track")
     p.add_argument("--select-mm", type=float, default=5.0, help="largest marker distance from the Badin skin")
@@ -333,14 +430,22 @@ def main(argv=None) -> int:
                     f"{name:12s} {v:20s} lip opening area {ar['first']:6.2f} -> {ar['last']:6.2f} mm^2 "
                     f"(min {ar['min']:.2f}, max {ar['max']:.2f}), {s['frames']} frames, {s['seconds_total']:.0f} s"
                 )
+    steps = STEPS if a.steps is None else tuple(STEPS[i] for i in a.steps)
     if a.compare_artisynth:
-        for name, s in compare_artisynth(a.out / "artisynth", **common).items():
+        for name, s in compare_artisynth(a.out / "artisynth", steps=steps, **common).items():
             ref = s["reference_comparison"] or {}
             w = ref.get("wface", {})
             print(
                 f"{name:28s} settled {w.get('settled_mm2', 0):6.1f} final {w.get('final_mm2', 0):6.1f} mm^2, "
                 f"RMS vs original {ref.get('rms_mm2', 0):.1f} mm^2"
             )
+    if a.held_oop:
+        held_steps = HELD_STEPS if a.steps is None else steps
+        for name, h in held_oop(
+            a.out / "held_oop", a.held_oop, steps=held_steps, data=a.data, model_path=a.model
+        ).items():
+            cells = ", ".join(f"{v:g}: {ar:.2f} mm^2" for v, ar in zip(h["levels"], h["area_mm2"], strict=True))
+            print(f"{name:28s} OOP held at {cells}")
     return 0
 
 

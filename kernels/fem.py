@@ -6,7 +6,7 @@ nodes 1..3, node 0 gets minus their sum (Teran et al. 2003, 2005; docs/design.md
 Flesh (isotropic, on the signed singular values s of F = U diag(s) V^T, det U = det V = +1, the
 smallest singular value carrying the sign of det F; Irving et al. 2004):
 
-    psi(s) = mu10 (J^-2/3 I1 - 3) + mu01 (J^-4/3 I2 - 3) + kappa/2 (ln J)^2,
+    psi(s) = mu10 (J^-2/3 I1 - 3) + mu01 (J^-4/3 I2 - 3) + mu20 (J^-2/3 I1 - 3)^2 + kappa/2 (ln J)^2,
     J = s1 s2 s3, I1 = sum s_i^2, I2 = sum_{i<j} s_i^2 s_j^2.
 
 Inversion: singular values are clamped below at c (``clamp``), s^ = max(s, c). So that forces stay
@@ -94,6 +94,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         rest_volume: wp.array(dtype=S),
         mu10: S,
         mu01: S,
+        mu20: S,
         kappa: S,
         clamp: S,
         entry_start: wp.array(dtype=wp.int32),
@@ -115,7 +116,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         s = vec3()
         V = mat33()
         wp.svd3(F, U, s, V)
-        psi, G = flesh_gradient_s(s, mu10, mu01, kappa, clamp)
+        psi, G = flesh_gradient_s(s, mu10, mu01, mu20, kappa, clamp)
         P = U * wp.diag(G) * wp.transpose(V)
         energy = psi
         for e in range(entry_start[t], entry_start[t + 1]):
@@ -138,6 +139,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         rest_volume: wp.array(dtype=S),
         mu10: S,
         mu01: S,
+        mu20: S,
         kappa: S,
         clamp: S,
         entry_start: wp.array(dtype=wp.int32),
@@ -157,7 +159,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         s = vec3()
         V = mat33()
         wp.svd3(F, U, s, V)
-        energy = flesh_energy_s(s, mu10, mu01, kappa, clamp)
+        energy = flesh_energy_s(s, mu10, mu01, mu20, kappa, clamp)
         for e in range(entry_start[t], entry_start[t + 1]):
             lam = wp.length(F * entry_direction[e])
             T, dT, W = fibre_tension(lam, activation[entry_muscle[e]], entry_coef[e])
@@ -217,6 +219,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         rest_volume: wp.array(dtype=S),
         mu10: S,
         mu01: S,
+        mu20: S,
         kappa: S,
         clamp: S,
         entry_start: wp.array(dtype=wp.int32),
@@ -238,7 +241,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         s = vec3()
         V = mat33()
         wp.svd3(F, U, s, V)
-        psi, G, A = flesh_response(s, mu10, mu01, kappa, clamp)
+        psi, G, A = flesh_response(s, mu10, mu01, mu20, kappa, clamp)
         # Nine eigen-modes of dP/dF (rows of Wm, orthonormal in vec(F)) and their eigenvalues.
         Q = mat33()
         lam = vec3()

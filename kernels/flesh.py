@@ -1,13 +1,21 @@
 """Isotropic flesh in singular values (Warp device code, float64 and float32; docs/design.md, "Flesh").
 
-psi(s) = mu10 (J^-2/3 I1 - 3) + mu01 (J^-4/3 I2 - 3) + kappa/2 (ln J)^2, J = s1 s2 s3,
-I1 = sum s_i^2, I2 = sum_{i<j} s_i^2 s_j^2, on the signed singular values of F = U diag(s) V^T
-(det U = det V = +1, the smallest carrying the sign of det F: Irving et al. 2004).
+psi(s) = mu10 u + mu01 (J^-4/3 I2 - 3) + mu20 u^2 + kappa/2 (ln J)^2,  u = J^-2/3 I1 - 3,
+J = s1 s2 s3, I1 = sum s_i^2, I2 = sum_{i<j} s_i^2 s_j^2, on the signed singular values of
+F = U diag(s) V^T (det U = det V = +1, the smallest carrying the sign of det F: Irving et al. 2004).
+The mu20 term is ArtiSynth's C20 (I1~ - 3)^2 (its ``MooneyRivlinMaterial``); with mu20 = 0 it is
+skipped, so the other terms' arithmetic is that of the law without it, bit for bit.
 
 Below the clamp c the energy is continued by its first-order Taylor expansion in the clamped
 values, psi_ext(s) = psi(s^) + sum_i g_i(s^)(s_i - s^_i) with s^ = max(s, c), so the stress is the
 exact gradient of an energy (Stomakhin et al. 2012). psi is a sum of monomials c prod s_i^a_i
-plus the volumetric term, so its first, second and third derivatives are closed form.
+plus the volumetric term, so its first, second and third derivatives are closed form. The mu20
+term's come by the chain rule from those of u (three monomials with coefficient 1, minus 3):
+    d(u^2)_i = 2 u u_i,   d2(u^2)_ij = 2 (u_i u_j + u u_ij),
+    d3(u^2)_ijl = 2 (u_il u_j + u_i u_jl + u_ij u_l + u u_ijl),
+and the third derivative is only ever needed contracted with delta on its first index:
+    sum_i delta_i d3(u^2)_ijl = 2 (u_j (U delta)_l + (U delta)_j u_l + (u . delta) u_jl + u sum_i delta_i u_ijl),
+U = (u_ij).
 """
 
 import functools
@@ -30,7 +38,49 @@ def flesh_functions(dtype):
     M2_3, M4_3 = -2.0 / 3.0, -4.0 / 3.0  # folded in double precision (see fibre.py)
 
     @wp.func
-    def flesh_derivatives(sh: vec3, delta: vec3, mu10: S, mu01: S, kappa: S, order: int):
+    def c20_derivatives(sh: vec3, delta: vec3, j23: S, inv: vec3, mu20: S, order: int):
+        """mu20 u^2 (u = J^-2/3 I1 - 3) at s^: value, gradient, Hessian (order >= 2) and third
+        derivative contracted with delta (order >= 3), from u's derivatives (module docstring)."""
+        u = S(-3.0)
+        du = vec3()
+        ddu = mat33()
+        dddu = mat33()  # sum_i delta_i u_ijl
+        for k in range(3):
+            a = vec3(S(M2_3), S(M2_3), S(M2_3))
+            a[k] = a[k] + S(2.0)
+            m = j23 * sh[k] * sh[k]
+            u = u + m
+            for i in range(3):
+                du[i] = du[i] + a[i] * m * inv[i]
+            if order >= 2:
+                for i in range(3):
+                    for j in range(3):
+                        dij = S(0.0)
+                        if i == j:
+                            dij = S(1.0)
+                        hij = a[i] * (a[j] - dij) * m * inv[i] * inv[j]
+                        ddu[i, j] = ddu[i, j] + hij
+                        if order >= 3:
+                            for l in range(3):
+                                dil = S(0.0)
+                                djl = S(0.0)
+                                if i == l:
+                                    dil = S(1.0)
+                                if j == l:
+                                    djl = S(1.0)
+                                dddu[j, l] = dddu[j, l] + delta[i] * hij * (a[l] - dil - djl) * inv[l]
+        c = S(2.0) * mu20
+        H = mat33()
+        Tc = mat33()
+        if order >= 2:
+            H = c * (wp.outer(du, du) + u * ddu)
+        if order >= 3:
+            dd = ddu * delta
+            Tc = c * (wp.outer(du, dd) + wp.outer(dd, du) + wp.dot(du, delta) * ddu + u * dddu)
+        return mu20 * u * u, c * u * du, H, Tc
+
+    @wp.func
+    def flesh_derivatives(sh: vec3, delta: vec3, mu10: S, mu01: S, mu20: S, kappa: S, order: int):
         """psi, gradient, Hessian (order >= 2) at s^ (all > 0), and the third derivative contracted
         with delta (order >= 3); higher-order outputs are zero when not requested."""
         psi = S(-3.0) * (mu10 + mu01)
@@ -101,6 +151,12 @@ def flesh_functions(dtype):
                                 if i == l:
                                     t = t + S(2.0) * kappa * L * inv[i] * inv[i] * inv[i]
                             Tc[j, l] = Tc[j, l] + delta[i] * t
+        if mu20 != S(0.0):
+            p20, g20, H20, T20 = c20_derivatives(sh, delta, j23, inv, mu20, order)
+            psi = psi + p20
+            g = g + g20
+            H = H + H20
+            Tc = Tc + T20
         return psi, g, H, Tc
 
     @wp.func
@@ -113,19 +169,19 @@ def flesh_functions(dtype):
         return sh, delta
 
     @wp.func
-    def flesh_energy_s(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
+    def flesh_energy_s(s: vec3, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
         sh, delta = clamp_values(s, clamp)
-        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa, 1)
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, mu20, kappa, 1)
         return psi + wp.dot(g, delta)
 
     @wp.func
-    def flesh_gradient_s(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
+    def flesh_gradient_s(s: vec3, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
         """psi_ext and its gradient G in singular values."""
         sh, delta = clamp_values(s, clamp)
         order = 1
         if delta[0] != S(0.0) or delta[1] != S(0.0) or delta[2] != S(0.0):
             order = 2
-        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa, order)
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, mu20, kappa, order)
         G = g
         Hd = H * delta
         for j in range(3):
@@ -153,13 +209,13 @@ def flesh_functions(dtype):
         V_out[t] = V
 
     @wp.func
-    def flesh_response(s: vec3, mu10: S, mu01: S, kappa: S, clamp: S):
+    def flesh_response(s: vec3, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
         """psi_ext, its gradient G and Hessian A in the signed singular values s."""
         sh, delta = clamp_values(s, clamp)
         order = 2
         if delta[0] != S(0.0) or delta[1] != S(0.0) or delta[2] != S(0.0):
             order = 3
-        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, kappa, order)
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, mu20, kappa, order)
         G = g
         Hd = H * delta
         A = mat33()
@@ -181,6 +237,7 @@ def flesh_functions(dtype):
         s: wp.array(dtype=vec3),
         mu10: S,
         mu01: S,
+        mu20: S,
         kappa: S,
         clamp: S,
         # Out:
@@ -190,7 +247,7 @@ def flesh_functions(dtype):
     ):
         """The flesh energy density psi_ext(s), its gradient and Hessian (tests, plots)."""
         i = wp.tid()
-        psi, G, A = flesh_response(s[i], mu10, mu01, kappa, clamp)
+        psi, G, A = flesh_response(s[i], mu10, mu01, mu20, kappa, clamp)
         psi_out[i] = psi
         grad_out[i] = G
         hess_out[i] = A
@@ -199,7 +256,7 @@ def flesh_functions(dtype):
         pass
 
     ns = _Functions()
-    for f in (clamp_values, flesh_derivatives, flesh_energy_s, flesh_gradient_s, flesh_response):
+    for f in (clamp_values, c20_derivatives, flesh_derivatives, flesh_energy_s, flesh_gradient_s, flesh_response):
         setattr(ns, f.func.__name__, f)
     ns.singular_values = singular_values
     ns.flesh_in_singular_values = flesh_in_singular_values

@@ -293,7 +293,9 @@ def test_facs_and_markers(model):
 # ---------------------------------------------------------------------------- model
 def test_validate_and_round_trip(model, tmp_path):
     model.validate()
-    assert model.material.mu10_pa == 2500.0 and model.material.mu01_pa == 1175.0
+    # ArtiSynth's MooneyRivlinMaterial of BadinFaceDemo.setFaceProperties: C10 2500, C20 1175, bulk 10 C10
+    assert (model.material.mu10_pa, model.material.mu01_pa, model.material.mu20_pa) == (2500.0, 0.0, 1175.0)
+    assert model.material.kappa_pa == 25000.0
     path = save_model(model, tmp_path / "badin.npz")
     back = load_model(path)
     assert np.array_equal(back.rest_positions_m, model.rest_positions_m)

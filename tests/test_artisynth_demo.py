@@ -87,3 +87,17 @@ def test_muscles_stress_and_boundary(badin_model, demo):
     assert partial.muscle_names == badin_model.muscle_names
     assert np.array_equal(partial.attached_nodes, badin_model.attached_nodes)
     assert partial.material.sigma_max_pa == ARTISYNTH_MAX_STRESS_PA
+
+
+def test_demo_flesh_is_artisynths_law_whatever_the_model_file(badin_model):
+    """An import saved before the C20 term existed carries 1175 Pa as mu01; the demo setup uses
+    BadinFaceDemo's MooneyRivlinMaterial (C10 2500, C20 1175, bulk 10 C10) all the same."""
+    from dataclasses import replace
+
+    old = badin_model.with_material(replace(badin_model.material, mu01_pa=1175.0, mu20_pa=0.0))
+    demo = lip_opening_demo_model(old, data_path("artisynth-face"), ring=False, boundary=False)
+    law = (demo.material.mu10_pa, demo.material.mu01_pa, demo.material.mu20_pa, demo.material.kappa_pa)
+    assert law == (2500.0, 0.0, 1175.0, 25000.0)
+    assert demo.metadata["artisynth_lip_opening_demo"]["flesh"] == "artisynth"
+    kept = lip_opening_demo_model(old, data_path("artisynth-face"), ring=False, boundary=False, flesh=False)
+    assert kept.material.mu01_pa == 1175.0 and kept.material.mu20_pa == 0.0

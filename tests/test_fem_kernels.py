@@ -15,14 +15,18 @@ _ROUNDOFF = 1e-12  # float64 round-off relative to the force scale of an element
 _FD_REL = 2e-6  # central differences with h = 1e-6 edge: O(h^2) truncation + O(eps/h) round-off
 
 
-@pytest.fixture(scope="module")
-def tet_sim():
-    return Simulator(single_tet_model(), precision="float64")
+# the default flesh and ArtiSynth's Badin flesh (C10 and C20 (I1~ - 3)^2, no C01; docs/design.md, "Flesh")
+_MATERIALS = {"default": Material(), "c20": Material.artisynth()}
 
 
-@pytest.fixture(scope="module")
-def box_sim():
-    return Simulator(box_model((3, 2, 2), muscles=2), precision="float64")
+@pytest.fixture(scope="module", params=list(_MATERIALS))
+def tet_sim(request):
+    return Simulator(single_tet_model().with_material(_MATERIALS[request.param]), precision="float64")
+
+
+@pytest.fixture(scope="module", params=list(_MATERIALS))
+def box_sim(request):
+    return Simulator(box_model((3, 2, 2), muscles=2).with_material(_MATERIALS[request.param]), precision="float64")
 
 
 def _configurations(X: np.ndarray, rng: np.random.Generator) -> dict[str, np.ndarray]:
@@ -270,16 +274,16 @@ def test_float32_kernels_agree_with_float64():
 
 
 def test_material_parameters_are_used():
-    """Energy is linear in (mu10, mu01, kappa) for a fixed deformation (no fibres active)."""
+    """Energy is linear in (mu10, mu01, mu20, kappa) for a fixed deformation (no fibres active)."""
     base = box_model((2, 1, 1), muscles=0)
     X = base.rest_positions_m
     x = X + 0.002 * np.random.default_rng(9).normal(size=X.shape)
-    parts = [Material(mu10_pa=1.0, mu01_pa=0.0, kappa_pa=0.0), Material(mu10_pa=0.0, mu01_pa=1.0, kappa_pa=0.0)]
-    parts.append(Material(mu10_pa=0.0, mu01_pa=0.0, kappa_pa=1.0))
-    e = [Simulator(base.with_material(m)).energy(x) for m in parts]
-    art = Material.artisynth()
-    total = Simulator(base.with_material(art)).energy(x)
-    assert total == pytest.approx(art.mu10_pa * e[0] + art.mu01_pa * e[1] + art.kappa_pa * e[2], rel=1e-10)
+    names = ("mu10_pa", "mu01_pa", "mu20_pa", "kappa_pa")
+    zero = dict.fromkeys(names, 0.0)
+    e = [Simulator(base.with_material(Material(**{**zero, n: 1.0}))).energy(x) for n in names]
+    mixed = Material(mu10_pa=2500.0, mu01_pa=800.0, mu20_pa=1175.0, kappa_pa=25000.0)
+    total = Simulator(base.with_material(mixed)).energy(x)
+    assert total == pytest.approx(sum(getattr(mixed, n) * en for n, en in zip(names, e, strict=True)), rel=1e-10)
 
 
 def test_flesh_energy_density_matches_closed_form_mooney_rivlin():
@@ -311,7 +315,7 @@ def test_flesh_energy_density_matches_closed_form_mooney_rivlin():
     wp.launch(
         k.flesh_in_singular_values,
         n,
-        inputs=[wp.array(S, dtype=wp.vec3d), mu10, mu01, kappa, mat.inversion_clamp, p, g, H],
+        inputs=[wp.array(S, dtype=wp.vec3d), mu10, mu01, mat.mu20_pa, kappa, mat.inversion_clamp, p, g, H],
     )
     e, hc, hd = np.eye(3), 1e-30, 1e-6
     for i, s in enumerate(S):

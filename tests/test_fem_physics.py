@@ -13,18 +13,22 @@ from wface.physics import Simulator, count_inverted
 from wface.testing.models import box_model
 
 MAT = Material()
+# ArtiSynth's Badin flesh law (C10, C20 (I1~ - 3)^2) with the default's kappa / mu ~ 40
+C20_MAT = Material(mu10_pa=2500.0, mu01_pa=0.0, mu20_pa=1175.0, kappa_pa=2.0e5)
 
 
 # ---------------------------------------------------------------------- uniaxial stretch
-def _psi_uniaxial(lam, mu):
+def _psi_uniaxial(lam, mu, mat=MAT):
     """Closed-form Mooney-Rivlin energy density for F = diag(lam, mu, mu) (complex-step friendly)."""
     J = lam * mu * mu
     I1 = lam**2 + 2 * mu**2
     I2 = 2 * lam**2 * mu**2 + mu**4
+    u = J ** (-2 / 3) * I1 - 3
     return (
-        MAT.mu10_pa * (J ** (-2 / 3) * I1 - 3)
-        + MAT.mu01_pa * (J ** (-4 / 3) * I2 - 3)
-        + 0.5 * MAT.kappa_pa * np.log(J) ** 2
+        mat.mu10_pa * u
+        + mat.mu01_pa * (J ** (-4 / 3) * I2 - 3)
+        + mat.mu20_pa * u**2
+        + 0.5 * mat.kappa_pa * np.log(J) ** 2
     )
 
 
@@ -32,21 +36,22 @@ def _d(fun, z, h=1e-30):
     return np.imag(fun(z + 1j * h)) / h  # complex step: exact to round-off
 
 
-def _uniaxial_state(lam):
+def _uniaxial_state(lam, mat=MAT):
     """Lateral stretch mu with P22 = 0 (traction-free sides) and the nominal stress P11, in Pa."""
     from scipy.optimize import brentq
 
-    mu = brentq(lambda m: _d(lambda mm: _psi_uniaxial(lam, mm), m), 0.5, 1.5, xtol=1e-15)
-    return mu, _d(lambda ll: _psi_uniaxial(ll, mu), lam)
+    mu = brentq(lambda m: _d(lambda mm: _psi_uniaxial(lam, mm, mat), m), 0.5, 1.5, xtol=1e-15)
+    return mu, _d(lambda ll: _psi_uniaxial(ll, mu, mat), lam)
 
 
+@pytest.mark.parametrize("mat", [MAT, C20_MAT], ids=["default", "c20"])
 @pytest.mark.parametrize("lam", [1.3, 0.8])
-def test_uniaxial_stretch_matches_closed_form(lam):
+def test_uniaxial_stretch_matches_closed_form(lam, mat):
     """Ends clamped to the homogeneous uniaxial state; Newton must find it for the free (interior
     and side) nodes, and the end reaction must equal P11 A0 (linear tets represent it exactly)."""
     size = (0.04, 0.02, 0.02)
-    model = box_model((4, 2, 2), size, cranium_faces=("x-", "x+"), muscles=0)
-    mu, P11 = _uniaxial_state(lam)
+    model = box_model((4, 2, 2), size, cranium_faces=("x-", "x+"), muscles=0).with_material(mat)
+    mu, P11 = _uniaxial_state(lam, mat)
     X = model.rest_positions_m
     homogeneous = X * np.array([lam, mu, mu])
     sim = Simulator(model)
@@ -59,8 +64,10 @@ def test_uniaxial_stretch_matches_closed_form(lam):
     area = size[1] * size[2]
     assert reaction[0] == pytest.approx(P11 * area, rel=1e-8)
     assert np.abs(reaction[1:]).max() < 1e-8 * abs(P11) * area
-    # sanity of the closed form itself: near the incompressible limit 2 (mu10 + mu01/lam)(lam - lam^-2)
-    incompressible = 2 * (MAT.mu10_pa + MAT.mu01_pa / lam) * (lam - lam**-2)
+    # sanity of the closed form itself: near the incompressible limit 2 (W1 + W2/lam)(lam - lam^-2),
+    # W1 = mu10 + 2 mu20 (I1 - 3), W2 = mu01, I1 = lam^2 + 2/lam (C20: +21 % at lam = 1.3, +13 % at 0.8)
+    w1 = mat.mu10_pa + 2 * mat.mu20_pa * (lam**2 + 2 / lam - 3)
+    incompressible = 2 * (w1 + mat.mu01_pa / lam) * (lam - lam**-2)
     assert P11 == pytest.approx(incompressible, rel=0.05)  # kappa / mu ~ 40: a few percent compressibility
 
 
@@ -80,12 +87,14 @@ def _linear_elastic_skfem(X, tets, fixed, values, mu, bulk):
     return u[dofs].T
 
 
-def test_small_strain_limit_matches_linear_elasticity():
+@pytest.mark.parametrize("mat", [MAT, C20_MAT], ids=["default", "c20"])
+def test_small_strain_limit_matches_linear_elasticity(mat):
     """Same mesh and Dirichlet data; Lame parameters from the small-strain limit of the material:
-    mu = 2 (mu10 + mu01), bulk modulus K = kappa. The difference is geometric nonlinearity, O(strain):
-    it must halve when the imposed displacement halves."""
+    mu = 2 (mu10 + mu01), bulk modulus K = kappa (mu20 (I1~ - 3)^2 is second order in the strain and
+    adds nothing). The difference is geometric nonlinearity, O(strain): it must halve when the
+    imposed displacement halves."""
     size = (0.04, 0.02, 0.02)
-    model = box_model((4, 2, 2), size, cranium_faces=("x-", "x+"), muscles=0)
+    model = box_model((4, 2, 2), size, cranium_faces=("x-", "x+"), muscles=0).with_material(mat)
     X = model.rest_positions_m
     fixed = model.attached_nodes
     sim = Simulator(model)
@@ -97,7 +106,7 @@ def test_small_strain_limit_matches_linear_elasticity():
         eq = sim.solve(None, X[fixed] + disp, tol=1e-10)
         assert eq.converged
         u_nl = eq.x - X
-        u_lin = _linear_elastic_skfem(X, model.tets, fixed, disp, 2 * (MAT.mu10_pa + MAT.mu01_pa), MAT.kappa_pa)
+        u_lin = _linear_elastic_skfem(X, model.tets, fixed, disp, 2 * (mat.mu10_pa + mat.mu01_pa), mat.kappa_pa)
         errors.append(np.abs(u_nl - u_lin).max() / np.abs(u_lin).max())
     assert errors[0] < 2e-3, errors
     assert 1.6 < errors[0] / errors[1] < 2.4, errors  # first order in the strain

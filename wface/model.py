@@ -33,7 +33,9 @@ __all__ = [
     "save_model",
 ]
 
-FORMAT_VERSION = 1
+# 2: the material may carry mu20_pa. A model without it is still written as format 1, byte for byte
+# as before, so older wface versions read it; one with it is refused by them instead of losing the term.
+FORMAT_VERSION = 2
 BONES = ("cranium", "jaw")  # bone ids 0 and 1 in attachment arrays
 
 
@@ -45,8 +47,10 @@ class ModelError(ValueError):
 class Material:
     """Flesh and muscle material (Teran et al. 2005; docs/design.md, "Flesh").
 
-    Flesh: Psi = mu10 (I1~ - 3) + mu01 (I2~ - 3) + kappa/2 (ln J)^2.
+    Flesh: Psi = mu10 (I1~ - 3) + mu01 (I2~ - 3) + mu20 (I1~ - 3)^2 + kappa/2 (ln J)^2, with
+    I1~ = J^-2/3 I1 and I2~ = J^-4/3 I2 (all moduli in Pa; mu20 is ArtiSynth's C20, default 0).
     Muscle: fibre tension T = sigma_max (a f_L(lam) + f_P(lam)), times the tet's volume fraction.
+    Checked on construction (``validate``).
     """
 
     mu10_pa: float = 6.0e4
@@ -55,11 +59,27 @@ class Material:
     sigma_max_pa: float = 3.0e5
     inversion_clamp: float = 0.1  # singular values are clamped below at this value (Irving et al. 2004)
     density_kg_m3: float = 1040.0
+    mu20_pa: float = 0.0  # coefficient of (I1~ - 3)^2; last so positional use of the others is unchanged
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise ``ModelError`` naming the field: every value must be finite and mu20_pa >= 0 (the
+        (I1~ - 3)^2 term is then convex in I1~, so it can only stiffen the flesh)."""
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not np.isfinite(value):
+                raise ModelError(f"material: {f.name} must be finite, got {value!r}")
+        if self.mu20_pa < 0:
+            raise ModelError(f"material: mu20_pa must be >= 0 (coefficient of (I1~ - 3)^2), got {self.mu20_pa!r}")
 
     @classmethod
     def artisynth(cls) -> Material:
-        """ArtiSynth "Badin" face material: C10 = 2500 Pa, C20 = 1175 Pa (as mu01), bulk 10 C10."""
-        return cls(mu10_pa=2500.0, mu01_pa=1175.0, kappa_pa=25000.0)
+        """ArtiSynth's Badin face flesh (``BadinFaceDemo.setFaceProperties``, Nazari et al. 2010):
+        MooneyRivlinMaterial C10 = 2500 Pa, C20 = 1175 Pa, bulk modulus 10 C10 = 25 kPa. ArtiSynth's
+        bulk potential is kappa/2 (J - 1)^2, wface's kappa/2 (ln J)^2 (docs/design.md, "Flesh")."""
+        return cls(mu10_pa=2500.0, mu01_pa=0.0, mu20_pa=1175.0, kappa_pa=25000.0)
 
 
 @dataclass(frozen=True)
@@ -293,6 +313,7 @@ class FaceModel:
                 raise ModelError(f"bone mesh {bname!r} has NaN/inf vertices")
             if mesh.triangles.size and (mesh.triangles.min() < 0 or mesh.triangles.max() >= len(mesh.vertices_m)):
                 raise ModelError(f"bone mesh {bname!r} triangles reference vertices out of range")
+        self.material.validate()
         self.jaw_joint.validate()
         if len(self.marker_names) != len(self.marker_positions_m):
             raise ModelError(f"{len(self.marker_names)} marker names but {len(self.marker_positions_m)} positions")
@@ -365,6 +386,12 @@ _ARRAY_FIELDS = (
 )
 
 
+def _material_header(material: Material) -> dict:
+    """The material's fields, mu20_pa left out when 0 (so files and ``model_sha256`` of models without
+    the C20 term are those written before it existed; a file without it loads as 0)."""
+    return {f.name: getattr(material, f.name) for f in fields(Material) if f.name != "mu20_pa" or material.mu20_pa}
+
+
 def _model_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
     """(arrays, header) of a model: what ``save_model`` writes and ``model_sha256`` hashes."""
     arrays = {name: getattr(model, name) for name in _ARRAY_FIELDS}
@@ -375,13 +402,13 @@ def _model_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
         arrays[f"surface/{name}"] = tri
     header = {
         "format": "wface.FaceModel",
-        "format_version": FORMAT_VERSION,
+        "format_version": FORMAT_VERSION if model.material.mu20_pa else 1,
         "muscle_names": model.muscle_names,
         "marker_names": model.marker_names,
         "bones": {name: mesh.bone for name, mesh in model.bone_meshes.items()},
         "surface_groups": list(model.surface_groups),
         "jaw_joint": {f.name: getattr(model.jaw_joint, f.name) for f in fields(JawJoint)},
-        "material": {f.name: getattr(model.material, f.name) for f in fields(Material)},
+        "material": _material_header(model.material),
         "facs": model.facs,
         "metadata": model.metadata,
     }
@@ -410,6 +437,17 @@ def save_model(model: FaceModel, path: str | Path) -> Path:
     arrays, header = _model_arrays(model)
     arrays["header_json"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
     return save_npz(path, **arrays)
+
+
+def _material_from_header(path: Path, values: dict) -> Material:
+    known = {f.name for f in fields(Material)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ModelError(f"{path}: the face model's material has unknown field(s) {unknown} (newer wface?)")
+    try:
+        return Material(**values)
+    except ModelError as exc:
+        raise ModelError(f"{path}: {exc}") from None
 
 
 def load_model(path: str | Path, *, validate: bool = True) -> FaceModel:
@@ -453,7 +491,7 @@ def load_model(path: str | Path, *, validate: bool = True) -> FaceModel:
         muscle_names=header["muscle_names"],
         marker_names=header["marker_names"],
         jaw_joint=JawJoint(**{k: tuple(v) if isinstance(v, list) else v for k, v in jj.items()}),
-        material=Material(**header["material"]),
+        material=_material_from_header(path, header["material"]),
         bone_meshes=bones,
         surface_groups=surfaces,
         facs=header["facs"],

@@ -143,6 +143,11 @@ def _info(args: argparse.Namespace) -> int:
     print(f"  {len(s['muscles'])} muscles: {', '.join(s['muscles'])}")
     print(f"  {len(s['markers'])} markers: {', '.join(s['markers'])}")
     print(f"  bones: {', '.join(s['bones'])}; action units: {', '.join(s['action_units'])}")
+    mat = s["material"]
+    print(
+        f"  flesh mu10 {mat['mu10_pa']:g} Pa, mu01 {mat['mu01_pa']:g} Pa, mu20 {mat['mu20_pa']:g} Pa, "
+        f"kappa {mat['kappa_pa']:g} Pa; muscle sigma_max {mat['sigma_max_pa']:g} Pa"
+    )
     fit = s.get("fit")
     if fit:
         sd = fit["surface_distance_mm"]

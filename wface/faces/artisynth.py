@@ -27,6 +27,10 @@ What the importer establishes and does:
   OOP) is mirrored across the midsagittal plane for the right side, as ArtiSynth does (the file's own
   right-side points 134xxx are not used, like in the original). Fibres become per-tet volume fractions
   and directions (``wface.faces.fibres``).
+- Flesh. ``Material.artisynth()``: ArtiSynth's ``MooneyRivlinMaterial`` of
+  ``BadinFaceDemo.setFaceProperties`` (C10 = 2500 Pa, C20 = 1175 Pa on (I1~ - 3)^2, bulk modulus
+  10 C10); wface's bulk term is kappa/2 (ln J)^2 where ArtiSynth's is kappa/2 (J - 1)^2, and
+  ArtiSynth adds hard incompressibility (docs/design.md, "Flesh").
 """
 
 from __future__ import annotations

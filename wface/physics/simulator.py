@@ -219,7 +219,7 @@ class Simulator:
         self._k = fem_kernels(scalar)
         k, dev, dt = self._k, self.device, self._np_dtype
         m = model.material
-        self._material = [dt(m.mu10_pa), dt(m.mu01_pa), dt(m.kappa_pa), dt(m.inversion_clamp)]
+        self._material = [dt(m.mu10_pa), dt(m.mu01_pa), dt(m.mu20_pa), dt(m.kappa_pa), dt(m.inversion_clamp)]
         n, nt = model.n_nodes, model.n_tets
         self._tets = wp.array(model.tets.astype(np.int32), dtype=wp.int32, device=dev)
         self._dm_inv = wp.array(model.dm_inv.astype(dt), dtype=k.mat33, device=dev)
@@ -331,7 +331,9 @@ class Simulator:
         inputs = [*self._model_inputs(), *extra_inputs, *outputs]
         n_model = len(self._model_inputs())
         per_tet_outputs = tuple(i for i in range(n_model + len(extra_inputs), len(inputs)) if i not in scattered)
-        self._launch_tets(kernel, inputs, sliced=(0, 1, 2, *per_tet_outputs), offsets=(7,), scattered=scattered)
+        self._launch_tets(
+            kernel, inputs, sliced=(0, 1, 2, *per_tet_outputs), offsets=(3 + len(self._material),), scattered=scattered
+        )
 
     def _model_inputs(self):
         return [

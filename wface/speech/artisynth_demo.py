@@ -23,6 +23,8 @@ this module reproduces each choice on the imported face (``wface.faces.artisynth
 - Dynamics (``ARTISYNTH_DYNAMICS``): ConstrainedBackwardEuler with steps of at most 5 ms, density
   1040 kg/m^3, Rayleigh damping alpha = 19 1/s (particle damping), beta = 0.055 s (stiffness
   damping), gravity 9.8 m/s^2 down (Badin -z, wface -Y).
+- Flesh: ``MooneyRivlinMaterial`` C10 = 2500 Pa, C20 = 1175 Pa, bulk modulus 10 C10
+  (``BadinFaceDemo.setFaceProperties``; ``Material.artisynth()``, docs/design.md, "Flesh").
 - Measure: the green plane at x = 0.1 m and the orthographic camera, ``wface.speech.aperture``.
 - Not reproduced: every rigid body of the demo, the tongue among them, is hidden in its picture, so
   nothing but the face occludes the plane; the tongue mesh is not in the face data.
@@ -57,7 +59,7 @@ from scipy.spatial import cKDTree
 from wface.faces.ansys import hexes_to_tets, read_ansys_elements, read_ansys_nodes, read_int_list
 from wface.faces.artisynth import FIXED_NODE_FILES, JAW_NODE_FILE, MESH_PREFIX
 from wface.faces.fibres import point_segment_distance
-from wface.model import FaceModel
+from wface.model import FaceModel, Material
 
 __all__ = [
     "ARTISYNTH_DYNAMICS",
@@ -269,6 +271,7 @@ def lip_opening_demo_model(
     ring: bool = True,
     max_stress_pa: float | None = ARTISYNTH_MAX_STRESS_PA,
     boundary: bool = True,
+    flesh: bool = True,
 ) -> FaceModel:
     """The imported Badin face set up as ``BadinFaceDemoLipOpening`` (module docstring), each part optional.
 
@@ -278,6 +281,9 @@ def lip_opening_demo_model(
         ring: replace ``OOP_l``/``OOP_r`` by one muscle ``OOP`` on the demo's ten rings.
         max_stress_pa: sigma_max of every muscle (None: keep the model's).
         boundary: the demo's boundary (``demo_attachments``) instead of the import's.
+        flesh: the demo's flesh law, ``Material.artisynth()``'s mu10, mu01, mu20 and kappa (C10, C20
+            (I1~ - 3)^2, bulk 10 C10), whatever the model's (an import saved before wface had the C20
+            term carries 1175 Pa as mu01); False keeps the model's.
 
     Returns:
         A new, validated ``FaceModel`` (the input is not changed).
@@ -306,6 +312,10 @@ def lip_opening_demo_model(
             muscle_strength=strength,
             facs=facs,
         )
+    if flesh:
+        art = Material.artisynth()
+        law = {f: getattr(art, f) for f in ("mu10_pa", "mu01_pa", "mu20_pa", "kappa_pa")}
+        out = out.with_material(replace(out.material, **law))
     if max_stress_pa is not None:
         out = out.with_material(replace(out.material, sigma_max_pa=float(max_stress_pa)))
     if boundary:
@@ -316,6 +326,7 @@ def lip_opening_demo_model(
         "ring": list(LIP_OPENING_RINGS) if ring else None,
         "max_stress_pa": max_stress_pa,
         "boundary": "demo" if boundary else "import",
+        "flesh": "artisynth" if flesh else "model",
     }
     out = replace(out, metadata=meta)
     out.validate()

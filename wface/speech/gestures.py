@@ -35,7 +35,7 @@ approximation (``lower_oom="whole"``, stated in ``GestureMapping.notes``), or is
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +46,7 @@ __all__ = [
     "GestureMapping",
     "Probe",
     "SpeechGesture",
+    "held_gesture",
     "interpolate",
     "map_gesture_to_model",
     "read_excitation_curve",
@@ -268,6 +269,31 @@ def read_gesture(directory: str | Path, *, include_inactive: bool = False) -> Sp
             if c.times.size:
                 ref = np.column_stack([c.t0 + c.times, c.scale * c.data[:, 0]])
     return SpeechGesture(directory.name, directory, probes, curves, ref)
+
+
+def held_gesture(gesture: SpeechGesture, levels, *, probe: str = "OOP") -> SpeechGesture:
+    """``gesture`` with only ``probe`` playing, held at each of ``levels`` in turn for one second.
+
+    The curve is a Step through (k, levels[k]), k = 0, 1, ..., so played at 1 fps
+    (``simulate_gesture(..., fps=1)``) frame k is the equilibrium under ``levels[k]``, warm-started
+    from the frame before: the quasistatic response to a held excitation (docs/design.md, "Speech
+    gestures").
+
+    Args:
+        gesture: from ``read_gesture``.
+        levels: excitations in [0, 1], in the order to hold them.
+        probe: the probe to hold (its target muscle is driven; every other probe is left out).
+    """
+    v = np.asarray(levels, dtype=np.float64).ravel()
+    if v.size == 0 or not np.all(np.isfinite(v)) or v.min() < 0 or v.max() > 1:
+        raise ValueError(f"held levels must be a non-empty list of values in [0, 1], got {list(levels)}")
+    if probe not in {p.name for p in gesture.probes}:
+        raise ValueError(
+            f"gesture {gesture.name!r} has no probe {probe!r} (probes: {[p.name for p in gesture.probes]})"
+        )
+    k = np.arange(v.size, dtype=np.float64)
+    curve = ExcitationCurve(0.0, float(v.size - 1), 1.0, "Step", 1, k, v[:, None])
+    return replace(gesture, name=f"{gesture.name} ({probe} held)", curves={probe: curve}, reference_lip_area=None)
 
 
 def map_gesture_to_model(gesture: SpeechGesture, model, *, lower_oom: str = "whole") -> GestureMapping:
