@@ -270,3 +270,36 @@ def test_uniaxial_is_the_default_and_files_without_the_field_load_as_uniaxial(tm
 def test_unknown_fibre_stress_is_refused_naming_the_field():
     with pytest.raises(ModelError, match="fibre_stress must be one of"):
         Material(fibre_stress="volumetric")
+
+
+def _free_fibre_equilibrium(sim: Simulator, a: float) -> tuple[float, float]:
+    """(lam, mu) of the traction-free homogeneous equilibrium F = diag(lam, mu, mu) of a tet whose fibre
+    runs along x: tau_xx = tau_yy = 0 (tau_zz = tau_yy by symmetry), by scipy's root finder."""
+    from scipy.optimize import fsolve
+
+    X = sim.model.rest_positions_m
+
+    def residual(v):
+        tau = _kirchhoff(sim, X @ np.diag([v[0], v[1], v[1]]), np.array([a]))
+        return [tau[0, 0] / _SIGMA, tau[1, 1] / _SIGMA]
+
+    lam, mu = fsolve(residual, [0.9, 1.05], xtol=1e-13)
+    assert np.abs(residual([lam, mu])).max() < 1e-11
+    return float(lam), float(mu)
+
+
+@pytest.mark.parametrize("a", [0.1, 0.3])
+def test_free_active_fibre_keeps_the_volume_only_when_deviatoric(a):
+    """The mechanism (README, "Speech gestures"): at a traction-free equilibrium the trace of tau is
+    3 kappa ln J (flesh; its deviatoric terms are traceless) plus the fibre's, T lam uniaxial and 0
+    deviatoric, so the uniaxial muscle loses volume, ln J = -T(lam) lam / (3 kappa), and the
+    deviatoric one keeps it, J = 1: both exact on the Badin flesh (kappa 25 kPa)."""
+    material = replace(_BADIN, fibre_stress="uniaxial")
+    single = single_tet_model(fibre_direction=(1.0, 0.0, 0.0))
+    lam, mu = _free_fibre_equilibrium(Simulator(single.with_material(material)), a)
+    k = single.fibre_fraction[0] * _SIGMA
+    T = k * a * (1 - 25 / 6 * (lam - 1) ** 2)  # lam in (0.6, 1): f_L's inner parabola, f_P = 0
+    assert 0.6 < lam < 1 and np.log(lam * mu * mu) == pytest.approx(-T * lam / (3 * material.kappa_pa), rel=1e-8)
+    assert np.log(lam * mu * mu) < -0.05  # J = 0.947 (a = 0.1), 0.910 (0.3): f_L falls as the fibre shortens
+    lam_d, mu_d = _free_fibre_equilibrium(Simulator(single.with_material(_BADIN)), a)
+    assert lam_d < 0.95 and abs(np.log(lam_d * mu_d * mu_d)) < 1e-10  # the fibre still shortens
