@@ -281,14 +281,14 @@ def compare_artisynth(
     return results
 
 
-# the demo setup with each flesh law and bulk modulus (kappa 10x / 100x ArtiSynth's 25 kPa stands in for
-# its hard incompressibility), for the held-OOP apertures
+# the demo setup with each flesh law, bulk modulus (kappa 10x / 100x ArtiSynth's 25 kPa: how much the volume
+# matters; ArtiSynth has no hard incompressibility here) and fibre stress, for the held-OOP apertures
 HELD_STEPS = (
-    ("C10 + C20 (ArtiSynth's law)", UNI, "quasistatic", None, "file"),
-    ("old law (C20 as mu01)", UNI, "quasistatic", OLD_LAW, "file"),
-    ("C10 + C20, kappa 10x", UNI, "quasistatic", {"kappa_pa": 2.5e5}, "file"),
-    ("C10 + C20, kappa 100x", UNI, "quasistatic", {"kappa_pa": 2.5e6}, "file"),
-    ("old law, kappa 100x", UNI, "quasistatic", {**OLD_LAW, "kappa_pa": 2.5e6}, "file"),
+    ("C10 + C20 (ArtiSynth's law), uniaxial fibres", UNI, "quasistatic", None, "file"),
+    ("old law (C20 as mu01), uniaxial", UNI, "quasistatic", OLD_LAW, "file"),
+    ("C10 + C20, kappa 10x, uniaxial", UNI, "quasistatic", {"kappa_pa": 2.5e5}, "file"),
+    ("C10 + C20, kappa 100x, uniaxial", UNI, "quasistatic", {"kappa_pa": 2.5e6}, "file"),
+    ("old law, kappa 100x, uniaxial", UNI, "quasistatic", {**OLD_LAW, "kappa_pa": 2.5e6}, "file"),
     ("C10 + C20, deviatoric fibres (the demo setup)", {}, "quasistatic", None, "file"),
     ("old law, deviatoric fibres", {}, "quasistatic", OLD_LAW, "file"),
 )

@@ -303,3 +303,12 @@ def test_free_active_fibre_keeps_the_volume_only_when_deviatoric(a):
     assert np.log(lam * mu * mu) < -0.05  # J = 0.947 (a = 0.1), 0.910 (0.3): f_L falls as the fibre shortens
     lam_d, mu_d = _free_fibre_equilibrium(Simulator(single.with_material(_BADIN)), a)
     assert lam_d < 0.95 and abs(np.log(lam_d * mu_d * mu_d)) < 1e-10  # the fibre still shortens
+
+
+def test_model_info_prints_the_fibre_stress(tmp_path, capsys):
+    from wface.cli import main
+
+    model = box_model((2, 1, 1), muscles=1, material=_BADIN)
+    path = save_model(model, tmp_path / "dev.npz")
+    assert main(["model", "info", str(path)]) == 0
+    assert "deviatoric fibre stress" in capsys.readouterr().out
