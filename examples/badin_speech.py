@@ -15,9 +15,11 @@ approximant set up step by step towards ArtiSynth's BadinFaceDemoLipOpening (OOP
 stress, boundary, contact, dynamics, material) and writes OUT/artisynth/factors.json and
 factors.png: what each difference does to the lip opening area (README, "Speech gestures"); ``--steps``
 picks some of its steps (0-3: the quasistatic rows with ArtiSynth's flesh law, 8-11: the same with
-the old law, 1175 Pa as mu01; 12: lip contact with the old law). ``--held-oop LEVEL ...`` holds the
-approximant's OOP at each level on the demo setup with each flesh law and bulk modulus
-(OUT/held_oop/held_oop.{json,png}).
+the old law, 1175 Pa as mu01; 12: lip contact with the old law; all of 0-12 with wface's uniaxial
+fibre stress; 13-15: the demo setup with ArtiSynth's deviatoric fibre stress, quasistatic, old law,
+lip contact). ``--held-oop LEVEL ...`` holds the approximant's OOP at each level on the demo setup
+with each flesh law, bulk modulus and fibre stress (OUT/held_oop/held_oop.{json,png}, with the OOP
+tets' volume ratio J at each level).
 
 With --track-mocap, also tracks an AnimFace take on the Badin face: the capture markers that the
 alignment puts within --select-mm of the Badin skin are used (OUT/track/report.json).
@@ -29,6 +31,7 @@ Run:
     python examples/badin_speech.py --gestures --compare-artisynth --out appr  # the factor study
     python examples/badin_speech.py --gestures --compare-artisynth --steps 0 1 2 3 8 9 10 11 --out appr
     python examples/badin_speech.py --gestures --held-oop 0.01 0.02 0.03 0.05 0.1 0.3 --out appr
+    python examples/badin_speech.py --gestures --compare-artisynth --steps 3 13 --held-oop 0.01 0.3 --out fib
     python examples/badin_speech.py --gestures --track-mocap ../shared/data/animface/JawMoCap.c3d \\
         --track-frames 0:300:10 --out jaw_on_badin
 
@@ -91,9 +94,32 @@ def play(model, gesture, out: Path, variant: str, *, fps: float, max_frames: int
     write_gesture_usd(out / "animation.usdc", res, model, fps=rate, source=str(gesture.directory))
     summary = summarize(res)
     summary["times_s"] = res.times_s.tolist()
+    summary["oop_volume_ratio"] = oop_volume_ratio(model, res.node_positions_m)
     summary["reference_comparison"] = compare_with_reference(res, gesture.reference_lip_area)
     (out / "report.json").write_text(json.dumps(summary, indent=2))
     return summary
+
+
+def oop_volume_ratio(model, positions_m) -> dict | None:
+    """J = V / V0 of the OOP muscle's tets (the demo's rings, or the import's OOP_l/OOP_r) in each frame:
+    {"min", "mean" (over the tets), "total" (muscle volume ratio, fraction-weighted)}, lists over the
+    frames of ``positions_m`` (F, n, 3); None for a model without OOP."""
+    import numpy as np
+
+    from wface.mesh.quality import signed_volumes
+
+    idx = [i for i, n in enumerate(model.muscle_names) if n in ("OOP", "OOP_l", "OOP_r")]
+    entry = np.isin(model.fibre_muscle, idx)
+    if not entry.any():
+        return None
+    tets, frac = model.fibre_tet[entry], model.fibre_fraction[entry]
+    v0 = model.rest_volume_m3[tets]
+    J = np.array([signed_volumes(x, model.tets[tets]) / v0 for x in positions_m])  # (F, e)
+    return {
+        "min": J.min(axis=1).tolist(),
+        "mean": J.mean(axis=1).tolist(),
+        "total": ((J * v0 * frac).sum(axis=1) / (v0 * frac).sum()).tolist(),
+    }
 
 
 def run(
@@ -165,23 +191,30 @@ def figure(path: Path, summaries: dict, refs: dict) -> None:
 # the approximant, step by step from wface's import towards ArtiSynth's BadinFaceDemoLipOpening:
 # (name, setup keyword arguments of lip_opening_demo_model or None, variant, flesh changes or None, excitation).
 # The flesh is Material.artisynth() (C10 2500 Pa, C20 1175 Pa on (I1~ - 3)^2) unless a step changes it;
-# "old law" is wface's stand-in before the C20 term existed (1175 Pa as mu01).
+# "old law" is wface's stand-in before the C20 term existed (1175 Pa as mu01). The fibres are wface's
+# uniaxial law (UNI) up to step 12; steps 13-15 add ArtiSynth's deviatoric fibre stress, which the demo
+# setup itself uses ({}: lip_opening_demo_model's defaults).
 OLD_LAW = {"mu01_pa": 1175.0, "mu20_pa": 0.0}
 C10_ONLY = {"mu01_pa": 0.0, "mu20_pa": 0.0}
+UNI = {"fibre_stress": "uniaxial"}
+RINGS_3E5 = {"ring": True, "max_stress_pa": None, "boundary": False, **UNI}
 STEPS = (
     ("wface import", None, "quasistatic", None, "file"),
-    ("+ OOP rings", {"ring": True, "max_stress_pa": None, "boundary": False}, "quasistatic", None, "file"),
-    ("+ 1e5 Pa", {"ring": True, "boundary": False}, "quasistatic", None, "file"),
-    ("+ boundary", {}, "quasistatic", None, "file"),
-    ("+ lip contact", {}, "quasistatic_contact", None, "file"),
-    ("+ dynamics, gravity", {}, "dynamic_contact", None, "file"),
-    ("+ C10-only flesh", {}, "dynamic_contact", C10_ONLY, "file"),
-    ("inline excitation (peak 1)", {}, "dynamic_contact", C10_ONLY, "inline"),
+    ("+ OOP rings", RINGS_3E5, "quasistatic", None, "file"),
+    ("+ 1e5 Pa", {"ring": True, "boundary": False, **UNI}, "quasistatic", None, "file"),
+    ("+ boundary", UNI, "quasistatic", None, "file"),
+    ("+ lip contact", UNI, "quasistatic_contact", None, "file"),
+    ("+ dynamics, gravity", UNI, "dynamic_contact", None, "file"),
+    ("+ C10-only flesh", UNI, "dynamic_contact", C10_ONLY, "file"),
+    ("inline excitation (peak 1)", UNI, "dynamic_contact", C10_ONLY, "inline"),
     ("wface import, old law", None, "quasistatic", OLD_LAW, "file"),
-    ("+ OOP rings, old law", {"ring": True, "max_stress_pa": None, "boundary": False}, "quasistatic", OLD_LAW, "file"),
-    ("+ 1e5 Pa, old law", {"ring": True, "boundary": False}, "quasistatic", OLD_LAW, "file"),
-    ("+ boundary, old law", {}, "quasistatic", OLD_LAW, "file"),
-    ("+ lip contact, old law", {}, "quasistatic_contact", OLD_LAW, "file"),
+    ("+ OOP rings, old law", RINGS_3E5, "quasistatic", OLD_LAW, "file"),
+    ("+ 1e5 Pa, old law", {"ring": True, "boundary": False, **UNI}, "quasistatic", OLD_LAW, "file"),
+    ("+ boundary, old law", UNI, "quasistatic", OLD_LAW, "file"),
+    ("+ lip contact, old law", UNI, "quasistatic_contact", OLD_LAW, "file"),
+    ("+ deviatoric fibres (the demo setup)", {}, "quasistatic", None, "file"),
+    ("+ deviatoric fibres, old law", {}, "quasistatic", OLD_LAW, "file"),
+    ("+ deviatoric fibres, lip contact", {}, "quasistatic_contact", None, "file"),
 )
 
 
@@ -226,7 +259,9 @@ def compare_artisynth(
         model = _step_model(base, data, setup, flesh)
         gest = g if excitation == "file" else inline
         s = play(model, gest, out / _slug(name), variant, fps=fps, max_frames=max_frames, max_step_ms=max_step_ms)
-        material = {f: getattr(model.material, f) for f in ("mu10_pa", "mu01_pa", "mu20_pa", "kappa_pa")}
+        material = {
+            f: getattr(model.material, f) for f in ("mu10_pa", "mu01_pa", "mu20_pa", "kappa_pa", "fibre_stress")
+        }
         results[name] = {"variant": variant, "excitation": excitation, "flesh": material, **s}
         (out / "factors.json").write_text(json.dumps(results, indent=2))
     from wface.viz.plots import _plt
@@ -246,14 +281,16 @@ def compare_artisynth(
     return results
 
 
-# the demo setup with each flesh law and bulk modulus (kappa 10x / 100x ArtiSynth's 25 kPa stands in for
-# its hard incompressibility), for the held-OOP apertures
+# the demo setup with each flesh law, bulk modulus (kappa 10x / 100x ArtiSynth's 25 kPa: how much the volume
+# matters; ArtiSynth has no hard incompressibility here) and fibre stress, for the held-OOP apertures
 HELD_STEPS = (
-    ("C10 + C20 (ArtiSynth's law)", {}, "quasistatic", None, "file"),
-    ("old law (C20 as mu01)", {}, "quasistatic", OLD_LAW, "file"),
-    ("C10 + C20, kappa 10x", {}, "quasistatic", {"kappa_pa": 2.5e5}, "file"),
-    ("C10 + C20, kappa 100x", {}, "quasistatic", {"kappa_pa": 2.5e6}, "file"),
-    ("old law, kappa 100x", {}, "quasistatic", {**OLD_LAW, "kappa_pa": 2.5e6}, "file"),
+    ("C10 + C20 (ArtiSynth's law), uniaxial fibres", UNI, "quasistatic", None, "file"),
+    ("old law (C20 as mu01), uniaxial", UNI, "quasistatic", OLD_LAW, "file"),
+    ("C10 + C20, kappa 10x, uniaxial", UNI, "quasistatic", {"kappa_pa": 2.5e5}, "file"),
+    ("C10 + C20, kappa 100x, uniaxial", UNI, "quasistatic", {"kappa_pa": 2.5e6}, "file"),
+    ("old law, kappa 100x, uniaxial", UNI, "quasistatic", {**OLD_LAW, "kappa_pa": 2.5e6}, "file"),
+    ("C10 + C20, deviatoric fibres (the demo setup)", {}, "quasistatic", None, "file"),
+    ("old law, deviatoric fibres", {}, "quasistatic", OLD_LAW, "file"),
 )
 
 
@@ -283,6 +320,7 @@ def held_oop(
             "area_mm2": s["lip_opening_area_mm2"],
             "lip_gap_mm": s.get("lip_gap_mm"),
             "converged": s.get("all_converged"),
+            "oop_volume_ratio": s.get("oop_volume_ratio"),
         }
         (out / "held_oop.json").write_text(json.dumps(results, indent=2))
     from wface.viz.plots import _plt
@@ -386,7 +424,8 @@ def main(argv=None) -> int:
         nargs="+",
         type=int,
         help="indices into STEPS of the factor study's steps to play (default all): 0-3 the quasistatic "
-        "rows with ArtiSynth's flesh, 8-11 the same with the old law (C20 as mu01), 12 lip contact with the old law",
+        "rows with ArtiSynth's flesh, 8-11 the same with the old law (C20 as mu01), 12 lip contact with the old law "
+        "(0-12 uniaxial fibres), 13-15 deviatoric fibres (the demo setup): quasistatic, old law, lip contact",
     )
     p.add_argument(
         "--held-oop",

@@ -30,6 +30,16 @@ Muscle fibre of one (tet, muscle) entry, fibre direction d, q = F d, lam = |q|:
     T' (along it); the projected tangent clamps both at zero (T >= 0 always for a >= 0).
 Force-length f_L and passive f_P are the piecewise curves of docs/design.md, "Muscle fibres".
 
+Deviatoric fibres (kernel flag ``deviatoric``, ``Material.fibre_stress = "deviatoric"``): the same
+curves of lam~ = phi(J) lam, phi = J^-1/3 (continued by its tangent line below J_c = clamp^3; see
+``fibre.py`` for d lam~/dF and d2 lam~), P_f = T(lam~) d lam~/dF. Tangent: T' g g^T + T d2 lam~
+(g = d lam~/dF). Its isotropic part T lam d2 phi(J) is a function of J alone, so it joins the
+flesh's singular-value modes (G_i += c phi' J/s_i, A_ij += c (phi'' J^2/(s_i s_j) + phi' [i != j] s_k),
+c = sum over the tet's entries of T lam) and is projected with them; the rest, T' g g^T +
+T phi' (a b^T + b a^T) on span{a = vec(n d^T), b = vec(cof F)} and (T phi/lam) (I - n n^T) (x) d d^T,
+is projected by an exact 2x2 eigen-decomposition on that span and a clamp of the last coefficient.
+Each projected piece is PSD, so their sum is; the exact tangent is the sum unclamped.
+
 All kernels come from ``fem_kernels(dtype)`` (dtype = wp.float64 or wp.float32), built once per
 dtype. The flesh energy in singular values lives in ``flesh.py``, the fibre curves in ``fibre.py``.
 """
@@ -59,6 +69,10 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
     fibre = fibre_functions(S)
     fibre_tension = fibre.fibre_tension
     force_length = fibre.force_length
+    deviatoric_fibre = fibre.deviatoric_fibre
+    deviatoric_fibre_tangent = fibre.deviatoric_fibre_tangent
+    isotropic_volume_terms = fibre.isotropic_volume_terms
+    volume_factor = fibre.volume_factor
     flesh = flesh_functions(S)
     flesh_energy_s = flesh.flesh_energy_s
     flesh_gradient_s = flesh.flesh_gradient_s
@@ -97,6 +111,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         mu20: S,
         kappa: S,
         clamp: S,
+        deviatoric: int,
         entry_start: wp.array(dtype=wp.int32),
         entry_muscle: wp.array(dtype=wp.int32),
         entry_direction: wp.array(dtype=vec3),
@@ -121,6 +136,13 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         energy = psi
         for e in range(entry_start[t], entry_start[t + 1]):
             d = entry_direction[e]
+            if deviatoric != 0:
+                lam, lt, T, dT, W, g = deviatoric_fibre(
+                    F, d, activation[entry_muscle[e]], entry_coef[e], clamp * clamp * clamp
+                )
+                energy = energy + W
+                P = P + T * g
+                continue
             q = F * d
             lam = wp.length(q)
             T, dT, W = fibre_tension(lam, activation[entry_muscle[e]], entry_coef[e])
@@ -142,6 +164,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         mu20: S,
         kappa: S,
         clamp: S,
+        deviatoric: int,
         entry_start: wp.array(dtype=wp.int32),
         entry_muscle: wp.array(dtype=wp.int32),
         entry_direction: wp.array(dtype=vec3),
@@ -162,6 +185,9 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         energy = flesh_energy_s(s, mu10, mu01, mu20, kappa, clamp)
         for e in range(entry_start[t], entry_start[t + 1]):
             lam = wp.length(F * entry_direction[e])
+            if deviatoric != 0:
+                phi, dphi, ddphi = volume_factor(wp.determinant(F), clamp * clamp * clamp)
+                lam = phi * lam
             T, dT, W = fibre_tension(lam, activation[entry_muscle[e]], entry_coef[e])
             energy = energy + W
         energy_out[t] = rest_volume[t] * energy
@@ -176,12 +202,15 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         entry_muscle: wp.array(dtype=wp.int32),
         entry_direction: wp.array(dtype=vec3),
         entry_coef: wp.array(dtype=S),
+        clamp: S,
+        deviatoric: int,
         # State in:
         x: wp.array(dtype=vec3),
         # Out:
         forces_out: wp.array2d(dtype=vec3),
     ):
-        """f_i(x): active fibre force of each muscle at full activation, (M, n) accumulated."""
+        """f_i(x): active fibre force of each muscle at full activation, (M, n) accumulated
+        (k f_L(lam) d lam/dF, with lam~ and d lam~/dF if ``deviatoric``)."""
         e = wp.tid()
         t = entry_tet[e]
         Dmi = dm_inv[t]
@@ -190,8 +219,14 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         q = F * d
         lam = wp.length(q)
         if lam > S(1.0e-12):
-            fl, dfl, gl = force_length(lam - S(1.0))
-            P = (entry_coef[e] * fl / lam) * wp.outer(q, d)
+            P = mat33()
+            if deviatoric != 0:
+                lam0, lt, T, dT, W, g = deviatoric_fibre(F, d, S(0.0), entry_coef[e], clamp * clamp * clamp)
+                fl, dfl, gl = force_length(lt - S(1.0))
+                P = (entry_coef[e] * fl) * g
+            else:
+                fl, dfl, gl = force_length(lam - S(1.0))
+                P = (entry_coef[e] * fl / lam) * wp.outer(q, d)
             H = -rest_volume[t] * (P * wp.transpose(Dmi))
             c1 = vec3(H[0, 0], H[1, 0], H[2, 0])
             c2 = vec3(H[0, 1], H[1, 1], H[2, 1])
@@ -222,6 +257,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         mu20: S,
         kappa: S,
         clamp: S,
+        deviatoric: int,
         entry_start: wp.array(dtype=wp.int32),
         entry_muscle: wp.array(dtype=wp.int32),
         entry_direction: wp.array(dtype=vec3),
@@ -242,6 +278,14 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         V = mat33()
         wp.svd3(F, U, s, V)
         psi, G, A = flesh_response(s, mu10, mu01, mu20, kappa, clamp)
+        if deviatoric != 0:  # the fibres' isotropic part T lam d2 phi(J) joins the flesh's modes
+            c_iso = S(0.0)
+            for e in range(entry_start[t], entry_start[t + 1]):
+                act = activation[entry_muscle[e]]
+                lf, lt, T, dT, W, g = deviatoric_fibre(F, entry_direction[e], act, entry_coef[e], clamp * clamp * clamp)
+                c_iso = c_iso + T * lf
+            phi, dphi, ddphi = volume_factor(s[0] * s[1] * s[2], clamp * clamp * clamp)
+            G, A = isotropic_volume_terms(G, A, s, c_iso * dphi, c_iso * ddphi)
         # Nine eigen-modes of dP/dF (rows of Wm, orthonormal in vec(F)) and their eigenvalues.
         Q = mat33()
         lam = vec3()
@@ -288,6 +332,10 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
                     C[r, c] = acc
         for e in range(entry_start[t], entry_start[t + 1]):
             d = entry_direction[e]
+            if deviatoric != 0:
+                act = activation[entry_muscle[e]]
+                C = deviatoric_fibre_tangent(C, F, d, act, entry_coef[e], clamp * clamp * clamp, project)
+                continue
             q = F * d
             lf = wp.length(q)
             if lf > S(1.0e-12):

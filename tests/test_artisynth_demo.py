@@ -87,6 +87,13 @@ def test_muscles_stress_and_boundary(badin_model, demo):
     assert partial.muscle_names == badin_model.muscle_names
     assert np.array_equal(partial.attached_nodes, badin_model.attached_nodes)
     assert partial.material.sigma_max_pa == ARTISYNTH_MAX_STRESS_PA
+    # ArtiSynth's BlemkerMuscle / GenericMuscle: deviatoric fibre stress; the import keeps wface's uniaxial law
+    assert demo.material.fibre_stress == "deviatoric" and badin_model.material.fibre_stress == "uniaxial"
+    assert demo.metadata["artisynth_lip_opening_demo"]["fibre_stress"] == "deviatoric"
+    kept = lip_opening_demo_model(
+        badin_model, data_path("artisynth-face"), ring=False, boundary=False, fibre_stress=None
+    )
+    assert kept.material.fibre_stress == "uniaxial"
 
 
 def test_demo_flesh_is_artisynths_law_whatever_the_model_file(badin_model):

@@ -22,6 +22,7 @@ from wface.files import FileFormatError, load_npz, save_npz
 
 __all__ = [
     "BONES",
+    "FIBRE_STRESSES",
     "FORMAT_VERSION",
     "BoneMesh",
     "FaceModel",
@@ -33,9 +34,11 @@ __all__ = [
     "save_model",
 ]
 
-# 2: the material may carry mu20_pa. A model without it is still written as format 1, byte for byte
-# as before, so older wface versions read it; one with it is refused by them instead of losing the term.
+# 2: the material may carry mu20_pa or fibre_stress. A model without them (both at their defaults) is
+# still written as format 1, byte for byte as before, so older wface versions read it; one with either
+# is refused by them instead of losing it.
 FORMAT_VERSION = 2
+FIBRE_STRESSES = ("uniaxial", "deviatoric")  # Material.fibre_stress; the first is the default
 BONES = ("cranium", "jaw")  # bone ids 0 and 1 in attachment arrays
 
 
@@ -49,7 +52,10 @@ class Material:
 
     Flesh: Psi = mu10 (I1~ - 3) + mu01 (I2~ - 3) + mu20 (I1~ - 3)^2 + kappa/2 (ln J)^2, with
     I1~ = J^-2/3 I1 and I2~ = J^-4/3 I2 (all moduli in Pa; mu20 is ArtiSynth's C20, default 0).
-    Muscle: fibre tension T = sigma_max (a f_L(lam) + f_P(lam)), times the tet's volume fraction.
+    Muscle: fibre tension T = sigma_max (a f_L(lam) + f_P(lam)), times the tet's volume fraction,
+    of the fibre stretch lam = |F d| (``fibre_stress = "uniaxial"``: Cauchy stress T/J (F d)(F d)^T/lam,
+    hydrostatic part T/(3J)) or of the deviatoric stretch lam~ = J^-1/3 |F d| (``"deviatoric"``, as
+    ArtiSynth's BlemkerMuscle and GenericMuscle: no hydrostatic part; docs/design.md, "Muscle fibres").
     Checked on construction (``validate``).
     """
 
@@ -60,16 +66,20 @@ class Material:
     inversion_clamp: float = 0.1  # singular values are clamped below at this value (Irving et al. 2004)
     density_kg_m3: float = 1040.0
     mu20_pa: float = 0.0  # coefficient of (I1~ - 3)^2; last so positional use of the others is unchanged
+    fibre_stress: str = "uniaxial"  # or "deviatoric": the fibre curves of J^-1/3 |F d| (FIBRE_STRESSES)
 
     def __post_init__(self) -> None:
         self.validate()
 
     def validate(self) -> None:
-        """Raise ``ModelError`` naming the field: every value must be finite and mu20_pa >= 0 (the
-        (I1~ - 3)^2 term is then convex in I1~, so it can only stiffen the flesh)."""
+        """Raise ``ModelError`` naming the field: every value must be finite, mu20_pa >= 0 (the
+        (I1~ - 3)^2 term is then convex in I1~, so it can only stiffen the flesh) and fibre_stress one
+        of ``FIBRE_STRESSES``."""
+        if self.fibre_stress not in FIBRE_STRESSES:
+            raise ModelError(f"material: fibre_stress must be one of {FIBRE_STRESSES}, got {self.fibre_stress!r}")
         for f in fields(self):
             value = getattr(self, f.name)
-            if not np.isfinite(value):
+            if f.name != "fibre_stress" and not np.isfinite(value):
                 raise ModelError(f"material: {f.name} must be finite, got {value!r}")
         if self.mu20_pa < 0:
             raise ModelError(f"material: mu20_pa must be >= 0 (coefficient of (I1~ - 3)^2), got {self.mu20_pa!r}")
@@ -387,9 +397,16 @@ _ARRAY_FIELDS = (
 
 
 def _material_header(material: Material) -> dict:
-    """The material's fields, mu20_pa left out when 0 (so files and ``model_sha256`` of models without
-    the C20 term are those written before it existed; a file without it loads as 0)."""
-    return {f.name: getattr(material, f.name) for f in fields(Material) if f.name != "mu20_pa" or material.mu20_pa}
+    """The material's fields, each of mu20_pa and fibre_stress left out at its default (0, "uniaxial"),
+    so files and ``model_sha256`` of models without them are those written before they existed; a
+    file without them loads with the defaults."""
+    defaults = Material()
+    late = ("mu20_pa", "fibre_stress")
+    return {
+        f.name: getattr(material, f.name)
+        for f in fields(Material)
+        if f.name not in late or getattr(material, f.name) != getattr(defaults, f.name)
+    }
 
 
 def _model_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
@@ -402,7 +419,7 @@ def _model_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
         arrays[f"surface/{name}"] = tri
     header = {
         "format": "wface.FaceModel",
-        "format_version": FORMAT_VERSION if model.material.mu20_pa else 1,
+        "format_version": FORMAT_VERSION if model.material.mu20_pa or model.material.fibre_stress != "uniaxial" else 1,
         "muscle_names": model.muscle_names,
         "marker_names": model.marker_names,
         "bones": {name: mesh.bone for name, mesh in model.bone_meshes.items()},

@@ -146,7 +146,8 @@ def _info(args: argparse.Namespace) -> int:
     mat = s["material"]
     print(
         f"  flesh mu10 {mat['mu10_pa']:g} Pa, mu01 {mat['mu01_pa']:g} Pa, mu20 {mat['mu20_pa']:g} Pa, "
-        f"kappa {mat['kappa_pa']:g} Pa; muscle sigma_max {mat['sigma_max_pa']:g} Pa"
+        f"kappa {mat['kappa_pa']:g} Pa; muscle sigma_max {mat['sigma_max_pa']:g} Pa, "
+        f"{mat['fibre_stress']} fibre stress"
     )
     fit = s.get("fit")
     if fit:

@@ -36,7 +36,8 @@ dynamic FEM (inertia; ArtiSynth's backward Euler, 5 ms steps, Rayleigh damping a
 beta = 0.055 s, gravity). The lip opening area is the mouth aperture in mm^2 seen in ArtiSynth's
 orthographic camera against its green plane at Badin x = 0.1 m (--area-view frontal: straight from
 the front); the Mouth_Up - Mouth_Down distance is reported too. --setup artisynth sets the face up
-as ArtiSynth's BadinFaceDemoLipOpening (its ten OOP rings, muscle stress 1e5 Pa, inner surface fixed).
+as ArtiSynth's BadinFaceDemoLipOpening (its ten OOP rings, muscle stress 1e5 Pa, inner surface fixed,
+its flesh law and deviatoric fibre stress).
 
 examples:
   wface speech --model ../shared/data/artisynth-face --gesture closure --out closure_out

@@ -29,8 +29,9 @@ What the importer establishes and does:
   and directions (``wface.faces.fibres``).
 - Flesh. ``Material.artisynth()``: ArtiSynth's ``MooneyRivlinMaterial`` of
   ``BadinFaceDemo.setFaceProperties`` (C10 = 2500 Pa, C20 = 1175 Pa on (I1~ - 3)^2, bulk modulus
-  10 C10); wface's bulk term is kappa/2 (ln J)^2 where ArtiSynth's is kappa/2 (J - 1)^2, and
-  ArtiSynth adds hard incompressibility (docs/design.md, "Flesh").
+  10 C10); wface's bulk term is kappa/2 (ln J)^2 where ArtiSynth's is kappa/2 (J - 1)^2; the FEM-muscle
+  demos switch hard incompressibility off (``BadinFemMuscleFaceDemo.setDefaultOOP``:
+  ``setIncompressible(IncompMethod.OFF)``; docs/design.md, "Flesh").
 """
 
 from __future__ import annotations

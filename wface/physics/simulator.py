@@ -219,7 +219,9 @@ class Simulator:
         self._k = fem_kernels(scalar)
         k, dev, dt = self._k, self.device, self._np_dtype
         m = model.material
+        self._deviatoric = int(m.fibre_stress == "deviatoric")
         self._material = [dt(m.mu10_pa), dt(m.mu01_pa), dt(m.mu20_pa), dt(m.kappa_pa), dt(m.inversion_clamp)]
+        self._material.append(self._deviatoric)
         n, nt = model.n_nodes, model.n_tets
         self._tets = wp.array(model.tets.astype(np.int32), dtype=wp.int32, device=dev)
         self._dm_inv = wp.array(model.dm_inv.astype(dt), dtype=k.mat33, device=dev)
@@ -394,6 +396,8 @@ class Simulator:
                     self._entry_muscle,
                     self._entry_dir,
                     self._entry_coef,
+                    self._np_dtype(self.model.material.inversion_clamp),
+                    self._deviatoric,
                     self._x,
                     out,
                 ],

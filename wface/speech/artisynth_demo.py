@@ -16,7 +16,9 @@ this module reproduces each choice on the imported face (``wface.faces.artisynth
 - Muscle material: ``BlemkerMuscle`` with ``maxStress`` 1e5 Pa for OOP and the ``GenericMuscle``
   with 1e5 Pa for the others (``ARTISYNTH_MAX_STRESS_PA``; wface's default sigma_max is 3e5 Pa).
   Blemker's active force-length curve (1 - 4 (lam - 1)^2, quadratic tails to 0 at 0.4 and 1.6) is
-  close to wface's (``docs/design.md``, "Muscle fibres"); the material is otherwise wface's.
+  close to wface's (``docs/design.md``, "Muscle fibres"). Both are functions of the deviatoric fibre
+  stretch J^-1/3 |F d|, so their stress has no hydrostatic part: the setup sets
+  ``Material.fibre_stress = "deviatoric"``; the curves are otherwise wface's.
 - Boundary (``demo_attachments``): ``attachFaceToSkull`` fixes every inner-surface node
   (``atlas_internal.node``) except the lip, cheek and nose free lists, on top of the edge, nose and
   zygomatic-ligament lists that the import attaches; the jaw list stays on the jaw.
@@ -24,7 +26,9 @@ this module reproduces each choice on the imported face (``wface.faces.artisynth
   1040 kg/m^3, Rayleigh damping alpha = 19 1/s (particle damping), beta = 0.055 s (stiffness
   damping), gravity 9.8 m/s^2 down (Badin -z, wface -Y).
 - Flesh: ``MooneyRivlinMaterial`` C10 = 2500 Pa, C20 = 1175 Pa, bulk modulus 10 C10
-  (``BadinFaceDemo.setFaceProperties``; ``Material.artisynth()``, docs/design.md, "Flesh").
+  (``BadinFaceDemo.setFaceProperties``; ``Material.artisynth()``, docs/design.md, "Flesh"), and no
+  hard incompressibility: ``BadinFemMuscleFaceDemo.setDefaultOOP`` sets
+  ``face.setIncompressible(IncompMethod.OFF)``, so the bulk term alone keeps the volume, as in wface.
 - Measure: the green plane at x = 0.1 m and the orthographic camera, ``wface.speech.aperture``.
 - Not reproduced: every rigid body of the demo, the tongue among them, is hidden in its picture, so
   nothing but the face occludes the plane; the tongue mesh is not in the face data.
@@ -272,6 +276,7 @@ def lip_opening_demo_model(
     max_stress_pa: float | None = ARTISYNTH_MAX_STRESS_PA,
     boundary: bool = True,
     flesh: bool = True,
+    fibre_stress: str | None = "deviatoric",
 ) -> FaceModel:
     """The imported Badin face set up as ``BadinFaceDemoLipOpening`` (module docstring), each part optional.
 
@@ -284,6 +289,8 @@ def lip_opening_demo_model(
         flesh: the demo's flesh law, ``Material.artisynth()``'s mu10, mu01, mu20 and kappa (C10, C20
             (I1~ - 3)^2, bulk 10 C10), whatever the model's (an import saved before wface had the C20
             term carries 1175 Pa as mu01); False keeps the model's.
+        fibre_stress: ``Material.fibre_stress`` of every muscle, "deviatoric" as ArtiSynth's muscle
+            materials (module docstring) or "uniaxial" (None: keep the model's).
 
     Returns:
         A new, validated ``FaceModel`` (the input is not changed).
@@ -318,6 +325,8 @@ def lip_opening_demo_model(
         out = out.with_material(replace(out.material, **law))
     if max_stress_pa is not None:
         out = out.with_material(replace(out.material, sigma_max_pa=float(max_stress_pa)))
+    if fibre_stress is not None:
+        out = out.with_material(replace(out.material, fibre_stress=fibre_stress))
     if boundary:
         nodes, bone = demo_attachments(model, data_dir)
         out = replace(out, attached_nodes=nodes, attached_bone=bone)
@@ -327,6 +336,7 @@ def lip_opening_demo_model(
         "max_stress_pa": max_stress_pa,
         "boundary": "demo" if boundary else "import",
         "flesh": "artisynth" if flesh else "model",
+        "fibre_stress": out.material.fibre_stress,
     }
     out = replace(out, metadata=meta)
     out.validate()
