@@ -156,6 +156,7 @@ def test_closure_closes_the_lips_cli(tmp_path, badin_model_path):
     rep = json.loads((out / "report.json").read_text())
     assert rep["frames"] == 3 and rep["all_converged"] and rep["inverted_elements_max"] == 0
     assert rep["probe_to_muscles"]["OOM"] == ["OOM_l", "OOM_r"]
+    assert rep["material"]["mu20_pa"] == 1175.0 and rep["material"]["fibre_stress"] == "uniaxial"  # the import's
     header = (out / "lip_opening.csv").read_text().splitlines()[0].split(",")
     table = np.loadtxt(out / "lip_opening.csv", delimiter=",", skiprows=1)
     t, lo = table[:, 0], table[:, header.index("lip_opening_mm")]

@@ -9,6 +9,7 @@ area as metadata and time samples) and report.json.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -314,6 +315,7 @@ def run_speech(args: argparse.Namespace) -> int:
             "interpolation": {k: c.order for k, c in gesture.curves.items()},
             "tol": args.tol,
             "setup": args.setup,
+            "material": dataclasses.asdict(model.material),  # the flesh law and fibre stress played
             "lip_surface": args.lip_surface if contact is not None else None,
             "reference_comparison": compare_with_reference(result, gesture.reference_lip_area),
             "contact_stiffness_n_per_m": None if contact is None else contact.stiffness_n_per_m,
