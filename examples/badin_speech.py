@@ -65,8 +65,20 @@ def _model(data: Path, model_path: Path | None):
     return import_artisynth(data, progress=False)
 
 
-def play(model, gesture, out: Path, variant: str, *, fps: float, max_frames: int | None, max_step_ms: float, sim=None):
-    """Play one variant of ``gesture`` on ``model`` and write ``wface speech``'s files to ``out``."""
+def play(
+    model,
+    gesture,
+    out: Path,
+    variant: str,
+    *,
+    fps: float,
+    max_frames: int | None,
+    max_step_ms: float,
+    sim=None,
+    rig="active",
+):
+    """Play one variant of ``gesture`` on ``model`` and write ``wface speech``'s files to ``out`` (``rig``:
+    the USD's UsdSkel rig, as ``write_gesture_usd``; False for none)."""
     from wface.physics.contact import Contact
     from wface.speech import simulate_gesture, summarize
     from wface.speech.dynamic import GestureDynamics
@@ -91,7 +103,7 @@ def play(model, gesture, out: Path, variant: str, *, fps: float, max_frames: int
     write_lip_opening(out, res, model, reference=gesture.reference_lip_area)
     F = len(res.times_s)
     rate = fps if max_frames is None else max(1.0, (F - 1) / max(res.times_s[-1] - res.times_s[0], 1e-9))
-    write_gesture_usd(out / "animation.usdc", res, model, fps=rate, source=str(gesture.directory))
+    write_gesture_usd(out / "animation.usdc", res, model, fps=rate, source=str(gesture.directory), rig=rig)
     summary = summarize(res)
     summary["times_s"] = res.times_s.tolist()
     summary["oop_volume_ratio"] = oop_volume_ratio(model, res.node_positions_m)
@@ -314,7 +326,8 @@ def held_oop(
     results = {}
     for name, setup, _variant, flesh, _excitation in steps:
         model = _step_model(base, data, setup, flesh)
-        s = play(model, held, out / _slug(name), "quasistatic", fps=1.0, max_frames=None, max_step_ms=5.0)
+        # no rig: a held study's USD is for looking at the poses (OOP alone at 1 inverts the ring's tets)
+        s = play(model, held, out / _slug(name), "quasistatic", fps=1.0, max_frames=None, max_step_ms=5.0, rig=False)
         results[name] = {
             "levels": [float(v) for v in levels],
             "area_mm2": s["lip_opening_area_mm2"],
