@@ -38,6 +38,34 @@ def flesh_functions(dtype):
     M2_3, M4_3 = -2.0 / 3.0, -4.0 / 3.0  # folded in double precision (see fibre.py)
 
     @wp.func
+    def add_monomial(g: vec3, H: mat33, Tc: mat33, a: vec3, m: S, inv: vec3, delta: vec3, order: int):
+        """(g, H, Tc) plus the gradient, Hessian (order >= 2) and third derivative contracted with delta
+        (order >= 3) of the monomial m = c prod_i s_i^a_i (its value at s^; inv = 1 / s^)."""
+        g_out = g
+        H_out = H
+        T_out = Tc
+        for i in range(3):
+            g_out[i] = g_out[i] + a[i] * m * inv[i]
+        if order >= 2:
+            for i in range(3):
+                for j in range(3):
+                    dij = S(0.0)
+                    if i == j:
+                        dij = S(1.0)
+                    hij = a[i] * (a[j] - dij) * m * inv[i] * inv[j]
+                    H_out[i, j] = H_out[i, j] + hij
+                    if order >= 3:
+                        for l in range(3):
+                            dil = S(0.0)
+                            djl = S(0.0)
+                            if i == l:
+                                dil = S(1.0)
+                            if j == l:
+                                djl = S(1.0)
+                            T_out[j, l] = T_out[j, l] + delta[i] * hij * (a[l] - dil - djl) * inv[l]
+        return g_out, H_out, T_out
+
+    @wp.func
     def c20_derivatives(sh: vec3, delta: vec3, j23: S, inv: vec3, mu20: S, order: int):
         """mu20 u^2 (u = J^-2/3 I1 - 3) at s^: value, gradient, Hessian (order >= 2) and third
         derivative contracted with delta (order >= 3), from u's derivatives (module docstring)."""
@@ -50,25 +78,7 @@ def flesh_functions(dtype):
             a[k] = a[k] + S(2.0)
             m = j23 * sh[k] * sh[k]
             u = u + m
-            for i in range(3):
-                du[i] = du[i] + a[i] * m * inv[i]
-            if order >= 2:
-                for i in range(3):
-                    for j in range(3):
-                        dij = S(0.0)
-                        if i == j:
-                            dij = S(1.0)
-                        hij = a[i] * (a[j] - dij) * m * inv[i] * inv[j]
-                        ddu[i, j] = ddu[i, j] + hij
-                        if order >= 3:
-                            for l in range(3):
-                                dil = S(0.0)
-                                djl = S(0.0)
-                                if i == l:
-                                    dil = S(1.0)
-                                if j == l:
-                                    djl = S(1.0)
-                                dddu[j, l] = dddu[j, l] + delta[i] * hij * (a[l] - dil - djl) * inv[l]
+            du, ddu, dddu = add_monomial(du, ddu, dddu, a, m, inv, delta, order)
         c = S(2.0) * mu20
         H = mat33()
         Tc = mat33()
@@ -111,25 +121,7 @@ def flesh_functions(dtype):
                 a[i1] = a[i1] + S(2.0)
                 m = mu01 * j23 * j23 * sh[i0] * sh[i0] * sh[i1] * sh[i1]
             psi = psi + m
-            for i in range(3):
-                g[i] = g[i] + a[i] * m * inv[i]
-            if order >= 2:
-                for i in range(3):
-                    for j in range(3):
-                        dij = S(0.0)
-                        if i == j:
-                            dij = S(1.0)
-                        hij = a[i] * (a[j] - dij) * m * inv[i] * inv[j]
-                        H[i, j] = H[i, j] + hij
-                        if order >= 3:
-                            for l in range(3):
-                                dil = S(0.0)
-                                djl = S(0.0)
-                                if i == l:
-                                    dil = S(1.0)
-                                if j == l:
-                                    djl = S(1.0)
-                                Tc[j, l] = Tc[j, l] + delta[i] * hij * (a[l] - dil - djl) * inv[l]
+            g, H, Tc = add_monomial(g, H, Tc, a, m, inv, delta, order)
         psi = psi + S(0.5) * kappa * L * L
         for i in range(3):
             g[i] = g[i] + kappa * L * inv[i]

@@ -106,7 +106,7 @@ def write_take_usd(
     if take is None or mesh_only or not model.skin_triangles.size:
         nodes, tri = skin_mesh(model)
         frames = None if take is None else take.frames
-        stage = write_mesh_animation(
+        written = write_mesh_animation(
             path,
             points_m=positions_m[:, nodes],
             face_vertex_counts=None,
@@ -115,14 +115,14 @@ def write_take_usd(
             name=name,
             frames=frames,
         )
-        out = add_render_mesh(stage, render_mesh, positions_m, rate, name, frames=frames)
-        if edit is not None:  # a mesh alone is written by another writer: edit the saved stage
+        run = _edits(written, render_mesh, positions_m, rate, name, frames, edit)
+        if run is not None:  # a mesh alone has no edit hook in its writer: edit the saved stage once
             from pxr import Usd
 
-            saved = Usd.Stage.Open(str(out))
-            edit(saved)
-            save_layer(saved.GetRootLayer(), out)
-        return out
+            saved = Usd.Stage.Open(str(written))
+            run(saved)
+            save_layer(saved.GetRootLayer(), written)
+        return Path(written)
     T = take.n_frames
     if take.bones is not None:
         cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(b) for b in take.bones), strict=True))
@@ -142,7 +142,7 @@ def write_take_usd(
         warnings.warn(f"{path}: written without the UsdSkel rig ({exc})", RuntimeWarning, stacklevel=2)
         skel, rig_weights, rig_meshes = None, None, None
         meta["rig_skipped"] = str(exc)
-    stage = write_take(
+    written = write_take(
         path,
         edit=_edits(path, render_mesh, positions_m, rate, name, take.frames, edit),
         frames=take.frames,
@@ -162,17 +162,13 @@ def write_take_usd(
         name=name,
         metadata=meta,
     )
-    return Path(stage)
+    return Path(written)
 
 
 def _edits(path, render_mesh, positions_m, fps, name, frames, edit):
     """The edits of a take's stage before its one save: the render mesh's reference (its layer written
     first, ``add_render_mesh``'s), then ``edit``; None when there are none."""
-    layer = None
-    if render_mesh is not None:
-        layer = render_mesh_layer_path(path)
-        points = render_mesh.source_points(positions_m)
-        write_render_mesh_layer(layer, render_mesh.mesh, points, fps=fps, frames=frames)
+    layer = _render_mesh_layer(path, render_mesh, positions_m, fps, frames)
     if layer is None and edit is None:
         return None
 
@@ -239,9 +235,17 @@ def add_render_mesh(
     """With a render mesh: write it to ``<stem>_render_mesh.usdc`` in its own units and reference it
     as ``/<name>/RenderMesh`` (``wface.io.usd.render_mesh``), time codes ``frames`` (default 0..T-1)
     as on the take's stage. Returns the stage's path."""
-    if render_mesh is not None:
-        layer = render_mesh_layer_path(path)
-        points = render_mesh.source_points(positions_m)
-        write_render_mesh_layer(layer, render_mesh.mesh, points, fps=fps, frames=frames)
+    layer = _render_mesh_layer(path, render_mesh, positions_m, fps, frames)
+    if layer is not None:
         reference_render_mesh(path, layer, source_to_model=render_mesh.source_to_model, root=name)
     return Path(path)
+
+
+def _render_mesh_layer(path, render_mesh, positions_m: np.ndarray, fps: float, frames) -> Path | None:
+    """Write the render mesh's layer beside the stage at ``path`` (``render_mesh_layer_path``), its
+    points moved with ``positions_m``; its path, or None without a render mesh."""
+    if render_mesh is None:
+        return None
+    layer = render_mesh_layer_path(path)
+    write_render_mesh_layer(layer, render_mesh.mesh, render_mesh.source_points(positions_m), fps=fps, frames=frames)
+    return layer
