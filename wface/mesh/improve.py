@@ -480,8 +480,9 @@ def improve_tets(
             smallest dihedral angle (``tet_min_dihedral_deg``).
         volume_ratio_goal: with it, a tet is also worked on when its volume ratio q (``wface.mesh.
             quality.tet_volume_ratio``) is below this goal: the objective becomes the smaller of the
-            angle and goal_deg q / volume_ratio_goal (degrees), so both measures are raised together
-            (Klingner & Shewchuk's volume-length measure) and neither is traded for the other.
+            angle and goal_deg q / volume_ratio_goal (degrees; q is Klingner & Shewchuk's
+            volume-length measure), so raising the worst angle cannot sink the worst volume ratio
+            below the same fraction of its goal, and the other way round.
         operations: the local operations allowed (``OPERATIONS``). ``("smooth",)`` moves free
             interior nodes only: the tets, their order and every node id stay as they are.
         stall_rounds: stop once this many rounds in a row have not raised the worst tet (None: go on
