@@ -1,7 +1,7 @@
 """Template fitting from the imported Badin face (issue 14, point 1): onto a known warp of its own skin,
 and onto the JawMoCap neutral marker frame.
 
-    python examples/fit_badin.py --out out/fit_badin            # both fits, ~15-30 min on 2 cores
+    python examples/fit_badin.py --out out/fit_badin            # both fits, ~1 min on 2 cores
     python examples/fit_badin.py --out /tmp/fb --no-markers      # the warp alone
 
 The ArtiSynth face comes from ``$WFACE_DATA/artisynth-face`` (``WFACE_DATA`` defaulting to
@@ -11,7 +11,8 @@ skin's centroid along x / y / z and a 3 mm bump over ~4 cm, with the Badin face'
 carried by the same warp as landmarks. Printed and written to ``fit_badin.json``: the surface
 distance to the target (mean / max mm), the landmark and marker residuals, the skin's recovery
 error against the warp (mean / max mm: the fit is told only the surface and the landmarks), the
-minimum dihedral angle and volume ratio before and after, and the inverted tets.
+minimum dihedral angle and volume ratio of the template, of the interior relaxation and of the
+result (after the interior smoothing), and the inverted tets.
 """
 
 from __future__ import annotations

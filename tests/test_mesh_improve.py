@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from wface.mesh.improve import improve_tets, tet_min_dihedral_deg, tet_sine_quality_deg
-from wface.mesh.quality import dihedral_angles_deg, signed_volumes
+from wface.mesh.quality import dihedral_angles_deg, signed_volumes, volume_ratio_quality
 from wface.mesh.surface import boundary_faces
 from wface.testing.box import box_tet_mesh
 
@@ -70,6 +70,51 @@ def test_locked_nodes_do_not_move():
     assert tet_min_dihedral_deg(x2[t2]).min() > tet_min_dihedral_deg(y[t]).min()  # flips alone still help
 
 
+def test_smoothing_alone_keeps_the_tets_and_node_ids():
+    """operations=("smooth",) only moves free interior nodes: the tets (and their order), the node
+    count, the boundary and the locked nodes stay, and the worst tet still rises to the goal."""
+    y, t, inner = _perturbed_grid()
+    locked = np.zeros(len(y), dtype=bool)
+    locked[np.flatnonzero(inner)[::5]] = True
+    x2, t2, sources, rep = improve_tets(y, t, goal_deg=15.0, locked=locked, operations=("smooth",))
+    assert np.array_equal(t2, t) and len(x2) == len(y) and sources == [] and rep.added_nodes == 0
+    fixed = ~inner | locked
+    assert np.array_equal(x2[fixed], y[fixed])
+    assert rep.moved_nodes == int(np.count_nonzero(np.any(x2 != y, axis=1))) > 0
+    assert set(k for k, v in rep.operations.items() if v) == {"smooth"}
+    # measured 7.97 -> 13.9 deg (every 5th interior node locked)
+    assert tet_sine_quality_deg(y[t]).min() < 8.0 and tet_sine_quality_deg(x2[t]).min() > 13.0
+
+
+def test_a_volume_ratio_goal_raises_both_measures():
+    """Raising the smallest dihedral sine alone can leave needles and caps (low volume ratio); with a
+    volume-ratio goal the objective is the smaller of the two and both rise."""
+    y, t, _ = _perturbed_grid()
+    q0 = volume_ratio_quality(y, t).min()
+    x_a, *_ = improve_tets(y, t, goal_deg=15.0, operations=("smooth",))
+    x_b, _, _, rep = improve_tets(y, t, goal_deg=15.0, volume_ratio_goal=0.3, operations=("smooth",))
+    assert q0 < 0.1 and volume_ratio_quality(x_a, t).min() < 0.15  # measured 0.087 -> 0.105 by the angle alone
+    assert volume_ratio_quality(x_b, t).min() > 0.29  # measured 0.300
+    assert tet_sine_quality_deg(x_b[t]).min() > 15.0  # measured 16.4
+    assert rep.quality_after_deg == pytest.approx(
+        np.minimum(tet_sine_quality_deg(x_b[t]), 15.0 / 0.3 * volume_ratio_quality(x_b, t)).min()
+    )
+
+
+def test_stall_rounds_ends_when_the_worst_tet_cannot_rise():
+    """With the worst tet's nodes locked nothing raises it: stall_rounds=1 ends after the first round,
+    while without it the rounds go on as long as any other tet improves."""
+    y, t, inner = _perturbed_grid(seed=2, amplitude=0.04)
+    worst = t[np.argmin(tet_sine_quality_deg(y[t]))]
+    assert inner[worst].any()  # it has a free node, locked here
+    locked = np.zeros(len(y), dtype=bool)
+    locked[worst] = True
+    *_, rep_all = improve_tets(y, t, goal_deg=25.0, locked=locked, operations=("smooth",))
+    *_, rep_stall = improve_tets(y, t, goal_deg=25.0, locked=locked, operations=("smooth",), stall_rounds=1)
+    assert rep_all.rounds > 1 and rep_stall.rounds == 1
+    assert rep_stall.quality_after_deg == rep_all.quality_after_deg == pytest.approx(rep_all.quality_before_deg)
+
+
 def test_two_flat_tets_become_three_by_a_flip():
     """Two tets on a wide triangle with apexes 0.05 above and below it are flat (9.5 deg); the three
     tets around the apex-to-apex edge are twice as good: the 2-3 flip finds them."""
@@ -96,3 +141,7 @@ def test_bad_input_is_named():
         improve_tets(y, t, objective="radius")
     with pytest.raises(ValueError, match="locked"):
         improve_tets(y, t, locked=np.zeros(3, bool))
+    with pytest.raises(ValueError, match="operations"):
+        improve_tets(y, t, operations=("twist",))
+    with pytest.raises(ValueError, match="volume_ratio_goal"):
+        improve_tets(y, t, volume_ratio_goal=0.0)

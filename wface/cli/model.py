@@ -220,15 +220,16 @@ def _fit(args: argparse.Namespace) -> int:
     path = save_model(res.model, args.out)
     rep = res.report.as_dict()
     sd = rep["surface_distance_mm"]
-    qb, qa = rep["quality_before"], rep["quality_after"]
+    qb, qr, qa = rep["quality_before"], rep["quality_relaxed"], rep["quality_after"]
     if sd:
         say(f"surface distance to the target: mean {sd['mean']:.2f} mm, max {sd['max']:.2f} mm")
     if rep["landmark_rms_mm"] is not None:
         worst = max(rep["landmark_residual_mm"].items(), key=lambda kv: kv[1])
         say(f"landmarks: RMS {rep['landmark_rms_mm']:.2f} mm, worst {worst[0]} {worst[1]:.2f} mm")
     say(
-        f"min dihedral {qb['min_dihedral_deg']:.1f} -> {qa['min_dihedral_deg']:.1f} deg, min volume ratio "
-        f"{qb['min_volume_ratio']:.3f} -> {qa['min_volume_ratio']:.3f}, inverted tets {qa['inverted']}, "
+        f"min dihedral {qb['min_dihedral_deg']:.1f} -> {qa['min_dihedral_deg']:.1f} deg (relaxed "
+        f"{qr['min_dihedral_deg']:.1f}), min volume ratio {qb['min_volume_ratio']:.3f} -> "
+        f"{qa['min_volume_ratio']:.3f} (relaxed {qr['min_volume_ratio']:.3f}), inverted tets {qa['inverted']}, "
         f"scale {rep['scale']:.3f}"
     )
     for bone, b in rep["bones"].items():

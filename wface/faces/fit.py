@@ -14,6 +14,11 @@ section 3, morph an anatomical template to a subject's scan the same way):
    Mooney-Rivlin material, rest shape s x) with the registered skin as the only Dirichlet
    condition, in load steps: the flesh, bone side included, follows the skin with the least
    distortion, so every tet stays positive and the tissue keeps its thickness where it can.
+   The least distortion per unit volume is not the best worst tet: where the relaxation leaves
+   tets worse than the template's worst (in smallest dihedral sine or in volume ratio), the free
+   interior nodes of those tets are smoothed (``wface.mesh.improve``, smoothing alone: a compass
+   search maximising min(sine angle, goal q / q_goal) over the node's tets, Klingner & Shewchuk
+   2007). Skin, attached nodes and the rest of the boundary stay, tets and node ids are unchanged.
 4. Bones are similarity-fitted: per bone, the similarity that best maps its attached nodes from
    s x to their relaxed places (Umeyama 1991) carries its meshes and teeth; the cranium's carries
    the jaw joint (axes turned, lengths scaled). The attached nodes keep their relaxed places and
@@ -24,8 +29,8 @@ section 3, morph an anatomical template to a subject's scan the same way):
    neutral frame was given.
 
 Report (``FitReport.as_dict``): surface distance to the target (mean / max mm, template -> target
-over the paired skin), landmark residuals, min dihedral angle and volume ratio before and after,
-inverted tets (0, or the fit raises).
+over the paired skin), landmark residuals, min dihedral angle and volume ratio before (the
+template), after the relaxation and after the smoothing, inverted tets (0, or the fit raises).
 """
 
 from __future__ import annotations
@@ -40,8 +45,9 @@ import numpy as np
 from wface.faces.registration import DEFAULT_SCHEDULE, register_surface
 from wface.mesh.align import Similarity, align_to_surface, embed_markers, umeyama
 from wface.mesh.closest import SurfaceQuery
+from wface.mesh.improve import improve_tets, tet_sine_quality_deg
 from wface.mesh.meshfile import SurfaceMesh
-from wface.mesh.quality import quality_report, signed_volumes
+from wface.mesh.quality import quality_report, signed_volumes, volume_ratio_quality
 from wface.model import BoneMesh, FaceModel, JawJoint, Material, ModelError
 from wface.physics import Simulator
 
@@ -49,6 +55,8 @@ __all__ = ["FitReport", "FitResult", "fit_template", "ict_feature_landmarks", "s
 
 #: material groups of an artist head that are not skin (eyes, mouth interior, hair cards)
 NON_SKIN_GROUP_WORDS = ("eye", "iris", "sclera", "lacrimal", "lash", "teeth", "tooth", "gum", "tongue", "occlusion")
+_SMOOTH_MAX_ROUNDS = 40  # interior smoothing: passes over the tets worse than the template's worst ...
+_SMOOTH_STALL_ROUNDS = 2  # ... ending once two passes in a row leave the worst tet where it was
 _RELAX_MATERIAL = Material(mu10_pa=1.0e3, mu01_pa=0.0, kappa_pa=3.0e3)  # nu ~ 0.29: thickness may change
 
 
@@ -65,6 +73,8 @@ class FitReport:
     relaxation_steps: int
     seconds: float
     registration_history: list = field(default_factory=list)
+    quality_relaxed: dict | None = None
+    interior_smoothing: dict | None = None
 
     def as_dict(self) -> dict:
         return {
@@ -73,7 +83,9 @@ class FitReport:
             "landmark_residual_mm": self.landmark_residual_mm,
             "landmark_rms_mm": _rms(list(self.landmark_residual_mm.values())),
             "quality_before": self.quality_before,
+            "quality_relaxed": self.quality_relaxed,
             "quality_after": self.quality_after,
+            "interior_smoothing": self.interior_smoothing,
             "inverted_tets": self.quality_after["inverted"],
             "bones": self.bones,
             "relaxation_steps": self.relaxation_steps,
@@ -177,6 +189,42 @@ def _volume(template, rest_s, skin_x, *, device, solver, progress):
     return x, steps
 
 
+def _smooth_interior(template: FaceModel, x: np.ndarray) -> tuple[np.ndarray, dict]:
+    """The relaxed flesh's tets worse than the template's worst tet (in smallest dihedral sine or in
+    volume ratio) raised by moving their free interior nodes (module docstring, step 3): per node a
+    compass search maximising the smallest quality of its tets (``wface.mesh.improve``, smoothing
+    alone). The skin, the attached nodes and the rest of the boundary stay; tets and node ids are
+    unchanged. Returns (x, what it did)."""
+    x_t = template.rest_positions_m
+    goal_deg = float(tet_sine_quality_deg(x_t[template.tets]).min())
+    volume_ratio_goal = float(volume_ratio_quality(x_t, template.tets).min())
+    locked = np.zeros(len(x), dtype=bool)
+    locked[template.attached_nodes] = True
+    x_new, tets, _, rep = improve_tets(
+        x,
+        template.tets,
+        goal_deg=goal_deg,
+        volume_ratio_goal=volume_ratio_goal,
+        locked=locked,
+        operations=("smooth",),
+        max_rounds=_SMOOTH_MAX_ROUNDS,
+        stall_rounds=_SMOOTH_STALL_ROUNDS,
+    )
+    if len(x_new) != len(x) or not np.array_equal(tets, template.tets):  # smoothing never edits the tets
+        raise ModelError("template fit: the interior smoothing changed the mesh's topology")
+    return x_new, {
+        "method": "compass search of free interior nodes (wface.mesh.improve, smoothing alone)",
+        "goal_sine_deg": goal_deg,
+        "goal_volume_ratio": volume_ratio_goal,
+        "below_goal_before": rep.below_goal_before,
+        "below_goal_after": rep.below_goal_after,
+        "moved_nodes": rep.moved_nodes,
+        "moves": rep.operations["smooth"],
+        "rounds": rep.rounds,
+        "seconds": rep.seconds,
+    }
+
+
 def _bone_similarities(template: FaceModel, rest_s: np.ndarray, x: np.ndarray) -> dict[str, Similarity]:
     """Per bone, the similarity that best maps its attached nodes from the scaled template to the
     fitted flesh (Umeyama 1991); the identity for a bone without attached nodes."""
@@ -277,6 +325,7 @@ def fit_template(
     markers_m: np.ndarray | None = None,
     marker_names: list[str] | None = None,
     schedule: tuple[tuple[float, int], ...] = DEFAULT_SCHEDULE,
+    smooth_interior: bool = True,
     device: str = "cpu",
     solver: str = "auto",
     progress=None,
@@ -293,6 +342,8 @@ def fit_template(
         marker_names: the k marker names; with ``surface`` they only replace the template's
             markers (rigidly aligned to the fitted skin), without it they drive the fit.
         schedule: the registration's (alpha, iterations) stages.
+        smooth_interior: move free interior nodes after the relaxation to raise the worst tets
+            (module docstring, step 3); False keeps the relaxed places.
         device, solver: of the interior relaxation (``wface.physics.Simulator``).
         progress: optional callable(str) for progress lines.
 
@@ -338,6 +389,14 @@ def fit_template(
     )
     x, steps = _volume(template, rest_s, reg.vertices_m, device=device, solver=solver, progress=say)
     x[skin] = reg.vertices_m[skin]
+    quality_relaxed = quality_report(x, template.tets).as_dict()
+    smoothing = None
+    if smooth_interior:
+        x, smoothing = _smooth_interior(template, x)
+        say(
+            f"interior smoothing: {smoothing['moved_nodes']} free node(s) moved, tets below the template's worst "
+            f"{smoothing['below_goal_before']} -> {smoothing['below_goal_after']}, {smoothing['seconds']:.1f} s"
+        )
     bone_sim = _bone_similarities(template, rest_s, x)
     emb = embed_markers(template.marker_positions_m, x_t, skin_tri)
     mk_names, mk_pos = list(template.marker_names), emb.marker_positions(x, skin_tri)
@@ -361,6 +420,8 @@ def fit_template(
         relaxation_steps=steps,
         seconds=time.perf_counter() - t0,
         registration_history=reg.history,
+        quality_relaxed=quality_relaxed,
+        interior_smoothing=smoothing,
     )
     if report.quality_after["inverted"]:
         raise ModelError(f"template fit left {report.quality_after['inverted']} inverted tet(s)")

@@ -26,7 +26,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ImproveReport", "improve_tets", "tet_min_dihedral_deg", "tet_sine_quality_deg"]
+from wface.mesh.quality import tet_volume_ratio
+
+__all__ = ["OPERATIONS", "ImproveReport", "improve_tets", "tet_min_dihedral_deg", "tet_sine_quality_deg"]
 
 _PAIRS = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))  # faces opposite vertex i and j share an edge
 _TET_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
@@ -270,10 +272,15 @@ def _compass_search(
     return best_p, best
 
 
+#: the local operations, in the order they are tried on a tet
+OPERATIONS = ("edge_removal", "flip23", "smooth", "split")
+
+
 class _Improver:
-    def __init__(self, mesh: _Mesh):
+    def __init__(self, mesh: _Mesh, operations: tuple[str, ...] = OPERATIONS):
         self.m = mesh
-        self.ops = {"edge_removal": 0, "flip23": 0, "smooth": 0, "split": 0}
+        self.enabled = frozenset(operations)
+        self.ops = dict.fromkeys(OPERATIONS, 0)
 
     def quality_of(self, tets: list[tuple[int, ...]]) -> float:
         if not tets:
@@ -421,20 +428,31 @@ class _Improver:
     def improve_tet(self, ti: int) -> bool:
         m = self.m
         t = m.tets[ti]
+        on = self.enabled
         edges = sorted(((t[i], t[j]) for i, j in _TET_EDGES), key=lambda e: -np.linalg.norm(m.x[e[0]] - m.x[e[1]]))
-        for a, b in edges:
-            if self.try_edge_removal(a, b):
-                return True
-        for f in ((t[1], t[2], t[3]), (t[0], t[2], t[3]), (t[0], t[1], t[3]), (t[0], t[1], t[2])):
-            if self.try_flip23(f):
-                return True
-        for v in t:
-            if self.try_smooth(v):
-                return True
-        for a, b in edges:
-            if self.try_split(a, b):
-                return True
-        return False
+        if "edge_removal" in on and any(self.try_edge_removal(a, b) for a, b in edges):
+            return True
+        faces = ((t[1], t[2], t[3]), (t[0], t[2], t[3]), (t[0], t[1], t[3]), (t[0], t[1], t[2]))
+        if "flip23" in on and any(self.try_flip23(f) for f in faces):
+            return True
+        if "smooth" in on and any(self.try_smooth(v) for v in t):
+            return True
+        return "split" in on and any(self.try_split(a, b) for a, b in edges)
+
+
+def _with_volume_ratio(angle_score, goal_deg: float, volume_ratio_goal: float | None):
+    """The objective: ``angle_score`` alone, or the smaller of it and goal_deg q / volume_ratio_goal."""
+    if volume_ratio_goal is None:
+        return angle_score
+    if not volume_ratio_goal > 0:
+        raise ValueError(f"volume_ratio_goal must be positive, got {volume_ratio_goal!r}")
+    scale = goal_deg / volume_ratio_goal
+
+    def score(p: np.ndarray) -> np.ndarray:
+        a = angle_score(p)
+        return np.where(a > 0, np.minimum(a, scale * tet_volume_ratio(p)), -1.0)
+
+    return score
 
 
 def improve_tets(
@@ -445,6 +463,9 @@ def improve_tets(
     locked: np.ndarray | None = None,
     max_rounds: int = 12,
     objective: str = "sine",
+    volume_ratio_goal: float | None = None,
+    operations: tuple[str, ...] = OPERATIONS,
+    stall_rounds: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int]], ImproveReport]:
     """Improve the dihedral angles of a positively oriented tet mesh by local operations.
 
@@ -457,6 +478,16 @@ def improve_tets(
         objective: "sine" (default): keep every dihedral angle within [goal, 180 - goal]
             (``tet_sine_quality_deg``: removes slivers without making caps); "min": only raise the
             smallest dihedral angle (``tet_min_dihedral_deg``).
+        volume_ratio_goal: with it, a tet is also worked on when its volume ratio q (``wface.mesh.
+            quality.tet_volume_ratio``) is below this goal: the objective becomes the smaller of the
+            angle and goal_deg q / volume_ratio_goal (degrees; q is Klingner & Shewchuk's
+            volume-length measure), so raising the worst angle cannot sink the worst volume ratio
+            below the same fraction of its goal, and the other way round.
+        operations: the local operations allowed (``OPERATIONS``). ``("smooth",)`` moves free
+            interior nodes only: the tets, their order and every node id stay as they are.
+        stall_rounds: stop once this many rounds in a row have not raised the worst tet (None: go on
+            while any operation succeeds, up to ``max_rounds``). Local moves can trade tets near the
+            goal against each other for many rounds after the worst one has stopped rising.
 
     Returns:
         (x (n', 3) with added nodes appended (moved interior nodes keep their ids), tets (m', 4)
@@ -474,14 +505,18 @@ def improve_tets(
     scores = {"sine": tet_sine_quality_deg, "min": tet_min_dihedral_deg}
     if objective not in scores:
         raise ValueError(f"objective must be one of {sorted(scores)}, got {objective!r}")
-    score = scores[objective]
+    unknown = set(operations) - set(OPERATIONS)
+    if unknown or not operations:
+        raise ValueError(f"operations must be a non-empty subset of {OPERATIONS}, got {tuple(operations)!r}")
+    score = _with_volume_ratio(scores[objective], goal_deg, volume_ratio_goal)
     q0 = score(x[tets])
     if np.any(q0 < 0):
         raise ValueError(f"{int(np.sum(q0 < 0))} tets are flat or inverted (e.g. tet {int(np.argmin(q0))})")
     mesh = _Mesh(x, tets, ~locked, score)
-    work = _Improver(mesh)
+    work = _Improver(mesh, tuple(operations))
     rounds = 0
     failed: dict[int, int] = {}  # tet -> mesh.clock when no operation improved it
+    worst_so_far, stalled = -np.inf, 0
     for rounds in range(1, max_rounds + 1):
         mesh.fill_quality()
         bad = [ti for ti, t in enumerate(mesh.tets) if t is not None and mesh.q(ti) < goal_deg]
@@ -489,6 +524,12 @@ def improve_tets(
             rounds -= 1
             break
         bad.sort(key=mesh.q)
+        if stall_rounds is not None:  # the worst tet is the first of the round
+            stalled = stalled + 1 if mesh.q(bad[0]) <= worst_so_far + 1e-6 else 0
+            worst_so_far = max(worst_so_far, mesh.q(bad[0]))
+            if stalled >= stall_rounds:
+                rounds -= 1
+                break
         changed = 0
         for ti in bad:
             if mesh.tets[ti] is None or mesh.q(ti) >= goal_deg:

@@ -17,6 +17,7 @@ __all__ = [
     "dihedral_angles_deg",
     "quality_report",
     "signed_volumes",
+    "tet_volume_ratio",
     "volume_ratio_quality",
 ]
 
@@ -58,14 +59,18 @@ def dihedral_angles_deg(x: np.ndarray, tets: np.ndarray, *, chunk: int = 200_000
     return out
 
 
+def tet_volume_ratio(p: np.ndarray) -> np.ndarray:
+    """q = 6 sqrt(2) V / l_rms^3 of tets given by corners p (..., 4, 3): (...,) in [0, 1], 1 for the
+    regular tet, negative for inverted ones."""
+    e1, e2, e3 = p[..., 1, :] - p[..., 0, :], p[..., 2, :] - p[..., 0, :], p[..., 3, :] - p[..., 0, :]
+    vol6 = np.einsum("...k,...k->...", e1, np.cross(e2, e3))
+    l2 = sum(np.einsum("...k,...k->...", d, d) for d in (p[..., j, :] - p[..., i, :] for i, j in _EDGES))
+    return np.sqrt(2.0) * vol6 / np.sqrt(l2 / 6.0) ** 3
+
+
 def volume_ratio_quality(x: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """(m,) q = 6 sqrt(2) V / l_rms^3 in [0, 1] (negative for inverted tets)."""
-    p = x[tets]
-    l2 = np.zeros(len(tets))
-    for i, j in _EDGES:
-        l2 += np.sum((p[:, j] - p[:, i]) ** 2, axis=1)
-    l_rms = np.sqrt(l2 / 6.0)
-    return 6.0 * np.sqrt(2.0) * signed_volumes(x, tets) / l_rms**3
+    return tet_volume_ratio(x[tets])
 
 
 @dataclass
