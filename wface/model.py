@@ -38,6 +38,7 @@ __all__ = [
     "load_model",
     "model_sha256",
     "save_model",
+    "without_timings",
 ]
 
 # 2: the material may carry mu20_pa or fibre_stress. 3: the model has pressure actuators. A model
@@ -50,6 +51,16 @@ BONES = ("cranium", "jaw")  # bone ids 0 and 1 in attachment arrays
 
 class ModelError(ValueError):
     """A face model is inconsistent; the message names the problem and where it is."""
+
+
+def without_timings(report):
+    """A report as a model's metadata keeps it: every "seconds" entry (wall-clock time, at any depth)
+    left out, so the same inputs make the same model and ``model_sha256`` (a take's provenance)."""
+    if isinstance(report, dict):
+        return {k: without_timings(v) for k, v in report.items() if k != "seconds"}
+    if isinstance(report, list):
+        return [without_timings(v) for v in report]
+    return report
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from wface.basis.core import ActuationBasis
-from wface.takes.shapes import muscle_shapes, shape_weights
+from wface.takes.shapes import muscle_shapes, shape_names
 
 __all__ = ["basis_from_face"]
 
@@ -23,7 +23,7 @@ def basis_from_face(
     """Basis of a ``FaceModel``'s skin with one element per muscle (all muscles by default; a pressure
     actuator's two shapes)."""
 
-    names = shape_weights(model, np.zeros((1, model.n_muscles)))[0] if muscles is None else list(muscles)
+    names = shape_names(model) if muscles is None else list(muscles)
     skin_nodes, shapes = muscle_shapes(  # the physics lives in wface.takes.shapes (also the take's USD rig)
         model, muscles=names, activation=activation, simulator=simulator, progress=progress
     )

@@ -54,6 +54,7 @@ __all__ = [
     "muscle_shapes",
     "render_mesh_rig",
     "shape_channel",
+    "shape_names",
     "shape_weights",
     "skin_rig",
 ]
@@ -103,6 +104,12 @@ def shape_channel(model: FaceModel, name: str) -> tuple[int, float]:
     if base != name and base in model.pressure_actuators:
         return model.muscle_index(base), -1.0
     return model.muscle_index(name), 1.0
+
+
+def shape_names(model: FaceModel) -> list[str]:
+    """Every shape a rig of ``model`` can have, in order: each muscle, and after a pressure actuator
+    its suction shape."""
+    return shape_weights(model, np.zeros((1, model.n_muscles)))[0]
 
 
 def shape_weights(model: FaceModel, activations: np.ndarray, *, active: float | None = None) -> tuple[list, np.ndarray]:
@@ -250,12 +257,13 @@ def skin_rig(
 
     Args:
         model: the face.
-        muscles: the muscles to give shapes (default all, in the model's order).
+        muscles: the shapes to give (default ``shape_names(model)``: every muscle in the model's
+            order, a pressure actuator's suction shape after it).
         jaw: add the jaw weights and corrective (two more solves).
         simulator: a ``Simulator`` of ``model`` to reuse.
         progress: show a progress bar over the muscles' solves.
     """
-    names = list(model.muscle_names) if muscles is None else list(muscles)
+    names = shape_names(model) if muscles is None else list(muscles)
     cache = _solved(model, names, jaw, simulator, progress)
     skin_nodes = np.unique(model.skin_triangles)
     rest, deltas, weights, names, theta_max = _rig_on(model, lambda x: x[skin_nodes], names, jaw, cache)
@@ -289,7 +297,7 @@ def render_mesh_rig(
     formulas on its vertices, so it is exact where the skin rig is. Rest points and shapes are in
     the mesh file's frame and units; ``bind_transform`` is the placement (file -> model metres).
     """
-    names = list(model.muscle_names) if muscles is None else list(muscles)
+    names = shape_names(model) if muscles is None else list(muscles)
     cache = _solved(model, names, jaw, simulator, progress)
     rest, deltas, weights, names, theta_max = _rig_on(model, render_mesh.binding.positions, names, jaw, cache)
     m = np.asarray(render_mesh.source_to_model, dtype=np.float64)
