@@ -10,8 +10,10 @@ split into its component along the model's outward skin normal there (puffing ou
 the rest. Against it, what the muscles can do: the outward motion of each cheek marker when every
 muscle that pushes it outward at rest (n . dm/da_i > 0, from the rig's Jacobian) is fully active
 at once, solved as one nonlinear equilibrium with the jaw closed; that bounds the outward motion
-any combination of activations in [0, 1] makes near rest. Writes ``cheek_puff.png`` (the outward
-motion per frame against that bound) and ``cheek_puff.json``.
+any combination of activations in [0, 1] makes near rest. With the face's intra-oral pressure
+(``intraoral_pressure``, docs/design.md "Intra-oral pressure"; the muscles' bound leaves it out)
+also each marker's motion at full pressure (+1) and full suction (-1). Writes ``cheek_puff.png``
+(the outward motion per frame against those reaches) and ``cheek_puff.json``.
 """
 
 from __future__ import annotations
@@ -63,7 +65,8 @@ def analyse(model, take, frames: int) -> dict:
     state = rig.equilibrium(c0)
     J = cap.markers.jacobian(rig.jacobian(state, cap.markers.nodes)).reshape(len(take.marker_names), 3, -1)
     M = model.n_muscles
-    push = np.einsum("cdp,cd->cp", J[cheeks, :, :M], normals)  # (c, M) outward m per unit activation
+    fibre = np.array([n not in model.pressure_actuators for n in model.muscle_names])
+    push = np.einsum("cdp,cd->cp", J[cheeks, :, :M], normals) * fibre  # (c, M) outward m per unit activation
     linear_bound_mm = np.clip(push, 0, None).sum(axis=1) * 1e3
     pushers = np.flatnonzero((push > 0).any(axis=0))
     best = {}
@@ -75,6 +78,15 @@ def analyse(model, take, frames: int) -> dict:
         moved = cap.markers.positions(s.x_m)[cheeks[j]] - rest_m[j]
         best[name] = float(moved @ normals[j] * 1e3)
     names = [take.marker_names[i] for i in cheeks]
+    pressure = {}
+    if "intraoral_pressure" in model.pressure_actuators:
+        for a in (1.0, -1.0):
+            c = c0.copy()
+            c[model.muscle_index("intraoral_pressure")] = a
+            moved = cap.markers.positions(rig.equilibrium(c, state.y_m).x_m)[cheeks] - rest_m
+            pressure["puff" if a > 0 else "suck"] = dict(
+                zip(names, (np.einsum("cd,cd->c", moved, normals) * 1e3).tolist(), strict=True)
+            )
     return {
         "frames": int(len(pos)),
         "cheek_markers": names,
@@ -85,6 +97,7 @@ def analyse(model, take, frames: int) -> dict:
         "model_outward_linear_bound_mm": dict(zip(names, linear_bound_mm.tolist(), strict=True)),
         "model_outward_all_pushers_on_mm": best,
         "muscles_pushing_a_cheek_outward": [model.muscle_names[i] for i in pushers],
+        "pressure_outward_mm": pressure,
         "outward_mm": outward_mm.tolist(),
         "fps": take.rate_hz,
     }
@@ -102,9 +115,14 @@ def plot(path: Path, res: dict) -> Path:
     for j, name in enumerate(res["cheek_markers"]):
         (line,) = ax.plot(t, out[:, j], lw=1.0, label=f"{name} (capture)")
         ax.axhline(res["model_outward_all_pushers_on_mm"][name], color=line.get_color(), ls="--", lw=0.8)
+        for reach in res["pressure_outward_mm"].values():
+            ax.axhline(reach[name], color=line.get_color(), ls=":", lw=0.8)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("outward motion along the skin normal (mm)")
-    ax.set_title("CheeksMoCap: cheek markers vs the muscles' reach (dashed: every outward-pushing muscle at 1)")
+    title = "CheeksMoCap: cheek markers vs the muscles' reach (dashed: every outward-pushing muscle at 1"
+    ax.set_title(
+        title + ("; dotted: intra-oral pressure at +1 / -1)" if res["pressure_outward_mm"] else ")"), fontsize=9
+    )
     ax.legend(fontsize=7, ncol=2)
     ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -133,6 +151,7 @@ def main(argv: list[str] | None = None) -> int:
             f"(p95 {res['capture_outward_p95_mm'][name]:.1f}), inward max {res['capture_inward_max_mm'][name]:.1f}; "
             f"muscles at most {res['model_outward_all_pushers_on_mm'][name]:.2f} mm outward "
             f"(linear bound {res['model_outward_linear_bound_mm'][name]:.2f})"
+            + "".join(f"; pressure {k} {v[name]:+.1f} mm" for k, v in res["pressure_outward_mm"].items())
         )
     return 0
 

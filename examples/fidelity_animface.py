@@ -47,9 +47,11 @@ def data_dir() -> Path:
     return Path(os.environ.get("WFACE_DATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "data"))
 
 
-def pinned_shares(activations: np.ndarray, names: list[str]) -> tuple[dict, dict]:
-    """({muscle: share of frames at the upper bound}, {muscle: share at 0}) for muscles that ever touch it."""
-    hi = (activations >= _PINNED).mean(axis=0)
+def pinned_shares(activations: np.ndarray, names: list[str], signed: tuple[str, ...] = ()) -> tuple[dict, dict]:
+    """({muscle: share of frames at the upper bound}, {muscle: share at 0}) for muscles that ever touch it;
+    a ``signed`` channel (the intra-oral pressure) counts as pinned at either end, -1 or 1."""
+    is_signed = np.isin(names, signed)
+    hi = np.where(is_signed, np.abs(activations) >= _PINNED, activations >= _PINNED).mean(axis=0)
     lo = (activations <= 1.0 - _PINNED).mean(axis=0)
     return (
         {n: float(v) for n, v in zip(names, hi, strict=True) if v > 0},
@@ -83,7 +85,7 @@ def run_one(face, take, frames, holdout: str, out: Path, workers: int) -> dict:
     used = np.sqrt(np.nanmean(err**2, axis=1))
     hold = holdout_report(records, cap.targets_m, hidden, take.marker_names)
     acts = np.array([r.controls[: face.n_muscles] for r in records])
-    hi, lo = pinned_shares(acts, face.muscle_names)
+    hi, lo = pinned_shares(acts, face.muscle_names, tuple(face.pressure_actuators))
     result = {
         "frames": len(records),
         "tets": face.n_tets,
@@ -125,14 +127,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--takes", default=",".join(TAKES), help="comma-separated: Jaw, Nose, Cheeks, Eyebrows")
     p.add_argument("--faces", default="builtin,fitted", help="builtin, fitted or both (default both)")
     p.add_argument("--tets", type=int, default=20000, help="size of the built-in face (default 20000)")
-    p.add_argument("--frames", type=int, default=300, help="track file frames 0:FRAMES (default 300)")
+    p.add_argument("--frames", type=int, default=300, help="track file frames START:FRAMES (default 300)")
+    p.add_argument("--start", type=int, default=0, help="first file frame tracked (default 0; the neutral stays 0)")
     p.add_argument("--step", type=int, default=10, help="every STEP-th of them (default 10; 1 for all)")
     p.add_argument("--holdout", default="5", help="hidden markers: every Nth by height, or names (default 5)")
     p.add_argument("--workers", type=int, default=1, help="Dask workers per take (default 1)")
+    p.add_argument(
+        "--no-pressure",
+        action="store_true",
+        help="faces without the intra-oral pressure actuator (the muscles alone; results keyed '<face>-nopressure')",
+    )
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    template = build_face(args.tets)
+    template = build_face(args.tets, intraoral_pressure=not args.no_pressure)
     results_path = out / "fidelity.json"
     results = json.loads(results_path.read_text()) if results_path.exists() else {}
     for name in [t.strip() for t in args.takes.split(",") if t.strip()]:
@@ -140,7 +148,9 @@ def main(argv: list[str] | None = None) -> int:
         if not path.exists():
             raise FileNotFoundError(f"{path} not found (set WFACE_DATA to the shared data folder)")
         take = read_mocap(path)
-        frames = np.arange(0, min(args.frames, take.n_frames), args.step)
+        frames = np.arange(args.start, min(args.frames, take.n_frames), args.step)
+        if not len(frames):
+            raise ValueError(f"no frames in {args.start}:{args.frames}:{args.step} of {take.n_frames}")
         for face_name in [f.strip() for f in args.faces.split(",") if f.strip()]:
             if face_name == "fitted":
                 face = fit_template(template, markers_m=take.positions_m[0], marker_names=take.marker_names).model
@@ -148,9 +158,10 @@ def main(argv: list[str] | None = None) -> int:
                 face = template
             else:
                 raise ValueError(f"unknown face {face_name!r} (builtin or fitted)")
-            key = f"{name}/{face_name}"
+            key = f"{name}/{face_name}" + ("-nopressure" if args.no_pressure else "")
             print(f"{key}: {len(frames)} frames, {face.n_tets} tets")
-            results[key] = run_one(face, take, frames, args.holdout, out / f"{name}_{face_name}", args.workers)
+            run_dir = out / key.replace("/", "_")  # one take directory per take, face and variant
+            results[key] = run_one(face, take, frames, args.holdout, run_dir, args.workers)
             print(
                 f"{key}: used {results[key]['marker_rms_mm_mean']:.2f} mm, held out "
                 f"{results[key]['holdout_rms_mm_mean']:.2f} mm, pinned {results[key]['pinned_high_over_10pct']}"

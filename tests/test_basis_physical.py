@@ -54,4 +54,6 @@ def test_cli_from_face(tmp_path):
     out = tmp_path / "fem_basis.npz"
     assert main(["basis", "from-face", "--tets", "1500", "--out", str(out)]) == 0
     basis = load_basis(out)
-    assert basis.n_elements == 35 and np.abs(basis.shapes_m).max() > 1e-3
+    # 35 muscles and the intra-oral pressure's two shapes (puff, suction: a basis weight is >= 0)
+    assert basis.n_elements == 37 and np.abs(basis.shapes_m).max() > 1e-3
+    assert basis.names[-2:] == ["intraoral_pressure", "intraoral_pressure_suction"]

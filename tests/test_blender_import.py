@@ -86,10 +86,13 @@ def stages(tmp_path_factory, blender):
     assert main([*track, *small, "--no-pictures"]) == 0
     edit = ["edit", "exaggerate", "--take", str(root / "track"), "--factor", "1.5", "--out", str(root / "edit")]
     assert main([*edit, *small, "--no-pictures"]) == 0
+    # the cheeks sucked in (AU35: the intra-oral pressure at -0.8, a signed channel): the rig's suction shape
+    suck = ["edit", "layer", "--take", str(root / "track"), "--add", "AU35=1", "--weight", "0.8"]
+    assert main([*suck, "--out", str(root / "suck"), *small, "--no-pictures"]) == 0
     assert main(["resim", "--take", str(root / "track"), "--out", str(root / "resim"), *small, "--substeps", "2"]) == 0
     waters = ["waters", "--mesh", "builtin", "--expression", "happy", "--blend-to", "surprise", "--frames", "3"]
     assert main([*waters, *small, "--no-render", "--out", str(root / "waters")]) == 0
-    paths = {k: root / k / "animation.usdc" for k in ("demo", "track", "edit", "resim")}
+    paths = {k: root / k / "animation.usdc" for k in ("demo", "track", "edit", "resim", "suck")}
     paths["waters"] = root / "waters" / "happy_to_surprise.usdc"
     run = subprocess.run([blender, str(_PROBE), *map(str, paths.values())], capture_output=True, text=True, timeout=600)
     probes = [json.loads(ln[6:]) for ln in run.stdout.splitlines() if ln.startswith("PROBE ")]
@@ -133,7 +136,7 @@ def _usd_facts(path: Path) -> dict:
     return facts
 
 
-@pytest.mark.parametrize("command", ["demo", "track", "edit", "resim", "waters"])
+@pytest.mark.parametrize("command", ["demo", "track", "edit", "resim", "waters", "suck"])
 def test_every_mesh_deforms_and_the_scene_range_is_the_capture(stages, command):
     path, probe = stages[command]
     facts = _usd_facts(path)
@@ -158,26 +161,45 @@ def test_track_keeps_the_capture_frame_numbers(stages):
     assert stage.GetTimeCodesPerSecond() == 30.0
 
 
-@pytest.mark.parametrize("command", ["demo", "track", "edit", "resim"])
+def _shape_curves(muscles: list[str], activations: np.ndarray) -> tuple[list[str], np.ndarray]:
+    """(shape names, (T, B) weights) the rig drives: a muscle's activation; a signed actuator's
+    positive part and its suction part (``wface.takes.shapes.shape_weights``), each with its own key."""
+    from wface.facs import ACTUATORS
+    from wface.takes.shapes import SUCTION_SUFFIX
+
+    names, cols = [], []
+    for m, name in enumerate(muscles):
+        names.append(name)
+        cols.append(np.maximum(activations[:, m], 0.0))
+        if name in ACTUATORS:
+            names.append(name + SUCTION_SUFFIX)
+            cols.append(np.maximum(-activations[:, m], 0.0))
+    return names, np.stack(cols, axis=1)
+
+
+@pytest.mark.parametrize("command", ["demo", "track", "edit", "resim", "suck"])
 def test_shape_keys_follow_the_activation_curves(stages, command):
     path, probe = stages[command]
     facts = _usd_facts(path)
     rig = probe["objects"]["SkinRig"]
     assert rig["shape_keys"], f"{command}: no shape keys on the rig"
     frames = range(probe["frame_start"], probe["frame_end"] + 1)
-    used = [n for m, n in enumerate(facts["muscles"]) if facts["activations"][:, m].max() > 1e-6]
+    shapes, curves = _shape_curves(facts["muscles"], np.minimum(facts["activations"], 1.0))
+    used = [n for b, n in enumerate(shapes) if curves[:, b].max() > 1e-6]
     assert set(rig["shape_keys"][0]) == {*used, "jaw_open"}  # a key per muscle the take uses, plus the jaw
     for i, (f, keys) in enumerate(zip(frames, rig["shape_keys"], strict=True)):
         for name in used:
-            m = facts["muscles"].index(name)
-            assert keys[name] == pytest.approx(facts["activations"][i, m], abs=_KEY_TOL), (command, f, name)
+            assert keys[name] == pytest.approx(curves[i, shapes.index(name)], abs=_KEY_TOL), (command, f, name)
         assert keys["jaw_open"] == pytest.approx(facts["weights"][float(f)]["jaw_open"], abs=_KEY_TOL)
+    if command == "suck":
+        assert "intraoral_pressure_suction" in used  # the suction shape, driven by -a >= 0
     values = np.array([[k[n] for n in used] for k in rig["shape_keys"]])
     assert np.ptp(values, axis=0).max() > 1e-3, f"{command}: the curves do not vary, so the test shows nothing"
     if command == "track":  # the tracked curves themselves
         act = np.load(path.parent / "controls.npz")["activations"]
-        cols = [facts["muscles"].index(n) for n in used]
-        np.testing.assert_allclose(values, np.minimum(act[:, cols], 1.0), atol=_KEY_TOL)
+        tracked_shapes, tracked = _shape_curves(facts["muscles"], np.minimum(act, 1.0))
+        cols = [tracked_shapes.index(n) for n in used]
+        np.testing.assert_allclose(values, tracked[:, cols], atol=_KEY_TOL)
 
 
 def test_the_render_mesh_in_the_rig_animates_in_blender(stages):

@@ -121,3 +121,11 @@ def test_missing_and_foreign_files(tmp_path):
 def test_jaw_joint_checks():
     with pytest.raises(ModelError, match="orthogonal"):
         JawJoint((1, 0, 0), (0.6, 0.8, 0), (0, 0, 0), 0.1, 0.01, 0.5).validate()
+
+
+def test_model_metadata_keeps_no_wall_clock_times():
+    """A fit or an import reports its time, but the model it writes must hash the same each run."""
+    from wface.model import without_timings
+
+    report = {"seconds": 3.2, "a": {"seconds": 1.0, "b": [{"seconds": 2.0, "c": 1}]}, "d": 4}
+    assert without_timings(report) == {"a": {"b": [{"c": 1}]}, "d": 4}

@@ -22,6 +22,10 @@ def setup():
     M = model.n_muscles
     rng = np.random.default_rng(0)
     c[:M] = rng.uniform(0.1, 0.4, size=M)  # interior activations: no bound kinks
+    # The cranium check below rotates the world-frame solve, which needs a rotation-invariant energy:
+    # the intra-oral pressure's dead load is fixed in the cranium frame, so it is off here (its
+    # column is still checked: it does not depend on its own value).
+    c[model.muscle_index("intraoral_pressure")] = 0.0
     c[M + 12 :] = jaw_from_intuitive(model.jaw_joint, 8.0, 0.003, 1.0)
     rot = np.linalg.qr(np.eye(3) + 0.05 * rng.normal(size=(3, 3)))[0]
     rot *= np.sign(np.linalg.det(rot))
@@ -30,7 +34,9 @@ def setup():
     return model, rig, c, state, rig.jacobian(state)
 
 
-@pytest.mark.parametrize("which", ["zygomaticus_major_l", "orbicularis_oris_lower", "mentalis_r", 0, 4, 8, 9, 11])
+@pytest.mark.parametrize(
+    "which", ["zygomaticus_major_l", "orbicularis_oris_lower", "mentalis_r", "intraoral_pressure", 0, 4, 8, 9, 11]
+)
 def test_columns_match_central_differences(setup, which):
     model, rig, c, state, J = setup
     M = model.n_muscles

@@ -12,7 +12,7 @@ from wface.controls import IDENTITY_BONES, bone_affines, jaw_from_intuitive, jaw
 from wface.faces.builtin import build_face  # noqa: E402
 from wface.io.usd import blendshape_points, rig_points  # noqa: E402
 from wface.takes import Take, simulate_poses, write_take_usd  # noqa: E402
-from wface.takes.shapes import JAW_SHAPE, skin_rig  # noqa: E402
+from wface.takes.shapes import JAW_SHAPE, shape_weights, skin_rig  # noqa: E402
 
 _F32_M = 2e-7  # float32 storage of ~0.1 m coordinates, a few ulps
 _SOLVE_M = 1e-8  # the quasistatic solves converge to a relative residual of 1e-6: ~1e-8 m on this face
@@ -63,7 +63,7 @@ def test_usd_skinning_equals_rig_points(tmp_path, face, rig):
         pts = Vt.Vec3fArray.FromNumpy(blendshape_points(stage, str(mesh.GetPath()), float(t)).astype(np.float32))
         assert skinning.ComputeSkinnedPoints(skel_query.ComputeSkinningTransforms(code), pts, code)
         C, J = bone_affines(take.bones[i])
-        w = np.concatenate([a[i], [[0.0, 6.0, 12.0][i] / theta_max]])[None]
+        w = np.concatenate([shape_weights(face, a[i : i + 1])[1][0], [[0.0, 6.0, 12.0][i] / theta_max]])[None]
         np.testing.assert_allclose(np.asarray(pts), rig_points(rig, w, C[None], J[None])[0], atol=5 * _F32_M)
 
 
@@ -114,7 +114,7 @@ def test_a_mesh_carried_by_the_skin_joins_the_rig(tmp_path, face, rig):
     a[1, face.muscle_index("zygomaticus_major_r")] = 0.7
     take = _take(face, a, [0.0, 10.0], [0.0, 5.0])
     C, J = (np.stack(p) for p in zip(*(bone_affines(b) for b in take.bones), strict=True))
-    w = np.column_stack([a, [0.0, 10.0 / rig.info["jaw_open_full_deg"]]])
+    w = np.column_stack([shape_weights(face, a)[1], [0.0, 10.0 / rig.info["jaw_open_full_deg"]]])
     x = np.repeat(face.rest_positions_m[None], 2, axis=0)
     path = write_take(
         tmp_path / "r.usda",
@@ -245,7 +245,7 @@ def test_the_render_mesh_joins_the_rig_in_its_own_units(tmp_path, face, rig):
     skel_query = cache.GetSkelQuery(UsdSkel.BindingAPI(prim).GetInheritedSkeleton())
     rm_rig = render_mesh_rig(face, rm)
     C, J = (np.stack(p) for p in zip(*(bone_affines(b) for b in take.bones), strict=True))
-    w = np.column_stack([a, np.array(jaw_deg) / theta_max])
+    w = np.column_stack([shape_weights(face, a)[1], np.array(jaw_deg) / theta_max])
     expected = rig_points(rm_rig, w, C, J)
     exact = np.stack([rm.model_points(f) for f in x])
     for f in range(4):

@@ -7,7 +7,7 @@ Mm X + tm); world positions are X = Mc Y + tc. For a rigid Mc this is exact (the
 rotation invariant), and it makes a pure cranium motion move every node rigidly.
 
 Penalties phi_p (all with analytic gradient and Hessian):
-- activation bounds: sum_i (min{0, a_i, 1 - a_i})^2;
+- activation bounds: sum_i (min{0, a_i - l_i, 1 - a_i})^2 (l_i = 0, or -1 for a pressure actuator);
 - rigidity: ||M^T M - I||_F^2 for Mc and Mm (Hessian projected to PSD);
 - jaw joint (docs/design.md, "Controls and the jaw joint"): psi1 = w.Mm u = 0; psi2 = w.(Mm m + tm - m) = 0;
   psi3 = u.(Mm m + tm - m) = 0; psi4 = v.[Mm (m - l/2 u) + tm - m] in [0, d];
@@ -232,12 +232,13 @@ class Penalty:
     hessian: np.ndarray
 
 
-def activation_penalty(a: np.ndarray) -> Penalty:
-    """sum_i (min{0, a_i, 1 - a_i})^2 with gradient and (diagonal) Hessian."""
+def activation_penalty(a: np.ndarray, lower: np.ndarray | float = 0.0) -> Penalty:
+    """sum_i (min{0, a_i - lower_i, 1 - a_i})^2 with gradient and (diagonal) Hessian; ``lower`` is 0
+    for a muscle, -1 for a pressure actuator (``FaceModel.activation_lower_bounds``)."""
     a = np.asarray(a, dtype=np.float64)
-    low, high = np.minimum(a, 0.0), np.minimum(1.0 - a, 0.0)
+    low, high = np.minimum(a - lower, 0.0), np.minimum(1.0 - a, 0.0)
     g = 2.0 * low - 2.0 * high
-    h = 2.0 * ((a < 0) | (a > 1)).astype(float)
+    h = 2.0 * ((a < lower) | (a > 1)).astype(float)
     return Penalty(float(np.sum(low**2 + high**2)), g, np.diag(h))
 
 

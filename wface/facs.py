@@ -16,8 +16,11 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
+import numpy as np
+
 __all__ = [
     "ACTION_UNITS",
+    "ACTUATORS",
     "BILATERAL_MUSCLES",
     "EXPRESSIONS",
     "MIDLINE_MUSCLES",
@@ -25,6 +28,7 @@ __all__ = [
     "ActionUnit",
     "action_unit_muscles",
     "all_muscle_names",
+    "combine_contributions",
     "expand_muscle",
     "expression_action_units",
     "interpolate_action_units",
@@ -61,6 +65,9 @@ MIDLINE_MUSCLES: tuple[str, ...] = (
     "incisivus_labii_superioris",
     "incisivus_labii_inferioris",
 )
+# Actuators that are not muscles: the intra-oral pressure (``wface.physics.pressure``; its channel
+# is signed, suction to pressure). An action unit may drive it with a negative weight (AU35).
+ACTUATORS: tuple[str, ...] = ("intraoral_pressure",)
 # Finer muscles and the coarser muscle that stands in for them, at a weight factor, on a face that
 # lacks them: ``orbicularis_oculi`` is the whole ring (its orbital part, AU6) where a face has no
 # separate palpebral part (AU7, AU43); the incisivii (AU18, lip pucker; one ring per lip in the
@@ -74,17 +81,18 @@ STAND_INS: dict[str, tuple[str, float]] = {
 
 
 def all_muscle_names() -> list[str]:
-    """Every canonical muscle name (bilateral ones with both sides)."""
+    """Every canonical muscle name (bilateral ones with both sides), and the other actuators."""
     names = [f"{base}_{side}" for base in BILATERAL_MUSCLES for side in ("l", "r")]
-    return names + list(MIDLINE_MUSCLES)
+    return names + list(MIDLINE_MUSCLES) + list(ACTUATORS)
 
 
 def expand_muscle(base: str, side: str = "both") -> list[str]:
     """Full muscle names for a base name: ``expand_muscle("risorius")`` -> ``["risorius_l", "risorius_r"]``."""
-    if base in MIDLINE_MUSCLES:
+    if base in MIDLINE_MUSCLES or base in ACTUATORS:
         return [base]
     if base not in BILATERAL_MUSCLES:
-        raise KeyError(f"unknown muscle {base!r}; known: {', '.join(BILATERAL_MUSCLES + MIDLINE_MUSCLES)}")
+        known = BILATERAL_MUSCLES + MIDLINE_MUSCLES + ACTUATORS
+        raise KeyError(f"unknown muscle {base!r}; known: {', '.join(known)}")
     sides = {"both": ("l", "r"), "l": ("l",), "r": ("r",)}[side]
     return [f"{base}_{s}" for s in sides]
 
@@ -96,6 +104,7 @@ class ActionUnit:
     number: int
     name: str
     muscles: Mapping[str, float] = field(default_factory=dict)  # base muscle name -> activation at intensity 1
+    # (negative only for a signed actuator: AU35 drives the intra-oral pressure to suction)
     jaw_open_deg: float = 0.0
 
 
@@ -126,6 +135,10 @@ ACTION_UNITS: dict[str, ActionUnit] = {
         ActionUnit(26, "Jaw drop", {}, jaw_open_deg=12.0),
         ActionUnit(27, "Mouth stretch", {"platysma": 0.3}, jaw_open_deg=25.0),
         ActionUnit(28, "Lip suck", {"orbicularis_oris_upper": 1.0, "orbicularis_oris_lower": 1.0}),
+        ActionUnit(
+            34, "Puff", {"intraoral_pressure": 1.0, "orbicularis_oris_upper": 0.3, "orbicularis_oris_lower": 0.3}
+        ),
+        ActionUnit(35, "Cheek suck", {"intraoral_pressure": -1.0, "buccinator": 0.5}),
         ActionUnit(43, "Eyes closed", {"orbicularis_oculi_palpebral": 0.5}),
     )
 }
@@ -174,7 +187,7 @@ def action_unit_muscles(au: str, side: str = "both", *, muscle_names: Iterable[s
             names = expand_muscle(base, side if base not in MIDLINE_MUSCLES else "both")
         for name in names:
             if keep is None or name in keep:
-                out[name] = max(out.get(name, 0.0), weight)
+                out[name] = combine_contributions(out.get(name, 0.0), weight)
     return out
 
 
@@ -183,7 +196,8 @@ def muscle_activations(
 ) -> tuple[dict[str, float], float]:
     """Turn action-unit intensities into muscle activations and a jaw opening.
 
-    Contributions to one muscle combine by maximum (an AU never adds beyond full activation).
+    Contributions to one muscle combine by maximum (an AU never adds beyond full activation; for the
+    signed intra-oral pressure, by largest magnitude).
 
     Args:
         action_units: ``{"AU12": 1.0, "AU6L": 0.5, ...}``, intensities in [0, 1].
@@ -203,8 +217,14 @@ def muscle_activations(
         au_key, side = parse_action_unit(key)
         jaw_deg = max(jaw_deg, ACTION_UNITS[au_key].jaw_open_deg * v)
         for name, weight in action_unit_muscles(au_key, side, muscle_names=names).items():
-            out[name] = max(out.get(name, 0.0), min(1.0, weight * v))
+            out[name] = combine_contributions(out.get(name, 0.0), float(np.clip(weight * v, -1.0, 1.0)))
     return out, jaw_deg
+
+
+def combine_contributions(a: float, b: float) -> float:
+    """Two contributions to one channel: the larger in magnitude (the maximum for muscles, whose
+    weights are >= 0; a signed actuator keeps its strongest push or pull)."""
+    return a if abs(a) >= abs(b) else b
 
 
 def expression_action_units(name: str) -> dict[str, float]:

@@ -7,6 +7,12 @@ format version so that a round trip is bit-exact.
 Muscles are embedded per tetrahedron as a sparse list of entries (tet, muscle, volume fraction,
 unit fibre direction in rest space), sorted by tet. Bones are rigid: nodes attached to a bone
 follow it (Dirichlet nodes), and bone surfaces serve contact and rendering.
+
+Actuators: ``muscle_names`` lists every activation channel. Most are fibre muscles, driven in
+[0, 1]; a *pressure actuator* (``pressure_actuators``: name -> maximum pressure in Pa) is a
+pressure on the surface group of the same name, e.g. the intra-oral pressure on the wall of the
+oral vestibule that puffs the cheeks (docs/design.md, "Intra-oral pressure"). Its control is
+signed, in [-1, 1] (suction to pressure: ``activation_lower_bounds``), and it has no fibre entries.
 """
 
 from __future__ import annotations
@@ -32,18 +38,29 @@ __all__ = [
     "load_model",
     "model_sha256",
     "save_model",
+    "without_timings",
 ]
 
-# 2: the material may carry mu20_pa or fibre_stress. A model without them (both at their defaults) is
-# still written as format 1, byte for byte as before, so older wface versions read it; one with either
-# is refused by them instead of losing it.
-FORMAT_VERSION = 2
+# 2: the material may carry mu20_pa or fibre_stress. 3: the model has pressure actuators. A model
+# without these is still written as format 1, byte for byte as before, so older wface versions read
+# it; one with any of them is refused by a version that would lose it.
+FORMAT_VERSION = 3
 FIBRE_STRESSES = ("uniaxial", "deviatoric")  # Material.fibre_stress; the first is the default
 BONES = ("cranium", "jaw")  # bone ids 0 and 1 in attachment arrays
 
 
 class ModelError(ValueError):
     """A face model is inconsistent; the message names the problem and where it is."""
+
+
+def without_timings(report):
+    """A report as a model's metadata keeps it: every "seconds" entry (wall-clock time, at any depth)
+    left out, so the same inputs make the same model and ``model_sha256`` (a take's provenance)."""
+    if isinstance(report, dict):
+        return {k: without_timings(v) for k, v in report.items() if k != "seconds"}
+    if isinstance(report, list):
+        return [without_timings(v) for v in report]
+    return report
 
 
 @dataclass(frozen=True)
@@ -165,6 +182,9 @@ class FaceModel:
     marker_positions_m: np.ndarray | None = None  # (k, 3) rest positions of the default markers
     facs: dict[str, dict[str, float]] = field(default_factory=dict)  # AU -> {muscle: weight}
     metadata: dict = field(default_factory=dict)
+    # actuator name (in muscle_names) -> maximum pressure (Pa) on surface_groups[name], whose
+    # triangles are wound outward of the flesh (normals into the cavity); control in [-1, 1]
+    pressure_actuators: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.rest_positions_m = np.asarray(self.rest_positions_m, dtype=np.float64)
@@ -184,6 +204,7 @@ class FaceModel:
             self.marker_positions_m = np.zeros((0, 3))
         self.marker_positions_m = np.asarray(self.marker_positions_m, dtype=np.float64).reshape(-1, 3)
         self.marker_names = [str(s) for s in self.marker_names]
+        self.pressure_actuators = {str(k): float(v) for k, v in self.pressure_actuators.items()}
         self._derived: dict[str, np.ndarray] = {}
 
     # ------------------------------------------------------------------ sizes and derived data
@@ -206,8 +227,22 @@ class FaceModel:
         except ValueError:
             raise KeyError(f"unknown muscle {name!r}; this model has: {', '.join(self.muscle_names)}") from None
 
+    @property
+    def activation_lower_bounds(self) -> np.ndarray:
+        """(M,) lower bound of each activation channel: 0 for a muscle, -1 for a pressure actuator
+        (suction); every upper bound is 1."""
+        lo = np.zeros(self.n_muscles)
+        for name in self.pressure_actuators:
+            lo[self.muscle_names.index(name)] = -1.0
+        return lo
+
+    def clip_activations(self, a: np.ndarray) -> np.ndarray:
+        """(..., M) activations clipped to each channel's range (``activation_lower_bounds``, 1)."""
+        return np.clip(a, self.activation_lower_bounds, 1.0)
+
     def activation_vector(self, activations: dict[str, float] | np.ndarray | None = None) -> np.ndarray:
-        """Activations as an (M,) float64 vector from a {name: value} dict or an array; values in [0, 1]."""
+        """Activations as an (M,) float64 vector from a {name: value} dict or an array; values in [0, 1]
+        ([-1, 1] for a pressure actuator)."""
         a = np.zeros(self.n_muscles)
         if activations is None:
             return a
@@ -220,9 +255,11 @@ class FaceModel:
                 raise ValueError(f"activation vector has shape {a.shape}, expected ({self.n_muscles},)")
         if not np.all(np.isfinite(a)):
             raise ValueError("activations contain NaN or inf")
-        if np.any(a < 0) or np.any(a > 1):
-            bad = [self.muscle_names[i] for i in np.flatnonzero((a < 0) | (a > 1))]
-            raise ValueError(f"activations must lie in [0, 1]; out of range: {', '.join(bad)}")
+        lo = self.activation_lower_bounds if self.pressure_actuators else 0.0
+        if np.any(a < lo) or np.any(a > 1):
+            bad = [self.muscle_names[i] for i in np.flatnonzero((a < lo) | (a > 1))]
+            ranges = " ([-1, 1] for the pressure actuators)" if self.pressure_actuators else ""
+            raise ValueError(f"activations must lie in [0, 1]{ranges}; out of range: {', '.join(bad)}")
         return a
 
     def nodes_of_bone(self, bone: str) -> np.ndarray:
@@ -331,6 +368,7 @@ class FaceModel:
             raise ModelError("marker names are not unique")
         if not np.all(np.isfinite(self.marker_positions_m)):
             raise ModelError("marker_positions_m has NaN/inf")
+        self._validate_pressure_actuators()
         known = set(self.muscle_names)
         for au, table in self.facs.items():
             unknown = [m for m in table if m not in known]
@@ -374,6 +412,19 @@ class FaceModel:
             raise ModelError(f"muscle_strength has shape {self.muscle_strength.shape}, expected ({len(names)},)")
         if np.any(~np.isfinite(self.muscle_strength)) or np.any(self.muscle_strength < 0):
             raise ModelError("muscle_strength must be finite and non-negative")
+
+    def _validate_pressure_actuators(self) -> None:
+        for name, max_pa in self.pressure_actuators.items():
+            if name not in self.muscle_names:
+                raise ModelError(f"pressure actuator {name!r} is not an activation channel (muscle_names)")
+            if name not in self.surface_groups or self.surface_groups[name].size == 0:
+                raise ModelError(f"pressure actuator {name!r} has no surface group of its name to act on")
+            if not (np.isfinite(max_pa) and max_pa > 0):
+                raise ModelError(
+                    f"pressure actuator {name!r}: maximum pressure must be finite and > 0 Pa, got {max_pa}"
+                )
+            if np.any(self.fibre_muscle == self.muscle_names.index(name)):
+                raise ModelError(f"pressure actuator {name!r} has fibre entries (a channel is a muscle or a pressure)")
 
     def with_material(self, material: Material) -> FaceModel:
         """A copy with another material (arrays shared)."""
@@ -419,7 +470,7 @@ def _model_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
         arrays[f"surface/{name}"] = tri
     header = {
         "format": "wface.FaceModel",
-        "format_version": FORMAT_VERSION if model.material.mu20_pa or model.material.fibre_stress != "uniaxial" else 1,
+        "format_version": _format_version(model),
         "muscle_names": model.muscle_names,
         "marker_names": model.marker_names,
         "bones": {name: mesh.bone for name, mesh in model.bone_meshes.items()},
@@ -429,7 +480,16 @@ def _model_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
         "facs": model.facs,
         "metadata": model.metadata,
     }
+    if model.pressure_actuators:  # absent otherwise: files and hashes of models without them unchanged
+        header["pressure_actuators"] = model.pressure_actuators
     return arrays, header
+
+
+def _format_version(model: FaceModel) -> int:
+    """The oldest format that holds everything the model has (see FORMAT_VERSION)."""
+    if model.pressure_actuators:
+        return 3
+    return 2 if model.material.mu20_pa or model.material.fibre_stress != "uniaxial" else 1
 
 
 def model_sha256(model: FaceModel) -> str:
@@ -513,5 +573,6 @@ def load_model(path: str | Path, *, validate: bool = True) -> FaceModel:
         surface_groups=surfaces,
         facs=header["facs"],
         metadata=header["metadata"],
+        pressure_actuators=header.get("pressure_actuators", {}),
     )
     return model.validate() if validate else model

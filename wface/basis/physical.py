@@ -3,7 +3,8 @@
 Element i is the skin displacement of the quasistatic FEM face with muscle i alone at activation
 ``activation`` (divided by it, so x_i = 1 means that activation); the basis linearises the face
 about rest. Its element names are the model's muscle names, which the Waters layouts and the FACS
-table share, so contractions analysed on one face retarget to another by name.
+table share, so contractions analysed on one face retarget to another by name. A pressure actuator
+gives two elements, its puff and its suction (``<name>_suction``), since a basis weight is >= 0.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from wface.basis.core import ActuationBasis
-from wface.takes.shapes import muscle_shapes
+from wface.takes.shapes import muscle_shapes, shape_names
 
 __all__ = ["basis_from_face"]
 
@@ -19,9 +20,10 @@ __all__ = ["basis_from_face"]
 def basis_from_face(
     model, *, muscles=None, activation: float = 1.0, simulator=None, progress: bool = False
 ) -> ActuationBasis:
-    """Basis of a ``FaceModel``'s skin with one element per muscle (all muscles by default)."""
+    """Basis of a ``FaceModel``'s skin with one element per muscle (all muscles by default; a pressure
+    actuator's two shapes)."""
 
-    names = list(model.muscle_names) if muscles is None else list(muscles)
+    names = shape_names(model) if muscles is None else list(muscles)
     skin_nodes, shapes = muscle_shapes(  # the physics lives in wface.takes.shapes (also the take's USD rig)
         model, muscles=names, activation=activation, simulator=simulator, progress=progress
     )

@@ -141,6 +141,11 @@ def _info(args: argparse.Namespace) -> int:
     print(f"  bbox {[round(v, 4) for v in lo]} .. {[round(v, 4) for v in hi]} m")
     print(f"  attached nodes: cranium {s['attached_nodes']['cranium']}, jaw {s['attached_nodes']['jaw']}")
     print(f"  {len(s['muscles'])} muscles: {', '.join(s['muscles'])}")
+    for name, p in s["pressure_actuators"].items():
+        print(
+            f"  pressure actuator {name}: up to {p['max_pa'] / 1e3:g} kPa on {p['wall_triangles']} wall triangles, "
+            "control -1 (suction) .. 1"
+        )
     print(f"  {len(s['markers'])} markers: {', '.join(s['markers'])}")
     print(f"  bones: {', '.join(s['bones'])}; action units: {', '.join(s['action_units'])}")
     mat = s["material"]

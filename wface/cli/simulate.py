@@ -52,7 +52,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="muscle activation in [0, 1] (repeatable)",
+        help="muscle activation in [0, 1], or a pressure actuator in [-1, 1] (intraoral_pressure=0.6 puffs "
+        "the cheeks, -0.6 sucks them in; repeatable)",
     )
     p.add_argument(
         "--jaw-open", type=non_negative_float, default=0.0, metavar="DEG", help="jaw opening angle in degrees"

@@ -48,7 +48,7 @@ from wface.mesh.closest import SurfaceQuery
 from wface.mesh.improve import improve_tets, tet_sine_quality_deg
 from wface.mesh.meshfile import SurfaceMesh
 from wface.mesh.quality import quality_report, signed_volumes, volume_ratio_quality
-from wface.model import BoneMesh, FaceModel, JawJoint, Material, ModelError
+from wface.model import BoneMesh, FaceModel, JawJoint, Material, ModelError, without_timings
 from wface.physics import Simulator
 
 __all__ = ["FitReport", "FitResult", "fit_template", "ict_feature_landmarks", "select_target_faces"]
@@ -225,6 +225,23 @@ def _smooth_interior(template: FaceModel, x: np.ndarray) -> tuple[np.ndarray, di
     }
 
 
+def _interior(template: FaceModel, rest_s, skin_x, smooth: bool, device, solver, say):
+    """(x, load steps, quality after the relaxation, smoothing report or None): the interior's place for
+    the registered skin ``skin_x`` (module docstring, step 3), then its smoothing."""
+    x, steps = _volume(template, rest_s, skin_x, device=device, solver=solver, progress=say)
+    skin = np.unique(template.skin_triangles)
+    x[skin] = skin_x[skin]
+    quality_relaxed = quality_report(x, template.tets).as_dict()
+    smoothing = None
+    if smooth:
+        x, smoothing = _smooth_interior(template, x)
+        say(
+            f"interior smoothing: {smoothing['moved_nodes']} free node(s) moved, tets below the template's worst "
+            f"{smoothing['below_goal_before']} -> {smoothing['below_goal_after']}, {smoothing['seconds']:.1f} s"
+        )
+    return x, steps, quality_relaxed, smoothing
+
+
 def _bone_similarities(template: FaceModel, rest_s: np.ndarray, x: np.ndarray) -> dict[str, Similarity]:
     """Per bone, the similarity that best maps its attached nodes from the scaled template to the
     fitted flesh (Umeyama 1991); the identity for a bone without attached nodes."""
@@ -387,16 +404,9 @@ def fit_template(
         schedule=schedule,
         progress=say,
     )
-    x, steps = _volume(template, rest_s, reg.vertices_m, device=device, solver=solver, progress=say)
-    x[skin] = reg.vertices_m[skin]
-    quality_relaxed = quality_report(x, template.tets).as_dict()
-    smoothing = None
-    if smooth_interior:
-        x, smoothing = _smooth_interior(template, x)
-        say(
-            f"interior smoothing: {smoothing['moved_nodes']} free node(s) moved, tets below the template's worst "
-            f"{smoothing['below_goal_before']} -> {smoothing['below_goal_after']}, {smoothing['seconds']:.1f} s"
-        )
+    x, steps, quality_relaxed, smoothing = _interior(
+        template, rest_s, reg.vertices_m, smooth_interior, device, solver, say
+    )
     bone_sim = _bone_similarities(template, rest_s, x)
     emb = embed_markers(template.marker_positions_m, x_t, skin_tri)
     mk_names, mk_pos = list(template.marker_names), emb.marker_positions(x, skin_tri)
@@ -436,7 +446,7 @@ def fit_template(
         "markers": len(markers_m) if markers_m is not None else 0,
         "target_to_model": to_model.tolist(),
         "bones": "similarity per bone, fitted to the relaxed flesh at its attached nodes",
-        **report.as_dict(),
+        **without_timings(report.as_dict()),
     }
     model = _carry_model(template, x, float(S.scale), bone_sim, mk_names, mk_pos, meta)
     return FitResult(model, report, to_model)

@@ -11,13 +11,17 @@ __all__ = ["model_summary"]
 
 
 def model_summary(model: FaceModel) -> dict:
-    """Sizes, muscles, markers, attachments, mesh quality and material of a face (what
-    ``wface model info --json`` prints)."""
+    """Sizes, muscles (the fibre muscles; pressure actuators apart), markers, attachments, mesh
+    quality and material of a face (what ``wface model info --json`` prints)."""
     x = model.rest_positions_m
     return {
         "nodes": model.n_nodes,
         "tets": model.n_tets,
-        "muscles": list(model.muscle_names),
+        "muscles": [n for n in model.muscle_names if n not in model.pressure_actuators],
+        "pressure_actuators": {
+            name: {"max_pa": p, "range": [-1.0, 1.0], "wall_triangles": int(len(model.surface_groups[name]))}
+            for name, p in model.pressure_actuators.items()
+        },
         "markers": list(model.marker_names),
         "attached_nodes": {
             "cranium": int(len(model.nodes_of_bone("cranium"))),

@@ -1,7 +1,8 @@
 """The physics face: nodal forces, energy, stiffness and quasistatic equilibria of a ``FaceModel``.
 
 f(x, a) = f0(x) + sum_i a_i f_i(x)  (Sifakis et al. 2005, eq. 1): f0 is the passive flesh plus the passive
-fibre response, f_i the active fibre force of muscle i at full activation. The constitutive model
+fibre response, f_i the active fibre force of muscle i at full activation, or the constant dead load of a
+pressure actuator (``wface.physics.pressure``; its channel in [-1, 1]). The constitutive model
 (Mooney-Rivlin flesh with volumetric term, transversely isotropic fibres, inversion-safe clamped
 singular values, projected-definite tangent) is documented in ``wface.kernels.fem``.
 
@@ -22,6 +23,7 @@ import scipy.sparse as sp
 
 from wface.model import FaceModel
 from wface.physics.newton import Equilibrium, newton_quasistatic
+from wface.physics.pressure import pressure_loads
 from wface.solvers import BlockPattern, LinearSolver, resolve_linear_solver
 from wface.warp_runtime import init_warp, resolve_device
 
@@ -239,6 +241,8 @@ class Simulator:
         self._f = wp.zeros(n, dtype=k.vec3, device=dev)
         self._e = wp.zeros(nt, dtype=k.scalar, device=dev)
         self._a = wp.zeros(max(model.n_muscles, 1), dtype=k.scalar, device=dev)
+        self._a_scaled = np.zeros(model.n_muscles)  # host copy of s a (the pressure loads use it)
+        self._pressure = pressure_loads(model)
         self._tangent_wp = None
         self.force_length_scale = force_length_scale
         self.parallel_min_tets = 20_000  # CPU: per-tet kernels run on all cores above this size
@@ -282,7 +286,23 @@ class Simulator:
         if self.model.n_muscles:
             # activations are checked in [0, 1]; the kernels see s a (T is linear in a, see __init__)
             a = self.model.activation_vector(a) * self.force_length_scale
+            self._a_scaled = a
             self._a.assign(a.astype(self._np_dtype))
+        self._x_host = x
+
+    def _pressure_energy_and_forces(self, f: np.ndarray | None) -> float:
+        """Add the pressure actuators' dead loads s a P g to ``f`` (n, 3) at the state of the last
+        ``_set_state``; return their energy -s a P g . (x - X) (``wface.physics.pressure``)."""
+        e = 0.0
+        for load in self._pressure:
+            a = float(self._a_scaled[load.channel])
+            if a == 0.0:
+                continue
+            u = self._x_host[load.nodes] - self.model.rest_positions_m[load.nodes]
+            e -= a * float(np.sum(load.force_n * u))
+            if f is not None:
+                f[load.nodes] += a * load.force_n
+        return e
 
     def _launch_tets(
         self,
@@ -354,7 +374,7 @@ class Simulator:
         """Total elastic energy (J) at positions x (n, 3) with activations (dict, (M,) array or None)."""
         self._set_state(x, activations)
         self._launch_per_tet(self._k.element_energy, [self._x, self._a], self._e)
-        return float(self._e.numpy().astype(np.float64).sum())
+        return float(self._e.numpy().astype(np.float64).sum()) + self._pressure_energy_and_forces(None)
 
     def energy_and_forces(self, x: np.ndarray | None = None, activations=None) -> tuple[float, np.ndarray]:
         """(E, f) with f = -dE/dx of shape (n, 3), in one pass."""
@@ -362,14 +382,17 @@ class Simulator:
         self._f.zero_()
         n_in = len(self._model_inputs()) + 2
         self._launch_per_tet(self._k.element_forces, [self._x, self._a], self._f, self._e, scattered=(n_in,))
-        return float(self._e.numpy().astype(np.float64).sum()), self._f.numpy().astype(np.float64)
+        f = self._f.numpy().astype(np.float64)
+        e = float(self._e.numpy().astype(np.float64).sum()) + self._pressure_energy_and_forces(f)
+        return e, f
 
     def forces(self, x: np.ndarray | None = None, activations=None) -> np.ndarray:
         """Nodal forces f(x, a) = f0(x) + sum_i a_i f_i(x), (n, 3) newtons."""
         return self.energy_and_forces(x, activations)[1]
 
     def last_element_energies(self) -> np.ndarray:
-        """(m,) per-tet energies of the latest ``energy`` / ``energy_and_forces`` call."""
+        """(m,) per-tet energies of the latest ``energy`` / ``energy_and_forces`` call (the elastic
+        energy: the pressure actuators' potential is not a tet's)."""
         return self._e.numpy().astype(np.float64)
 
     def element_energies(self, x: np.ndarray | None = None, activations=None) -> np.ndarray:
@@ -379,7 +402,7 @@ class Simulator:
 
     def muscle_forces(self, x: np.ndarray | None = None) -> np.ndarray:
         """f_i(x): active force of each muscle at full activation, (M, n, 3) newtons, one launch
-        (times ``force_length_scale``)."""
+        (times ``force_length_scale``); a pressure actuator's row is its constant dead load."""
         wp = self._wp
         self._set_state(x, None)
         M, n = self.model.n_muscles, self.model.n_nodes
@@ -403,7 +426,10 @@ class Simulator:
                 ],
                 device=self.device,
             )
-        return out.numpy().astype(np.float64)[:M] * self._muscle_scale()
+        forces = out.numpy().astype(np.float64)[:M]
+        for load in self._pressure:
+            forces[load.channel, load.nodes] = load.force_n
+        return forces * self._muscle_scale()
 
     # ------------------------------------------------------------------ stiffness
     def tangent(self, x: np.ndarray | None = None, activations=None, *, project: bool = True) -> Tangent:

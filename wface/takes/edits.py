@@ -14,7 +14,8 @@ joint. The rules, shared by all edits:
 
 Exaggeration (``exaggerate``) scales the change from a neutral pose: e' = e + (f - 1)(e - e_n),
 so f = 1 is the identity, f < 1 de-emphasises, f > 1 exaggerates. A drive below 0 is clipped to 0
-(a muscle cannot push). A drive above 1 is never an activation above 1: with
+(a muscle cannot push); a pressure actuator's drive is signed (suction), so a channel negative in
+any of the poses an edit combines keeps its sign. A drive above 1 is never an activation above 1: with
 ``scale_mode="muscle"`` (default) that muscle gets a = 1 and s = e' (its force-length curve is
 scaled by e', docs/design.md "Muscle fibres"); with ``scale_mode="global"`` all muscles share
 S = max(1, max e') and a = e'/S. Both give exactly the same forces (the active tension is linear
@@ -134,16 +135,24 @@ def exaggerate(
     if f == 1.0:
         return _finish(pose, joint)
     e, e_n = pose.drive, neutral.drive
-    drive = np.maximum(0.0, e + (f - 1.0) * (e - e_n))
+    drive = e + (f - 1.0) * (e - e_n)
+    drive = np.where(_signed(e, e_n), drive, np.maximum(0.0, drive))  # a signed channel has no floor
     jaw = pose.jaw + (f - 1.0) * (pose.jaw - neutral.jaw)
     out = pose.with_jaw(jaw)
     if scale_mode == "muscle":
         out = out.with_drive(drive)
     else:
-        top = max(1.0, float(drive.max(initial=0.0)))
+        top = max(1.0, float(np.abs(drive).max(initial=0.0)))
         scale = None if top == 1.0 else np.full(drive.shape, top)
-        out = replace(out, activations=np.minimum(drive / top, 1.0), force_length_scale=scale)
+        out = replace(out, activations=np.clip(drive / top, -1.0, 1.0), force_length_scale=scale)
     return _finish(out, joint)
+
+
+def _signed(e: np.ndarray, *others: np.ndarray) -> np.ndarray:
+    """(M,) bool: channels negative in any of the poses an edit combines. A muscle's drive is never
+    negative (it cannot push), so those are pressure actuators, whose drive may go down to suction;
+    every other channel's drive stays >= 0."""
+    return np.minimum.reduce([e, *others]) < 0
 
 
 def _weights_per_frame(weight, n: int) -> np.ndarray:
@@ -186,7 +195,9 @@ def layer(
     out = []
     for wk, p in zip(w, poses, strict=True):
         e = p.drive
-        drive = np.clip(e + wk * d_drive, 0.0, np.maximum(1.0, e))
+        top = np.maximum(1.0, np.abs(e))
+        floor = np.where(_signed(e, offset.drive, neutral.drive), -top, 0.0)
+        drive = np.clip(e + wk * d_drive, floor, top)
         R = p.cranium_rotation @ Rotation.from_rotvec(wk * d_rot).as_matrix()
         q = replace(p, cranium_rotation=R, cranium_translation_m=p.cranium_translation_m + wk * d_t)
         out.append(_finish(q.with_drive(drive).with_jaw(p.jaw + wk * d_jaw), joint))

@@ -16,7 +16,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from wface.facs import ACTION_UNITS, EXPRESSIONS, action_unit_muscles, expression_action_units, parse_action_unit
+from wface.facs import (
+    ACTION_UNITS,
+    EXPRESSIONS,
+    action_unit_muscles,
+    combine_contributions,
+    expression_action_units,
+    parse_action_unit,
+)
 from wface.model import FaceModel
 from wface.takes.pose import Pose, clamp_jaw
 
@@ -78,8 +85,12 @@ def expression_pose(model: FaceModel, spec: str, *, intensity: float = 1.0) -> P
     act = np.zeros(model.n_muscles)
     jaw_deg = 0.0
     muscles: dict[str, float] = {}
+    signed = set(model.pressure_actuators)
     for key, value in items:
-        if not 0.0 <= value <= 1.0 and key != "jaw_open":
+        if key in signed:
+            if not -1.0 <= value <= 1.0:
+                raise ValueError(f"{key}={value}: a pressure actuator's value must lie in [-1, 1] (suction..pressure)")
+        elif not 0.0 <= value <= 1.0 and key != "jaw_open":
             raise ValueError(f"{key}={value}: values must lie in [0, 1]")
         if key == "jaw_open":
             jaw_deg = max(jaw_deg, value)
@@ -98,7 +109,7 @@ def expression_pose(model: FaceModel, spec: str, *, intensity: float = 1.0) -> P
         jaw_deg = max(jaw_deg, ACTION_UNITS[au].jaw_open_deg * v)
         for name, w in _au_muscles(model, au, side).items():
             i = model.muscle_index(name)
-            act[i] = max(act[i], min(1.0, w * v))
+            act[i] = combine_contributions(act[i], float(np.clip(w * v, -1.0, 1.0)))
     for name, v in muscles.items():
         act[model.muscle_index(name)] = v
     return clamp_jaw(Pose(act, jaw_opening_deg=jaw_deg), model.jaw_joint)

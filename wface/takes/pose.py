@@ -48,22 +48,26 @@ _ROTATION_TOL = 1e-9  # |R^T R - I| and |det R - 1| accepted as a rotation (floa
 
 
 def split_drives(drives: np.ndarray, *, per: str = "frame") -> tuple[np.ndarray, np.ndarray | None]:
-    """Muscle drives e = s a >= 0 -> (activations in [0, 1], force-length scales or None when all 1).
+    """Muscle drives e = s a -> (activations, force-length scales or None when all 1).
+
+    A muscle's drive is >= 0; a pressure actuator's may be negative (suction), so the split is by
+    magnitude: the activation keeps the drive's sign and |a| <= 1.
 
     Args:
         drives: (M,) or (T, M) drives.
-        per: "frame" (a = min(e, 1), s = max(e, 1), same shape as ``drives``) or "take"
-            (one scale per muscle over all frames, S = max(1, max_t e) of shape (M,), a = e / S).
+        per: "frame" (s = max(|e|, 1), a = e / s, same shape as ``drives``) or "take"
+            (one scale per muscle over all frames, S = max(1, max_t |e|) of shape (M,), a = e / S).
     """
     e = np.asarray(drives, dtype=np.float64)
-    if not np.all(np.isfinite(e)) or np.any(e < 0):
-        raise ValueError("muscle drives must be finite and >= 0")
+    if not np.all(np.isfinite(e)):
+        raise ValueError("muscle drives must be finite")
     if per == "frame":
-        s = np.maximum(e, 1.0)
-        return np.minimum(e, 1.0), (None if np.all(s == 1.0) else s)
+        s = np.maximum(np.abs(e), 1.0)
+        return np.clip(e / s, -1.0, 1.0), (None if np.all(s == 1.0) else s)
     if per == "take":
-        S = np.maximum(1.0, e.max(axis=0, initial=0.0)) if e.ndim == 2 else np.maximum(1.0, e)
-        return np.clip(e / S, 0.0, 1.0), (None if np.all(S == 1.0) else S)
+        mag = np.abs(e)
+        S = np.maximum(1.0, mag.max(axis=0, initial=0.0)) if e.ndim == 2 else np.maximum(1.0, mag)
+        return np.clip(e / S, -1.0, 1.0), (None if np.all(S == 1.0) else S)
     raise ValueError(f"per must be 'frame' or 'take', got {per!r}")
 
 
@@ -71,7 +75,7 @@ def split_drives(drives: np.ndarray, *, per: str = "frame") -> tuple[np.ndarray,
 class Pose:
     """One frame of face controls for editing (module docstring). Arrays are float64 copies."""
 
-    activations: np.ndarray  # (M,) in [0, 1]
+    activations: np.ndarray  # (M,) in [0, 1] ([-1, 1] for a pressure actuator; the model checks which)
     cranium_rotation: np.ndarray = field(default_factory=lambda: np.eye(3))  # (3, 3) proper rotation
     cranium_translation_m: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,)
     jaw_opening_deg: float = 0.0
@@ -83,8 +87,8 @@ class Pose:
         a = np.array(self.activations, dtype=np.float64).reshape(-1)
         if not np.all(np.isfinite(a)):
             raise ValueError("pose activations contain NaN or inf")
-        if np.any(a < 0) or np.any(a > 1):
-            raise ValueError(f"pose activations must lie in [0, 1], got range [{a.min():.4g}, {a.max():.4g}]")
+        if np.any(a < -1) or np.any(a > 1):  # the model checks each channel's own range in a simulation
+            raise ValueError(f"pose activations must lie in [-1, 1], got range [{a.min():.4g}, {a.max():.4g}]")
         R = np.array(self.cranium_rotation, dtype=np.float64).reshape(3, 3)
         if not (
             np.all(np.isfinite(R))
@@ -176,10 +180,11 @@ def clamp_jaw(pose: Pose, joint: JawJoint) -> Pose:
 def pose_from_bones(joint: JawJoint, activations: np.ndarray, bones: np.ndarray, *, force_length_scale=None) -> Pose:
     """A pose from activations (M,) and the 24 bone parameters of ``wface.controls``.
 
-    Activations are clipped into [0, 1] (a tracker's penalty lets them stray by round-off; the
-    rig clips them the same way). The cranium affine is projected onto the nearest rotation and
-    the jaw onto its intuitive parameters (clamped into the joint limits), so a pose holds only
-    the rigid, on-joint part of tracked bones; ``bone_projection_error_m`` measures what is lost.
+    Activations are clipped into [-1, 1] (a tracker's penalty lets them stray by round-off; the
+    rig clips each channel into its own range: ``FaceModel.clip_activations``). The cranium affine
+    is projected onto the nearest rotation and the jaw onto its intuitive parameters (clamped into
+    the joint limits), so a pose holds only the rigid, on-joint part of tracked bones;
+    ``bone_projection_error_m`` measures what is lost.
     """
     b = np.asarray(bones, dtype=np.float64).reshape(-1)
     if b.shape != (N_BONE_PARAMS,):
@@ -187,7 +192,7 @@ def pose_from_bones(joint: JawJoint, activations: np.ndarray, bones: np.ndarray,
     Mc, tc = affine_from_params(b[:12])
     jaw = jaw_to_intuitive(joint, b[12:])
     pose = Pose(
-        np.clip(np.asarray(activations, dtype=np.float64).reshape(-1), 0.0, 1.0),
+        np.clip(np.asarray(activations, dtype=np.float64).reshape(-1), -1.0, 1.0),
         nearest_rotation(Mc),
         tc,
         jaw["opening_deg"],

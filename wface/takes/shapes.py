@@ -5,6 +5,10 @@ the skin displacement of the quasistatic FEM face (Sifakis et al. 2005) with mus
 activation ``activation``, divided by it, so a weight of 1 reproduces that equilibrium exactly and
 a sum of weights linearises the face about rest (Choe & Ko 2001).
 
+A pressure actuator (``FaceModel.pressure_actuators``) is signed: it has its shape at +1 under its
+own name and a second one at -1 (suction) named ``<name>_suction`` (``SUCTION_SUFFIX``), each
+weighted by the positive part of its control, so a rig's weights stay in [0, 1].
+
 ``jaw_skin_weights`` gives each skin vertex the share w in [0, 1] of the jaw's rigid motion it
 follows, from one equilibrium with the jaw opened by ``probe_deg`` and no activation:
 
@@ -42,9 +46,21 @@ from wface.io.usd.rig import SkinRig
 from wface.model import FaceModel
 from wface.physics.simulator import Simulator
 
-__all__ = ["JAW_SHAPE", "jaw_corrective", "jaw_skin_weights", "muscle_shapes", "render_mesh_rig", "skin_rig"]
+__all__ = [
+    "JAW_SHAPE",
+    "SUCTION_SUFFIX",
+    "jaw_corrective",
+    "jaw_skin_weights",
+    "muscle_shapes",
+    "render_mesh_rig",
+    "shape_channel",
+    "shape_names",
+    "shape_weights",
+    "skin_rig",
+]
 
 JAW_SHAPE = "jaw_open"  # name of the corrective shape, after the muscle shapes
+SUCTION_SUFFIX = "_suction"  # a pressure actuator's shape at control -1
 _PROBE_DEG = 5.0  # the jaw opening that measures how far each vertex follows the jaw
 
 _RIGS: dict[int, tuple[weakref.ref, dict]] = {}  # id(model) -> (weak reference, solved shapes)
@@ -75,18 +91,54 @@ def muscle_shapes(
         raise ValueError(f"activation must be in (0, 1], got {activation}")
     names = list(model.muscle_names) if muscles is None else list(muscles)
     for name in names:
-        model.muscle_index(name)
+        shape_channel(model, name)
     skin_nodes = np.unique(model.skin_triangles)
     shapes = _node_shapes(model, names, activation, simulator or Simulator(model), progress)
     return skin_nodes, shapes[:, skin_nodes]
 
 
+def shape_channel(model: FaceModel, name: str) -> tuple[int, float]:
+    """(channel index, sign) of a shape name: a muscle's own name (+1), or a pressure actuator's
+    ``<name>_suction`` (-1). An unknown name raises the model's KeyError listing the muscles."""
+    base = name.removesuffix(SUCTION_SUFFIX)
+    if base != name and base in model.pressure_actuators:
+        return model.muscle_index(base), -1.0
+    return model.muscle_index(name), 1.0
+
+
+def shape_names(model: FaceModel) -> list[str]:
+    """Every shape a rig of ``model`` can have, in order: each muscle, and after a pressure actuator
+    its suction shape."""
+    return shape_weights(model, np.zeros((1, model.n_muscles)))[0]
+
+
+def shape_weights(model: FaceModel, activations: np.ndarray, *, active: float | None = None) -> tuple[list, np.ndarray]:
+    """(shape names, (T, B) weights >= 0) of a take's (T, M) activations: a muscle's weight is its
+    activation, a pressure actuator's splits into its positive and its suction part. With
+    ``active``, only the shapes whose weight exceeds it in some frame."""
+    a = np.atleast_2d(np.asarray(activations, dtype=np.float64))
+    names, columns = [], []
+    for i, name in enumerate(model.muscle_names):
+        names.append(name)
+        columns.append(np.maximum(a[:, i], 0.0))
+        if name in model.pressure_actuators:
+            names.append(name + SUCTION_SUFFIX)
+            columns.append(np.maximum(-a[:, i], 0.0))
+    W = np.stack(columns, axis=1) if columns else np.zeros((len(a), 0))
+    if active is None:
+        return names, W
+    keep = W.max(axis=0, initial=0.0) > active
+    return [n for n, k in zip(names, keep, strict=True) if k], W[:, keep]
+
+
 def _node_shapes(model: FaceModel, names: list[str], activation: float, sim: Simulator, progress: bool) -> np.ndarray:
-    """(B, N, 3) displacement of every node per unit weight, one muscle alone at ``activation`` each."""
+    """(B, N, 3) displacement of every node per unit weight, one muscle alone at ``activation`` each
+    (a pressure actuator's suction shape at -``activation``)."""
     rest = model.rest_positions_m
     shapes = np.empty((len(names), model.n_nodes, 3))
     for i, name in enumerate(tqdm(names, desc="muscle shapes", disable=not progress, unit="muscle")):
-        eq = sim.solve({name: activation})
+        channel, sign = shape_channel(model, name)
+        eq = sim.solve({model.muscle_names[channel]: sign * activation})
         if eq.inverted_elements:
             raise RuntimeError(f"muscle {name} at activation {activation} inverts {eq.inverted_elements} tets")
         _warn_unconverged(eq, f"muscle {name}'s shape (activation {activation:g})")
@@ -205,12 +257,13 @@ def skin_rig(
 
     Args:
         model: the face.
-        muscles: the muscles to give shapes (default all, in the model's order).
+        muscles: the shapes to give (default ``shape_names(model)``: every muscle in the model's
+            order, a pressure actuator's suction shape after it).
         jaw: add the jaw weights and corrective (two more solves).
         simulator: a ``Simulator`` of ``model`` to reuse.
         progress: show a progress bar over the muscles' solves.
     """
-    names = list(model.muscle_names) if muscles is None else list(muscles)
+    names = shape_names(model) if muscles is None else list(muscles)
     cache = _solved(model, names, jaw, simulator, progress)
     skin_nodes = np.unique(model.skin_triangles)
     rest, deltas, weights, names, theta_max = _rig_on(model, lambda x: x[skin_nodes], names, jaw, cache)
@@ -244,7 +297,7 @@ def render_mesh_rig(
     formulas on its vertices, so it is exact where the skin rig is. Rest points and shapes are in
     the mesh file's frame and units; ``bind_transform`` is the placement (file -> model metres).
     """
-    names = list(model.muscle_names) if muscles is None else list(muscles)
+    names = shape_names(model) if muscles is None else list(muscles)
     cache = _solved(model, names, jaw, simulator, progress)
     rest, deltas, weights, names, theta_max = _rig_on(model, render_mesh.binding.positions, names, jaw, cache)
     m = np.asarray(render_mesh.source_to_model, dtype=np.float64)

@@ -192,7 +192,7 @@ def take_from_records(model: FaceModel, records, *, fps: float = DEFAULT_FPS, so
     C = np.array([r.controls for r in records])
     M = model.n_muscles
     return Take(
-        activations=np.clip(C[:, :M], 0.0, 1.0),
+        activations=model.clip_activations(C[:, :M]),
         fps=fps,
         bones=C[:, M:],
         muscle_names=list(model.muscle_names),
@@ -424,7 +424,7 @@ def load_take(
             )
     rows = np.arange(len(numbers))[frames or slice(None)]
     take = Take(
-        activations=np.clip(acts[rows], 0.0, 1.0),
+        activations=model.clip_activations(acts[rows]),
         fps=fps or read_fps(path) or DEFAULT_FPS,
         bones=bones[rows],
         muscle_names=list(model.muscle_names),

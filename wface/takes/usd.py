@@ -27,7 +27,7 @@ from wface.io.usd import rig_points, write_mesh_animation, write_take
 from wface.io.usd.render_mesh import add_render_mesh_reference, reference_render_mesh, write_render_mesh_layer
 from wface.mesh.surface import boundary_faces
 from wface.model import FaceModel
-from wface.takes.shapes import JAW_SHAPE, render_mesh_rig, skin_rig
+from wface.takes.shapes import JAW_SHAPE, render_mesh_rig, shape_weights, skin_rig
 from wface.takes.take import Take
 
 __all__ = ["add_render_mesh", "render_mesh_layer_path", "skin_mesh", "write_take_usd"]
@@ -131,7 +131,7 @@ def write_take_usd(
     meta = {"source": take.source, **(metadata or {})}
     if take.force_length_scale is not None:
         meta["force_length_scale"] = take.force_length_scale.max(axis=0).tolist()
-    activations = np.minimum(take.drives, 1.0)
+    activations = np.clip(take.drives, -1.0, 1.0)  # a pressure actuator may be negative (suction)
     rig_meshes = None
     try:
         skel, rig_weights = _rig(model, take, activations, jaw, rig, simulator, progress)
@@ -188,13 +188,12 @@ def _rig(model: FaceModel, take: Take, activations: np.ndarray, jaw: np.ndarray,
         return None, None
     if rig not in (True, "all", "active"):
         raise ValueError(f"rig must be 'active', 'all', True or False; got {rig!r}")
-    used = activations.max(axis=0) > _ACTIVE if rig == "active" else np.ones(model.n_muscles, dtype=bool)
+    names, weights = shape_weights(model, activations, active=_ACTIVE if rig == "active" else None)
     jaw_moves = bool(np.abs(jaw - IDENTITY_AFFINE).max() > 1e-12) if rig == "active" else True
-    if not used.any() and not jaw_moves:
+    if not names and not jaw_moves:
         return None, None
-    names = [n for n, u in zip(model.muscle_names, used, strict=True) if u]
     skel = skin_rig(model, muscles=names, jaw=jaw_moves, simulator=simulator, progress=progress)
-    columns = [activations[:, used]]
+    columns = [weights]
     if jaw_moves:
         params = (params_from_affine(j[:, :3], j[:, 3]) for j in jaw)
         opening = np.array([jaw_to_intuitive(model.jaw_joint, p)["opening_deg"] for p in params])

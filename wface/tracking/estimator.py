@@ -147,7 +147,7 @@ class FrameEstimator:
     # ------------------------------------------------------------------ objective pieces
     def _penalty(self, c: np.ndarray):
         a, b = self.rig.split(c)
-        pa = activation_penalty(a)
+        pa = activation_penalty(a, self.rig.model.activation_lower_bounds)
         pb = bone_penalty(self.rig.model.jaw_joint, b)
         g = np.concatenate([pa.gradient, pb.gradient])
         H = np.zeros((len(c), len(c)))
@@ -418,8 +418,9 @@ class FrameEstimator:
         rhs = -np.linalg.solve(R.T, gz)
         lo = np.full(p, -np.inf)
         hi = np.full(p, np.inf)
-        a = np.clip(c[: self.M], 0.0, 1.0)
-        lo[: self.M], hi[: self.M] = -a, 1.0 - a
+        lower = self.rig.model.activation_lower_bounds
+        a = np.clip(c[: self.M], lower, 1.0)
+        lo[: self.M], hi[: self.M] = lower - a, 1.0 - a
         z = lsq_linear(R, rhs, bounds=(lo, hi), method="bvls").x
         return T @ z
 
@@ -520,12 +521,13 @@ class FrameEstimator:
         return worst
 
     def retract(self, c: np.ndarray) -> np.ndarray:
-        """Project controls onto valid ones: activations into [0, 1], the cranium onto the nearest
-        rotation (polar decomposition), the jaw onto a rigid pose inside the joint limits."""
+        """Project controls onto valid ones: activations into [0, 1] ([-1, 1] for a pressure actuator),
+        the cranium onto the nearest rotation (polar decomposition), the jaw onto a rigid pose inside
+        the joint limits."""
 
         M = self.M
         out = np.array(c, dtype=np.float64)
-        out[:M] = np.clip(out[:M], 0.0, 1.0)
+        out[:M] = self.rig.model.clip_activations(out[:M])
         for s0 in (M, M + 12):
             U, _, Vt = np.linalg.svd(out[s0 : s0 + 9].reshape(3, 3))
             R = U @ Vt

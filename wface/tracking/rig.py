@@ -245,7 +245,7 @@ class FaceRig:
         a, b = self.split(c)
         # Activations slightly outside [0, 1] can occur inside a penalty method: the physics
         # sees them clipped (the penalty keeps them near the box).
-        a_phys = np.clip(a, 0.0, 1.0)
+        a_phys = self.model.clip_activations(a)
         t0 = time.perf_counter()
         kwargs = {} if self.contact is None else {"contact": self.contact}
         if chord is not None:
@@ -307,7 +307,7 @@ class FaceRig:
         tangent was factored; ``warn``: say so when it is the projected one). None with contact."""
         if self.contact is not None:
             return None
-        a = np.clip(self.split(c)[0], 0.0, 1.0)
+        a = self.model.clip_activations(self.split(c)[0])
         sim, pattern = self.sim, self.sim.pattern("free")
         t0 = time.perf_counter()
         tan = sim.tangent(y, a, project=False)
@@ -381,7 +381,7 @@ class FaceRig:
     def _jacobian_y_contact(self, state: RigState) -> np.ndarray:
         """``jacobian_y`` with contact: the exact contact Hessian joins K (module docstring)."""
         a, b = self.split(state.controls)
-        a = np.clip(a, 0.0, 1.0)
+        a = self.model.clip_activations(a)
         y = state.y_m
         U, C = self._free_dofs, self._fixed_dofs
         M = self.n_muscles

@@ -47,6 +47,15 @@ _W_ARC_M, _H_M, _T_MEAN_M = 0.23, Y_TOP - Y_BOTTOM, 0.011
 # carries a strength multiplier of sigma_max: at 5, full zygomaticus major moves the mouth corner
 # ~9 mm (up, back and outward), the excursion of a broad smile.
 MUSCLE_STRENGTH = 5.0
+# Intra-oral pressure (a pressure actuator on the wall of the free vestibule, docs/design.md,
+# "Intra-oral pressure"): at full pressure the cheek wall beside the mouth corners (the
+# Lcheek_Down marker) puffs out ~8 mm, the largest puff of the AnimFace cheek take. The built-in
+# flesh (mu10 + mu01 = 80 kPa) is ~30 times stiffer than real cheek tissue (ArtiSynth's Badin face:
+# C10 = 2.5 kPa), so the pressure that does it is ~30 times a real puffed mouth's few kPa, as the
+# muscles' MUSCLE_STRENGTH scales sigma_max.
+INTRAORAL_PRESSURE = "intraoral_pressure"
+INTRAORAL_PRESSURE_MAX_PA = 1.5e5
+_BUCCAL_THETA_RAD = 0.30  # the pressure's wall starts this far from the midline (the canines)
 
 
 def _resolution(target_tets: int) -> tuple[int, int, int]:
@@ -92,13 +101,54 @@ def _embed_muscles(shape: FaceShape, x: np.ndarray, tets: np.ndarray, cell_size_
     return names, tet[order], mus[order], frac[order], dirs[order] / np.linalg.norm(dirs[order], axis=1, keepdims=True)
 
 
-def build_face(target_tets: int = 20_000, *, progress: bool = False, material: Material | None = None) -> FaceModel:
+def _surface_groups(grid, tets: np.ndarray, n0: int, region: np.ndarray, intraoral_pressure: bool) -> dict:
+    """The face's named surfaces: skin, lips (contact and cut), the bone side, and the intra-oral
+    pressure's wall. ``n0``: the first lower-lip duplicate node id; ``region``: per node bone id, -1 free."""
+    faces = boundary_faces(tets)
+    on_skin = np.all(grid.w[faces] == 1.0, axis=1)
+    on_bone = np.all(grid.w[faces] == 0.0, axis=1)
+    at_cut = np.all(np.abs(grid.y[faces] - Y_MOUTH) < 1e-12, axis=1) & ~on_skin & ~on_bone
+    upper = at_cut & np.all(faces < n0, axis=1)
+    skin = faces[on_skin]
+    # Lip contact regions: every outer face of a lip (cut, skin and vestibule side) within
+    # LIP_BAND_M of the mouth line, out a little past the corners (``wface.physics.contact``).
+    near_mouth = np.abs(grid.theta[faces]).max(axis=1) <= THETA_MOUTH + _LIP_CORNER_RAD
+    y_f = grid.y[faces]
+    upper_lip = near_mouth & (y_f.min(axis=1) >= Y_MOUTH - 1e-12) & (y_f.max(axis=1) <= Y_MOUTH + LIP_BAND_M)
+    lower_lip = near_mouth & (y_f.max(axis=1) <= Y_MOUTH + 1e-12) & (y_f.min(axis=1) >= Y_MOUTH - LIP_BAND_M)
+    # The buccal wall that the intra-oral pressure pushes: bone-side faces of the free vestibule
+    # (touching a free node) lateral of the central lips, which orbicularis oris holds sealed in a
+    # puff (on these free-edged lips the pressure would part them by ~16 mm at full pressure).
+    buccal = np.isin(faces, np.flatnonzero(region < 0)).any(axis=1)
+    buccal &= np.abs(grid.theta[faces]).mean(axis=1) >= _BUCCAL_THETA_RAD
+    surfaces = {
+        "skin": skin,
+        "upper_lip_contact": faces[upper],
+        "lower_lip_contact": faces[at_cut & ~upper],
+        "inner": faces[on_bone],
+        "upper_lip": faces[upper_lip & ~(at_cut & ~upper)],
+        "lower_lip": faces[lower_lip & ~upper],
+    }
+    if intraoral_pressure:
+        surfaces[INTRAORAL_PRESSURE] = faces[on_bone & buccal]
+    return surfaces
+
+
+def build_face(
+    target_tets: int = 20_000,
+    *,
+    progress: bool = False,
+    material: Material | None = None,
+    intraoral_pressure: bool = True,
+) -> FaceModel:
     """Build the built-in face with about ``target_tets`` tetrahedra (1K .. 2M).
 
     Args:
         target_tets: desired number of tets; the structured grid lands within a few percent.
         progress: show a progress bar over the build stages.
         material: flesh/muscle material (defaults to ``Material()``, docs/design.md, "Flesh").
+        intraoral_pressure: give the face its intra-oral pressure actuator (the last channel,
+            docs/design.md "Intra-oral pressure"); False builds the muscles alone.
 
     Returns:
         A validated ``FaceModel`` in metres.
@@ -140,32 +190,16 @@ def build_face(target_tets: int = 20_000, *, progress: bool = False, material: M
     names, f_tet, f_mus, f_frac, f_dir = _embed_muscles(shape, x, tets, cell_size)
     bar.update()
 
-    faces = boundary_faces(tets)
-    on_skin = np.all(grid.w[faces] == 1.0, axis=1)
-    on_bone = np.all(grid.w[faces] == 0.0, axis=1)
-    at_cut = np.all(np.abs(grid.y[faces] - Y_MOUTH) < 1e-12, axis=1) & ~on_skin & ~on_bone
-    upper = at_cut & np.all(faces < n0, axis=1)
-    skin = faces[on_skin]
-    # Lip contact regions: every outer face of a lip (cut, skin and vestibule side) within
-    # LIP_BAND_M of the mouth line, out a little past the corners (``wface.physics.contact``).
-    near_mouth = np.abs(grid.theta[faces]).max(axis=1) <= THETA_MOUTH + _LIP_CORNER_RAD
-    y_f = grid.y[faces]
-    upper_lip = near_mouth & (y_f.min(axis=1) >= Y_MOUTH - 1e-12) & (y_f.max(axis=1) <= Y_MOUTH + LIP_BAND_M)
-    lower_lip = near_mouth & (y_f.max(axis=1) <= Y_MOUTH + 1e-12) & (y_f.min(axis=1) >= Y_MOUTH - LIP_BAND_M)
-    surfaces = {
-        "skin": skin,
-        "upper_lip_contact": faces[upper],
-        "lower_lip_contact": faces[at_cut & ~upper],
-        "inner": faces[on_bone],
-        "upper_lip": faces[upper_lip & ~(at_cut & ~upper)],
-        "lower_lip": faces[lower_lip & ~upper],
-    }
+    surfaces = _surface_groups(grid, tets, n0, region, intraoral_pressure)
+    skin = surfaces["skin"]
     # Markers: analytic skin points snapped onto the skin triangles.
     mk_names = list(MARKERS)
     mk_param = np.array([MARKERS[k] for k in mk_names])
     mk = SurfaceQuery(x, skin).closest(shape.point(mk_param[:, 0], mk_param[:, 1], 1.0)).point_m
     bar.update()
 
+    if intraoral_pressure:
+        names = [*names, INTRAORAL_PRESSURE]  # an actuator without fibres: the last channel
     facs_table = {}
     for au in facs.ACTION_UNITS:
         acts, _ = facs.muscle_activations({au: 1.0}, muscle_names=names)
@@ -180,7 +214,7 @@ def build_face(target_tets: int = 20_000, *, progress: bool = False, material: M
         fibre_muscle=f_mus,
         fibre_fraction=f_frac,
         fibre_direction=f_dir,
-        muscle_strength=np.full(len(names), MUSCLE_STRENGTH),
+        muscle_strength=np.where(np.array(names) == INTRAORAL_PRESSURE, 1.0, MUSCLE_STRENGTH),
         attached_nodes=attached,
         attached_bone=attached_bone,
         jaw_joint=JAW_JOINT,
@@ -190,6 +224,7 @@ def build_face(target_tets: int = 20_000, *, progress: bool = False, material: M
         marker_names=mk_names,
         marker_positions_m=mk,
         facs=facs_table,
+        pressure_actuators={INTRAORAL_PRESSURE: INTRAORAL_PRESSURE_MAX_PA} if intraoral_pressure else {},
         metadata={
             "name": "wface built-in face",
             "builder_version": BUILDER_VERSION,
