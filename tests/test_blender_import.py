@@ -31,6 +31,7 @@ pytest.importorskip("pxr")
 
 from wface.cli import main  # noqa: E402
 from wface.io.mocap import MocapTake, write_mocap  # noqa: E402
+from wface.takes.usd import ACTIVE_WEIGHT  # noqa: E402
 
 _PROBE = Path(__file__).with_name("blender_probe.py")
 _KEY_TOL = 1e-5  # shape-key values: float32 keyframes of weights in [0, 1]
@@ -185,7 +186,7 @@ def test_shape_keys_follow_the_activation_curves(stages, command):
     assert rig["shape_keys"], f"{command}: no shape keys on the rig"
     frames = range(probe["frame_start"], probe["frame_end"] + 1)
     shapes, curves = _shape_curves(facts["muscles"], np.minimum(facts["activations"], 1.0))
-    used = [n for b, n in enumerate(shapes) if curves[:, b].max() > 1e-6]
+    used = [n for b, n in enumerate(shapes) if curves[:, b].max() > ACTIVE_WEIGHT]
     assert set(rig["shape_keys"][0]) == {*used, "jaw_open"}  # a key per muscle the take uses, plus the jaw
     for i, (f, keys) in enumerate(zip(frames, rig["shape_keys"], strict=True)):
         for name in used:
@@ -290,7 +291,7 @@ def test_speech_on_the_badin_face_plays_in_blender(blender, badin_model_path, tm
             assert probe["objects"][name]["moved_m"] > _MOVED_M, f"speech: {name} does not move in Blender"
     assert facts["moving"].get("Skin") and "weights" in facts
     rig = probe["objects"]["SkinRig"]
-    used = [n for m, n in enumerate(facts["muscles"]) if facts["activations"][:, m].max() > 1e-6]
+    used = [n for m, n in enumerate(facts["muscles"]) if facts["activations"][:, m].max() > ACTIVE_WEIGHT]
     assert used and set(used) <= set(rig["shape_keys"][0])
     for i, keys in enumerate(rig["shape_keys"]):
         for name in used:

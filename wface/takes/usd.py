@@ -30,9 +30,12 @@ from wface.model import FaceModel
 from wface.takes.shapes import JAW_SHAPE, render_mesh_rig, shape_weights, skin_rig
 from wface.takes.take import Take
 
-__all__ = ["add_render_mesh", "render_mesh_layer_path", "skin_mesh", "write_take_usd"]
+__all__ = ["ACTIVE_WEIGHT", "add_render_mesh", "render_mesh_layer_path", "skin_mesh", "write_take_usd"]
 
-_ACTIVE = 1e-6  # a curve above this in some frame makes a muscle "used" by the take
+# A shape whose weight exceeds this in some frame is "used" by the take and gets a blend shape. Below
+# it a shape moves the skin by less than 0.1 % of its full motion (~0.01 mm on the built-in face), and
+# the tracker's round-off (a resting muscle or the pressure at +-5e-4) neither adds nor drops one.
+ACTIVE_WEIGHT = 1e-3
 
 
 def skin_mesh(model: FaceModel) -> tuple[np.ndarray, np.ndarray]:
@@ -188,7 +191,7 @@ def _rig(model: FaceModel, take: Take, activations: np.ndarray, jaw: np.ndarray,
         return None, None
     if rig not in (True, "all", "active"):
         raise ValueError(f"rig must be 'active', 'all', True or False; got {rig!r}")
-    names, weights = shape_weights(model, activations, active=_ACTIVE if rig == "active" else None)
+    names, weights = shape_weights(model, activations, active=ACTIVE_WEIGHT if rig == "active" else None)
     jaw_moves = bool(np.abs(jaw - IDENTITY_AFFINE).max() > 1e-12) if rig == "active" else True
     if not names and not jaw_moves:
         return None, None
