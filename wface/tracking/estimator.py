@@ -71,7 +71,7 @@ class TrackOptions:
     )
     prior: str = "auto"  # data-chosen priors (wface.tracking.prior): "auto" temporal + usage (two passes),
     # "temporal" the temporal prior alone (one pass), "off" none
-    prior_passes: int = 1  # with prior="auto": passes under the take-wide usage prior after the first, each
+    prior_passes: int = 3  # with prior="auto": passes under the take-wide usage prior after the first, each
     # re-linearised at the one before and its prior refitted (wface.tracking.refine)
     temporal_weight: float = 0.0  # lam: pull of activations toward the previous frame (m^2 per unit^2)
     activation_prior: float = 0.0  # mu: pull of activations toward zero (m^2 per unit^2), a small prior

@@ -43,6 +43,7 @@ __all__ = [
 LENGTHS_FRAMES = (0.0, 1.0, 2.0, 4.0, 8.0)  # AR(1) correlation lengths tried by cross-validation (frames)
 _FOLDS = 5
 _FLOOR = 1e-8  # smallest gamma (unit^2): a muscle held at rest
+_FOLD_ITERATIONS = 30  # fixed-point steps of a fold's fit, started from the whole take's (4/5 of its data)
 _RHO_MAX = 0.98  # largest AR(1) coefficient (keeps the prediction covariance away from singular)
 
 
@@ -68,66 +69,67 @@ def ar1_coefficient(length_frames: float) -> float:
     return min(float(np.exp(-1.0 / length_frames)), _RHO_MAX)
 
 
-def _factor_information(info: np.ndarray) -> list[np.ndarray]:
-    """L_t (M, r_t) with L_t L_t^T = P_t (positive part), per frame."""
-    out = []
-    for P in info:
-        w, V = np.linalg.eigh(0.5 * (P + P.T))
-        keep = w > 1e-12 * max(float(w.max()), 1e-300)
-        out.append(V[:, keep] * np.sqrt(w[keep]))
-    return out
+def _factor_information(info: np.ndarray) -> np.ndarray:
+    """(F, M, M) L_t with L_t L_t^T = P_t (its positive part; the columns of unobserved directions zero)."""
+    w, V = np.linalg.eigh(0.5 * (info + np.swapaxes(info, 1, 2)))
+    w = np.where(w > 1e-12 * np.maximum(w.max(axis=1, keepdims=True), 1e-300), w, 0.0)
+    return V * np.sqrt(w)[:, None, :]
 
 
 @dataclass
 class _Smoothed:
-    mean: np.ndarray  # (F, M) whitened posterior means
-    cov: np.ndarray  # (F, M, M) whitened posterior covariances
-    lag: np.ndarray  # (F-1, M, M) Cov(u_t+1, u_t | data)
-    loglik: np.ndarray  # (F,) log predictive likelihood of each observed frame's measurement (nats)
+    mean: np.ndarray  # (B, F, M) whitened posterior means
+    cov: np.ndarray  # (B, F, M, M) whitened posterior covariances
+    lag: np.ndarray  # (B, F-1, M, M) Cov(u_t+1, u_t | data)
+    loglik: np.ndarray  # (B, F) log predictive likelihood of each observed frame's measurement (nats)
 
 
-def _smooth_white(Ls, zs, observed, rho: float, M: int) -> _Smoothed:
+def _smooth_white(Lw, zs, observed, rho) -> _Smoothed:
     """Kalman filter + RTS smoother of u_t = rho u_t-1 + sqrt(1 - rho^2) e_t, u_1 ~ N(0, I), with the
-    measurements z_t = L_t^T u_t + N(0, I) (whitened L_t) on the observed frames."""
-    F = len(Ls)
-    q = 1.0 - rho * rho
-    mf = np.zeros((F, M))
-    Cf = np.zeros((F, M, M))
-    mp = np.zeros((F, M))
-    Cp = np.zeros((F, M, M))
-    loglik = np.zeros(F)
-    m, C = np.zeros(M), np.eye(M)
+    measurements z_t = L_t^T u_t + N(0, I) on the observed frames; B problems at once (the lengths and
+    folds of the cross-validation share every step). Lw (B, F, M, M) whitened factors, zs (F, M),
+    observed (B, F) bool, rho (B,)."""
+    B, F, M, _ = Lw.shape
+    rho = np.asarray(rho, dtype=np.float64).reshape(B)
+    obs = np.asarray(observed, dtype=np.float64).reshape(B, F)
+    eye = np.eye(M)
+    r2, q = (rho * rho)[:, None, None], (1.0 - rho * rho)[:, None, None]
+    mf, Cf = np.zeros((B, F, M)), np.zeros((B, F, M, M))
+    mp, Cp = np.zeros((B, F, M)), np.zeros((B, F, M, M))
+    loglik = np.zeros((B, F))
+    m, C = np.zeros((B, M)), np.broadcast_to(eye, (B, M, M)).copy()
     for t in range(F):
         if t > 0:
-            m, C = rho * m, rho * rho * C + q * np.eye(M)
-        mp[t], Cp[t] = m, C
-        L = Ls[t]
-        if observed[t] and L.shape[1]:
-            S = L.T @ C @ L + np.eye(L.shape[1])
-            e = zs[t] - L.T @ m
-            cS = np.linalg.cholesky(S)
-            sol = np.linalg.solve(cS, e)
-            loglik[t] = -0.5 * (sol @ sol) - np.log(np.diag(cS)).sum() - 0.5 * len(e) * np.log(2 * np.pi)
-            K = np.linalg.solve(S, L.T @ C).T  # C L S^-1
-            m = m + K @ e
-            C = C - K @ L.T @ C
-            C = 0.5 * (C + C.T)
-        mf[t], Cf[t] = m, C
+            m, C = rho[:, None] * m, r2 * C + q * eye
+        mp[:, t], Cp[:, t] = m, C
+        L = Lw[:, t]
+        LtC = np.swapaxes(L, 1, 2) @ C
+        S = LtC @ L + eye
+        e = zs[t][None, :] - np.einsum("bij,bi->bj", L, m)
+        cS = np.linalg.cholesky(S)
+        sol = np.linalg.solve(cS, e[..., None])[..., 0]
+        ll = -0.5 * np.sum(sol**2, axis=1) - np.log(np.diagonal(cS, axis1=1, axis2=2)).sum(axis=1)
+        loglik[:, t] = obs[:, t] * (ll - 0.5 * M * np.log(2.0 * np.pi))
+        K = np.swapaxes(np.linalg.solve(S, LtC), 1, 2) * obs[:, t, None, None]  # C L S^-1 where observed
+        m = m + np.einsum("bij,bj->bi", K, e)
+        C = C - K @ LtC
+        C = 0.5 * (C + np.swapaxes(C, 1, 2))
+        mf[:, t], Cf[:, t] = m, C
     ms, Cs = mf.copy(), Cf.copy()
-    lag = np.zeros((max(F - 1, 0), M, M))
+    lag = np.zeros((B, max(F - 1, 0), M, M))
     for t in range(F - 2, -1, -1):
-        G = np.linalg.solve(Cp[t + 1], rho * Cf[t]).T  # rho Cf_t Cp_t+1^-1 (both symmetric)
-        ms[t] = mf[t] + G @ (ms[t + 1] - mp[t + 1])
-        Cs[t] = Cf[t] + G @ (Cs[t + 1] - Cp[t + 1]) @ G.T
-        Cs[t] = 0.5 * (Cs[t] + Cs[t].T)
-        lag[t] = Cs[t + 1] @ G.T
+        G = np.swapaxes(np.linalg.solve(Cp[:, t + 1], rho[:, None, None] * Cf[:, t]), 1, 2)  # rho Cf Cp^-1
+        ms[:, t] = mf[:, t] + np.einsum("bij,bj->bi", G, ms[:, t + 1] - mp[:, t + 1])
+        Cs[:, t] = Cf[:, t] + G @ (Cs[:, t + 1] - Cp[:, t + 1]) @ np.swapaxes(G, 1, 2)
+        Cs[:, t] = 0.5 * (Cs[:, t] + np.swapaxes(Cs[:, t], 1, 2))
+        lag[:, t] = Cs[:, t + 1] @ np.swapaxes(G, 1, 2)
     return _Smoothed(ms, Cs, lag, loglik)
 
 
-def _whitened(Ls, ys, gamma):
-    """Whitened measurement factors L_t' = diag(sqrt gamma) L_t and z_t = L_t^T y_t."""
-    g = np.sqrt(gamma)
-    return [g[:, None] * L for L in Ls], [L.T @ y for L, y in zip(Ls, ys, strict=True)]
+def _whitened(L, Y, gamma):
+    """(whitened factors diag(sqrt gamma_b) L_t (B, F, M, M), z_t = L_t^T y_t (F, M)) for gamma (B, M)."""
+    g = np.sqrt(np.atleast_2d(gamma))
+    return g[:, None, :, None] * L[None], np.einsum("tij,ti->tj", L, Y)
 
 
 def smooth(activations, informations, noise_var_m2: float, gamma, length_frames: float, observed=None):
@@ -136,41 +138,42 @@ def smooth(activations, informations, noise_var_m2: float, gamma, length_frames:
     Y = np.asarray(activations, dtype=np.float64)
     P = np.asarray(informations, dtype=np.float64) / max(float(noise_var_m2), 1e-30)
     gamma = np.maximum(np.asarray(gamma, dtype=np.float64), _FLOOR)
-    observed = np.ones(len(Y), bool) if observed is None else np.asarray(observed, bool)
-    Lw, zs = _whitened(_factor_information(P), Y, gamma)
-    sm = _smooth_white(Lw, zs, observed, ar1_coefficient(length_frames), Y.shape[1])
+    observed = np.ones((1, len(Y)), bool) if observed is None else np.asarray(observed, bool)[None]
+    Lw, zs = _whitened(_factor_information(P), Y, gamma[None])
+    sm = _smooth_white(Lw, zs, observed, [ar1_coefficient(length_frames)])
     g = np.sqrt(gamma)
-    return sm.mean * g, sm.cov * g[:, None] * g[None, :]
+    return sm.mean[0] * g, sm.cov[0] * g[:, None] * g[None, :]
 
 
-def _quadratic_b_inverse(x2: np.ndarray, xx: np.ndarray, rho: float) -> np.ndarray:
-    """sum over frames of x^T B^-1 x per muscle from E[x_t^2] (F, M) and E[x_t+1 x_t] (F-1, M):
-    B^-1 of the AR(1) correlation is tridiagonal, (1 - rho^2) B^-1 = tridiag(-rho; 1, 1 + rho^2 .., 1; -rho)."""
-    if rho == 0.0:
-        return x2.sum(axis=0)
-    inner = x2.sum(axis=0) + rho * rho * x2[1:-1].sum(axis=0) - 2.0 * rho * xx.sum(axis=0)
-    return inner / (1.0 - rho * rho)
+def _quadratic_b_inverse(x2: np.ndarray, xx: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """(B, M) sum over frames of x^T B^-1 x per muscle from E[x_t^2] (B, F, M) and E[x_t+1 x_t]
+    (B, F-1, M): B^-1 of the AR(1) correlation is tridiagonal,
+    (1 - rho^2) B^-1 = tridiag(-rho; 1, 1 + rho^2, .., 1 + rho^2, 1; -rho)."""
+    r = rho[:, None]
+    inner = x2.sum(axis=1) + r * r * x2[:, 1:-1].sum(axis=1) - 2.0 * r * xx.sum(axis=1)
+    return inner / (1.0 - r * r)
 
 
-def _fit_gamma(Ls, Y, observed, rho, gamma0, iterations, rtol):
-    """MacKay's fixed point for gamma on the evidence: gamma_i <- mu_i^T B^-1 mu_i / (F - tr(B^-1 S_ii) / gamma_i)."""
+def _fit_gamma(L, Y, observed, rho, gamma0, iterations, rtol):
+    """MacKay's fixed point for gamma on the evidence, B problems at once (observed (B, F), rho (B,),
+    gamma0 (B, M)): gamma_i <- mu_i^T B^-1 mu_i / (n - tr(B^-1 S_ii) / gamma_i), n the frames."""
     F, M = Y.shape
-    gamma = gamma0.copy()
-    n = int(observed.sum())
+    gamma = np.array(gamma0, dtype=np.float64)
+    rho = np.asarray(rho, dtype=np.float64)
     it = 0
     for it in range(1, iterations + 1):  # noqa: B007
-        Lw, zs = _whitened(Ls, Y, gamma)
-        sm = _smooth_white(Lw, zs, observed, rho, M)
+        Lw, zs = _whitened(L, Y, gamma)
+        sm = _smooth_white(Lw, zs, observed, rho)
         mu = sm.mean
-        diag = np.einsum("tii->ti", sm.cov)
-        lag_d = np.einsum("tii->ti", sm.lag) if F > 1 else np.zeros((0, M))
-        mean_q = _quadratic_b_inverse(mu**2, mu[1:] * mu[:-1], rho)
+        diag = np.einsum("btii->bti", sm.cov)
+        lag_d = np.einsum("btii->bti", sm.lag)
+        mean_q = _quadratic_b_inverse(mu**2, mu[:, 1:] * mu[:, :-1], rho)
         cov_q = _quadratic_b_inverse(diag, lag_d, rho)
-        # whitened: gamma_new = gamma * mean_q / (F - cov_q), the frames' own count F (unobserved frames
-        # contribute prior mass only, cov_q ~ 1 each, so they cancel in F - cov_q)
-        denom = np.maximum(F - cov_q, 1e-3 * max(n, 1))
+        # whitened: gamma_new = gamma * mean_q / (F - cov_q); an unobserved frame adds ~1 to both F and
+        # cov_q (its posterior is its prior), so it cancels
+        denom = np.maximum(F - cov_q, 1e-3)
         new = np.maximum(gamma * mean_q / denom, _FLOOR)
-        scale = np.maximum(np.maximum(gamma, new), 1e-4 * float(new.max()))  # a pruned muscle has settled
+        scale = np.maximum(np.maximum(gamma, new), 1e-3 * new.max(axis=1, keepdims=True))  # pruned: settled
         done = np.max(np.abs(new - gamma) / scale) < rtol
         gamma = new
         if done:
@@ -183,15 +186,12 @@ def _noise_update(I, Y, rho, gamma, noise_var_m2, residual_m2, dof) -> float:
     sum_t (phi_min,t + (mu_t - z_t)^T I_t (mu_t - z_t) + tr(I_t S_t)) / sum_t dof_t (phi = phi_min +
     (a - z)^T I (a - z), the linearised weighted residual; Wipf & Rao 2007 learn the noise the same way)."""
     F, M = Y.shape
-    Ls = _factor_information(I / noise_var_m2)
-    Lw, zs = _whitened(Ls, Y, gamma)
-    sm = _smooth_white(Lw, zs, np.ones(F, bool), rho, M)
+    Lw, zs = _whitened(_factor_information(I / noise_var_m2), Y, gamma[None])
+    sm = _smooth_white(Lw, zs, np.ones((1, F), bool), [rho])
     g = np.sqrt(gamma)
-    mu = sm.mean * g
-    total = float(np.sum(residual_m2))
-    for t in range(F):
-        d = mu[t] - Y[t]
-        total += float(d @ I[t] @ d) + float(np.sum(I[t] * (sm.cov[t] * g[:, None] * g[None, :])))
+    d = sm.mean[0] * g - Y
+    cov = sm.cov[0] * g[:, None] * g[None, :]
+    total = float(np.sum(residual_m2)) + float(np.einsum("ti,tij,tj->", d, I, d)) + float(np.sum(I * cov))
     return total / float(np.sum(dof))
 
 
@@ -210,7 +210,7 @@ def fit_usage(
 ) -> UsageFit:
     """The usage prior of a pass: gamma by evidence maximisation, (``length_frames`` None) the AR(1)
     length by 5-fold cross-validation over frames among ``lengths``, and (with ``residual_m2`` and
-    ``dof``) the marker noise sigma^2 with gamma by EM.
+    ``dof``) the marker noise sigma^2 with gamma by EM (at length 0, before the length is chosen).
 
     Args:
         activations: (F, M) the pass's data-only measurements z_t of the activations.
@@ -224,64 +224,60 @@ def fit_usage(
     I = np.asarray(informations, dtype=np.float64)
     F, M = Y.shape
     s2 = max(float(noise_var_m2), 1e-30)
-    every = np.ones(F, bool)
-    gamma0 = np.full(M, max(float(np.mean(Y**2)), _FLOOR))  # every fit starts here: a muscle the
-    # fixed point has pruned (gamma at the floor) would never come back from a warm start
+    every = np.ones((1, F), bool)
+    gamma0 = np.full((1, M), max(float(np.mean(Y**2)), _FLOOR))  # cold fits start here: a muscle the
+    # fixed point has pruned (gamma at the floor) does not come back from a warm start
     gamma = gamma0
     learn_noise = residual_m2 is not None and dof is not None
     scores, its = None, 0
     rho = 0.0 if length_frames is None else ar1_coefficient(length_frames)
     for _ in range(noise_rounds if learn_noise else 1):
         start = np.maximum(gamma, 1e-2 * gamma0)  # warm, a pruned muscle lifted so that it may come back
-        gamma, n = _fit_gamma(_factor_information(I / s2), Y, every, rho, start, iterations, rtol)
+        gamma, n = _fit_gamma(_factor_information(I / s2), Y, every, [rho], start, iterations, rtol)
         its += n
         if not learn_noise:
             break
-        new = _noise_update(I, Y, rho, gamma, s2, residual_m2, dof)
+        new = _noise_update(I, Y, rho, gamma[0], s2, residual_m2, dof)
         done = abs(new - s2) < 1e-3 * s2
         s2 = new
         if done:
             break
     if length_frames is None:
-        Ls = _factor_information(I / s2)
-        scores = choose_length(Ls, Y, gamma0, lengths, iterations=iterations, rtol=rtol)
+        L = _factor_information(I / s2)
+        scores, fits = choose_length(L, Y, gamma0[0], lengths, iterations=iterations, rtol=rtol)
         length_frames = max(scores, key=lambda k: (scores[k], -k))
-        gamma, n = _fit_gamma(Ls, Y, every, ar1_coefficient(length_frames), gamma0, iterations, rtol)
-        its += n
-    return UsageFit(gamma, float(length_frames), float(s2), scores, its)
+        gamma = fits[length_frames][None]
+    return UsageFit(gamma[0], float(length_frames), float(s2), scores, its)
 
 
-def choose_length(Ls, Y, gamma0, lengths, *, iterations: int = 300, rtol: float = 1e-3) -> dict:
-    """length -> mean held-out log predictive likelihood per frame (nats), 5 interleaved folds of frames
-    (frame t in fold t mod 5): gamma fitted on the other folds, the held-out frames predicted by the
-    smoother from them. With fewer than 5 frames, leave-one-frame-out."""
+def choose_length(L, Y, gamma0, lengths, *, iterations: int = 300, rtol: float = 1e-3) -> tuple[dict, dict]:
+    """({length: mean held-out log predictive likelihood per frame (nats)}, {length: gamma on every
+    frame}): 5 interleaved folds of frames (frame t in fold t mod 5; leave-one-out below 5 frames),
+    gamma fitted on the other folds (30 fixed-point steps from the whole take's fit), the held-out frames'
+    measurements predicted by the smoother from them. All lengths and folds run as one batch."""
     F, M = Y.shape
+    lengths = [float(v) for v in lengths]
+    rhos = np.array([ar1_coefficient(v) for v in lengths])
+    nL = len(lengths)
+    full, _ = _fit_gamma(L, Y, np.ones((nL, F), bool), rhos, np.tile(gamma0, (nL, 1)), iterations, rtol)
     folds = min(_FOLDS, F)
-    out = {}
-    for length in lengths:
-        rho = ar1_coefficient(length)
-        full, _ = _fit_gamma(Ls, Y, np.ones(F, bool), rho, gamma0, iterations, rtol)
-        start = np.maximum(full, 1e-2 * gamma0)  # each fold starts near the whole take's fit
-        total, count = 0.0, 0
-        for k in range(folds):
-            held = (np.arange(F) % folds) == k
-            if held.all() or not held.any():
-                continue
-            gamma, _ = _fit_gamma(Ls, Y, ~held, rho, start, iterations, rtol)
-            Lw, zs = _whitened(Ls, Y, gamma)
-            sm = _smooth_white(Lw, zs, ~held, rho, M)
-            for t in np.flatnonzero(held):
-                L = Lw[t]
-                if not L.shape[1]:
-                    continue
-                S = L.T @ sm.cov[t] @ L + np.eye(L.shape[1])
-                e = zs[t] - L.T @ sm.mean[t]
-                cS = np.linalg.cholesky(S)
-                sol = np.linalg.solve(cS, e)
-                total += -0.5 * (sol @ sol) - np.log(np.diag(cS)).sum() - 0.5 * len(e) * np.log(2 * np.pi)
-                count += 1
-        out[float(length)] = total / max(count, 1)
-    return out
+    held = (np.arange(F)[None, :] % folds) == np.arange(folds)[:, None]  # (folds, F)
+    observed = np.tile(~held, (nL, 1))  # (nL * folds, F), length-major
+    rho_b = np.repeat(rhos, folds)
+    start = np.repeat(np.maximum(full, 1e-2 * gamma0[None]), folds, axis=0)
+    gamma, _ = _fit_gamma(L, Y, observed, rho_b, start, _FOLD_ITERATIONS, rtol)
+    Lw, zs = _whitened(L, Y, gamma)
+    sm = _smooth_white(Lw, zs, observed, rho_b)
+    Lt = np.swapaxes(Lw, 2, 3)  # (B, F, M, M)
+    S = Lt @ sm.cov @ Lw + np.eye(M)
+    e = zs[None] - np.einsum("btij,btj->bti", Lt, sm.mean)
+    cS = np.linalg.cholesky(S)
+    sol = np.linalg.solve(cS, e[..., None])[..., 0]
+    ll = -0.5 * np.sum(sol**2, axis=2) - np.log(np.diagonal(cS, axis1=2, axis2=3)).sum(axis=2)
+    ll = (ll - 0.5 * M * np.log(2.0 * np.pi)) * ~observed  # the held-out frames only
+    per_length = ll.reshape(nL, folds, F).sum(axis=(1, 2)) / F
+    scores = {v: float(per_length[i]) for i, v in enumerate(lengths)}
+    return scores, {v: full[i] for i, v in enumerate(lengths)}
 
 
 def frame_priors(activations, informations, fit: UsageFit) -> tuple[np.ndarray, np.ndarray]:
@@ -293,19 +289,18 @@ def frame_priors(activations, informations, fit: UsageFit) -> tuple[np.ndarray, 
     F, M = Y.shape
     gamma = np.maximum(fit.gamma, _FLOOR)
     g = np.sqrt(gamma)
-    Ls = _factor_information(P)
-    Lw, zs = _whitened(Ls, Y, gamma)
-    sm = _smooth_white(Lw, zs, np.ones(F, bool), fit.rho, M)
+    Lw, zs = _whitened(_factor_information(P), Y, gamma[None])
+    sm = _smooth_white(Lw, zs, np.ones((1, F), bool), [fit.rho])
+    Lw, mean, cov = Lw[0], sm.mean[0], sm.cov[0]
     means = np.zeros((F, M))
     precisions = np.zeros((F, M, M))
     for t in range(F):
-        post_info = np.linalg.inv(sm.cov[t])
-        Pw = Lw[t] @ Lw[t].T
-        cav_info = post_info - Pw  # whitened: the other frames and the prior
+        post_info = np.linalg.inv(cov[t])
+        cav_info = post_info - Lw[t] @ Lw[t].T  # whitened: the other frames and the prior
         cav_info = 0.5 * (cav_info + cav_info.T)
         w, V = np.linalg.eigh(cav_info)
         cav_info = (V * np.maximum(w, 1e-9)) @ V.T  # round-off can leave it slightly indefinite
-        h = post_info @ sm.mean[t] - Lw[t] @ zs[t]
+        h = post_info @ mean[t] - Lw[t] @ zs[t]
         means[t] = g * np.linalg.solve(cav_info, h)
         precisions[t] = cav_info / g[:, None] / g[None, :]
     return means, precisions
