@@ -96,7 +96,8 @@ def _common(p: argparse.ArgumentParser) -> None:
         choices=["auto", "temporal", "off"],
         default="auto",
         help="priors on the activations whose strength the take itself sets: auto (default) a temporal prior, "
-        "then a second pass with each muscle's usage; temporal: the first alone (one pass, faster); off",
+        "then --prior-passes passes under each muscle's usage over the take; temporal: the first alone (one pass, "
+        "faster); off",
     )
     p.add_argument(
         "--prior-passes",
