@@ -154,12 +154,16 @@ def _quadratic_b_inverse(x2: np.ndarray, xx: np.ndarray, rho: np.ndarray) -> np.
     return inner / (1.0 - r * r)
 
 
-def _fit_gamma(L, Y, observed, rho, gamma0, iterations, rtol):
+def _fit_gamma(L, Y, observed, rho, gamma0, iterations, rtol, *, noise_var_m2=1.0, noise=None):
     """MacKay's fixed point for gamma on the evidence, B problems at once (observed (B, F), rho (B,),
-    gamma0 (B, M)): gamma_i <- mu_i^T B^-1 mu_i / (n - tr(B^-1 S_ii) / gamma_i), n the frames."""
+    gamma0 (B, M)): gamma_i <- mu_i^T B^-1 mu_i / (n - tr(B^-1 S_ii) / gamma_i), n the frames. ``L``
+    factors the information in units of ``noise_var_m2``; with ``noise`` = (I, residual_m2, dof)
+    (B = 1, every frame observed) sigma^2 takes its EM step from the same sweep (``_noise_update``).
+    Returns (gamma (B, M), sigma^2, iterations)."""
     F, M = Y.shape
     gamma = np.array(gamma0, dtype=np.float64)
     rho = np.asarray(rho, dtype=np.float64)
+    s2 = float(noise_var_m2)
     it = 0
     for it in range(1, iterations + 1):  # noqa: B007
         Lw, zs = _whitened(L, Y, gamma)
@@ -175,19 +179,23 @@ def _fit_gamma(L, Y, observed, rho, gamma0, iterations, rtol):
         new = np.maximum(gamma * mean_q / denom, _FLOOR)
         scale = np.maximum(np.maximum(gamma, new), 1e-3 * new.max(axis=1, keepdims=True))  # pruned: settled
         done = np.max(np.abs(new - gamma) / scale) < rtol
+        if noise is not None:
+            s2_new = _noise_update(noise, Y, sm, gamma[0])
+            done = done and abs(s2_new - s2) < rtol * s2
+            L = L * np.sqrt(s2 / s2_new)  # the information in units of the new sigma^2
+            s2 = s2_new
         gamma = new
         if done:
             break
-    return gamma, it
+    return gamma, s2, it
 
 
-def _noise_update(I, Y, rho, gamma, noise_var_m2, residual_m2, dof) -> float:
-    """sigma^2's EM update: the expected data term under the posterior over its degrees of freedom,
+def _noise_update(noise, Y, sm: _Smoothed, gamma) -> float:
+    """sigma^2's EM step: the expected data term under the posterior over its degrees of freedom,
     sum_t (phi_min,t + (mu_t - z_t)^T I_t (mu_t - z_t) + tr(I_t S_t)) / sum_t dof_t (phi = phi_min +
-    (a - z)^T I (a - z), the linearised weighted residual; Wipf & Rao 2007 learn the noise the same way)."""
-    F, M = Y.shape
-    Lw, zs = _whitened(_factor_information(I / noise_var_m2), Y, gamma[None])
-    sm = _smooth_white(Lw, zs, np.ones((1, F), bool), [rho])
+    (a - z)^T I (a - z), the linearised weighted residual; Wipf & Rao 2007 learn the noise the same way).
+    ``noise`` = (I (F, M, M), residual_m2 (F,), dof (F,)); ``sm`` the smoother's sweep (batch 0)."""
+    I, residual_m2, dof = noise
     g = np.sqrt(gamma)
     d = sm.mean[0] * g - Y
     cov = sm.cov[0] * g[:, None] * g[None, :]
@@ -206,7 +214,6 @@ def fit_usage(
     rtol: float = 1e-3,
     residual_m2=None,
     dof=None,
-    noise_rounds: int = 8,
 ) -> UsageFit:
     """The usage prior of a pass: gamma by evidence maximisation, (``length_frames`` None) the AR(1)
     length by 5-fold cross-validation over frames among ``lengths``, and (with ``residual_m2`` and
@@ -218,30 +225,19 @@ def fit_usage(
         noise_var_m2: sigma^2, marker noise variance per coordinate (m^2): fixed, or the EM's start.
         residual_m2: (F,) the weighted squared marker residual at z_t (m^2), phi_min,t.
         dof: (F,) the residual's degrees of freedom per frame (3 sum w_k minus the bones' 9).
-        noise_rounds: alternations of sigma^2's update and gamma's fit at most.
     """
     Y = np.asarray(activations, dtype=np.float64)
     I = np.asarray(informations, dtype=np.float64)
     F, M = Y.shape
     s2 = max(float(noise_var_m2), 1e-30)
     every = np.ones((1, F), bool)
-    gamma0 = np.full((1, M), max(float(np.mean(Y**2)), _FLOOR))  # cold fits start here: a muscle the
+    gamma0 = np.full((1, M), max(float(np.mean(Y**2)), _FLOOR))  # every fit starts here: a muscle the
     # fixed point has pruned (gamma at the floor) does not come back from a warm start
-    gamma = gamma0
-    learn_noise = residual_m2 is not None and dof is not None
-    scores, its = None, 0
+    noise = None if residual_m2 is None or dof is None else (I, np.asarray(residual_m2), np.asarray(dof))
     rho = 0.0 if length_frames is None else ar1_coefficient(length_frames)
-    for _ in range(noise_rounds if learn_noise else 1):
-        start = np.maximum(gamma, 1e-2 * gamma0)  # warm, a pruned muscle lifted so that it may come back
-        gamma, n = _fit_gamma(_factor_information(I / s2), Y, every, [rho], start, iterations, rtol)
-        its += n
-        if not learn_noise:
-            break
-        new = _noise_update(I, Y, rho, gamma[0], s2, residual_m2, dof)
-        done = abs(new - s2) < 1e-3 * s2
-        s2 = new
-        if done:
-            break
+    L = _factor_information(I / s2)
+    gamma, s2, its = _fit_gamma(L, Y, every, [rho], gamma0, iterations, rtol, noise_var_m2=s2, noise=noise)
+    scores = None
     if length_frames is None:
         L = _factor_information(I / s2)
         scores, fits = choose_length(L, Y, gamma0[0], lengths, iterations=iterations, rtol=rtol)
@@ -259,13 +255,13 @@ def choose_length(L, Y, gamma0, lengths, *, iterations: int = 300, rtol: float =
     lengths = [float(v) for v in lengths]
     rhos = np.array([ar1_coefficient(v) for v in lengths])
     nL = len(lengths)
-    full, _ = _fit_gamma(L, Y, np.ones((nL, F), bool), rhos, np.tile(gamma0, (nL, 1)), iterations, rtol)
+    full, _, _ = _fit_gamma(L, Y, np.ones((nL, F), bool), rhos, np.tile(gamma0, (nL, 1)), iterations, rtol)
     folds = min(_FOLDS, F)
     held = (np.arange(F)[None, :] % folds) == np.arange(folds)[:, None]  # (folds, F)
     observed = np.tile(~held, (nL, 1))  # (nL * folds, F), length-major
     rho_b = np.repeat(rhos, folds)
     start = np.repeat(np.maximum(full, 1e-2 * gamma0[None]), folds, axis=0)
-    gamma, _ = _fit_gamma(L, Y, observed, rho_b, start, _FOLD_ITERATIONS, rtol)
+    gamma, _, _ = _fit_gamma(L, Y, observed, rho_b, start, _FOLD_ITERATIONS, rtol)
     Lw, zs = _whitened(L, Y, gamma)
     sm = _smooth_white(Lw, zs, observed, rho_b)
     Lt = np.swapaxes(Lw, 2, 3)  # (B, F, M, M)
