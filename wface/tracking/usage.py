@@ -180,7 +180,7 @@ def _fit_gamma(L, Y, observed, rho, gamma0, iterations, rtol, *, noise_var_m2=1.
         scale = np.maximum(np.maximum(gamma, new), 1e-3 * new.max(axis=1, keepdims=True))  # pruned: settled
         done = np.max(np.abs(new - gamma) / scale) < rtol
         if noise is not None:
-            s2_new = _noise_update(noise, Y, sm, gamma[0])
+            s2_new = _noise_update(noise, Y, sm, gamma[0], s2)
             done = done and abs(s2_new - s2) < rtol * s2
             L = L * np.sqrt(s2 / s2_new)  # the information in units of the new sigma^2
             s2 = s2_new
@@ -190,17 +190,19 @@ def _fit_gamma(L, Y, observed, rho, gamma0, iterations, rtol, *, noise_var_m2=1.
     return gamma, s2, it
 
 
-def _noise_update(noise, Y, sm: _Smoothed, gamma) -> float:
-    """sigma^2's EM step: the expected data term under the posterior over its degrees of freedom,
-    sum_t (phi_min,t + (mu_t - z_t)^T I_t (mu_t - z_t) + tr(I_t S_t)) / sum_t dof_t (phi = phi_min +
-    (a - z)^T I (a - z), the linearised weighted residual; Wipf & Rao 2007 learn the noise the same way).
+def _noise_update(noise, Y, sm: _Smoothed, gamma, noise_var_m2: float) -> float:
+    """sigma^2's fixed-point step (MacKay 1992's form of the EM update, which converges in a few steps
+    where EM creeps): the data term at the posterior mean over the degrees of freedom the activations
+    leave, sum_t (phi_min,t + (mu_t - z_t)^T I_t (mu_t - z_t)) / (sum_t dof_t - sum_t tr(P_t S_t)),
+    phi = phi_min + (a - z)^T I (a - z) the linearised weighted residual, P_t = I_t / sigma^2.
     ``noise`` = (I (F, M, M), residual_m2 (F,), dof (F,)); ``sm`` the smoother's sweep (batch 0)."""
     I, residual_m2, dof = noise
     g = np.sqrt(gamma)
     d = sm.mean[0] * g - Y
     cov = sm.cov[0] * g[:, None] * g[None, :]
-    total = float(np.sum(residual_m2)) + float(np.einsum("ti,tij,tj->", d, I, d)) + float(np.sum(I * cov))
-    return total / float(np.sum(dof))
+    fitted = float(np.sum(residual_m2)) + float(np.einsum("ti,tij,tj->", d, I, d))  # phi at the posterior mean
+    used = float(np.sum(I * cov)) / noise_var_m2  # tr(P_t S_t) summed: the activations the data determine
+    return fitted / max(float(np.sum(dof)) - used, 1.0)
 
 
 def fit_usage(
