@@ -475,6 +475,8 @@ _USAGE = [
     (["demo", "--robust-mm", "inf"], "finite"),
     (["demo", "--contact-stiffness", "-5"], "> 0"),
     (["demo", "--prior", "strong"], "invalid choice"),
+    (["demo", "--prior-passes", "0"], ">= 1"),
+    (["track", "--mocap", "x.c3d", "--prior-passes", "-1"], ">= 1"),
     (["track", "--mocap", "x.c3d", "--frames", "5:2"], "empty"),
     (["track", "--mocap", "x.c3d", "--frames", "abc"], "A:B"),
     (["track", "--mocap", "x.c3d", "--neutral-frame", "-1"], ">= 0"),

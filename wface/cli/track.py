@@ -96,7 +96,15 @@ def _common(p: argparse.ArgumentParser) -> None:
         choices=["auto", "temporal", "off"],
         default="auto",
         help="priors on the activations whose strength the take itself sets: auto (default) a temporal prior, "
-        "then a second pass with each muscle's usage; temporal: the first alone (one pass, faster); off",
+        "then --prior-passes passes under each muscle's usage over the take; temporal: the first alone (one pass, "
+        "faster); off",
+    )
+    p.add_argument(
+        "--prior-passes",
+        type=positive_int,
+        default=TrackOptions.prior_passes,
+        help="with --prior auto: passes under the take-wide usage prior after the first, each re-linearised "
+        f"at the one before with its prior refitted (default {TrackOptions.prior_passes})",
     )
     p.add_argument(
         "--robust-mm",
@@ -172,7 +180,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _options(args) -> TrackOptions:
-    return TrackOptions(robust_mm=args.robust_mm or None, temporal_weight=args.temporal_weight, prior=args.prior)
+    return TrackOptions(
+        robust_mm=args.robust_mm or None,
+        temporal_weight=args.temporal_weight,
+        prior=args.prior,
+        prior_passes=args.prior_passes,
+    )
 
 
 def _rig_kwargs(args, model) -> dict:

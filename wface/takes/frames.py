@@ -22,6 +22,7 @@ from wface.takes.provenance import explain_mismatch, frame_fingerprint
 
 __all__ = [
     "FRAMES_DIR",
+    "REFINE_DIR_PREFIX",
     "SURVEY_DIR",
     "FrameRecord",
     "ResumePlan",
@@ -38,6 +39,7 @@ __all__ = [
 
 FRAMES_DIR = "frames"
 SURVEY_DIR = "survey"  # the first pass of a two-pass tracking run (``wface.tracking.sequence``)
+REFINE_DIR_PREFIX = "refine"  # refine2, refine3, ..: the passes between the first and the last
 
 
 # ---------------------------------------------------------------------- frame files

@@ -43,6 +43,7 @@ from wface.model import FaceModel
 from wface.takes.dynamic import ResimResult
 from wface.takes.frames import (
     FRAMES_DIR,
+    REFINE_DIR_PREFIX,
     SURVEY_DIR,
     FrameRecord,
     ResumePlan,
@@ -138,7 +139,7 @@ def _clear_results(out: Path) -> None:
     for name in (*TAKE_FILES, PROVENANCE):
         if (out / name).is_file():
             (out / name).unlink()
-    for name in (FRAMES_DIR, SURVEY_DIR):
+    for name in (FRAMES_DIR, SURVEY_DIR, *(p.name for p in out.glob(f"{REFINE_DIR_PREFIX}*"))):
         if (out / name).is_dir():
             shutil.rmtree(out / name)
 

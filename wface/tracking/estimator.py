@@ -71,6 +71,8 @@ class TrackOptions:
     )
     prior: str = "auto"  # data-chosen priors (wface.tracking.prior): "auto" temporal + usage (two passes),
     # "temporal" the temporal prior alone (one pass), "off" none
+    prior_passes: int = 3  # with prior="auto": passes under the take-wide usage prior after the first, each
+    # re-linearised at the one before and its prior refitted (wface.tracking.refine)
     temporal_weight: float = 0.0  # lam: pull of activations toward the previous frame (m^2 per unit^2)
     activation_prior: float = 0.0  # mu: pull of activations toward zero (m^2 per unit^2), a small prior
     extrapolate: bool = True  # start each frame from a constant-velocity prediction of the controls
@@ -226,6 +228,7 @@ class FrameEstimator:
         w = self._weights(np.where(present[:, None], m - target, 0.0))
         rho, gn_done = 0.0, 0
         data_hessian = None  # 2 J^T W J of the last Gauss-Newton system (for the usage prior)
+        data_system: dict = {}  # that system's step (its data gradient and where it was formed)
         near = None  # the factorised stiffness at the accepted trial's linear prediction ("prediction")
         while True:
             final_jacobian = opt.reuse_factor and (lin is None or lin.full)  # test the next step's prediction
@@ -243,7 +246,7 @@ class FrameEstimator:
             t = time.perf_counter()
             step = self._gn_step(state, lin, m, target, present, w, a_prev)
             timings["gauss_newton_system_s"] += time.perf_counter() - t
-            rho, data_hessian = step["rho"], step["data_hessian"]
+            rho, data_hessian, data_system = step["rho"], step["data_hessian"], step
             if opt.reuse_factor and self._converged(step["total0"], step["predicted"], present, relative=gn_done > 0):
                 break  # the next step would change the fit by less than the tolerances: done here
             t = time.perf_counter()
@@ -261,7 +264,8 @@ class FrameEstimator:
             c = state.controls
             w = self._weights(np.where(present[:, None], m - target, 0.0))
             if not final_jacobian:  # stop without a Jacobian at the new point?
-                done, data_hessian = self._done_without_jacobian(lin, state, m, target, present, w, a_prev, step, cache)
+                done, data_system = self._done_without_jacobian(lin, state, m, target, present, w, a_prev, step, cache)
+                data_hessian = data_system["data_hessian"]
                 if done:
                     break
 
@@ -276,6 +280,8 @@ class FrameEstimator:
             lin = None
         system = {"weighted_rss_m2": self._phi(m, target, present, w), "weighted_count": 3.0 * float(w[present].sum())}
         system.update({"data_hessian": data_hessian} if data_hessian is not None else {})
+        if data_hessian is not None:  # the data term's gradient 2 J^T W r there, and where: its linear model
+            system.update(data_gradient=data_system["data_gradient"], data_at=data_system["at"])
         return FrameResult(
             frame,
             c,
@@ -305,14 +311,14 @@ class FrameEstimator:
         return state, lin
 
     def _done_without_jacobian(self, lin, state, m, target, present, w, a_prev, step, cache):
-        """(stop here, the Gauss-Newton data Hessian of the last system) after the step ``step`` whose new
+        """(stop here, the last Gauss-Newton system: ``_gn_step``'s dict) after the step ``step`` whose new
         point ``state`` gets no Jacobian: the next step as known Jacobian rows predict it
         (``RowsLinearization``), else the paper's test on the achieved decrease (``cache``: the trials)."""
         if lin is not None and not lin.full:
             ahead = self._gn_step(state, lin, m, target, present, w, a_prev)
-            return self._converged(ahead["total0"], ahead["predicted"], present), ahead["data_hessian"]
+            return self._converged(ahead["total0"], ahead["predicted"], present), ahead
         total0 = step["total0"]
-        return self._converged(total0, total0 - min(v[0] for v in cache.values()), present), step["data_hessian"]
+        return self._converged(total0, total0 - min(v[0] for v in cache.values()), present), step
 
     def _gn_step(self, state, lin, m, target, present, w, a_prev) -> dict:
         """The Gauss-Newton step from ``state``: dc, rho, the objective there and the decrease the
@@ -328,7 +334,7 @@ class FrameEstimator:
         r = (m - target).reshape(-1)[rows]
         A = 2.0 * (Jp.T * wr) @ Jp
         g = 2.0 * (Jp.T * wr) @ r
-        data_hessian = A.copy()
+        data_hessian, data_gradient = A.copy(), g.copy()
         prior = self._prior
         if prior is not None:
             A[: self.M, : self.M] += 2.0 * prior.weight
@@ -350,6 +356,8 @@ class FrameEstimator:
             "predicted": predicted,
             "lin": lin,
             "data_hessian": data_hessian,
+            "data_gradient": data_gradient,
+            "at": c,
         }
 
     def _converged(self, total: float, decrease: float, present: np.ndarray, *, relative: bool = True) -> bool:

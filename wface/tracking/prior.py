@@ -37,7 +37,14 @@ import numpy as np
 
 from wface.tracking.identifiability import bone_motion_basis
 
-__all__ = ["GaussianPrior", "TemporalPrior", "activation_information", "fit_usage_prior", "usage_prior"]
+__all__ = [
+    "GaussianPrior",
+    "TemporalPrior",
+    "activation_information",
+    "activation_measurement",
+    "fit_usage_prior",
+    "usage_prior",
+]
 
 _Q0 = 1.0  # prior guess of the activation change per frame (unit): the whole range, i.e. no prior
 _N0 = 1.0  # pseudo-frames of that guess
@@ -63,6 +70,28 @@ def activation_information(joint, controls: np.ndarray, data_hessian: np.ndarray
     info = Haa - Hab @ np.linalg.pinv(Hbb, rcond=1e-12, hermitian=True) @ Hab.T
     w, V = np.linalg.eigh(0.5 * (info + info.T))
     return (V * np.maximum(w, 0.0)) @ V.T
+
+
+def activation_measurement(joint, system: dict, n_muscles: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(I (M, M), h (M,)): what a frame's markers alone say about its activations, the Gauss-Newton model
+    of the data term phi(c + dc) ~ phi + g^T dc + dc^T (J^T W J) dc at the controls c where its last
+    system was formed (``FrameResult.system``: data_hessian = 2 J^T W J, data_gradient g = 2 J^T W r,
+    data_at = c), minimised over the bones' rigid motion: I = J^T W J's Schur complement onto the
+    activations (``activation_information`` / 2) and h = I a_c - g_red / 2, so that the data term's
+    own minimiser z solves I z = h, whatever prior and bounds the frame was estimated under. None
+    when the frame had no Gauss-Newton system."""
+    if "data_gradient" not in system or "data_hessian" not in system:
+        return None
+    M = n_muscles
+    c = np.asarray(system["data_at"], dtype=np.float64)
+    B = bone_motion_basis(joint, c[M:])
+    H = 0.5 * (system["data_hessian"] + system["data_hessian"].T)
+    g = np.asarray(system["data_gradient"], dtype=np.float64)
+    Hab = H[:M, M:] @ B
+    Hbb_inv = np.linalg.pinv(B.T @ H[M:, M:] @ B, rcond=1e-12, hermitian=True)
+    info = 0.5 * activation_information(joint, c, H, M)
+    g_red = g[:M] - Hab @ Hbb_inv @ (B.T @ g[M:])
+    return info, info @ c[:M] - 0.5 * g_red
 
 
 class TemporalPrior:

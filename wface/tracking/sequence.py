@@ -37,9 +37,10 @@ from wface.controls import params_from_affine
 from wface.mesh.align import embed_markers, umeyama
 from wface.model import model_sha256
 from wface.takes.provenance import array_sha256, frame_fingerprint, run_provenance
-from wface.takes.store import FRAMES_DIR, SURVEY_DIR, FrameRecord, verified_frames, write_frame
+from wface.takes.store import FRAMES_DIR, REFINE_DIR_PREFIX, SURVEY_DIR, FrameRecord, verified_frames, write_frame
 from wface.tracking.estimator import FrameEstimator, MarkerMap, TrackOptions
-from wface.tracking.prior import GaussianPrior, TemporalPrior, fit_usage_prior, usage_prior
+from wface.tracking.prior import TemporalPrior, activation_measurement
+from wface.tracking.refine import usage_priors
 from wface.tracking.rig import FaceRig, RigState
 
 __all__ = [
@@ -201,8 +202,9 @@ class _Tracker:
             self.prior.update(self.rig.model.jaw_joint, res)
         self.c_older, self.c, self.y, self.x = c_last, res.controls, res.state.y_m, res.state.x_m
         state = self._state()
-        if self.prior is not None and self.prior.last_information is not None:
-            state["information"] = 0.5 * self.prior.last_information  # J^T W J on the activations
+        measured = activation_measurement(self.rig.model.jaw_joint, res.system, self.M) if opt.prior == "auto" else None
+        if measured is not None:  # what the markers alone say about the activations: the usage fit's input
+            state["information"], state["information_vector"] = measured
         if opt.prior == "auto" and self.lin is not None and self.lin.state is res.state:
             state["marker_jy"] = self.lin.node_rows(self.markers.nodes)  # the second pass's first step
         stats = {
@@ -298,20 +300,28 @@ def _track_chunk(
     return out
 
 
-def _refine_chunk(model, embedding, targets, survey, options, rig_kwargs, out_dir, run, reuse, prior, extra, progress):
-    """The second pass over consecutive frames (runs in a worker): each frame estimated again from its
-    first-pass solution (``survey``: its FrameRecords) under the take-wide usage prior."""
+def _refine_chunk(
+    model, embedding, targets, survey, options, rig_kwargs, out_dir, run, reuse, priors, extra, folder, desc, progress
+):
+    """A refinement pass over consecutive frames (runs in a worker): each frame estimated again from the
+    previous pass's solution (``survey``: its FrameRecords) under its own prior from the take-wide usage
+    fit (``priors``, one ``GaussianPrior`` or None per frame; ``wface.tracking.refine``). A pass before
+    the last (``folder`` not ``frames``) keeps each frame's activation information for the next fit."""
     frames = [r.frame for r in survey]
-    done = verified_frames(out_dir, frames, targets, run, extra=extra)[0] if (out_dir is not None and reuse) else {}
+    done = {}
+    if out_dir is not None and reuse:
+        done = verified_frames(out_dir, frames, targets, run, extra=extra, folder=folder)[0]
     rig = FaceRig(model, **{"factor_precision": options.factor_precision, **rig_kwargs})
     est = FrameEstimator(rig, MarkerMap(model, embedding), options)
+    keep_information = folder != FRAMES_DIR
     out = []
-    for j, first in enumerate(tqdm(survey, desc="tracking (pass 2 of 2)", disable=not progress, unit="frame")):
+    for j, first in enumerate(tqdm(survey, desc=desc, disable=not progress, unit="frame")):
         f = first.frame
         if f in done:
             out.append(done[f])
             continue
-        stats = dict(first.stats, pass1_seconds=first.stats["seconds"])
+        stats = dict(first.stats, pass1_seconds=first.stats.get("pass1_seconds", first.stats["seconds"]))
+        state = {}
         if first.stats.get("carried"):
             rec = FrameRecord(f, first.controls, first.x_m, first.y_m, first.markers_m, first.marker_error_m, stats)
         else:
@@ -328,12 +338,19 @@ def _refine_chunk(model, embedding, targets, survey, options, rig_kwargs, out_di
                 first.controls,
                 first.y_m,
                 steps=options.gn_steps,
-                prior=prior,
+                prior=priors[j],
                 equilibrium=start,
                 marker_jy=first.state.get("marker_jy"),
             )
-            if res.linearization is not None:
-                res.linearization.free()  # pass 2 starts each frame from its own first-pass solution
+            lin = res.linearization
+            if keep_information:
+                measured = activation_measurement(model.jaw_joint, res.system, est.M)
+                if measured is not None:  # what the markers alone say about the activations: the next fit's input
+                    state["information"], state["information_vector"] = measured
+                if lin is not None and getattr(lin, "full", False) and lin.state is res.state:
+                    state["marker_jy"] = lin.node_rows(est.markers.nodes)  # the next pass's first step
+            if lin is not None:
+                lin.free()  # each pass starts each frame from the previous pass's solution
             for k in ("cg_iterations", "factorizations", "back_solves", "chord_steps"):
                 stats[k] = first.stats.get(k, 0) + res.counts.get(k, 0)
             for k in ("gauss_newton_steps", "quasistatic_solves", "linear_solves", "seconds"):
@@ -345,34 +362,17 @@ def _refine_chunk(model, embedding, targets, survey, options, rig_kwargs, out_di
                 inverted_elements=res.state.inverted_elements,
                 penalty=res.penalty,
                 rho=res.rho,
+                weighted_rss_m2=float(res.system.get("weighted_rss_m2", 0.0)),
+                weighted_count=float(res.system.get("weighted_count", 0.0)),
             )
             st = res.state
-            rec = FrameRecord(f, res.controls, st.x_m, st.y_m, res.markers_m, res.marker_error_m, stats)
+            rec = FrameRecord(f, res.controls, st.x_m, st.y_m, res.markers_m, res.marker_error_m, stats, state)
         if out_dir is not None:
             fingerprint = frame_fingerprint(run, f, targets[j], extra=extra)
-            rec.provenance = {"run": run, "frame": int(f), "fingerprint": fingerprint, "extra": extra, "pass": 2}
-            write_frame(out_dir, rec)
+            rec.provenance = {"run": run, "frame": int(f), "fingerprint": fingerprint, "extra": extra, "pass": desc}
+            write_frame(out_dir, rec, folder=folder)
         out.append(rec)
     return out
-
-
-def _fit_usage(records) -> tuple[GaussianPrior | None, str | None, dict]:
-    """The usage prior of a first pass (``wface.tracking.prior.fit_usage_prior``), its digest and a summary."""
-    rows = [r for r in records if not r.stats.get("carried") and "information" in r.state]
-    if len(rows) < 2:
-        return None, None, {"frames_fitted": len(rows)}
-    rss = sum(r.stats["weighted_rss_m2"] for r in rows)
-    dof = sum(max(r.stats["weighted_count"] - r.state["information"].shape[0] - 9.0, 1.0) for r in rows)
-    sigma2 = rss / dof
-    M = rows[0].state["information"].shape[0]
-    A = np.array([r.controls[:M] for r in rows])
-    gamma = fit_usage_prior(A, np.array([r.state["information"] for r in rows]), sigma2)
-    summary = {
-        "frames_fitted": len(rows),
-        "noise_mm": float(np.sqrt(3.0 * sigma2) * 1e3),
-        "activation_sd": np.sqrt(gamma).tolist(),
-    }
-    return usage_prior(gamma, sigma2), array_sha256(gamma, np.array([sigma2]))[:16], summary
 
 
 def track_sequence(
@@ -461,16 +461,31 @@ def track_sequence(
     records = _run_chunks(_track_chunk, args, executor, progress)
     if not two_pass:
         return records
-    prior, extra, summary = _fit_usage(records)
-    args = [
-        (model, markers.embedding, targets[s:e], records[s:e], options, rig_kwargs, out_dir, run, bool(resume))
-        + (prior, extra)
-        for s, e in chunks
-    ]
-    refined = _run_chunks(_refine_chunk, args, executor, progress)
-    for rec in refined:
-        rec.stats["usage_prior"] = summary
-    return refined
+    summaries = []
+    passes = max(1, int(options.prior_passes))
+    for k in range(passes):  # each pass under priors fitted to the one before (wface.tracking.refine)
+        priors, _, summary = usage_priors(records)
+        summaries.append(summary)
+        extra = _priors_digest(priors)
+        last = k == passes - 1
+        where = FRAMES_DIR if last else f"{REFINE_DIR_PREFIX}{k + 2}"
+        desc = f"tracking (pass {k + 2} of {passes + 1})"
+        args = [
+            (model, markers.embedding, targets[s:e], records[s:e], options, rig_kwargs, out_dir, run, bool(resume))
+            + (priors[s:e], extra, where, desc)
+            for s, e in chunks
+        ]
+        records = _run_chunks(_refine_chunk, args, executor, progress)
+    for rec in records:
+        rec.stats["usage_prior"] = summaries[-1]
+        rec.stats["usage_prior_passes"] = summaries
+    return records
+
+
+def _priors_digest(priors) -> str:
+    """A digest of a pass's per-frame priors (the fingerprint's ``extra`` of the frames made under them)."""
+    arrays = [a for p in priors if p is not None for a in (p.mean, p.weight)]
+    return array_sha256(*arrays)[:16] if arrays else "none"
 
 
 def _run_chunks(fn, args, executor, progress) -> list[FrameRecord]:

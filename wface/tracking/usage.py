@@ -1,0 +1,304 @@
+"""The usage prior over a whole take: temporal sparse Bayesian learning (docs/design.md, "Priors chosen
+by the data").
+
+Each frame t of a first tracking pass is a Gaussian measurement of the activations a_t: its estimate
+y_t with the information P_t = I_t / sigma^2 (I_t = J^T W J, the Schur complement over the bones'
+rigid motion, m^2 per unit^2; sigma^2 the marker noise variance per coordinate, m^2). Each muscle's
+time course x_i = (a_1,i .. a_F,i) is drawn from N(0, gamma_i B), B_ts = rho^|t - s| the correlation
+of a stationary AR(1) process (an Ornstein-Uhlenbeck process sampled at the frames,
+rho = exp(-1 / length_frames)): temporal sparse Bayesian learning (T-SBL; Zhang & Rao 2011, "Sparse
+signal recovery with temporally correlated source vectors using sparse Bayesian learning", IEEE J.
+Sel. Topics Signal Process. 5(5), with B shared by the muscles as there). gamma_i -> 0 holds a muscle
+the performance does not use at rest; length_frames = 0 (rho = 0) is multiple-measurement SBL
+(M-SBL; Wipf & Rao 2007), the frames independent.
+
+Because B^-1 is tridiagonal the joint posterior is a Kalman filter and Rauch-Tung-Striebel smoother
+over the frames (``smooth``; O(F M^3)), run in whitened coordinates u_i = x_i / sqrt(gamma_i) so that
+a muscle with gamma_i -> 0 does not make the matrices singular. gamma is fitted by MacKay's fixed
+point on the evidence (``fit_usage``), and the length by 5-fold cross-validation over frames
+(``choose_length``): the held-out frames' predictive likelihood of their own measurements given the
+others. Each frame is then estimated again under its *cavity* prior (``frame_priors``): the
+posterior of a_t from every other frame, so that the frame's own markers enter once, through the
+tracking objective.
+
+numpy only; no dependence on the rig.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "LENGTHS_FRAMES",
+    "UsageFit",
+    "ar1_coefficient",
+    "choose_length",
+    "fit_usage",
+    "frame_priors",
+    "smooth",
+]
+
+LENGTHS_FRAMES = (0.0, 1.0, 2.0, 4.0, 8.0)  # AR(1) correlation lengths tried by cross-validation (frames)
+_FOLDS = 5
+_FLOOR = 1e-8  # smallest gamma (unit^2): a muscle held at rest
+_FOLD_ITERATIONS = 30  # fixed-point steps of a fold's fit, started from the whole take's (4/5 of its data)
+_RHO_MAX = 0.98  # largest AR(1) coefficient (keeps the prediction covariance away from singular)
+
+
+@dataclass
+class UsageFit:
+    """The take's usage prior: per-muscle variances, the AR(1) length, and how it was chosen."""
+
+    gamma: np.ndarray  # (M,) unit^2
+    length_frames: float
+    noise_var_m2: float
+    cv_score: dict | None = None  # length -> mean held-out log likelihood per frame (nats)
+    iterations: int = 0
+
+    @property
+    def rho(self) -> float:
+        return ar1_coefficient(self.length_frames)
+
+
+def ar1_coefficient(length_frames: float) -> float:
+    """rho = exp(-1 / length) of the AR(1) correlation over frames (0 for length 0: frames independent)."""
+    if length_frames <= 0:
+        return 0.0
+    return min(float(np.exp(-1.0 / length_frames)), _RHO_MAX)
+
+
+def _factor_information(info: np.ndarray) -> np.ndarray:
+    """(F, M, M) L_t with L_t L_t^T = P_t (its positive part; the columns of unobserved directions zero)."""
+    w, V = np.linalg.eigh(0.5 * (info + np.swapaxes(info, 1, 2)))
+    w = np.where(w > 1e-12 * np.maximum(w.max(axis=1, keepdims=True), 1e-300), w, 0.0)
+    return V * np.sqrt(w)[:, None, :]
+
+
+@dataclass
+class _Smoothed:
+    mean: np.ndarray  # (B, F, M) whitened posterior means
+    cov: np.ndarray  # (B, F, M, M) whitened posterior covariances
+    lag: np.ndarray  # (B, F-1, M, M) Cov(u_t+1, u_t | data)
+    loglik: np.ndarray  # (B, F) log predictive likelihood of each observed frame's measurement (nats)
+
+
+def _smooth_white(Lw, zs, observed, rho) -> _Smoothed:
+    """Kalman filter + RTS smoother of u_t = rho u_t-1 + sqrt(1 - rho^2) e_t, u_1 ~ N(0, I), with the
+    measurements z_t = L_t^T u_t + N(0, I) on the observed frames; B problems at once (the lengths and
+    folds of the cross-validation share every step). Lw (B, F, M, M) whitened factors, zs (F, M),
+    observed (B, F) bool, rho (B,)."""
+    B, F, M, _ = Lw.shape
+    rho = np.asarray(rho, dtype=np.float64).reshape(B)
+    obs = np.asarray(observed, dtype=np.float64).reshape(B, F)
+    eye = np.eye(M)
+    r2, q = (rho * rho)[:, None, None], (1.0 - rho * rho)[:, None, None]
+    mf, Cf = np.zeros((B, F, M)), np.zeros((B, F, M, M))
+    mp, Cp = np.zeros((B, F, M)), np.zeros((B, F, M, M))
+    loglik = np.zeros((B, F))
+    m, C = np.zeros((B, M)), np.broadcast_to(eye, (B, M, M)).copy()
+    for t in range(F):
+        if t > 0:
+            m, C = rho[:, None] * m, r2 * C + q * eye
+        mp[:, t], Cp[:, t] = m, C
+        L = Lw[:, t]
+        LtC = np.swapaxes(L, 1, 2) @ C
+        S = LtC @ L + eye
+        e = zs[t][None, :] - np.einsum("bij,bi->bj", L, m)
+        cS = np.linalg.cholesky(S)
+        sol = np.linalg.solve(cS, e[..., None])[..., 0]
+        ll = -0.5 * np.sum(sol**2, axis=1) - np.log(np.diagonal(cS, axis1=1, axis2=2)).sum(axis=1)
+        loglik[:, t] = obs[:, t] * (ll - 0.5 * M * np.log(2.0 * np.pi))
+        K = np.swapaxes(np.linalg.solve(S, LtC), 1, 2) * obs[:, t, None, None]  # C L S^-1 where observed
+        m = m + np.einsum("bij,bj->bi", K, e)
+        C = C - K @ LtC
+        C = 0.5 * (C + np.swapaxes(C, 1, 2))
+        mf[:, t], Cf[:, t] = m, C
+    ms, Cs = mf.copy(), Cf.copy()
+    lag = np.zeros((B, max(F - 1, 0), M, M))
+    for t in range(F - 2, -1, -1):
+        G = np.swapaxes(np.linalg.solve(Cp[:, t + 1], rho[:, None, None] * Cf[:, t]), 1, 2)  # rho Cf Cp^-1
+        ms[:, t] = mf[:, t] + np.einsum("bij,bj->bi", G, ms[:, t + 1] - mp[:, t + 1])
+        Cs[:, t] = Cf[:, t] + G @ (Cs[:, t + 1] - Cp[:, t + 1]) @ np.swapaxes(G, 1, 2)
+        Cs[:, t] = 0.5 * (Cs[:, t] + np.swapaxes(Cs[:, t], 1, 2))
+        lag[:, t] = Cs[:, t + 1] @ np.swapaxes(G, 1, 2)
+    return _Smoothed(ms, Cs, lag, loglik)
+
+
+def _whitened(L, Y, gamma):
+    """(whitened factors diag(sqrt gamma_b) L_t (B, F, M, M), z_t = L_t^T y_t (F, M)) for gamma (B, M)."""
+    g = np.sqrt(np.atleast_2d(gamma))
+    return g[:, None, :, None] * L[None], np.einsum("tij,ti->tj", L, Y)
+
+
+def smooth(activations, informations, noise_var_m2: float, gamma, length_frames: float, observed=None):
+    """(means (F, M), covariances (F, M, M)) of the activations given every frame's measurement under
+    the prior N(0, gamma_i B) per muscle (module docstring)."""
+    Y = np.asarray(activations, dtype=np.float64)
+    P = np.asarray(informations, dtype=np.float64) / max(float(noise_var_m2), 1e-30)
+    gamma = np.maximum(np.asarray(gamma, dtype=np.float64), _FLOOR)
+    observed = np.ones((1, len(Y)), bool) if observed is None else np.asarray(observed, bool)[None]
+    Lw, zs = _whitened(_factor_information(P), Y, gamma[None])
+    sm = _smooth_white(Lw, zs, observed, [ar1_coefficient(length_frames)])
+    g = np.sqrt(gamma)
+    return sm.mean[0] * g, sm.cov[0] * g[:, None] * g[None, :]
+
+
+def _quadratic_b_inverse(x2: np.ndarray, xx: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """(B, M) sum over frames of x^T B^-1 x per muscle from E[x_t^2] (B, F, M) and E[x_t+1 x_t]
+    (B, F-1, M): B^-1 of the AR(1) correlation is tridiagonal,
+    (1 - rho^2) B^-1 = tridiag(-rho; 1, 1 + rho^2, .., 1 + rho^2, 1; -rho)."""
+    r = rho[:, None]
+    inner = x2.sum(axis=1) + r * r * x2[:, 1:-1].sum(axis=1) - 2.0 * r * xx.sum(axis=1)
+    return inner / (1.0 - r * r)
+
+
+def _fit_gamma(L, Y, observed, rho, gamma0, iterations, rtol, *, noise_var_m2=1.0, noise=None):
+    """MacKay's fixed point for gamma on the evidence, B problems at once (observed (B, F), rho (B,),
+    gamma0 (B, M)): gamma_i <- mu_i^T B^-1 mu_i / (n - tr(B^-1 S_ii) / gamma_i), n the frames. ``L``
+    factors the information in units of ``noise_var_m2``; with ``noise`` = (I, residual_m2, dof)
+    (B = 1, every frame observed) sigma^2 takes its EM step from the same sweep (``_noise_update``).
+    Returns (gamma (B, M), sigma^2, iterations)."""
+    F, M = Y.shape
+    gamma = np.array(gamma0, dtype=np.float64)
+    rho = np.asarray(rho, dtype=np.float64)
+    s2 = float(noise_var_m2)
+    it = 0
+    for it in range(1, iterations + 1):  # noqa: B007
+        Lw, zs = _whitened(L, Y, gamma)
+        sm = _smooth_white(Lw, zs, observed, rho)
+        mu = sm.mean
+        diag = np.einsum("btii->bti", sm.cov)
+        lag_d = np.einsum("btii->bti", sm.lag)
+        mean_q = _quadratic_b_inverse(mu**2, mu[:, 1:] * mu[:, :-1], rho)
+        cov_q = _quadratic_b_inverse(diag, lag_d, rho)
+        # whitened: gamma_new = gamma * mean_q / (F - cov_q); an unobserved frame adds ~1 to both F and
+        # cov_q (its posterior is its prior), so it cancels
+        denom = np.maximum(F - cov_q, 1e-3)
+        new = np.maximum(gamma * mean_q / denom, _FLOOR)
+        scale = np.maximum(np.maximum(gamma, new), 1e-3 * new.max(axis=1, keepdims=True))  # pruned: settled
+        done = np.max(np.abs(new - gamma) / scale) < rtol
+        if noise is not None:
+            s2_new = _noise_update(noise, Y, sm, gamma[0], s2)
+            done = done and abs(s2_new - s2) < rtol * s2
+            L = L * np.sqrt(s2 / s2_new)  # the information in units of the new sigma^2
+            s2 = s2_new
+        gamma = new
+        if done:
+            break
+    return gamma, s2, it
+
+
+def _noise_update(noise, Y, sm: _Smoothed, gamma, noise_var_m2: float) -> float:
+    """sigma^2's fixed-point step (MacKay 1992's form of the EM update, which converges in a few steps
+    where EM creeps): the data term at the posterior mean over the degrees of freedom the activations
+    leave, sum_t (phi_min,t + (mu_t - z_t)^T I_t (mu_t - z_t)) / (sum_t dof_t - sum_t tr(P_t S_t)),
+    phi = phi_min + (a - z)^T I (a - z) the linearised weighted residual, P_t = I_t / sigma^2.
+    ``noise`` = (I (F, M, M), residual_m2 (F,), dof (F,)); ``sm`` the smoother's sweep (batch 0)."""
+    I, residual_m2, dof = noise
+    g = np.sqrt(gamma)
+    d = sm.mean[0] * g - Y
+    cov = sm.cov[0] * g[:, None] * g[None, :]
+    fitted = float(np.sum(residual_m2)) + float(np.einsum("ti,tij,tj->", d, I, d))  # phi at the posterior mean
+    used = float(np.sum(I * cov)) / noise_var_m2  # tr(P_t S_t) summed: the activations the data determine
+    return fitted / max(float(np.sum(dof)) - used, 1.0)
+
+
+def fit_usage(
+    activations,
+    informations,
+    noise_var_m2: float,
+    *,
+    length_frames: float | None = None,
+    lengths=LENGTHS_FRAMES,
+    iterations: int = 300,
+    rtol: float = 1e-3,
+    residual_m2=None,
+    dof=None,
+) -> UsageFit:
+    """The usage prior of a pass: gamma by evidence maximisation, (``length_frames`` None) the AR(1)
+    length by 5-fold cross-validation over frames among ``lengths``, and (with ``residual_m2`` and
+    ``dof``) the marker noise sigma^2 with gamma by EM (at length 0, before the length is chosen).
+
+    Args:
+        activations: (F, M) the pass's data-only measurements z_t of the activations.
+        informations: (F, M, M) their data information J^T W J (m^2 per unit^2).
+        noise_var_m2: sigma^2, marker noise variance per coordinate (m^2): fixed, or the EM's start.
+        residual_m2: (F,) the weighted squared marker residual at z_t (m^2), phi_min,t.
+        dof: (F,) the residual's degrees of freedom per frame (3 sum w_k minus the bones' 9).
+    """
+    Y = np.asarray(activations, dtype=np.float64)
+    I = np.asarray(informations, dtype=np.float64)
+    F, M = Y.shape
+    s2 = max(float(noise_var_m2), 1e-30)
+    every = np.ones((1, F), bool)
+    gamma0 = np.full((1, M), max(float(np.mean(Y**2)), _FLOOR))  # every fit starts here: a muscle the
+    # fixed point has pruned (gamma at the floor) does not come back from a warm start
+    noise = None if residual_m2 is None or dof is None else (I, np.asarray(residual_m2), np.asarray(dof))
+    rho = 0.0 if length_frames is None else ar1_coefficient(length_frames)
+    L = _factor_information(I / s2)
+    gamma, s2, its = _fit_gamma(L, Y, every, [rho], gamma0, iterations, rtol, noise_var_m2=s2, noise=noise)
+    scores = None
+    if length_frames is None:
+        L = _factor_information(I / s2)
+        scores, fits = choose_length(L, Y, gamma0[0], lengths, iterations=iterations, rtol=rtol)
+        length_frames = max(scores, key=lambda k: (scores[k], -k))
+        gamma = fits[length_frames][None]
+    return UsageFit(gamma[0], float(length_frames), float(s2), scores, its)
+
+
+def choose_length(L, Y, gamma0, lengths, *, iterations: int = 300, rtol: float = 1e-3) -> tuple[dict, dict]:
+    """({length: mean held-out log predictive likelihood per frame (nats)}, {length: gamma on every
+    frame}): 5 interleaved folds of frames (frame t in fold t mod 5; leave-one-out below 5 frames),
+    gamma fitted on the other folds (30 fixed-point steps from the whole take's fit), the held-out frames'
+    measurements predicted by the smoother from them. All lengths and folds run as one batch."""
+    F, M = Y.shape
+    lengths = [float(v) for v in lengths]
+    rhos = np.array([ar1_coefficient(v) for v in lengths])
+    nL = len(lengths)
+    full, _, _ = _fit_gamma(L, Y, np.ones((nL, F), bool), rhos, np.tile(gamma0, (nL, 1)), iterations, rtol)
+    folds = min(_FOLDS, F)
+    held = (np.arange(F)[None, :] % folds) == np.arange(folds)[:, None]  # (folds, F)
+    observed = np.tile(~held, (nL, 1))  # (nL * folds, F), length-major
+    rho_b = np.repeat(rhos, folds)
+    start = np.repeat(np.maximum(full, 1e-2 * gamma0[None]), folds, axis=0)
+    gamma, _, _ = _fit_gamma(L, Y, observed, rho_b, start, _FOLD_ITERATIONS, rtol)
+    Lw, zs = _whitened(L, Y, gamma)
+    sm = _smooth_white(Lw, zs, observed, rho_b)
+    Lt = np.swapaxes(Lw, 2, 3)  # (B, F, M, M)
+    S = Lt @ sm.cov @ Lw + np.eye(M)
+    e = zs[None] - np.einsum("btij,btj->bti", Lt, sm.mean)
+    cS = np.linalg.cholesky(S)
+    sol = np.linalg.solve(cS, e[..., None])[..., 0]
+    ll = -0.5 * np.sum(sol**2, axis=2) - np.log(np.diagonal(cS, axis1=2, axis2=3)).sum(axis=2)
+    ll = (ll - 0.5 * M * np.log(2.0 * np.pi)) * ~observed  # the held-out frames only
+    per_length = ll.reshape(nL, folds, F).sum(axis=(1, 2)) / F
+    scores = {v: float(per_length[i]) for i, v in enumerate(lengths)}
+    return scores, {v: full[i] for i, v in enumerate(lengths)}
+
+
+def frame_priors(activations, informations, fit: UsageFit) -> tuple[np.ndarray, np.ndarray]:
+    """(means (F, M), precisions (F, M, M), unit^-2): each frame's cavity prior, the posterior of a_t
+    from every other frame's measurement under ``fit`` (for length 0: N(0, diag(gamma)) for every frame).
+    The tracking objective's weight is sigma^2 times the precision."""
+    Y = np.asarray(activations, dtype=np.float64)
+    P = np.asarray(informations, dtype=np.float64) / max(fit.noise_var_m2, 1e-30)
+    F, M = Y.shape
+    gamma = np.maximum(fit.gamma, _FLOOR)
+    g = np.sqrt(gamma)
+    Lw, zs = _whitened(_factor_information(P), Y, gamma[None])
+    sm = _smooth_white(Lw, zs, np.ones((1, F), bool), [fit.rho])
+    Lw, mean, cov = Lw[0], sm.mean[0], sm.cov[0]
+    means = np.zeros((F, M))
+    precisions = np.zeros((F, M, M))
+    for t in range(F):
+        post_info = np.linalg.inv(cov[t])
+        cav_info = post_info - Lw[t] @ Lw[t].T  # whitened: the other frames and the prior
+        cav_info = 0.5 * (cav_info + cav_info.T)
+        w, V = np.linalg.eigh(cav_info)
+        cav_info = (V * np.maximum(w, 1e-9)) @ V.T  # round-off can leave it slightly indefinite
+        h = post_info @ mean[t] - Lw[t] @ zs[t]
+        means[t] = g * np.linalg.solve(cav_info, h)
+        precisions[t] = cav_info / g[:, None] / g[None, :]
+    return means, precisions
