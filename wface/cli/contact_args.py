@@ -38,8 +38,8 @@ def add_contact_arguments(
         default="",
         metavar="REGIONS",
         help=f"contact in {where}, comma-separated: lips (upper vs lower lip self-contact), teeth (flesh "
-        "against the teeth meshes), bones (against the cranium and jaw meshes); teeth and bones move with "
-        "their bone (default: none)",
+        "against the teeth meshes), bones (against the cranium, maxilla and jaw meshes), skull (against the jaw and "
+        "maxilla only, as ArtiSynth's lip-skull contact); teeth, bones and skull move with their bone (default: none)",
     )
     if obstacles:
         p.add_argument(
