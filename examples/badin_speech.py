@@ -48,7 +48,16 @@ import json
 from pathlib import Path
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "artisynth-face"
-VARIANTS = ("quasistatic", "dynamic", "quasistatic_contact", "dynamic_contact", "quasistatic_skull", "dynamic_skull")
+VARIANTS = (
+    "quasistatic",
+    "dynamic",
+    "quasistatic_contact",
+    "dynamic_contact",
+    "quasistatic_skull",
+    "dynamic_skull",
+    "quasistatic_skullpushed",
+    "dynamic_skullpushed",
+)
 _STYLE = {
     "quasistatic": ("C0", "-"),
     "dynamic": ("C3", "-"),
@@ -56,14 +65,21 @@ _STYLE = {
     "dynamic_contact": ("C3", "--"),
     "quasistatic_skull": ("C2", "-."),
     "dynamic_skull": ("C1", "-."),
+    "quasistatic_skullpushed": ("C2", ":"),
+    "dynamic_skullpushed": ("C1", ":"),
 }
-# contact regions of each variant's suffix: lip contact; lip contact and ArtiSynth's lip-skull contact
-# (the face against the jaw and maxilla meshes, ``--contact lips,skull``)
-_CONTACT = {"contact": "lips", "skull": "lips,skull"}
+# contact of each variant's suffix (regions, Contact keyword arguments): lip contact; lip contact and ArtiSynth's
+# lip-skull contact (the face against the jaw and maxilla meshes, ``--contact lips,skull``); the same with the
+# flesh nodes that lie inside the maxilla or jaw in the source data pushed out too, as ArtiSynth does
+_CONTACT = {
+    "contact": ("lips", {}),
+    "skull": ("lips,skull", {}),
+    "skullpushed": ("lips,skull", {"ignore_inside_at_rest": False}),
+}
 
 
-def _contact_regions(variant: str) -> str:
-    return _CONTACT.get(variant.rpartition("_")[2], "")
+def _contact_of(variant: str) -> tuple[str, dict]:
+    return _CONTACT.get(variant.rpartition("_")[2], ("", {}))
 
 
 def _model(data: Path, model_path: Path | None):
@@ -96,8 +112,8 @@ def play(
     from wface.speech.output import write_gesture_usd, write_lip_opening
     from wface.speech.playback import compare_with_reference
 
-    regions = _contact_regions(variant)
-    contact = Contact(model, regions=regions, smoothing_m=1e-4, surface="smooth") if regions else None
+    regions, options = _contact_of(variant)
+    contact = Contact(model, regions=regions, smoothing_m=1e-4, surface="smooth", **options) if regions else None
     dynamics = GestureDynamics(max_step_s=max_step_ms * 1e-3) if variant.startswith("dynamic") else None
     res = simulate_gesture(
         model,
@@ -243,6 +259,8 @@ STEPS = (
     ("the demo setup, dynamic", {}, "dynamic", None, "file"),
     ("the demo setup, dynamic + lip contact", {}, "dynamic_contact", None, "file"),
     ("the demo setup, dynamic + lip and skull contact", {}, "dynamic_skull", None, "file"),
+    ("the demo setup + lip and skull contact, pushed out at rest", {}, "quasistatic_skullpushed", None, "file"),
+    ("the demo setup, dynamic + lip and skull contact, pushed out at rest", {}, "dynamic_skullpushed", None, "file"),
 )
 
 
@@ -457,7 +475,8 @@ def main(argv=None) -> int:
         "rows with ArtiSynth's flesh, 8-11 the same with the old law (C20 as mu01), 12 lip contact with the old law "
         "(0-12 uniaxial fibres), 13-15 deviatoric fibres (the demo setup): quasistatic, old law, lip contact; "
         "16 the demo setup with lip and skull contact (jaw and maxilla); 17-19 the demo setup played dynamically: "
-        "no contact, lip contact, lip and skull contact",
+        "no contact, lip contact, lip and skull contact; 20-21 lip and skull contact with the flesh inside the jaw or "
+        "maxilla in the source data pushed out (ArtiSynth's way), quasistatic and dynamic",
     )
     p.add_argument(
         "--held-oop",

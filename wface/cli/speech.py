@@ -199,6 +199,7 @@ def _speech_contact(args, model):
         stiffness_n_per_m=args.contact_stiffness,
         smoothing_m=args.contact_smoothing_mm * 1e-3,
         surface="smooth",
+        ignore_inside_at_rest=args.contact_inside_at_rest == "ignore",
     )
 
 
