@@ -89,12 +89,14 @@ def figure(held: dict, played: dict, data: Path, out: Path) -> dict:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--held", type=Path, required=True, help="held_oop.json of badin_speech.py --held-oop")
+    p.add_argument("--held", type=Path, nargs="+", required=True, help="held_oop.json of badin_speech.py --held-oop")
     p.add_argument("--played", type=Path, nargs="*", default=[], help="factors.json of --compare-artisynth")
     p.add_argument("--data", type=Path, default=DATA, help="the artisynth-face data folder")
     p.add_argument("--out", type=Path, required=True, help="the PNG to write")
     a = p.parse_args(argv)
-    held = json.loads(a.held.read_text())
+    held: dict = {}
+    for path in a.held:
+        held.update(json.loads(path.read_text()))
     played: dict = {}
     for path in a.played:
         played.update(json.loads(path.read_text()))
