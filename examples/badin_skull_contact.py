@@ -46,6 +46,31 @@ def original_at_levels(data: Path, levels) -> list[float]:
     return out
 
 
+def played_numbers(s: dict, ref: np.ndarray) -> dict:
+    """The README's columns for one played curve: area before the excitation (t <= 0.22 s, its largest),
+    mean over t >= 0.6 s, first time below 20 and below 0.5 mm^2, deepest lip overlap, RMS from the
+    original, and the largest difference from the original's curve up to t = 0.32 s (the sag and the
+    start of the closing) and after it."""
+    t, a = np.asarray(s["times_s"]), np.asarray(s["lip_opening_area_mm2"])
+    orig = np.interp(t, ref[:, 0], ref[:, 1])
+    diff = np.abs(a - orig)
+
+    def first_below(level):
+        below = np.flatnonzero(a < level)
+        return float(t[below[0]]) if below.size else None
+
+    return {
+        "before_excitation_mm2": round(float(a[t <= 0.22].max()), 1),
+        "mean_after_0.6s_mm2": round(float(a[t >= 0.6].mean()), 1),
+        "below_20_from_s": first_below(20.0),
+        "below_0.5_from_s": first_below(0.5),
+        "lip_gap_min_mm": s.get("lip_gap_mm_min"),
+        "rms_mm2": round(float((s.get("reference_comparison") or {}).get("rms_mm2", np.nan)), 2),
+        "max_difference_to_0.32s_mm2": round(float(diff[t <= 0.32 + 1e-9].max()), 1),
+        "max_difference_after_0.32s_mm2": round(float(diff[t > 0.32 + 1e-9].max()), 1),
+    }
+
+
 def figure(held: dict, played: dict, data: Path, out: Path) -> dict:
     """Draw the two panels; returns the numbers drawn (levels, areas, the original's, RMS per curve)."""
     from wface.speech import read_gesture
@@ -54,6 +79,7 @@ def figure(held: dict, played: dict, data: Path, out: Path) -> dict:
     plt = _plt()
     fig, (a, b) = plt.subplots(1, 2, figsize=(11.5, 4.2))
     numbers: dict = {"held": {}, "played": {}}
+    ref = read_gesture(data / "speech" / "approximant").reference_lip_area
     levels = None
     for name, r in held.items():
         levels = r["levels"]
@@ -69,10 +95,9 @@ def figure(held: dict, played: dict, data: Path, out: Path) -> dict:
     a.set_title("OOP held, quasistatic, demo setup", fontsize=10)
     a.grid(alpha=0.3)
     a.legend(fontsize=7)
-    ref = read_gesture(data / "speech" / "approximant").reference_lip_area
     for name, s in played.items():
         rms = (s.get("reference_comparison") or {}).get("rms_mm2")
-        numbers["played"][name] = {"rms_mm2": rms}
+        numbers["played"][name] = played_numbers(s, ref)
         label = name if rms is None else f"{name} (RMS {rms:.1f} mm$^2$)"
         b.plot(s["times_s"], s["lip_opening_area_mm2"], label=label)
     b.plot(ref[:, 0], ref[:, 1], "k:", lw=2, label="original (ArtiSynth's recorded output)")
