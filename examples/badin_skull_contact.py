@@ -46,6 +46,11 @@ def original_at_levels(data: Path, levels) -> list[float]:
     return out
 
 
+def _colour(name: str) -> str:
+    """One colour per contact setting in both panels."""
+    return "C2" if "pushed" in name else "C1" if "skull" in name else "C0" if "lip contact" in name else "C7"
+
+
 def played_numbers(s: dict, ref: np.ndarray) -> dict:
     """The README's columns for one played curve: area before the excitation (t <= 0.22 s, its largest),
     mean over t >= 0.6 s, first time below 20 and below 0.5 mm^2, deepest lip overlap, RMS from the
@@ -83,7 +88,7 @@ def figure(held: dict, played: dict, data: Path, out: Path) -> dict:
     levels = None
     for name, r in held.items():
         levels = r["levels"]
-        a.plot(r["levels"], r["area_mm2"], marker="o", label=name)
+        a.plot(r["levels"], r["area_mm2"], marker="o", color=_colour(name), label=name)
         numbers["held"][name] = [round(v, 2) for v in r["area_mm2"]]
     if levels:
         orig = original_at_levels(data, levels)
@@ -98,13 +103,15 @@ def figure(held: dict, played: dict, data: Path, out: Path) -> dict:
     for name, s in played.items():
         rms = (s.get("reference_comparison") or {}).get("rms_mm2")
         numbers["played"][name] = played_numbers(s, ref)
-        label = name if rms is None else f"{name} (RMS {rms:.1f} mm$^2$)"
-        b.plot(s["times_s"], s["lip_opening_area_mm2"], label=label)
+        short = name.replace("the demo setup, dynamic", "demo setup").replace(", pushed out at rest", ", pushed out")
+        label = short if rms is None else f"{short} (RMS {rms:.1f} mm$^2$)"
+        b.plot(s["times_s"], s["lip_opening_area_mm2"], color=_colour(name), label=label)
     b.plot(ref[:, 0], ref[:, 1], "k:", lw=2, label="original (ArtiSynth's recorded output)")
     b.set_xlabel("time (s)")
     b.set_title("approximant played with inertia (25 fps, 5 ms backward-Euler steps)", fontsize=10)
     b.grid(alpha=0.3)
-    b.legend(fontsize=7)
+    b.set_ylim(-2.0, 72.0)  # room for the legend above the sag
+    b.legend(fontsize=7, loc="upper right")
     fig.suptitle("Badin face: ArtiSynth's lip-skull contact (jaw and maxilla) in wface", fontsize=10)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110, bbox_inches="tight")

@@ -57,6 +57,7 @@ VARIANTS = (
     "dynamic_skull",
     "quasistatic_skullpushed",
     "dynamic_skullpushed",
+    "quasistatic_skullteeth",
 )
 _STYLE = {
     "quasistatic": ("C0", "-"),
@@ -67,6 +68,7 @@ _STYLE = {
     "dynamic_skull": ("C1", "-."),
     "quasistatic_skullpushed": ("C2", ":"),
     "dynamic_skullpushed": ("C1", ":"),
+    "quasistatic_skullteeth": ("C4", "-."),
 }
 # contact of each variant's suffix (regions, Contact keyword arguments): lip contact; lip contact and ArtiSynth's
 # lip-skull contact (the face against the jaw and maxilla meshes, ``--contact lips,skull``); the same with the
@@ -75,6 +77,7 @@ _CONTACT = {
     "contact": ("lips", {}),
     "skull": ("lips,skull", {}),
     "skullpushed": ("lips,skull", {"ignore_inside_at_rest": False}),
+    "skullteeth": ("lips,skull,teeth", {}),
 }
 
 
@@ -261,6 +264,7 @@ STEPS = (
     ("the demo setup, dynamic + lip and skull contact", {}, "dynamic_skull", None, "file"),
     ("the demo setup + lip and skull contact, pushed out at rest", {}, "quasistatic_skullpushed", None, "file"),
     ("the demo setup, dynamic + lip and skull contact, pushed out at rest", {}, "dynamic_skullpushed", None, "file"),
+    ("the demo setup + lip, skull and teeth contact", {}, "quasistatic_skullteeth", None, "file"),
 )
 
 
@@ -476,7 +480,8 @@ def main(argv=None) -> int:
         "(0-12 uniaxial fibres), 13-15 deviatoric fibres (the demo setup): quasistatic, old law, lip contact; "
         "16 the demo setup with lip and skull contact (jaw and maxilla); 17-19 the demo setup played dynamically: "
         "no contact, lip contact, lip and skull contact; 20-21 lip and skull contact with the flesh inside the jaw or "
-        "maxilla in the source data pushed out (ArtiSynth's way), quasistatic and dynamic",
+        "maxilla in the source data pushed out (ArtiSynth's way), quasistatic and dynamic; 22 lip, skull and teeth "
+        "contact (flesh inside at rest left out)",
     )
     p.add_argument(
         "--held-oop",

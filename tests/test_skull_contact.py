@@ -110,3 +110,27 @@ def test_badin_skull_contact_is_the_jaw_and_maxilla_and_free_at_rest(badin_model
     assert 0.3e-3 < raw["sources"]["maxilla"]["max_penetration_m"] < 1e-3
     assert raw["sources"]["jaw"]["max_penetration_m"] < 0.1e-3
     assert c.ignored_at_rest["maxilla"] == raw["sources"]["maxilla"]["active_nodes"]
+
+
+def test_the_comparison_figure_reads_the_outputs_and_the_original(tmp_path):
+    """examples/badin_skull_contact.py: the original's area at each OOP level and the played curves' columns."""
+    import importlib.util
+    from pathlib import Path
+
+    from tests.conftest import data_path
+
+    face = data_path("artisynth-face")
+    path = Path(__file__).resolve().parents[1] / "examples" / "badin_skull_contact.py"
+    spec = importlib.util.spec_from_file_location("badin_skull_contact_example", path)
+    ex = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ex)
+    # the original's curve (OOP a cubic step 0 -> 0.3 over 0.2-0.8 s): 15.4 mm^2 at t = 0.8 s, where OOP reaches 0.3
+    assert ex.original_at_levels(face, [0.3]) == [pytest.approx(15.41, abs=0.01)]
+    t = np.linspace(0.0, 1.0, 26)
+    flat = {"times_s": t.tolist(), "lip_opening_area_mm2": [40.0] * 26, "reference_comparison": {"rms_mm2": 1.0}}
+    held = {"lip and skull contact": {"levels": [0.01, 0.3], "area_mm2": [30.0, 1.0]}}
+    numbers = ex.figure(held, {"skull": flat}, face, tmp_path / "f.png")
+    assert (tmp_path / "f.png").exists() and numbers["held"]["lip and skull contact"] == [30.0, 1.0]
+    row = numbers["played"]["skull"]
+    assert row["before_excitation_mm2"] == 40.0 and row["below_20_from_s"] is None
+    assert row["max_difference_after_0.32s_mm2"] > 20  # a curve that never closes is far from the original's
