@@ -6,7 +6,9 @@ excitation curves (both sides of each muscle). Every variant plays it one way:
 - ``quasistatic``: warm-started equilibria, one per frame (``wface speech``'s default);
 - ``dynamic``: the implicit dynamic FEM with ArtiSynth's integration (backward Euler, 5 ms steps,
   Rayleigh damping alpha = 19 1/s, beta = 0.055 s, density 1040 kg/m^3, gravity; ``--dynamic``);
-- ``..._contact``: the same with lip contact on the smooth lip surfaces (``--contact lips``).
+- ``..._contact``: the same with lip contact on the smooth lip surfaces (``--contact lips``);
+- ``..._skull``: lip contact and the face against the jaw and maxilla meshes, ArtiSynth's lip-skull
+  contact (``--contact lips,skull``).
 
 Writes OUT/<gesture>/<variant>/ (lip_opening.{csv,png}, report.json, animation.usdc: ``wface
 speech``'s files) and OUT/lip_opening_area_all.png (one panel per gesture, every variant, with the
@@ -46,13 +48,41 @@ import json
 from pathlib import Path
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "artisynth-face"
-VARIANTS = ("quasistatic", "dynamic", "quasistatic_contact", "dynamic_contact")
+VARIANTS = (
+    "quasistatic",
+    "dynamic",
+    "quasistatic_contact",
+    "dynamic_contact",
+    "quasistatic_skull",
+    "dynamic_skull",
+    "quasistatic_skullpushed",
+    "dynamic_skullpushed",
+    "quasistatic_skullteeth",
+)
 _STYLE = {
     "quasistatic": ("C0", "-"),
     "dynamic": ("C3", "-"),
     "quasistatic_contact": ("C0", "--"),
     "dynamic_contact": ("C3", "--"),
+    "quasistatic_skull": ("C2", "-."),
+    "dynamic_skull": ("C1", "-."),
+    "quasistatic_skullpushed": ("C2", ":"),
+    "dynamic_skullpushed": ("C1", ":"),
+    "quasistatic_skullteeth": ("C4", "-."),
 }
+# contact of each variant's suffix (regions, Contact keyword arguments): lip contact; lip contact and ArtiSynth's
+# lip-skull contact (the face against the jaw and maxilla meshes, ``--contact lips,skull``); the same with the
+# flesh nodes that lie inside the maxilla or jaw in the source data pushed out too, as ArtiSynth does
+_CONTACT = {
+    "contact": ("lips", {}),
+    "skull": ("lips,skull", {}),
+    "skullpushed": ("lips,skull", {"ignore_inside_at_rest": False}),
+    "skullteeth": ("lips,skull,teeth", {}),
+}
+
+
+def _contact_of(variant: str) -> tuple[str, dict]:
+    return _CONTACT.get(variant.rpartition("_")[2], ("", {}))
 
 
 def _model(data: Path, model_path: Path | None):
@@ -85,7 +115,8 @@ def play(
     from wface.speech.output import write_gesture_usd, write_lip_opening
     from wface.speech.playback import compare_with_reference
 
-    contact = Contact(model, regions="lips", smoothing_m=1e-4, surface="smooth") if "contact" in variant else None
+    regions, options = _contact_of(variant)
+    contact = Contact(model, regions=regions, smoothing_m=1e-4, surface="smooth", **options) if regions else None
     dynamics = GestureDynamics(max_step_s=max_step_ms * 1e-3) if variant.startswith("dynamic") else None
     res = simulate_gesture(
         model,
@@ -227,6 +258,13 @@ STEPS = (
     ("+ deviatoric fibres (the demo setup)", {}, "quasistatic", None, "file"),
     ("+ deviatoric fibres, old law", {}, "quasistatic", OLD_LAW, "file"),
     ("+ deviatoric fibres, lip contact", {}, "quasistatic_contact", None, "file"),
+    ("the demo setup + lip and skull contact", {}, "quasistatic_skull", None, "file"),
+    ("the demo setup, dynamic", {}, "dynamic", None, "file"),
+    ("the demo setup, dynamic + lip contact", {}, "dynamic_contact", None, "file"),
+    ("the demo setup, dynamic + lip and skull contact", {}, "dynamic_skull", None, "file"),
+    ("the demo setup + lip and skull contact, pushed out at rest", {}, "quasistatic_skullpushed", None, "file"),
+    ("the demo setup, dynamic + lip and skull contact, pushed out at rest", {}, "dynamic_skullpushed", None, "file"),
+    ("the demo setup + lip, skull and teeth contact", {}, "quasistatic_skullteeth", None, "file"),
 )
 
 
@@ -324,10 +362,11 @@ def held_oop(
     held = held_gesture(read_gesture(data / "speech" / "approximant"), levels, probe="OOP")
     out.mkdir(parents=True, exist_ok=True)
     results = {}
-    for name, setup, _variant, flesh, _excitation in steps:
+    for name, setup, variant, flesh, _excitation in steps:
         model = _step_model(base, data, setup, flesh)
         # no rig: a held study's USD is for looking at the poses (OOP alone at 1 inverts the ring's tets)
-        s = play(model, held, out / _slug(name), "quasistatic", fps=1.0, max_frames=None, max_step_ms=5.0, rig=False)
+        held_variant = variant if variant.startswith("quasistatic") else "quasistatic"  # held: no dynamics
+        s = play(model, held, out / _slug(name), held_variant, fps=1.0, max_frames=None, max_step_ms=5.0, rig=False)
         results[name] = {
             "levels": [float(v) for v in levels],
             "area_mm2": s["lip_opening_area_mm2"],
@@ -438,7 +477,11 @@ def main(argv=None) -> int:
         type=int,
         help="indices into STEPS of the factor study's steps to play (default all): 0-3 the quasistatic "
         "rows with ArtiSynth's flesh, 8-11 the same with the old law (C20 as mu01), 12 lip contact with the old law "
-        "(0-12 uniaxial fibres), 13-15 deviatoric fibres (the demo setup): quasistatic, old law, lip contact",
+        "(0-12 uniaxial fibres), 13-15 deviatoric fibres (the demo setup): quasistatic, old law, lip contact; "
+        "16 the demo setup with lip and skull contact (jaw and maxilla); 17-19 the demo setup played dynamically: "
+        "no contact, lip contact, lip and skull contact; 20-21 lip and skull contact with the flesh inside the jaw or "
+        "maxilla in the source data pushed out (ArtiSynth's way), quasistatic and dynamic; 22 lip, skull and teeth "
+        "contact (flesh inside at rest left out)",
     )
     p.add_argument(
         "--held-oop",

@@ -6,7 +6,7 @@ import pytest
 
 from wface.cli import build_parser
 
-FLAGS = ("--contact", "--contact-stiffness", "--contact-smoothing-mm", "--freeze-below")
+FLAGS = ("--contact", "--contact-stiffness", "--contact-smoothing-mm", "--freeze-below", "--contact-inside-at-rest")
 
 
 def _options(command: str) -> set[str]:
@@ -40,3 +40,22 @@ def test_defaults_and_the_contact_they_build():
     bad = parser.parse_args(["simulate", "--model", "m", "--out", "o", "--contact", "gums"])
     with pytest.raises(ValueError, match="gums"):
         contact_from_args(bad, model)
+
+
+def test_inside_at_rest_is_ignored_unless_asked_to_push():
+    from wface.cli.contact_args import contact_from_args
+    from wface.cli.speech import _speech_contact
+    from wface.faces.builtin import build_face
+
+    parser = build_parser()
+    model = build_face(1000)
+    base = ["speech", "--model", "m.npz", "--gesture", "closure", "--out", "o", "--contact", "lips,teeth"]
+    ignore, push = parser.parse_args(base), parser.parse_args([*base, "--contact-inside-at-rest", "push"])
+    assert ignore.contact_inside_at_rest == "ignore"
+    for build in (contact_from_args, _speech_contact):
+        ignoring = build(ignore, model)
+        assert ignoring.ignored_at_rest and all("teeth" in name for name in ignoring.ignored_at_rest)
+        kept = ignoring.rigid_nodes
+        pushed = build(push, model)
+        assert pushed.ignored_at_rest == {}  # nothing left out: every contact node may touch every mesh
+        assert all(len(k) <= len(p) for k, p in zip(kept, pushed.rigid_nodes, strict=True))

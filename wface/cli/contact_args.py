@@ -38,8 +38,8 @@ def add_contact_arguments(
         default="",
         metavar="REGIONS",
         help=f"contact in {where}, comma-separated: lips (upper vs lower lip self-contact), teeth (flesh "
-        "against the teeth meshes), bones (against the cranium and jaw meshes); teeth and bones move with "
-        "their bone (default: none)",
+        "against the teeth meshes), bones (against the cranium, maxilla and jaw meshes), skull (against the jaw and "
+        "maxilla only, as ArtiSynth's lip-skull contact); teeth, bones and skull move with their bone (default: none)",
     )
     if obstacles:
         p.add_argument(
@@ -63,6 +63,14 @@ def add_contact_arguments(
         default=smoothing_mm,
         metavar="MM",
         help=f"width of the C2 penalty ramp in mm (default {smoothing_mm:g}; 0: the plain penalty)",
+    )
+    p.add_argument(
+        "--contact-inside-at-rest",
+        choices=["ignore", "push"],
+        default="ignore",
+        help="flesh nodes that lie inside a bone or teeth mesh at rest (the Badin data: up to 8.7 mm in the teeth, "
+        "0.58 mm in the maxilla): left out of that mesh's contact (default, the rest shape stays an equilibrium) "
+        "or pushed out like every other node, as ArtiSynth's collisions do (docs/design.md, 'Contact')",
     )
     p.add_argument(
         "--freeze-below",
@@ -91,4 +99,5 @@ def contact_from_args(args: argparse.Namespace, model):
         stiffness_n_per_m=args.contact_stiffness,
         smoothing_m=args.contact_smoothing_mm * 1e-3,
         freeze_below=None if args.freeze_below < 0 else args.freeze_below,
+        ignore_inside_at_rest=getattr(args, "contact_inside_at_rest", "ignore") == "ignore",
     )

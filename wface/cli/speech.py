@@ -46,6 +46,8 @@ examples:
   wface speech --model badin.npz --gesture approximant --max-frames 5 --out quick
   wface speech --model badin.npz --gesture closure --contact lips --max-frames 6 --out closure_contact
   wface speech --model badin.npz --gesture approximant --setup artisynth --dynamic --contact lips --out dyn
+  wface speech --model badin.npz --gesture approximant --setup artisynth --contact lips,skull \
+      --contact-inside-at-rest push --out skull   # ArtiSynth's lip-skull contact (jaw and maxilla)
 """
 
 
@@ -199,6 +201,7 @@ def _speech_contact(args, model):
         stiffness_n_per_m=args.contact_stiffness,
         smoothing_m=args.contact_smoothing_mm * 1e-3,
         surface="smooth",
+        ignore_inside_at_rest=args.contact_inside_at_rest == "ignore",
     )
 
 
@@ -320,6 +323,8 @@ def run_speech(args: argparse.Namespace) -> int:
             "reference_comparison": compare_with_reference(result, gesture.reference_lip_area),
             "contact_stiffness_n_per_m": None if contact is None else contact.stiffness_n_per_m,
             "contact_smoothing_m": None if contact is None else contact.smoothing_m,
+            # flesh inside a bone or teeth mesh at rest: {mesh: nodes left out}, or {} when pushed out
+            "contact_ignored_at_rest": None if contact is None else contact.ignored_at_rest,
             "setup_seconds": t_load,
             "wall_seconds": time.perf_counter() - t_start,
             "lip_opening_definition": "distance between the Mouth_Up and Mouth_Down skin markers (mm)",

@@ -61,6 +61,10 @@ are left out of its contact (``ignore_inside_at_rest``): the Badin face's gum-si
 through ArtiSynth's teeth by up to 8.7 mm in the source data (winding number 1, checked in
 ``tests/test_badin_contact.py``; ArtiSynth uses the teeth for display and lets the lip collision
 surfaces hit the jaw and maxilla). Closest points on an open mesh's boundary are no contact.
+``ignore_inside_at_rest=False`` pushes those nodes out like any other, as ArtiSynth's collisions do.
+The "skull" region is ArtiSynth's lip-skull contact: the face against the jaw and maxilla meshes only
+(``SKULL_MESHES``; docs/design.md, "Contact", "Face-skull contact"); on Badin 139 flesh nodes lie up to
+0.58 mm inside the maxilla and 126 up to 0.05 mm inside the jaw at rest.
 """
 
 from __future__ import annotations
@@ -94,6 +98,7 @@ __all__ = [
     "DEFAULT_STIFFNESS_FACTOR",
     "LIP_GROUPS",
     "REGIONS",
+    "SKULL_MESHES",
     "Contact",
     "ContactPairs",
     "ContactTangent",
@@ -106,7 +111,10 @@ __all__ = [
     "penalty_profile",
 ]
 
-REGIONS = ("lips", "teeth", "bones")
+REGIONS = ("lips", "teeth", "bones", "skull")
+# The bone meshes of the "skull" region: ArtiSynth's lip-skull contact (BadinFaceDemo.enableLipSkullContact:
+# the face collides with the jaw and maxilla rigid bodies, not the teeth or cranium; docs/design.md, "Contact").
+SKULL_MESHES = ("jaw", "maxilla")
 _ROUND_OFF_M = 1e-12  # penetrations below this are round-off (lips coincide at rest), not contact
 # Surface groups holding the upper / lower lip contact surfaces, first match wins.
 LIP_GROUPS = (("upper_lip", "lower_lip"), ("upper_lip_contact", "lower_lip_contact"))
@@ -300,7 +308,8 @@ class Contact:
         model: the face.
         regions: any of ``REGIONS``: "lips" (self-contact between the upper and lower lip surface
             groups, see ``LIP_GROUPS``), "teeth" (bone meshes whose name contains "teeth"), "bones"
-            (the other bone meshes). Teeth and bones move with their bone (cranium / jaw).
+            (the other bone meshes), "skull" (the ``SKULL_MESHES``, jaw and maxilla: ArtiSynth's
+            lip-skull contact). Teeth and bones move with their bone (cranium / jaw).
         obstacles: user ``Sphere`` / ``HalfSpace`` / ``MeshObstacle`` objects (or spec strings,
             see ``parse_obstacle``).
         self_pairs: extra self-contact pairs of surface group names [(group_a, group_b)].
@@ -405,7 +414,11 @@ class Contact:
         rest_affines = bone_affines_from_attached(model, None)
         for name, mesh in model.bone_meshes.items():
             is_teeth = "teeth" in name.lower()
-            if ("teeth" in self.regions and is_teeth) or ("bones" in self.regions and not is_teeth):
+            if (
+                ("teeth" in self.regions and is_teeth)
+                or ("bones" in self.regions and not is_teeth)
+                or ("skull" in self.regions and name in SKULL_MESHES)
+            ):
                 ob = MeshObstacle(mesh.vertices_m, mesh.triangles, bone=mesh.bone, name=name)
                 keep = nodes
                 if ignore_inside_at_rest:
@@ -415,6 +428,11 @@ class Contact:
                     self.ignored_at_rest[name] = int(inside.sum())
                 self.rigid.append((name, ob))
                 self.rigid_nodes.append(keep)
+        if "skull" in self.regions and not any(n in model.bone_meshes for n in SKULL_MESHES):
+            raise ValueError(
+                f"contact region 'skull': the model has no {' or '.join(SKULL_MESHES)} mesh "
+                f"(bone meshes: {list(model.bone_meshes)})"
+            )
         if "teeth" in self.regions and not any("teeth" in n.lower() for n in model.bone_meshes):
             raise ValueError(
                 f"contact region 'teeth': the model has no teeth mesh (bone meshes: {list(model.bone_meshes)})"
