@@ -22,14 +22,20 @@ factor of its last Jacobian, at the previous equilibrium) replaces the fresh fac
 and the Newton steps solve with it, back-solves only (a chord, or modified, Newton method with the
 energy line search). The chord is dropped, and ordinary Newton steps follow, as soon as a chord step
 is cut by the line search, is not a descent direction, or reduces the residual by less than
-``chord_rate`` (0.5): its linear rate has become too slow for the back-solves to pay.
+``chord_rate`` (0.5): its linear rate has become too slow for the back-solves to pay. With
+``refactor=`` (a callable x -> a new chord, e.g. the tracker's factor of the exact tangent at x) such
+a step refactors at the iterate instead and the chord steps go on with the new factor (adaptive
+refactorisation, docs/design.md "Performance"); the result hands the new factor back
+(``Equilibrium.new_chord``), so that a caller can keep it for the next solves.
 
 Relative residual (``Equilibrium.residual_rel``):
     ||f_U(x)||_2 / max(||f_U(X_load)||_2, f_floor),
 where X_load is the rest shape with the attached nodes at their targets (the out-of-balance force
 that the activations and the bone displacement cause on the undeformed face) and
 f_floor = 1e-3 (mu10 + mu01) V^(2/3) (the force of a 0.1 % strain over the model's cross-section,
-V = rest volume), which only matters when the load vanishes.
+V = rest volume), which only matters when the load vanishes. A caller may pass its own
+denominator (``force_scale=``), e.g. the tracker's linearised load (``FaceRig.load_force_scale``),
+which saves the force evaluation at X_load.
 """
 
 from __future__ import annotations
@@ -77,6 +83,8 @@ class Equilibrium:
         contact_stats: the same per contact source (``wface.physics.contact.ContactPairs.stats``).
         contact_refreezes: times the frozen self-contact features were re-detected and frozen anew
             (``Contact(freeze_below=...)``, ``wface.physics.frozen``).
+        new_chord: with ``refactor``: the last factor it made (owned by the caller from here), or None.
+        refactorizations: factors made by ``refactor`` (not in ``factorizations``: the caller counts them).
     """
 
     x: np.ndarray
@@ -103,6 +111,8 @@ class Equilibrium:
     contact_energy: float = 0.0
     contact_stats: dict = field(default_factory=dict)
     contact_refreezes: int = 0
+    new_chord: object | None = None
+    refactorizations: int = 0
 
 
 def newton_quasistatic(
@@ -123,6 +133,9 @@ def newton_quasistatic(
     chord=None,
     chord_rate: float = 0.5,
     factor_precision: str = "float64",
+    refactor=None,
+    max_refactors: int = 2,
+    force_scale: float | None = None,
 ) -> Equilibrium:
     """Newton-Raphson for f_U(x, a) = 0 (see module docstring). ``sim`` is a ``Simulator``.
 
@@ -136,6 +149,10 @@ def newton_quasistatic(
     for attached-node moves dx_C (a, 3), (3k,)), such as ``Simulator.stiffness_solver``'s.
     ``factor_precision``: of the direct solver's factors ("float32": inexact Newton steps, 1.5x
     cheaper factorisations; ``wface.solvers.LinearSolver``).
+    ``refactor``: with ``chord``, a callable x (n, 3) -> a new chord factored at x (or None), called at
+    most ``max_refactors`` times where the chord contracts poorly (module docstring); the newest one is
+    ``Equilibrium.new_chord``, the older ones are freed here. ``force_scale``: the residual's
+    denominator in newtons (default: ||f_U(X_load)||, module docstring).
     """
     model = sim.model
     linear = LinearSolver(
@@ -151,10 +168,11 @@ def newton_quasistatic(
     if contact is not None:
         contact.set_pose(targets)
     problem = _Problem(sim, activations, contact)
-    scale = _force_scale(sim, activations, targets, pattern.dof_nodes)
+    scale = _force_scale(sim, activations, targets, pattern.dof_nodes) if force_scale is None else float(force_scale)
     x = rest.copy() if x0 is None else np.array(x0, dtype=np.float64)
     run = _NewtonRun(problem, linear, pattern, scale, x)
     run.chord, run.chord_rate = chord, float(chord_rate)
+    run.refactor, run.refactors_left = (refactor if chord is not None else None), int(max_refactors)
     run.lift(fixed, targets)
     run.evaluate()
     run.history.append(run.residual / scale)
@@ -163,6 +181,7 @@ def newton_quasistatic(
     freeze_below = getattr(contact, "freeze_below", None) if contact is not None else None
     if freeze_below is not None and not contact.self_contact:
         freeze_below = None
+    run.tol = float(tol)
     run.iterate(
         tol=tol,
         max_iterations=max_iterations,
@@ -239,7 +258,9 @@ class _NewtonRun:
         self.frozen_at = None  # iteration at which the current frozen features were taken
         self.refreezes = 0
         self.chord, self.chord_rate, self.chord_steps = None, 0.5, 0
+        self.refactor, self.refactors_left, self.new_chord, self.refactorizations = None, 0, None, 0
         self.anderson = _Anderson(depth=5)
+        self.tol = 0.0
         self._accepted = None  # (energy, forces, sum |E|) at the line search's accepted point, when known
 
     def lift(self, fixed: np.ndarray, targets: np.ndarray) -> None:
@@ -340,6 +361,22 @@ class _NewtonRun:
             self.chord_steps += 1
             if t < 1.0 or self.residual > self.chord_rate * before:
                 self.chord = None  # the chord's linear rate no longer pays: Newton from here
+                self.refactor_chord()
+
+    def refactor_chord(self) -> None:
+        """Adaptive refactorisation: a new chord factored at the iterate (``refactor``), while allowed."""
+        if self.refactor is None or self.refactors_left <= 0 or self.residual / self.scale <= self.tol:
+            return
+        new = self.refactor(self.x)
+        if new is None:
+            self.refactor = None
+            return
+        if self.new_chord is not None:
+            self.new_chord.free()  # an earlier one of this solve: superseded
+        self.chord = self.new_chord = new
+        self.refactors_left -= 1
+        self.refactorizations += 1
+        self.anderson.reset()
 
     def direction(self, rhs: np.ndarray, stiffness: str):
         """The Newton direction and the stiffness it solved with: the exact K when it is tried and
@@ -421,6 +458,8 @@ class _NewtonRun:
             solver=engine,
             history=self.history,
             step_lengths=self.steps,
+            new_chord=self.new_chord,
+            refactorizations=self.refactorizations,
             **extra,
         )
 

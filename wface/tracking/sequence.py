@@ -353,6 +353,7 @@ def _refine_chunk(model, embedding, targets, survey, options, rig_kwargs, out_di
             rec.provenance = {"run": run, "frame": int(f), "fingerprint": fingerprint, "extra": extra, "pass": 2}
             write_frame(out_dir, rec)
         out.append(rec)
+    est.free()  # the factor kept for a next frame (TrackOptions.factor_at="adaptive")
     return out
 
 
