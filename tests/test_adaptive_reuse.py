@@ -140,3 +140,40 @@ def test_kept_factors_and_jacobians_track_as_the_per_frame_scheme(take):
     assert _activation_rms(model, adaptive, perf) <= 1.05 * err + 2e-3
     truth = np.array([np.linalg.norm(r.markers_m - perf.clean_markers_m[i], axis=1) for i, r in enumerate(adaptive)])
     assert np.sqrt(np.mean(truth**2)) * 1e3 < 0.5  # below the 0.5 mm noise
+
+
+def test_the_float32_twin_reads_the_residual_to_well_under_the_trackers_tolerance(face):
+    """The float32 twin's forces at a float64 equilibrium read a relative residual far below solve_tol
+    (measured 6e-6 at 20K tets), its energy agrees to single precision, and a twin-read solve stops
+    within 1.5 solve_tol in float64."""
+    from wface.tracking.rig import TWIN_MIN_TOL
+
+    model, rig, _ = face
+    M = rig.n_muscles
+    c = _controls(rig, 5, 8.0)
+    eq = rig.equilibrium(c, tol=1e-10)
+    a = model.clip_activations(c[:M])
+    targets = attached_positions(model, c[M:], frame="cranium")
+    scale = rig.load_force_scale(a, targets)
+    twin = rig.float32_twin()
+    assert twin.precision == "float32"
+    free = rig.sim.pattern("free").dof_nodes
+    read = np.linalg.norm(twin.forces(eq.y_m, a)[free]) / scale
+    assert read < 0.1 * TrackOptions().solve_tol, read
+    e64, e32 = rig.sim.energy(eq.y_m, a), twin.energy(eq.y_m, a)
+    assert abs(e32 - e64) <= 1e-5 * abs(e64)
+    # a twin-read solve from a perturbed start, checked in float64
+    lin = rig.linearize(eq)
+    try:
+        c2 = c.copy()
+        c2[:M] = np.clip(c[:M] + 0.03, 0.0, 1.0)
+        y0 = eq.y_m + lin.predict(np.concatenate([c2[:M] - c[:M], np.zeros(12)]))
+        tol = max(TrackOptions().solve_tol, TWIN_MIN_TOL)
+        st = rig.equilibrium(c2, y0, chord=lin.chord, refactor=True, tol=tol, load_scale=True, twin=True)
+        if st.new_chord is not None:
+            st.new_chord.free()
+    finally:
+        lin.free()
+    a2 = model.clip_activations(c2[:M])
+    true = np.linalg.norm(rig.sim.forces(st.y_m, a2)[free]) / rig.load_force_scale(a2, targets)
+    assert st.converged and true <= 1.5 * tol, true

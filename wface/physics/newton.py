@@ -136,6 +136,7 @@ def newton_quasistatic(
     refactor=None,
     max_refactors: int = 2,
     force_scale: float | None = None,
+    twin=None,
 ) -> Equilibrium:
     """Newton-Raphson for f_U(x, a) = 0 (see module docstring). ``sim`` is a ``Simulator``.
 
@@ -152,7 +153,10 @@ def newton_quasistatic(
     ``refactor``: with ``chord``, a callable x (n, 3) -> a new chord factored at x (or None), called at
     most ``max_refactors`` times where the chord contracts poorly (module docstring); the newest one is
     ``Equilibrium.new_chord``, the older ones are freed here. ``force_scale``: the residual's
-    denominator in newtons (default: ||f_U(X_load)||, module docstring).
+    denominator in newtons (default: ||f_U(X_load)||, module docstring). ``twin``: a single-precision
+    ``Simulator`` of the same model whose energies and forces serve the residuals and the line search
+    (about 2x cheaper on the CPU; its forces read a float64 equilibrium's residual as ~1e-5 of the load,
+    so it suits tolerances of 1e-4, not 1e-6: docs/design.md, "Performance"); ignored with contact.
     """
     model = sim.model
     linear = LinearSolver(
@@ -167,7 +171,7 @@ def newton_quasistatic(
     pattern = sim.pattern("free")
     if contact is not None:
         contact.set_pose(targets)
-    problem = _Problem(sim, activations, contact)
+    problem = _Problem(sim, activations, contact, twin=twin if contact is None else None)
     scale = _force_scale(sim, activations, targets, pattern.dof_nodes) if force_scale is None else float(force_scale)
     x = rest.copy() if x0 is None else np.array(x0, dtype=np.float64)
     run = _NewtonRun(problem, linear, pattern, scale, x)
@@ -210,8 +214,9 @@ def _force_scale(sim, a, targets: np.ndarray, free: np.ndarray) -> float:
 class _Problem:
     """Energy, forces and stiffness of the elastic face plus the optional contact at activations ``a``."""
 
-    def __init__(self, sim, a, contact):
+    def __init__(self, sim, a, contact, twin=None):
         self.sim, self.a, self.contact = sim, a, contact
+        self.esim = twin if twin is not None else sim  # energies and forces (a float32 twin, or sim itself)
         # the contact pairs at the latest energy_forces point; "live": the contact in use (the contact, or
         # its self-contact frozen, wface.physics.frozen)
         self.pairs, self.pairs_x, self.live = None, None, contact
@@ -219,13 +224,13 @@ class _Problem:
     def energy(self, y):
         """Total energy at y (line search)."""
         if self.contact is None:
-            return self.sim.energy(y, self.a)
+            return self.esim.energy(y, self.a)
         return self.sim.energy(y, self.a) + self.live.energy(y)
 
     def energy_forces(self, y):
         """(E, f, sum |E_element|) at y, the contact terms included."""
-        e, fy = self.sim.energy_and_forces(y, self.a)
-        e_abs = float(np.abs(self.sim.last_element_energies()).sum())
+        e, fy = self.esim.energy_and_forces(y, self.a)
+        e_abs = float(np.abs(self.esim.last_element_energies()).sum())
         if self.contact is None:
             return e, fy, e_abs
         pairs = self.live.evaluate(y)
@@ -407,7 +412,7 @@ class _NewtonRun:
     def line_search(self, dx: np.ndarray, slope: float, max_line_search: int):
         """Backtracking (Armijo) on the total energy: the new iterate and its step length t."""
         x, free, energy = self.x, self.free, self.energy
-        sim = self.problem.sim
+        sim = self.problem.esim
         slack = (
             64 * np.finfo(np.float64 if sim.precision == "float64" else np.float32).eps * self.energy_abs
         )  # round-off of the energy sum

@@ -526,6 +526,7 @@ class Simulator:
         factor_precision: str = "float64",
         refactor=None,
         force_scale: float | None = None,
+        twin=None,
     ) -> Equilibrium:
         """Quasistatic equilibrium f_U(x, a) = 0 with attached nodes at ``attached_positions``.
 
@@ -554,6 +555,8 @@ class Simulator:
             refactor: with ``chord``, a callable x -> a new chord factored at x, for adaptive
                 refactorisation where the chord contracts poorly (``wface.physics.newton``).
             force_scale: the relative residual's denominator (N); default ||f_U(X_load)||.
+            twin: a float32 ``Simulator`` of the model for the energies and forces of the solve
+                (loose tolerances only; ``wface.physics.newton``).
 
         Returns:
             ``wface.physics.newton.Equilibrium``.
@@ -574,6 +577,7 @@ class Simulator:
             factor_precision=factor_precision,
             refactor=refactor,
             force_scale=force_scale,
+            twin=twin,
         )
         result.seconds = time.perf_counter() - start
         return result

@@ -91,6 +91,8 @@ class TrackOptions:
     max_jacobian_age: int = 8  # decrease its model predicted, for at most this many frames
     solve_tol: float | None = 1e-4  # relative residual of the tracker's solves along a step (None: the
     # rig's tol), against the linearised load (FaceRig.load_force_scale); its marker effect is microns
+    float32_forces: bool = True  # with "adaptive": the solves along a step read energies and forces from a
+    # float32 twin of the simulator (2x cheaper; reading error ~1e-5 of the load, under solve_tol)
     factor_precision: str = "float32"  # of the tracker's factorisations (Jacobians, chords): single
     # precision is 1.5x faster and within 8e-6 of double at 100K tets, far below the 1 % of the
     # prediction's factor; "float64" for double
@@ -491,8 +493,8 @@ class FrameEstimator:
 
         lo_k, hi_k = 0, K
         hint = getattr(self, "_rho_hint", None)  # the last step's k: the answer is usually the same or near
-        if hint is not None and 0 < hint < K:
-            if self._step_violation(c, step_at(hint)) <= opt.rigid_step_tol:
+        if hint is not None and 0 < hint <= K:
+            if hint == K or self._step_violation(c, step_at(hint)) <= opt.rigid_step_tol:  # K: taken as rigid
                 hi_k = hint
                 if self._step_violation(c, step_at(hint - 1)) > opt.rigid_step_tol:
                     lo_k = hint - 1  # bracketed: k = hint with two bounded solves instead of a bisection
@@ -523,7 +525,13 @@ class FrameEstimator:
         opt = self.options
         if holder is not None:
             st = self.rig.equilibrium(
-                ct, y_guess, chord=holder.chord, refactor=True, tol=opt.solve_tol, load_scale=True
+                ct,
+                y_guess,
+                chord=holder.chord,
+                refactor=True,
+                tol=opt.solve_tol,
+                load_scale=True,
+                twin=opt.float32_forces,
             )
             if st.new_chord is not None:
                 st.new_chord.fresh = True  # made in this frame, near its equilibrium
