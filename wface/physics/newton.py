@@ -25,7 +25,9 @@ is cut by the line search, is not a descent direction, or reduces the residual b
 ``chord_rate`` (0.5): its linear rate has become too slow for the back-solves to pay. With
 ``refactor=`` (a callable x -> a new chord, e.g. the tracker's factor of the exact tangent at x) such
 a step refactors at the iterate instead and the chord steps go on with the new factor (adaptive
-refactorisation, docs/design.md "Performance"); the result hands the new factor back
+refactorisation, docs/design.md "Performance"): with it, a step contracting by more than half still
+keeps the factor while at its rate at most ``CHORD_STEPS_AHEAD`` (3) more steps reach ``tol`` (a
+refactorisation costs several force evaluations); the result hands the new factor back
 (``Equilibrium.new_chord``), so that a caller can keep it for the next solves.
 
 Relative residual (``Equilibrium.residual_rel``):
@@ -50,6 +52,9 @@ from wface.physics.frozen import FrozenContact
 from wface.solvers import LinearSolver, NotPositiveDefiniteError
 
 __all__ = ["Equilibrium", "newton_quasistatic"]
+
+CHORD_STEPS_AHEAD = 3  # adaptive refactorisation: refactor when more chord steps than this remain at the rate
+MAX_STEPS_ON_FACTOR = 8  # ... or after this many chord steps on one factor
 
 
 @dataclass
@@ -264,6 +269,7 @@ class _NewtonRun:
         self.refreezes = 0
         self.chord, self.chord_rate, self.chord_steps = None, 0.5, 0
         self.refactor, self.refactors_left, self.new_chord, self.refactorizations = None, 0, None, 0
+        self.steps_on_factor = 0
         self.anderson = _Anderson(depth=5)
         self.tol = 0.0
         self._accepted = None  # (energy, forces, sum |E|) at the line search's accepted point, when known
@@ -364,9 +370,25 @@ class _NewtonRun:
         self.history.append(self.residual / self.scale)
         if chord:
             self.chord_steps += 1
-            if t < 1.0 or self.residual > self.chord_rate * before:
+            self.steps_on_factor += 1
+            if self.refactor is not None:  # adaptive: refactor only when the chord will not get there soon
+                if self.chord_too_slow(t, self.residual / max(before, 1e-300)):
+                    self.chord = None
+                    self.refactor_chord()
+            elif t < 1.0 or self.residual > self.chord_rate * before:
                 self.chord = None  # the chord's linear rate no longer pays: Newton from here
-                self.refactor_chord()
+
+    def chord_too_slow(self, t: float, rate: float) -> bool:
+        """Adaptive refactorisation's test: a cut step, no contraction, more than ``CHORD_STEPS_AHEAD``
+        further steps to ``tol`` at this step's rate, or ``MAX_STEPS_ON_FACTOR`` steps on one factor. A
+        refactorisation costs about as much as 7 force evaluations at 100K tets (docs/design.md,
+        "Performance"), a chord step one."""
+        if t < 1.0 or not rate < 1.0 or self.steps_on_factor >= MAX_STEPS_ON_FACTOR:
+            return True
+        if rate <= self.chord_rate:
+            return False
+        ahead = np.log(max(self.tol * self.scale, 1e-300) / max(self.residual, 1e-300)) / np.log(rate)
+        return ahead > CHORD_STEPS_AHEAD
 
     def refactor_chord(self) -> None:
         """Adaptive refactorisation: a new chord factored at the iterate (``refactor``), while allowed."""
@@ -379,6 +401,7 @@ class _NewtonRun:
         if self.new_chord is not None:
             self.new_chord.free()  # an earlier one of this solve: superseded
         self.chord = self.new_chord = new
+        self.steps_on_factor = 0
         self.refactors_left -= 1
         self.refactorizations += 1
         self.anderson.reset()
