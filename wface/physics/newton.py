@@ -270,6 +270,7 @@ class _NewtonRun:
         self.chord, self.chord_rate, self.chord_steps = None, 0.5, 0
         self.refactor, self.refactors_left, self.new_chord, self.refactorizations = None, 0, None, 0
         self.steps_on_factor = 0
+        self.twin_dropped = False  # the float32 twin gave way to float64 (``step``)
         self.anderson = _Anderson(depth=5)
         self.tol = 0.0
         self._accepted = None  # (energy, forces, sum |E|) at the line search's accepted point, when known
@@ -368,6 +369,17 @@ class _NewtonRun:
         self.iterations += 1
         self.evaluate()
         self.history.append(self.residual / self.scale)
+        if self.problem.esim is not self.problem.sim and (t < 1.0 or not self.residual < before):
+            # the float32 twin's round-off stalls the step (its energy cannot see the decrease, or its
+            # forces are at their noise floor): float64 from here, re-read at the iterate
+            self.problem.esim = self.problem.sim
+            self.twin_dropped = True
+            self.evaluate()
+            self.history[-1] = self.residual / self.scale
+            if chord:
+                self.chord_steps += 1
+                self.steps_on_factor += 1
+            return
         if chord:
             self.chord_steps += 1
             self.steps_on_factor += 1
