@@ -492,17 +492,7 @@ class FrameEstimator:
             return steps[k]
 
         lo_k, hi_k = 0, K
-        hint = getattr(self, "_rho_hint", None)  # the last step's k: the answer is usually the same or near
-        if hint is not None and 0 < hint <= K:
-            if hint == K or self._step_violation(c, step_at(hint)) <= opt.rigid_step_tol:  # K: taken as rigid
-                hi_k = hint
-                if self._step_violation(c, step_at(hint - 1)) > opt.rigid_step_tol:
-                    lo_k = hint - 1  # bracketed: k = hint with two bounded solves instead of a bisection
-                else:
-                    hi_k = hint - 1
-            else:
-                lo_k = hint
-        if lo_k == 0 and hi_k > 0 and self._step_violation(c, step_at(0)) <= opt.rigid_step_tol:
+        if self._step_violation(c, step_at(0)) <= opt.rigid_step_tol:
             hi_k = 0
         while hi_k - lo_k > 1:
             mid = (lo_k + hi_k) // 2
@@ -510,7 +500,6 @@ class FrameEstimator:
                 hi_k = mid
             else:
                 lo_k = mid
-        self._rho_hint = hi_k
         return step_at(hi_k), opt.rho0 * scale * opt.rho_growth**hi_k
 
     def _trial(self, tau, *, c, dc, state, lin, target, present, w, rho, a_prev, chord=None, holder=None) -> tuple:
