@@ -19,9 +19,39 @@ beyond the stopping test (measured in tests/test_adaptive_reuse.py and the track
 
 from __future__ import annotations
 
+import time
+
 from wface.tracking.rig import FaceRig, RigLinearization, RigState
 
-__all__ = ["carry_linearization", "jacobian_is_stale"]
+__all__ = ["carry_after_step", "carry_linearization", "is_adaptive", "jacobian_is_stale", "release_at_end"]
+
+
+def is_adaptive(est) -> bool:
+    """Does the ``FrameEstimator`` ``est`` keep factors and Jacobians across frames (its options, a direct solver)?"""
+    opt = est.options
+    return opt.reuse_factor and opt.factor_at == "adaptive" and est.rig.sim.linear_solver == "direct"
+
+
+def carry_after_step(est, lin, state: RigState, achieved: float, predicted: float, timings: dict):
+    """After a Gauss-Newton step of ``est`` to ``state`` that achieved ``achieved`` of the ``predicted``
+    decrease: its linearisation there (``carry_linearization``; ``lin`` itself unless adaptive and full)."""
+    if not (is_adaptive(est) and lin is not None and lin.full):
+        return lin
+    opt = est.options
+    stale = jacobian_is_stale(achieved, predicted, lin.age, refresh=opt.jacobian_refresh, max_age=opt.max_jacobian_age)
+    t = time.perf_counter()
+    lin = carry_linearization(est.rig, lin, state, stale=stale)
+    timings["jacobian_s"] += time.perf_counter() - t
+    return lin
+
+
+def release_at_end(est, near, lin) -> None:
+    """At the end of a frame: free ``near`` (a factor at a prediction, or None); adaptive, the factor of a
+    second pass's ``RowsLinearization`` is kept for the estimator's next frame (``est.keep_spare``)."""
+    if near is not None:
+        near.free()
+    if is_adaptive(est) and lin is not None and not lin.full:
+        est.keep_spare(lin.take_chord())
 
 
 def jacobian_is_stale(achieved: float, predicted: float, age: int, *, refresh: float, max_age: int) -> bool:

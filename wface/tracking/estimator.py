@@ -45,7 +45,7 @@ from wface.controls import (
     jaw_to_intuitive,
     params_from_affine,
 )
-from wface.tracking.adaptive import carry_linearization, jacobian_is_stale
+from wface.tracking.adaptive import carry_after_step, is_adaptive, release_at_end
 from wface.tracking.rig import FaceRig, RigLinearization, RigState
 
 __all__ = ["TrackOptions", "FrameResult", "FrameEstimator", "MarkerMap"]
@@ -153,11 +153,6 @@ class FrameEstimator:
         self.options = options or TrackOptions()
         self.M = rig.n_muscles
         self._spare = None  # "adaptive": a second pass's factor, handed to its next frame
-
-    @property
-    def _adaptive(self) -> bool:
-        opt = self.options
-        return opt.reuse_factor and opt.factor_at == "adaptive" and self.rig.sim.linear_solver == "direct"
 
     def keep_spare(self, chord) -> None:
         """Keep ``chord`` (a factor) for the next frame's second-pass solves, freeing the one kept before."""
@@ -285,14 +280,7 @@ class FrameEstimator:
             if cache[tau_best][0] >= total0:
                 break  # no descent along dc: keep c
             _, state, m = cache[tau_best]
-            if self._adaptive and lin is not None and lin.full:  # the Jacobian kept, or solved again
-                achieved, predicted = total0 - cache[tau_best][0], step["predicted"]
-                stale = jacobian_is_stale(
-                    achieved, predicted, lin.age, refresh=opt.jacobian_refresh, max_age=opt.max_jacobian_age
-                )
-                t = time.perf_counter()
-                lin = carry_linearization(rig, lin, state, stale=stale)
-                timings["jacobian_s"] += time.perf_counter() - t
+            lin = carry_after_step(self, lin, state, total0 - cache[tau_best][0], step["predicted"], timings)
             c = state.controls
             w = self._weights(np.where(present[:, None], m - target, 0.0))
             if not final_jacobian:  # stop without a Jacobian at the new point?
@@ -300,10 +288,7 @@ class FrameEstimator:
                 if done:
                     break
 
-        if near is not None:
-            near.free()
-        if self._adaptive and lin is not None and not lin.full:  # a second pass: its factor for the next frame
-            self.keep_spare(lin.take_chord())
+        release_at_end(self, near, lin)  # the factor at the prediction; a second pass's kept for its next frame
         timings["cpu_s"] = time.process_time() - cpu_start  # process CPU time, all threads (less load-bound)
         err = np.linalg.norm(m - target, axis=1)
         err[~present] = np.nan
@@ -338,7 +323,7 @@ class FrameEstimator:
         state = equilibrium if equilibrium is not None else self.rig.equilibrium(c0, y0)
         lin = None
         if equilibrium is not None and marker_jy is not None and self.options.reuse_factor:
-            spare, self._spare = (self._spare, None) if self._adaptive else (None, None)
+            spare, self._spare = (self._spare, None) if is_adaptive(self) else (None, None)
             lin = self.rig.linearize_rows(state, self.markers.nodes, marker_jy, chord=spare)  # None: cannot serve
             if lin is None and spare is not None:
                 spare.free()
@@ -412,7 +397,7 @@ class FrameEstimator:
         opt = self.options
         chord, near = (lin.chord if lin is not None else None), None
         full = lin is not None and lin.full  # a RowsLinearization's solves use its own factor at ``state``
-        holder = lin if (self._adaptive and chord is not None) else None  # its chord may be replaced
+        holder = lin if (is_adaptive(self) and chord is not None) else None  # its chord may be replaced
         if opt.reuse_factor and opt.factor_at == "prediction" and self.rig.sim.linear_solver == "direct" and full:
             if chord is not None:
                 lin.free()  # its Jacobian stays; its factor is not needed any more
