@@ -77,11 +77,10 @@ def test_resume_reuses_written_frames(scene, tmp_path):
     assert len(list((tmp_path / "frames").glob("frame_*.npz"))) == 3
     for a, b in zip(first[:2], again[:2], strict=True):
         assert np.array_equal(a.controls, b.controls)  # read back from their files
-    # The redone frame starts from a Jacobian solved at the loaded equilibrium, where the uninterrupted
-    # run kept one from an earlier frame (TrackOptions.factor_at="adaptive", docs/design.md,
-    # "Performance"; was 1e-5 when every frame had its own, measured 2e-7): the same frame's
-    # Gauss-Newton fit up to its stopping test on clean data, measured 3.1e-3 at worst, not to round-off.
-    _TOL = 5e-3
+    # The redone frame starts from the Jacobian factored at the loaded equilibrium, where the uninterrupted
+    # run had the factor at its linear prediction (docs/design.md, "Performance"): the same frame's
+    # Gauss-Newton fit, equal to its stopping test on clean data (measured 2e-7), not to round-off.
+    _TOL = 1e-5
     np.testing.assert_allclose(again[2].controls, first[2].controls, rtol=0, atol=_TOL)
 
 

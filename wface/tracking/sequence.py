@@ -423,6 +423,10 @@ def track_sequence(
     if targets.shape[0] == 0:
         raise ValueError("marker data has no frames")
     options = options or TrackOptions()
+    if out_dir is not None and options.factor_at == "adaptive":
+        # frames written for a resume: the per-frame factor, whose handed-on state the frame files rebuild
+        # bit for bit (kept factors and Jacobians are not stored there yet; docs/design.md, "Performance")
+        options = dataclasses.replace(options, factor_at="prediction")
     rig_kwargs = rig_kwargs or {}
     out_dir = Path(out_dir) if out_dir is not None else None
     run = provenance
