@@ -88,7 +88,7 @@ class TrackOptions:
     # converges in ~2 chord steps and the Jacobian at the equilibrium reuses the factor); "equilibrium"
     # (exact Jacobians; the solves take chord steps with the previous equilibrium's factor)
     jacobian_refresh: float = 0.8  # "adaptive": keep the Jacobian while a step achieves this share of the
-    max_jacobian_age: int = 8  # decrease its model predicted, for at most this many frames
+    max_jacobian_age: int = 8  # decrease its model predicted, for at most this many steps (~frames)
     solve_tol: float | None = 1e-4  # relative residual of the tracker's solves along a step (None: the
     # rig's tol), against the linearised load (FaceRig.load_force_scale); its marker effect is microns
     float32_forces: bool = True  # with "adaptive": the solves along a step read energies and forces from a
