@@ -21,9 +21,20 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from wface.tracking.rig import FaceRig, RigLinearization, RigState
 
-__all__ = ["carry_after_step", "carry_linearization", "is_adaptive", "jacobian_is_stale", "release_at_end"]
+__all__ = [
+    "carry_after_step",
+    "carry_linearization",
+    "is_adaptive",
+    "jacobian_is_stale",
+    "rebuild_linearization",
+    "release_at_end",
+    "restore_spare",
+    "spare_state",
+]
 
 
 def is_adaptive(est) -> bool:
@@ -66,10 +77,44 @@ def carry_linearization(rig: FaceRig, lin: RigLinearization, state: RigState, *,
     the factor made during this step when there is one (``fresh``), else with a new factor there."""
     chord = lin.take_chord()
     if not stale:
-        return RigLinearization(state, lin.jy, chord, age=lin.age + 1)
+        return RigLinearization(state, lin.jy, chord, age=lin.age + 1, jacobian_at=lin.jacobian_at)
     if chord is not None and not getattr(chord, "fresh", False):
         chord.free()  # from an earlier frame: factor at the new equilibrium instead
         chord = None
     if chord is not None:
         chord.fresh = False
     return rig.linearize(state, keep_factor=True, stiffness=chord)
+
+
+# ---------------------------------------------------------------------- resumed takes
+# A resumed take continues bit for bit when the frame files hold what is handed from frame to frame:
+# where the kept factor was made (``factor_controls``/``factor_y_m``), where the kept Jacobian was solved
+# and with which factor (``jacobian_*``), and in the second pass the factor handed between its frames
+# (``spare_*``). PARDISO in its reproducible mode refactors them bit for bit (docs/design.md).
+
+
+def rebuild_linearization(rig: FaceRig, state: RigState, chord, kept: dict | None) -> RigLinearization:
+    """The linearisation a resumed take hands to its next frame: the Jacobian solved again where and with
+    the factor it was solved with (``kept``: a frame's stored state), the factor ``chord`` kept with it;
+    without ``kept``, the Jacobian at ``state`` with ``chord`` (the per-frame scheme's)."""
+    if kept is None:
+        return rig.linearize(state, stiffness=chord)
+    factor = rig.stiffness_at(kept["jacobian_factor_controls"], kept["jacobian_factor_y_m"], warn=False)
+    y = np.asarray(kept["jacobian_y_m"])
+    jy = rig.linearize(RigState(state.controls, y, y), keep_factor=False, stiffness=factor).jy
+    return RigLinearization(
+        state, jy, chord, age=int(kept["jacobian_age"]), jacobian_at=(y, (factor.at[0], factor.at[1]))
+    )
+
+
+def spare_state(est) -> dict:
+    """What a second-pass frame file stores of the factor handed to the next frame (``est._spare``)."""
+    at = getattr(est._spare, "at", None)
+    return {} if at is None else {"spare_controls": at[0], "spare_y_m": at[1]}
+
+
+def restore_spare(est, state: dict | None) -> None:
+    """Rebuild the handed-on second-pass factor from a frame file's ``spare_state`` (nothing when absent)."""
+    est.free()
+    if state and "spare_y_m" in state and is_adaptive(est):
+        est.keep_spare(est.rig.stiffness_at(state["spare_controls"], state["spare_y_m"], warn=False))

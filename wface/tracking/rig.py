@@ -61,6 +61,7 @@ class RigLinearization:
     chord: object | None = None
     seconds: dict = field(default_factory=dict)
     age: int = 0  # frames since ``jy`` was solved (``wface.tracking.adaptive``: a kept Jacobian)
+    jacobian_at: tuple | None = None  # (cranium-frame y where jy was solved, (controls, y) of its factor)
 
     full = True  # dY/dc of every node (``RowsLinearization``: of a few)
 
@@ -439,11 +440,12 @@ class FaceRig:
         J = np.zeros((3 * self._n, M + 12))
         J[U] = sol
         J[self._fixed_dofs, M:] = self._dxc_djaw
+        at = getattr(chord, "at", None)
         if not (keep_factor and chord.bound.factor is not None):
             chord.free()
             chord = None
         seconds = {"stiffness_s": t1 - t0, "rhs_s": t2 - t1, "back_solve_s": t3 - t2}
-        return RigLinearization(state, J, chord, seconds)
+        return RigLinearization(state, J, chord, seconds, jacobian_at=None if at is None else (y, at))
 
     def linearize_rows(
         self, state: RigState, nodes: np.ndarray, rows: np.ndarray, chord=None

@@ -38,6 +38,7 @@ from wface.mesh.align import embed_markers, umeyama
 from wface.model import model_sha256
 from wface.takes.provenance import array_sha256, frame_fingerprint, run_provenance
 from wface.takes.store import FRAMES_DIR, SURVEY_DIR, FrameRecord, verified_frames, write_frame
+from wface.tracking.adaptive import is_adaptive, rebuild_linearization, restore_spare, spare_state
 from wface.tracking.estimator import FrameEstimator, MarkerMap, TrackOptions
 from wface.tracking.prior import GaussianPrior, TemporalPrior, fit_usage_prior, usage_prior
 from wface.tracking.rig import FaceRig, RigState
@@ -153,6 +154,7 @@ class _Tracker:
         self.resumed_factor = (
             (rec.state["factor_controls"], rec.state["factor_y_m"]) if "factor_y_m" in rec.state else None
         )
+        self.resumed_jacobian = rec.state if "jacobian_y_m" in rec.state else None  # a kept one (adaptive)
 
     def free(self) -> None:
         """Release the factorisation held for the next frame."""
@@ -167,6 +169,10 @@ class _Tracker:
         at = None if self.lin is None else self.lin.factored_at
         if at is not None:  # where the handed-on factor was taken: a resumed take rebuilds it exactly
             out["factor_controls"], out["factor_y_m"] = at
+        kept = None if self.lin is None else getattr(self.lin, "jacobian_at", None)
+        if kept is not None and is_adaptive(self.est):  # where its (kept) Jacobian was solved, and with what
+            out["jacobian_y_m"], (out["jacobian_factor_controls"], out["jacobian_factor_y_m"]) = kept
+            out["jacobian_age"] = np.array(self.lin.age)
         return out
 
     def step(self, frame: int, target: np.ndarray) -> FrameRecord:
@@ -175,8 +181,8 @@ class _Tracker:
             return self._carry(frame, target, present)
         if self.lin is None and self.resumed is not None and self.options.reuse_factor:
             near = None if self.resumed_factor is None else self.rig.stiffness_at(*self.resumed_factor, warn=False)
-            self.lin = self.rig.linearize(self.resumed, stiffness=near)  # as the interrupted run had it
-        self.resumed = self.resumed_factor = None
+            self.lin = rebuild_linearization(self.rig, self.resumed, near, getattr(self, "resumed_jacobian", None))
+        self.resumed = self.resumed_factor = self.resumed_jacobian = None
         first = self.c is None
         c_last = self.c
         if first:
@@ -305,12 +311,16 @@ def _refine_chunk(model, embedding, targets, survey, options, rig_kwargs, out_di
     done = verified_frames(out_dir, frames, targets, run, extra=extra)[0] if (out_dir is not None and reuse) else {}
     rig = FaceRig(model, **{"factor_precision": options.factor_precision, **rig_kwargs})
     est = FrameEstimator(rig, MarkerMap(model, embedding), options)
-    out = []
+    out, pending = [], None
     for j, first in enumerate(tqdm(survey, desc="tracking (pass 2 of 2)", disable=not progress, unit="frame")):
         f = first.frame
         if f in done:
             out.append(done[f])
+            pending = done[f].state  # what it handed to the next frame (restored before that one)
             continue
+        if pending is not None:
+            restore_spare(est, pending)
+            pending = None
         stats = dict(first.stats, pass1_seconds=first.stats["seconds"])
         if first.stats.get("carried"):
             rec = FrameRecord(f, first.controls, first.x_m, first.y_m, first.markers_m, first.marker_error_m, stats)
@@ -348,6 +358,7 @@ def _refine_chunk(model, embedding, targets, survey, options, rig_kwargs, out_di
             )
             st = res.state
             rec = FrameRecord(f, res.controls, st.x_m, st.y_m, res.markers_m, res.marker_error_m, stats)
+        rec.state = spare_state(est)  # the factor handed to the next frame (TrackOptions.factor_at="adaptive")
         if out_dir is not None:
             fingerprint = frame_fingerprint(run, f, targets[j], extra=extra)
             rec.provenance = {"run": run, "frame": int(f), "fingerprint": fingerprint, "extra": extra, "pass": 2}
@@ -423,10 +434,6 @@ def track_sequence(
     if targets.shape[0] == 0:
         raise ValueError("marker data has no frames")
     options = options or TrackOptions()
-    if out_dir is not None and options.factor_at == "adaptive":
-        # frames written for a resume: the per-frame factor, whose handed-on state the frame files rebuild
-        # bit for bit (kept factors and Jacobians are not stored there yet; docs/design.md, "Performance")
-        options = dataclasses.replace(options, factor_at="prediction")
     rig_kwargs = rig_kwargs or {}
     out_dir = Path(out_dir) if out_dir is not None else None
     run = provenance
