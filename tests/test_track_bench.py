@@ -17,8 +17,10 @@ def test_track_bench_reports_the_breakdown_the_counts_and_the_limit():
     assert r["prior"] == "temporal" and "pass1_seconds_per_frame" not in r
     assert r["frames"] == 3 and r["seconds_per_frame"] > 0
     assert set(r["breakdown_seconds_per_frame"]) == {"quasistatic_solves", "jacobians", "gauss_newton_system"}
-    assert r["factorizations_per_frame"] == 1.0 and r["quasistatic_solves_per_frame"] == 1.0  # a warm frame
-    assert r["back_solves_per_frame"] >= r["limit"]["columns"] == 48  # 35 muscles, the pressure, 12 jaw numbers
+    # a warm frame: one solve, at most one factorisation (kept factors and Jacobians: often none, and
+    # no Jacobian columns; wface.tracking.adaptive)
+    assert r["factorizations_per_frame"] <= 1.0 and r["quasistatic_solves_per_frame"] == 1.0
+    assert r["limit"]["columns"] == 48  # 35 muscles, the pressure, 12 jaw numbers
     limit = r["limit"]
     assert r["limit_seconds"] == pytest.approx(limit["numeric_factor_seconds"] + limit["back_solve_columns_seconds"])
     assert r["limit_ratio"] == pytest.approx(r["seconds_per_frame"] / r["limit_seconds"])

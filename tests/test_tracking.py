@@ -153,9 +153,10 @@ def test_warm_frames_cost_one_factorisation_with_the_accuracy_of_the_paper_loop(
     one_pass = TrackOptions(prior="temporal")  # the usage prior's second pass restarts every frame
     fast = track_sequence(model, perf.markers_m, options=one_pass, **kw)
     paper = track_sequence(model, perf.markers_m, options=TrackOptions(prior="temporal", reuse_factor=False), **kw)
-    for r in fast[1:]:  # a warm frame: no start solve, one Gauss-Newton step, one factorisation
+    for r in fast[1:]:  # a warm frame: no start solve, one Gauss-Newton step, at most one factorisation
+        # (the adaptive default keeps the factor and the Jacobian while they serve: often none at all)
         assert r.stats["quasistatic_solves"] == 1 and r.stats["gauss_newton_steps"] == 1, r.stats
-        assert r.stats["factorizations"] == 1 and r.stats["back_solves"] <= model.n_muscles + 12 + 4, r.stats
+        assert r.stats["factorizations"] <= 1 and r.stats["back_solves"] <= model.n_muscles + 12 + 4, r.stats
     assert all(r.stats["factorizations"] > 2 for r in paper[1:])
     err_fast, err_paper = _activation_rms(model, fast, perf), _activation_rms(model, paper, perf)
     assert err_fast <= 1.05 * err_paper + 2e-3, (err_fast, err_paper)  # the same accuracy, up to noise
@@ -173,12 +174,16 @@ def test_the_second_pass_reuses_the_first_passs_jacobian_rows(capture_30hz, monk
         full = track_sequence(model, perf.markers_m, **kw)
     cols = model.n_muscles + 12
     for r, f in zip(rows, full, strict=True):
-        assert r.stats["factorizations"] <= f.stats["factorizations"] - 1, (r.stats, f.stats)
+        # the full path's Jacobian factor now serves its solves too (TrackOptions.factor_at="adaptive"),
+        # so the rows save the Jacobian columns, not a factorisation
+        assert r.stats["factorizations"] <= f.stats["factorizations"], (r.stats, f.stats)
         assert r.stats["back_solves"] <= f.stats["back_solves"] - cols + 10, (r.stats, f.stats)
     a_rows = np.array([r.controls[: model.n_muscles] for r in rows])
     a_full = np.array([r.controls[: model.n_muscles] for r in full])
     err = _activation_rms(model, full, perf)
-    assert np.sqrt(np.mean((a_rows - a_full) ** 2)) < 0.05 * err, err  # Jacobians 1 % apart: far below the error
+    # well below the error (was 0.05 err when the rows were 1 % from a fresh Jacobian; with the adaptive
+    # default they come from a kept one: 0.092 err measured)
+    assert np.sqrt(np.mean((a_rows - a_full) ** 2)) < 0.15 * err, err
     assert _activation_rms(model, rows, perf) <= 1.02 * err + 1e-3
 
 

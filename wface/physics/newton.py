@@ -22,14 +22,22 @@ factor of its last Jacobian, at the previous equilibrium) replaces the fresh fac
 and the Newton steps solve with it, back-solves only (a chord, or modified, Newton method with the
 energy line search). The chord is dropped, and ordinary Newton steps follow, as soon as a chord step
 is cut by the line search, is not a descent direction, or reduces the residual by less than
-``chord_rate`` (0.5): its linear rate has become too slow for the back-solves to pay.
+``chord_rate`` (0.5): its linear rate has become too slow for the back-solves to pay. With
+``refactor=`` (a callable x -> a new chord, e.g. the tracker's factor of the exact tangent at x) such
+a step refactors at the iterate instead and the chord steps go on with the new factor (adaptive
+refactorisation, docs/design.md "Performance"): with it, a step contracting by more than half still
+keeps the factor while at its rate at most ``CHORD_STEPS_AHEAD`` (3) more steps reach ``tol`` (a
+refactorisation costs several force evaluations); the result hands the new factor back
+(``Equilibrium.new_chord``), so that a caller can keep it for the next solves.
 
 Relative residual (``Equilibrium.residual_rel``):
     ||f_U(x)||_2 / max(||f_U(X_load)||_2, f_floor),
 where X_load is the rest shape with the attached nodes at their targets (the out-of-balance force
 that the activations and the bone displacement cause on the undeformed face) and
 f_floor = 1e-3 (mu10 + mu01) V^(2/3) (the force of a 0.1 % strain over the model's cross-section,
-V = rest volume), which only matters when the load vanishes.
+V = rest volume), which only matters when the load vanishes. A caller may pass its own
+denominator (``force_scale=``), e.g. the tracker's linearised load (``FaceRig.load_force_scale``),
+which saves the force evaluation at X_load.
 """
 
 from __future__ import annotations
@@ -44,6 +52,9 @@ from wface.physics.frozen import FrozenContact
 from wface.solvers import LinearSolver, NotPositiveDefiniteError
 
 __all__ = ["Equilibrium", "newton_quasistatic"]
+
+CHORD_STEPS_AHEAD = 3  # adaptive refactorisation: refactor when more chord steps than this remain at the rate
+MAX_STEPS_ON_FACTOR = 8  # ... or after this many chord steps on one factor
 
 
 @dataclass
@@ -77,6 +88,8 @@ class Equilibrium:
         contact_stats: the same per contact source (``wface.physics.contact.ContactPairs.stats``).
         contact_refreezes: times the frozen self-contact features were re-detected and frozen anew
             (``Contact(freeze_below=...)``, ``wface.physics.frozen``).
+        new_chord: with ``refactor``: the last factor it made (owned by the caller from here), or None.
+        refactorizations: factors made by ``refactor`` (not in ``factorizations``: the caller counts them).
     """
 
     x: np.ndarray
@@ -103,6 +116,8 @@ class Equilibrium:
     contact_energy: float = 0.0
     contact_stats: dict = field(default_factory=dict)
     contact_refreezes: int = 0
+    new_chord: object | None = None
+    refactorizations: int = 0
 
 
 def newton_quasistatic(
@@ -123,6 +138,10 @@ def newton_quasistatic(
     chord=None,
     chord_rate: float = 0.5,
     factor_precision: str = "float64",
+    refactor=None,
+    max_refactors: int = 2,
+    force_scale: float | None = None,
+    twin=None,
 ) -> Equilibrium:
     """Newton-Raphson for f_U(x, a) = 0 (see module docstring). ``sim`` is a ``Simulator``.
 
@@ -136,6 +155,13 @@ def newton_quasistatic(
     for attached-node moves dx_C (a, 3), (3k,)), such as ``Simulator.stiffness_solver``'s.
     ``factor_precision``: of the direct solver's factors ("float32": inexact Newton steps, 1.5x
     cheaper factorisations; ``wface.solvers.LinearSolver``).
+    ``refactor``: with ``chord``, a callable x (n, 3) -> a new chord factored at x (or None), called at
+    most ``max_refactors`` times where the chord contracts poorly (module docstring); the newest one is
+    ``Equilibrium.new_chord``, the older ones are freed here. ``force_scale``: the residual's
+    denominator in newtons (default: ||f_U(X_load)||, module docstring). ``twin``: a single-precision
+    ``Simulator`` of the same model whose energies and forces serve the residuals and the line search
+    (about 2x cheaper on the CPU; its forces read a float64 equilibrium's residual as ~1e-5 of the load,
+    so it suits tolerances of 1e-4, not 1e-6: docs/design.md, "Performance"); ignored with contact.
     """
     model = sim.model
     linear = LinearSolver(
@@ -150,11 +176,12 @@ def newton_quasistatic(
     pattern = sim.pattern("free")
     if contact is not None:
         contact.set_pose(targets)
-    problem = _Problem(sim, activations, contact)
-    scale = _force_scale(sim, activations, targets, pattern.dof_nodes)
+    problem = _Problem(sim, activations, contact, twin=twin if contact is None else None)
+    scale = _force_scale(sim, activations, targets, pattern.dof_nodes) if force_scale is None else float(force_scale)
     x = rest.copy() if x0 is None else np.array(x0, dtype=np.float64)
     run = _NewtonRun(problem, linear, pattern, scale, x)
     run.chord, run.chord_rate = chord, float(chord_rate)
+    run.refactor, run.refactors_left = (refactor if chord is not None else None), int(max_refactors)
     run.lift(fixed, targets)
     run.evaluate()
     run.history.append(run.residual / scale)
@@ -163,6 +190,7 @@ def newton_quasistatic(
     freeze_below = getattr(contact, "freeze_below", None) if contact is not None else None
     if freeze_below is not None and not contact.self_contact:
         freeze_below = None
+    run.tol = float(tol)
     run.iterate(
         tol=tol,
         max_iterations=max_iterations,
@@ -191,8 +219,9 @@ def _force_scale(sim, a, targets: np.ndarray, free: np.ndarray) -> float:
 class _Problem:
     """Energy, forces and stiffness of the elastic face plus the optional contact at activations ``a``."""
 
-    def __init__(self, sim, a, contact):
+    def __init__(self, sim, a, contact, twin=None):
         self.sim, self.a, self.contact = sim, a, contact
+        self.esim = twin if twin is not None else sim  # energies and forces (a float32 twin, or sim itself)
         # the contact pairs at the latest energy_forces point; "live": the contact in use (the contact, or
         # its self-contact frozen, wface.physics.frozen)
         self.pairs, self.pairs_x, self.live = None, None, contact
@@ -200,13 +229,13 @@ class _Problem:
     def energy(self, y):
         """Total energy at y (line search)."""
         if self.contact is None:
-            return self.sim.energy(y, self.a)
+            return self.esim.energy(y, self.a)
         return self.sim.energy(y, self.a) + self.live.energy(y)
 
     def energy_forces(self, y):
         """(E, f, sum |E_element|) at y, the contact terms included."""
-        e, fy = self.sim.energy_and_forces(y, self.a)
-        e_abs = float(np.abs(self.sim.last_element_energies()).sum())
+        e, fy = self.esim.energy_and_forces(y, self.a)
+        e_abs = float(np.abs(self.esim.last_element_energies()).sum())
         if self.contact is None:
             return e, fy, e_abs
         pairs = self.live.evaluate(y)
@@ -239,7 +268,11 @@ class _NewtonRun:
         self.frozen_at = None  # iteration at which the current frozen features were taken
         self.refreezes = 0
         self.chord, self.chord_rate, self.chord_steps = None, 0.5, 0
+        self.refactor, self.refactors_left, self.new_chord, self.refactorizations = None, 0, None, 0
+        self.steps_on_factor = 0
+        self.twin_dropped = False  # the float32 twin gave way to float64 (``step``)
         self.anderson = _Anderson(depth=5)
+        self.tol = 0.0
         self._accepted = None  # (energy, forces, sum |E|) at the line search's accepted point, when known
 
     def lift(self, fixed: np.ndarray, targets: np.ndarray) -> None:
@@ -336,10 +369,54 @@ class _NewtonRun:
         self.iterations += 1
         self.evaluate()
         self.history.append(self.residual / self.scale)
+        if self.problem.esim is not self.problem.sim and (t < 1.0 or not self.residual < before):
+            # the float32 twin's round-off stalls the step (its energy cannot see the decrease, or its
+            # forces are at their noise floor): float64 from here, re-read at the iterate
+            self.problem.esim = self.problem.sim
+            self.twin_dropped = True
+            self.evaluate()
+            self.history[-1] = self.residual / self.scale
+            if chord:
+                self.chord_steps += 1
+                self.steps_on_factor += 1
+            return
         if chord:
             self.chord_steps += 1
-            if t < 1.0 or self.residual > self.chord_rate * before:
+            self.steps_on_factor += 1
+            if self.refactor is not None:  # adaptive: refactor only when the chord will not get there soon
+                if self.chord_too_slow(t, self.residual / max(before, 1e-300)):
+                    self.chord = None
+                    self.refactor_chord()
+            elif t < 1.0 or self.residual > self.chord_rate * before:
                 self.chord = None  # the chord's linear rate no longer pays: Newton from here
+
+    def chord_too_slow(self, t: float, rate: float) -> bool:
+        """Adaptive refactorisation's test: a cut step, no contraction, more than ``CHORD_STEPS_AHEAD``
+        further steps to ``tol`` at this step's rate, or ``MAX_STEPS_ON_FACTOR`` steps on one factor. A
+        refactorisation costs about as much as 7 force evaluations at 100K tets (docs/design.md,
+        "Performance"), a chord step one."""
+        if t < 1.0 or not rate < 1.0 or self.steps_on_factor >= MAX_STEPS_ON_FACTOR:
+            return True
+        if rate <= self.chord_rate:
+            return False
+        ahead = np.log(max(self.tol * self.scale, 1e-300) / max(self.residual, 1e-300)) / np.log(rate)
+        return ahead > CHORD_STEPS_AHEAD
+
+    def refactor_chord(self) -> None:
+        """Adaptive refactorisation: a new chord factored at the iterate (``refactor``), while allowed."""
+        if self.refactor is None or self.refactors_left <= 0 or self.residual / self.scale <= self.tol:
+            return
+        new = self.refactor(self.x)
+        if new is None:
+            self.refactor = None
+            return
+        if self.new_chord is not None:
+            self.new_chord.free()  # an earlier one of this solve: superseded
+        self.chord = self.new_chord = new
+        self.steps_on_factor = 0
+        self.refactors_left -= 1
+        self.refactorizations += 1
+        self.anderson.reset()
 
     def direction(self, rhs: np.ndarray, stiffness: str):
         """The Newton direction and the stiffness it solved with: the exact K when it is tried and
@@ -370,7 +447,7 @@ class _NewtonRun:
     def line_search(self, dx: np.ndarray, slope: float, max_line_search: int):
         """Backtracking (Armijo) on the total energy: the new iterate and its step length t."""
         x, free, energy = self.x, self.free, self.energy
-        sim = self.problem.sim
+        sim = self.problem.esim
         slack = (
             64 * np.finfo(np.float64 if sim.precision == "float64" else np.float32).eps * self.energy_abs
         )  # round-off of the energy sum
@@ -421,6 +498,8 @@ class _NewtonRun:
             solver=engine,
             history=self.history,
             step_lengths=self.steps,
+            new_chord=self.new_chord,
+            refactorizations=self.refactorizations,
             **extra,
         )
 

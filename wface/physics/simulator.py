@@ -524,6 +524,9 @@ class Simulator:
         contact=None,
         chord=None,
         factor_precision: str = "float64",
+        refactor=None,
+        force_scale: float | None = None,
+        twin=None,
     ) -> Equilibrium:
         """Quasistatic equilibrium f_U(x, a) = 0 with attached nodes at ``attached_positions``.
 
@@ -549,6 +552,11 @@ class Simulator:
                 factorisations while they converge fast (``wface.physics.newton``).
             factor_precision: "float64", or "float32" for single-precision factors (inexact Newton
                 steps, 1.5x cheaper factorisations; the tracker's choice).
+            refactor: with ``chord``, a callable x -> a new chord factored at x, for adaptive
+                refactorisation where the chord contracts poorly (``wface.physics.newton``).
+            force_scale: the relative residual's denominator (N); default ||f_U(X_load)||.
+            twin: a float32 ``Simulator`` of the model for the energies and forces of the solve
+                (loose tolerances only; ``wface.physics.newton``).
 
         Returns:
             ``wface.physics.newton.Equilibrium``.
@@ -567,6 +575,9 @@ class Simulator:
             contact=contact,
             chord=chord,
             factor_precision=factor_precision,
+            refactor=refactor,
+            force_scale=force_scale,
+            twin=twin,
         )
         result.seconds = time.perf_counter() - start
         return result

@@ -45,6 +45,7 @@ from wface.controls import (
     jaw_to_intuitive,
     params_from_affine,
 )
+from wface.tracking.adaptive import carry_after_step, is_adaptive, release_at_end
 from wface.tracking.rig import FaceRig, RigLinearization, RigState
 
 __all__ = ["TrackOptions", "FrameResult", "FrameEstimator", "MarkerMap"]
@@ -82,10 +83,18 @@ class TrackOptions:
     # uses the next step's predicted decrease, the next frame starts from it (no start solve), and the
     # solves near it take chord steps; False: the paper's loop (a Jacobian per step, tests on the
     # achieved decrease)
-    factor_at: str = "prediction"  # with reuse_factor, where a frame's one factorisation is done: at the
-    # linear prediction of the new equilibrium (its solve converges in ~2 chord steps and the Jacobian at
-    # the equilibrium reuses the factor), or "equilibrium" (exact Jacobians; the solves take chord steps
-    # with the previous equilibrium's factor)
+    factor_at: str = "adaptive"  # with reuse_factor, where factorisations are done: "adaptive" keeps the
+    # factor and the Jacobian from frame to frame, refactoring where a chord step contracts poorly and
+    # solving the Jacobian again where a step falls short of its prediction (wface.tracking.adaptive);
+    # "prediction": one factorisation per frame at the linear prediction of the new equilibrium (its solve
+    # converges in ~2 chord steps and the Jacobian at the equilibrium reuses the factor); "equilibrium"
+    # (exact Jacobians; the solves take chord steps with the previous equilibrium's factor)
+    jacobian_refresh: float = 0.8  # "adaptive": keep the Jacobian while a step achieves this share of the
+    max_jacobian_age: int = 8  # decrease its model predicted, for at most this many steps (~frames)
+    solve_tol: float | None = 1e-4  # relative residual of the tracker's solves along a step (None: the
+    # rig's tol), against the linearised load (FaceRig.load_force_scale); its marker effect is microns
+    float32_forces: bool = True  # with "adaptive": the solves along a step read energies and forces from a
+    # float32 twin of the simulator (2x cheaper; reading error ~1e-5 of the load, under solve_tol)
     factor_precision: str = "float32"  # of the tracker's factorisations (Jacobians, chords): single
     # precision is 1.5x faster and within 8e-6 of double at 100K tets, far below the 1 % of the
     # prediction's factor; "float64" for double
@@ -145,6 +154,19 @@ class FrameEstimator:
         self.markers = markers
         self.options = options or TrackOptions()
         self.M = rig.n_muscles
+        self._spare = None  # "adaptive": a second pass's factor, handed to its next frame
+
+    def keep_spare(self, chord) -> None:
+        """Keep ``chord`` (a factor) for the next frame's second-pass solves, freeing the one kept before."""
+        if chord is not None and chord is not self._spare:
+            self.free()
+            self._spare = chord
+
+    def free(self) -> None:
+        """Release the factor kept for the next frame (``keep_spare``)."""
+        if self._spare is not None:
+            self._spare.free()
+            self._spare = None
 
     # ------------------------------------------------------------------ objective pieces
     def _penalty(self, c: np.ndarray):
@@ -261,6 +283,7 @@ class FrameEstimator:
             if cache[tau_best][0] >= total0:
                 break  # no descent along dc: keep c
             _, state, m = cache[tau_best]
+            lin = carry_after_step(self, lin, state, total0 - cache[tau_best][0], step["predicted"], timings)
             c = state.controls
             w = self._weights(np.where(present[:, None], m - target, 0.0))
             if not final_jacobian:  # stop without a Jacobian at the new point?
@@ -269,8 +292,7 @@ class FrameEstimator:
                 if done:
                     break
 
-        if near is not None:
-            near.free()
+        release_at_end(self, near, lin)  # the factor at the prediction; a second pass's kept for its next frame
         timings["cpu_s"] = time.process_time() - cpu_start  # process CPU time, all threads (less load-bound)
         err = np.linalg.norm(m - target, axis=1)
         err[~present] = np.nan
@@ -307,7 +329,10 @@ class FrameEstimator:
         state = equilibrium if equilibrium is not None else self.rig.equilibrium(c0, y0)
         lin = None
         if equilibrium is not None and marker_jy is not None and self.options.reuse_factor:
-            lin = self.rig.linearize_rows(state, self.markers.nodes, marker_jy)  # None where it cannot serve
+            spare, self._spare = (self._spare, None) if is_adaptive(self) else (None, None)
+            lin = self.rig.linearize_rows(state, self.markers.nodes, marker_jy, chord=spare)  # None: cannot serve
+            if lin is None and spare is not None:
+                spare.free()
         return state, lin
 
     def _done_without_jacobian(self, lin, state, m, target, present, w, a_prev, step, cache):
@@ -380,6 +405,7 @@ class FrameEstimator:
         opt = self.options
         chord, near = (lin.chord if lin is not None else None), None
         full = lin is not None and lin.full  # a RowsLinearization's solves use its own factor at ``state``
+        holder = lin if (is_adaptive(self) and chord is not None) else None  # its chord may be replaced
         if opt.reuse_factor and opt.factor_at == "prediction" and self.rig.sim.linear_solver == "direct" and full:
             if chord is not None:
                 lin.free()  # its Jacobian stays; its factor is not needed any more
@@ -398,6 +424,7 @@ class FrameEstimator:
             rho=step["rho"],
             a_prev=a_prev,
             chord=chord,
+            holder=holder,
         )
         cache: dict[float, tuple] = {}
         if opt.accept_full_step is not None:
@@ -468,15 +495,32 @@ class FrameEstimator:
                 lo_k = mid
         return step_at(hi_k), opt.rho0 * scale * opt.rho_growth**hi_k
 
-    def _trial(self, tau, *, c, dc, state, lin, target, present, w, rho, a_prev, chord=None) -> tuple:
+    def _trial(self, tau, *, c, dc, state, lin, target, present, w, rho, a_prev, chord=None, holder=None) -> tuple:
         """(objective, state, markers) at the retracted controls ct = retract(c + tau dc), warm-started
         from the linearised equilibrium Y + dY/dc (ct - c) (chord steps with ``chord``, the factor at
-        ``state``)."""
+        ``state``; with ``holder``, a linearisation, its current factor, refactored where it contracts
+        poorly and the new one kept there: ``wface.tracking.adaptive``)."""
         ct = self.retract(c + tau * dc)
         # the linear prediction at the retracted controls: its attached nodes are then exactly at their
         # targets (X_C is affine in the jaw numbers), so the solve needs no lift step
         y_guess = state.y_m + lin.predict(self._dc_y(ct - c))
-        st = self.rig.equilibrium(ct, y_guess, chord=chord)
+        opt = self.options
+        if holder is not None:
+            st = self.rig.equilibrium(
+                ct,
+                y_guess,
+                chord=holder.chord,
+                refactor=True,
+                tol=opt.solve_tol,
+                load_scale=True,
+                twin=opt.float32_forces,
+            )
+            if st.new_chord is not None:
+                st.new_chord.fresh = True  # made in this frame, near its equilibrium
+                holder.replace_chord(st.new_chord)
+                st.new_chord = None
+        else:
+            st = self.rig.equilibrium(ct, y_guess, chord=chord)
         mt = self.markers.positions(st.x_m)
         value = self._phi(mt, target, present, w) + rho * self._penalty(ct)[0] + self._reg(ct, a_prev)
         return value, st, mt

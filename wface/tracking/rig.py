@@ -43,7 +43,9 @@ from wface.physics.frozen import exact_self_hessian
 from wface.physics.simulator import Simulator
 from wface.solvers import LinearSolver, MatrixOperator, NotPositiveDefiniteError
 
-__all__ = ["FaceRig", "RigLinearization", "RigState", "RowsLinearization"]
+__all__ = ["FaceRig", "RigLinearization", "RigState", "RowsLinearization", "TWIN_MIN_TOL"]
+
+TWIN_MIN_TOL = 1e-4  # the tightest solve tolerance a float32 twin may serve (its reading error: ~1e-5)
 
 
 @dataclass
@@ -58,6 +60,8 @@ class RigLinearization:
     jy: np.ndarray  # (3n, M + 12) cranium-frame Jacobian of all nodes
     chord: object | None = None
     seconds: dict = field(default_factory=dict)
+    age: int = 0  # frames since ``jy`` was solved (``wface.tracking.adaptive``: a kept Jacobian)
+    jacobian_at: tuple | None = None  # (cranium-frame y where jy was solved, (controls, y) of its factor)
 
     full = True  # dY/dc of every node (``RowsLinearization``: of a few)
 
@@ -65,6 +69,17 @@ class RigLinearization:
         if self.chord is not None:
             self.chord.free()
             self.chord = None
+
+    def replace_chord(self, new) -> None:
+        """Adaptive refactorisation: ``new`` (a solve's ``new_chord``) replaces the factor, which is freed."""
+        if new is not None and new is not self.chord:
+            self.free()
+            self.chord = new
+
+    def take_chord(self):
+        """The factor, handed over (this linearisation no longer owns it)."""
+        chord, self.chord = self.chord, None
+        return chord
 
     @property
     def factored_at(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -92,10 +107,10 @@ class RowsLinearization:
 
     full = False
 
-    def __init__(self, rig: FaceRig, state: RigState, nodes: np.ndarray, rows: np.ndarray):
+    def __init__(self, rig: FaceRig, state: RigState, nodes: np.ndarray, rows: np.ndarray, chord=None):
         self.rig, self.state = rig, state
         self.nodes, self.rows = np.asarray(nodes), np.asarray(rows, dtype=np.float64)
-        self._chord: _Chord | None = None
+        self._chord: _Chord | None = chord  # a nearby factor handed on (adaptive refactorisation), else made here
         self._muscle_forces: np.ndarray | None = None
         self.seconds: dict = {}
 
@@ -114,6 +129,15 @@ class RowsLinearization:
         if self._chord is not None:
             self._chord.free()
             self._chord = None
+
+    def replace_chord(self, new) -> None:
+        if new is not None and new is not self._chord:
+            self.free()
+            self._chord = new
+
+    def take_chord(self):
+        chord, self._chord = self._chord, None
+        return chord
 
     def node_rows(self, nodes: np.ndarray) -> np.ndarray:
         if not np.array_equal(nodes, self.nodes):
@@ -171,6 +195,7 @@ class RigState:
     inverted_elements: int = 0
     seconds: float = 0.0
     stats: dict = field(default_factory=dict)
+    new_chord: object | None = None  # a factor its solve made (``equilibrium(..., refactor=True)``), the caller's
 
 
 class FaceRig:
@@ -239,9 +264,25 @@ class FaceRig:
         return c[: self.n_muscles], c[self.n_muscles :]
 
     # ------------------------------------------------------------------ forward model
-    def equilibrium(self, c: np.ndarray, y0: np.ndarray | None = None, *, chord=None) -> RigState:
+    def equilibrium(
+        self,
+        c: np.ndarray,
+        y0: np.ndarray | None = None,
+        *,
+        chord=None,
+        refactor: bool = False,
+        tol: float | None = None,
+        load_scale: bool = False,
+        twin: bool = False,
+    ) -> RigState:
         """Solve the quasistatic equilibrium for controls c, warm-started from y0 (cranium frame);
-        ``chord``: a nearby ``RigLinearization.chord`` for chord Newton steps (module docstring)."""
+        ``chord``: a nearby ``RigLinearization.chord`` for chord Newton steps (module docstring).
+        ``refactor``: where the chord contracts poorly, factor the exact tangent at the iterate
+        (``stiffness_at``) and go on with it; the new factor is ``RigState.new_chord`` (the caller's to
+        keep or free). ``tol``: relative residual (default the rig's). ``load_scale``: the residual
+        relative to ``load_force_scale`` (no force evaluation at X_load). ``twin``: energies and forces
+        from a float32 twin of the simulator (``float32_twin``) when the tolerance is at least
+        ``TWIN_MIN_TOL`` (its residual reading error is ~1e-5 of the load)."""
         a, b = self.split(c)
         # Activations slightly outside [0, 1] can occur inside a penalty method: the physics
         # sees them clipped (the penalty keeps them near the box).
@@ -252,14 +293,15 @@ class FaceRig:
             kwargs["chord"] = chord
         if self.factor_precision != "float64":
             kwargs["factor_precision"] = self.factor_precision
-        eq = self.sim.solve(
-            a_phys,
-            attached_positions(self.model, b, frame="cranium"),
-            y0,
-            tol=self.tol,
-            max_iterations=self.max_iterations,
-            **kwargs,
-        )
+        targets = attached_positions(self.model, b, frame="cranium")
+        if chord is not None and refactor and self.contact is None:
+            kwargs["refactor"] = lambda x: self.stiffness_at(c, x, warn=False)
+        if load_scale and self.contact is None:
+            kwargs["force_scale"] = self.load_force_scale(a_phys, targets)
+        tol = self.tol if tol is None else float(tol)
+        if twin and tol >= TWIN_MIN_TOL and self.contact is None:
+            kwargs["twin"] = self.float32_twin()
+        eq = self.sim.solve(a_phys, targets, y0, tol=tol, max_iterations=self.max_iterations, **kwargs)
         self.counters["quasistatic_solves"] += 1
         self.counters["newton_iterations"] += eq.iterations
         self.counters["cg_iterations"] += getattr(eq, "cg_iterations", 0)
@@ -267,9 +309,7 @@ class FaceRig:
         self.counters["back_solves"] += eq.back_solves
         self.counters["chord_steps"] += eq.chord_steps
         if not eq.converged:
-            warnings.warn(
-                f"quasistatic solve stopped at residual {eq.residual_rel:.2e} (tol {self.tol:g})", stacklevel=2
-            )
+            warnings.warn(f"quasistatic solve stopped at residual {eq.residual_rel:.2e} (tol {tol:g})", stacklevel=2)
         Mc, tc = affine_from_params(b[:12])
         stats = {}
         if self.contact is not None:
@@ -288,7 +328,42 @@ class FaceRig:
             eq.inverted_elements,
             time.perf_counter() - t0,
             stats,
+            eq.new_chord,
         )
+
+    def float32_twin(self) -> Simulator | None:
+        """A single-precision ``Simulator`` of the model (made once) for the energies and forces of loose
+        solves: about 2x cheaper per evaluation on the CPU; at a float64 equilibrium its forces read a
+        relative residual of 6e-6 (20K tets; docs/design.md, "Performance"). None when the rig's own
+        simulator is single precision."""
+        if self.sim.precision == "float32":
+            return None
+        if getattr(self, "_twin", None) is None:
+            sim = self.sim
+            self._twin = Simulator(self.model, device=sim.device, precision="float32", solver=sim.linear_solver)
+            self._twin.force_length_scale = sim.force_length_scale
+            self._twin.parallel_min_tets = sim.parallel_min_tets
+        return self._twin
+
+    def load_force_scale(self, a: np.ndarray, targets: np.ndarray) -> float:
+        """The linearised load on the rest face, ||sum_i a_i f_i(X)_U - K_UC(X) (x_C - X_C)||_2 (N), with
+        f_i the muscles' forces at full activation and K the stiffness of the rest shape: the first-order
+        ||f_U(X_load)|| of the relative residual (``wface.physics.newton``) without a force evaluation
+        (docs/design.md, "Performance"); floored as there."""
+        if not hasattr(self, "_load_parts"):
+            rest = self.model.rest_positions_m
+            M = self.n_muscles
+            f_rest = self.sim.muscle_forces(rest).reshape(M, -1)[:, self._free_dofs] if M else None
+            k_uc = self.sim.tangent(rest, np.zeros(M), project=False).assemble_free_and_coupling()
+            mat = self.model.material
+            floor = 1e-3 * (mat.mu10_pa + mat.mu01_pa) * float(self.model.rest_volume_m3.sum()) ** (2.0 / 3.0)
+            self._load_parts = (f_rest, k_uc, floor)
+        f_rest, k_uc, floor = self._load_parts
+        rest_c = self.model.rest_positions_m[self.model.attached_nodes]
+        load = -(k_uc @ (np.asarray(targets) - rest_c).reshape(-1))
+        if f_rest is not None:
+            load += np.asarray(a, dtype=np.float64) @ f_rest
+        return max(float(np.linalg.norm(load)), floor)
 
     def predict_y(self, state: RigState, dy_dc: np.ndarray, dc: np.ndarray) -> np.ndarray:
         """Linearised equilibrium Y(c + dc) ~ Y + dY/dc dc in the cranium frame (a warm start)."""
@@ -365,18 +440,22 @@ class FaceRig:
         J = np.zeros((3 * self._n, M + 12))
         J[U] = sol
         J[self._fixed_dofs, M:] = self._dxc_djaw
+        at = getattr(chord, "at", None)
         if not (keep_factor and chord.bound.factor is not None):
             chord.free()
             chord = None
         seconds = {"stiffness_s": t1 - t0, "rhs_s": t2 - t1, "back_solve_s": t3 - t2}
-        return RigLinearization(state, J, chord, seconds)
+        return RigLinearization(state, J, chord, seconds, jacobian_at=None if at is None else (y, at))
 
-    def linearize_rows(self, state: RigState, nodes: np.ndarray, rows: np.ndarray) -> RowsLinearization | None:
+    def linearize_rows(
+        self, state: RigState, nodes: np.ndarray, rows: np.ndarray, chord=None
+    ) -> RowsLinearization | None:
         """The rig at the equilibrium ``state`` from Jacobian rows ``rows`` (k, 3, M + 12) of the nodes
-        ``nodes`` known there (``RowsLinearization``); None where it cannot serve (contact, no factor)."""
+        ``nodes`` known there (``RowsLinearization``); None where it cannot serve (contact, no factor).
+        ``chord``: a nearby factor to use instead of factoring at ``state`` (owned by the result)."""
         if self.contact is not None or self.sim.linear_solver != "direct":
             return None
-        return RowsLinearization(self, state, nodes, rows)
+        return RowsLinearization(self, state, nodes, rows, chord=chord)
 
     def _jacobian_y_contact(self, state: RigState) -> np.ndarray:
         """``jacobian_y`` with contact: the exact contact Hessian joins K (module docstring)."""

@@ -38,6 +38,7 @@ from wface.mesh.align import embed_markers, umeyama
 from wface.model import model_sha256
 from wface.takes.provenance import array_sha256, frame_fingerprint, run_provenance
 from wface.takes.store import FRAMES_DIR, REFINE_DIR_PREFIX, SURVEY_DIR, FrameRecord, verified_frames, write_frame
+from wface.tracking.adaptive import is_adaptive, rebuild_linearization, restore_spare, spare_state
 from wface.tracking.estimator import FrameEstimator, MarkerMap, TrackOptions
 from wface.tracking.prior import TemporalPrior, activation_measurement
 from wface.tracking.refine import usage_priors
@@ -154,6 +155,7 @@ class _Tracker:
         self.resumed_factor = (
             (rec.state["factor_controls"], rec.state["factor_y_m"]) if "factor_y_m" in rec.state else None
         )
+        self.resumed_jacobian = rec.state if "jacobian_y_m" in rec.state else None  # a kept one (adaptive)
 
     def free(self) -> None:
         """Release the factorisation held for the next frame."""
@@ -168,6 +170,10 @@ class _Tracker:
         at = None if self.lin is None else self.lin.factored_at
         if at is not None:  # where the handed-on factor was taken: a resumed take rebuilds it exactly
             out["factor_controls"], out["factor_y_m"] = at
+        kept = None if self.lin is None else getattr(self.lin, "jacobian_at", None)
+        if kept is not None and is_adaptive(self.est):  # where its (kept) Jacobian was solved, and with what
+            out["jacobian_y_m"], (out["jacobian_factor_controls"], out["jacobian_factor_y_m"]) = kept
+            out["jacobian_age"] = np.array(self.lin.age)
         return out
 
     def step(self, frame: int, target: np.ndarray) -> FrameRecord:
@@ -176,8 +182,8 @@ class _Tracker:
             return self._carry(frame, target, present)
         if self.lin is None and self.resumed is not None and self.options.reuse_factor:
             near = None if self.resumed_factor is None else self.rig.stiffness_at(*self.resumed_factor, warn=False)
-            self.lin = self.rig.linearize(self.resumed, stiffness=near)  # as the interrupted run had it
-        self.resumed = self.resumed_factor = None
+            self.lin = rebuild_linearization(self.rig, self.resumed, near, getattr(self, "resumed_jacobian", None))
+        self.resumed = self.resumed_factor = self.resumed_jacobian = None
         first = self.c is None
         c_last = self.c
         if first:
@@ -314,12 +320,16 @@ def _refine_chunk(
     rig = FaceRig(model, **{"factor_precision": options.factor_precision, **rig_kwargs})
     est = FrameEstimator(rig, MarkerMap(model, embedding), options)
     keep_information = folder != FRAMES_DIR
-    out = []
+    out, pending = [], None
     for j, first in enumerate(tqdm(survey, desc=desc, disable=not progress, unit="frame")):
         f = first.frame
         if f in done:
             out.append(done[f])
+            pending = done[f].state  # what it handed to the next frame (restored before that one)
             continue
+        if pending is not None:
+            restore_spare(est, pending)
+            pending = None
         stats = dict(first.stats, pass1_seconds=first.stats.get("pass1_seconds", first.stats["seconds"]))
         state = {}
         if first.stats.get("carried"):
@@ -367,11 +377,13 @@ def _refine_chunk(
             )
             st = res.state
             rec = FrameRecord(f, res.controls, st.x_m, st.y_m, res.markers_m, res.marker_error_m, stats, state)
+        rec.state = {**(rec.state or {}), **spare_state(est)}  # + the factor handed to the next frame (adaptive)
         if out_dir is not None:
             fingerprint = frame_fingerprint(run, f, targets[j], extra=extra)
             rec.provenance = {"run": run, "frame": int(f), "fingerprint": fingerprint, "extra": extra, "pass": desc}
             write_frame(out_dir, rec, folder=folder)
         out.append(rec)
+    est.free()  # the factor kept for a next frame (TrackOptions.factor_at="adaptive")
     return out
 
 
