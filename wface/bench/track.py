@@ -5,9 +5,9 @@ The performance: 60 frames at 30 Hz (2 s) of ``synthesize_performance`` (seed 0,
 noise), of which the window of ``--frames`` frames from frame 24 is simulated and tracked, so the
 motion between frames is that of a 30 Hz capture. The first frame starts cold; the statistics
 per frame are medians over the later, warm-started frames. ``--prior`` is the tracker's
-(``TrackOptions.prior``): "auto" (default, as ``wface track``) tracks twice, the second pass under
-the take-wide usage prior, and a frame's numbers are both passes' sums (``pass1_seconds_per_frame``
-the first alone); "temporal" is the one pass.
+(``TrackOptions.prior``): "auto" (default, as ``wface track``) tracks a first pass and then
+``--prior-passes`` passes under the take-wide usage prior, and a frame's numbers are all its passes'
+sums (``pass1_seconds_per_frame`` the first alone); "temporal" is the one pass.
 
 Reported per size: seconds per frame and its breakdown; Gauss-Newton steps, quasistatic solves,
 Newton iterations (chord steps among them), numeric factorisations and back-solves per frame;
@@ -145,7 +145,8 @@ def bench_size(n_tets: int, *, device: str = "cpu", frames: int = 6, repeat: int
             "gauss_newton_system": med("gauss_newton_system_s"),
         },
         **{f"{k}_per_frame": med(k) for k in _PER_FRAME},
-        "prior": options.prior,  # "auto": two passes (the usage prior's refit), each frame's cost summed
+        "prior": options.prior,  # "auto": 1 + prior_passes passes (the usage prior's refits), each frame's cost summed
+        "prior_passes": options.prior_passes if options.prior == "auto" else 0,
         "peak_rss_mb": peak,
         "peak_rss_scope": "tracking" if rss_reset else "process",
         "wall_seconds": wall,
@@ -185,7 +186,8 @@ def run(args) -> dict:
     device = resolve_device("cpu" if args.device == "auto" else args.device)
     frames = int(getattr(args, "frames", None) or 6)
     repeat = max(1, int(getattr(args, "repeat", 3) or 3))
-    options = TrackOptions(prior=getattr(args, "prior", None) or "auto")
+    passes = getattr(args, "prior_passes", None) or TrackOptions.prior_passes
+    options = TrackOptions(prior=getattr(args, "prior", None) or "auto", prior_passes=int(passes))
     results = [bench_size(int(n), device=device, frames=frames, repeat=repeat, options=options) for n in sizes]
     notes = {"take": f"frames {WINDOW_START}.. of a {TAKE_FRAMES}-frame 30 Hz synthetic take, {NOISE_MM} mm noise"}
     return suite_result("track", device, results, notes)

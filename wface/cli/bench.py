@@ -10,6 +10,7 @@ import sys
 from wface.bench import SUITES
 from wface.cli.validate import positive_int
 from wface.files import write_text
+from wface.tracking.estimator import TrackOptions
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,7 +28,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--prior",
         choices=["auto", "temporal", "off"],
         default="auto",
-        help="the tracker's priors (track suite): auto (default, two passes, as wface track), temporal (one pass)",
+        help="the tracker's priors (track suite): auto (default, as wface track: a first pass, then --prior-passes "
+        "passes under the take-wide usage prior), temporal (one pass)",
+    )
+    p.add_argument(
+        "--prior-passes",
+        type=positive_int,
+        default=TrackOptions.prior_passes,
+        help=f"with --prior auto (track suite): usage passes after the first (default {TrackOptions.prior_passes})",
     )
     p.add_argument("--json", action="store_true", help="print JSON only")
     p.add_argument("--out", help="also write the JSON to this file")

@@ -101,7 +101,6 @@ __all__ = [
     "SKULL_MESHES",
     "Contact",
     "ContactPairs",
-    "ContactTangent",
     "HalfSpace",
     "MeshObstacle",
     "Sphere",
@@ -272,34 +271,6 @@ class ContactPairs:
         }
 
 
-class ContactTangent:
-    """Elastic tangent + contact Hessian, with the ``Tangent`` interface used by the Newton solver
-    (``matvec``, ``diagonal``, ``assemble``): the Gauss-Newton contact Hessian, or for smooth lip
-    surfaces with the exact (unprojected) elastic tangent, their exact Hessian too."""
-
-    def __init__(self, tangent, pairs: ContactPairs):
-        self.elastic = tangent
-        self.contact = pairs
-        self._sim = tangent._sim
-        self.projected = tangent.projected
-        self._exact = not tangent.projected
-
-    def matvec(self, v: np.ndarray) -> np.ndarray:
-        return self.elastic.matvec(v) + self.contact.matvec(v, exact=self._exact)
-
-    def diagonal(self) -> np.ndarray:
-        return self.elastic.diagonal() + self.contact.diagonal(exact=self._exact)
-
-    def assemble(self, pattern=None) -> sp.csr_matrix:
-        pattern = pattern or self._sim.pattern(None)
-        K = self.elastic.assemble(pattern)
-        if not len(self.contact.node):
-            return K
-        K = (K + self.contact.assemble(pattern, exact=self._exact)).tocsr()
-        K.sort_indices()
-        return K
-
-
 # ---------------------------------------------------------------------- the contact model
 class Contact:
     """Contact sources of a face for ``Simulator.solve(..., contact=...)``.
@@ -411,32 +382,7 @@ class Contact:
         # meshes, those already inside at rest are left out, see ``ignore_inside_at_rest``).
         self.rigid_nodes: list[np.ndarray] = [nodes] * len(self.rigid)
         self.ignored_at_rest: dict[str, int] = {}
-        rest_affines = bone_affines_from_attached(model, None)
-        for name, mesh in model.bone_meshes.items():
-            is_teeth = "teeth" in name.lower()
-            if (
-                ("teeth" in self.regions and is_teeth)
-                or ("bones" in self.regions and not is_teeth)
-                or ("skull" in self.regions and name in SKULL_MESHES)
-            ):
-                ob = MeshObstacle(mesh.vertices_m, mesh.triangles, bone=mesh.bone, name=name)
-                keep = nodes
-                if ignore_inside_at_rest:
-                    phi, _, valid, _, _ = ob.signed(model.rest_positions_m[nodes], rest_affines, 0.0)
-                    inside = valid & (phi < self.gap_m)
-                    keep = nodes[~inside]
-                    self.ignored_at_rest[name] = int(inside.sum())
-                self.rigid.append((name, ob))
-                self.rigid_nodes.append(keep)
-        if "skull" in self.regions and not any(n in model.bone_meshes for n in SKULL_MESHES):
-            raise ValueError(
-                f"contact region 'skull': the model has no {' or '.join(SKULL_MESHES)} mesh "
-                f"(bone meshes: {list(model.bone_meshes)})"
-            )
-        if "teeth" in self.regions and not any("teeth" in n.lower() for n in model.bone_meshes):
-            raise ValueError(
-                f"contact region 'teeth': the model has no teeth mesh (bone meshes: {list(model.bone_meshes)})"
-            )
+        self._add_model_meshes(model, nodes, ignore_inside_at_rest)
 
         pairs = list(self_pairs)
         if "lips" in self.regions:
@@ -468,6 +414,36 @@ class Contact:
         if surface == "smooth" and self.self_contact:
             self.smooth = SmoothSelfContact(
                 model, self.self_contact, levels=smooth_levels, radius_factor=smooth_radius_factor
+            )
+
+    def _add_model_meshes(self, model: FaceModel, nodes: np.ndarray, ignore_inside_at_rest: bool) -> None:
+        """The model's bone and teeth meshes that ``regions`` names, as rigid sources with the nodes
+        that may touch them (see ``ignore_inside_at_rest`` in the class docstring)."""
+        rest_affines = bone_affines_from_attached(model, None)
+        for name, mesh in model.bone_meshes.items():
+            is_teeth = "teeth" in name.lower()
+            if (
+                ("teeth" in self.regions and is_teeth)
+                or ("bones" in self.regions and not is_teeth)
+                or ("skull" in self.regions and name in SKULL_MESHES)
+            ):
+                ob = MeshObstacle(mesh.vertices_m, mesh.triangles, bone=mesh.bone, name=name)
+                keep = nodes
+                if ignore_inside_at_rest:
+                    phi, _, valid, _, _ = ob.signed(model.rest_positions_m[nodes], rest_affines, 0.0)
+                    inside = valid & (phi < self.gap_m)
+                    keep = nodes[~inside]
+                    self.ignored_at_rest[name] = int(inside.sum())
+                self.rigid.append((name, ob))
+                self.rigid_nodes.append(keep)
+        if "skull" in self.regions and not any(n in model.bone_meshes for n in SKULL_MESHES):
+            raise ValueError(
+                f"contact region 'skull': the model has no {' or '.join(SKULL_MESHES)} mesh "
+                f"(bone meshes: {list(model.bone_meshes)})"
+            )
+        if "teeth" in self.regions and not any("teeth" in n.lower() for n in model.bone_meshes):
+            raise ValueError(
+                f"contact region 'teeth': the model has no teeth mesh (bone meshes: {list(model.bone_meshes)})"
             )
 
     @classmethod

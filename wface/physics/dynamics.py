@@ -54,7 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wface.mesh.quality import count_inverted
-from wface.physics.contact import ContactTangent
+from wface.physics.contact_tangent import ContactTangent
 from wface.solvers import LinearSolver, NotPositiveDefiniteError
 
 __all__ = [

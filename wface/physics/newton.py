@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wface.mesh.quality import count_inverted
-from wface.physics.contact import ContactTangent
+from wface.physics.contact_tangent import ContactTangent
 from wface.physics.frozen import FrozenContact
 from wface.solvers import LinearSolver, NotPositiveDefiniteError
 

@@ -89,8 +89,8 @@ class TrackOptions:
     # "prediction": one factorisation per frame at the linear prediction of the new equilibrium (its solve
     # converges in ~2 chord steps and the Jacobian at the equilibrium reuses the factor); "equilibrium"
     # (exact Jacobians; the solves take chord steps with the previous equilibrium's factor)
-    jacobian_refresh: float = 0.8  # "adaptive": keep the Jacobian while a step achieves this share of the
-    max_jacobian_age: int = 8  # decrease its model predicted, for at most this many steps (~frames)
+    jacobian_refresh: float = 0.95  # "adaptive": keep the Jacobian while a step achieves this share of its
+    max_jacobian_age: int = 8  # predicted decrease, <= this many steps (0.8: chunks differ from serial by 0.011)
     solve_tol: float | None = 1e-4  # relative residual of the tracker's solves along a step (None: the
     # rig's tol), against the linearised load (FaceRig.load_force_scale); its marker effect is microns
     float32_forces: bool = True  # with "adaptive": the solves along a step read energies and forces from a
@@ -294,16 +294,12 @@ class FrameEstimator:
 
         release_at_end(self, near, lin)  # the factor at the prediction; a second pass's kept for its next frame
         timings["cpu_s"] = time.process_time() - cpu_start  # process CPU time, all threads (less load-bound)
-        err = np.linalg.norm(m - target, axis=1)
-        err[~present] = np.nan
+        err = np.where(present, np.linalg.norm(m - target, axis=1), np.nan)
         used = {k: rig.counters[k] - counters0[k] for k in rig.counters}
         if lin is not None and lin.state is not state:
             lin.free()
             lin = None
-        system = {"weighted_rss_m2": self._phi(m, target, present, w), "weighted_count": 3.0 * float(w[present].sum())}
-        system.update({"data_hessian": data_hessian} if data_hessian is not None else {})
-        if data_hessian is not None:  # the data term's gradient 2 J^T W r there, and where: its linear model
-            system.update(data_gradient=data_system["data_gradient"], data_at=data_system["at"])
+        system = self._frame_system(m, target, present, w, data_hessian, data_system)
         return FrameResult(
             frame,
             c,
@@ -321,6 +317,14 @@ class FrameEstimator:
             linearization=lin,
             system=system,
         )
+
+    def _frame_system(self, m, target, present, w, data_hessian, data_system) -> dict:
+        """``FrameResult.system``: the weighted residual and the last Gauss-Newton system's data term."""
+        system = {"weighted_rss_m2": self._phi(m, target, present, w), "weighted_count": 3.0 * float(w[present].sum())}
+        if data_hessian is not None:  # 2 J^T W J, 2 J^T W r and where: the usage prior's input
+            system.update(data_hessian=data_hessian, data_gradient=data_system["data_gradient"])
+            system["data_at"] = data_system["at"]
+        return system
 
     def _start(self, c0, y0, start, equilibrium, marker_jy) -> tuple[RigState, object]:
         """(the equilibrium a frame starts from, the linearisation there or None): see ``estimate``."""
