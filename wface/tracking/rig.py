@@ -48,8 +48,40 @@ __all__ = ["FaceRig", "RigLinearization", "RigState", "RowsLinearization", "TWIN
 TWIN_MIN_TOL = 1e-4  # the tightest solve tolerance a float32 twin may serve (its reading error: ~1e-5)
 
 
+class _OwnsChord:
+    """The factor of K_UU a linearisation owns (held in the attribute ``_chord_attr``): freed, replaced
+    or handed on (``wface.tracking.adaptive``)."""
+
+    _chord_attr = "chord"
+
+    def free(self) -> None:
+        chord = getattr(self, self._chord_attr)
+        if chord is not None:
+            chord.free()
+            setattr(self, self._chord_attr, None)
+
+    def replace_chord(self, new) -> None:
+        """Adaptive refactorisation: ``new`` (a solve's ``new_chord``) replaces the factor, which is freed."""
+        if new is not None and new is not getattr(self, self._chord_attr):
+            self.free()
+            setattr(self, self._chord_attr, new)
+
+    def take_chord(self):
+        """The factor, handed over (this linearisation no longer owns it)."""
+        chord = getattr(self, self._chord_attr)
+        setattr(self, self._chord_attr, None)
+        return chord
+
+    @property
+    def factored_at(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(controls, cranium-frame positions (n, 3)) where the chord's factor was taken, or None:
+        ``FaceRig.linearize(state, stiffness=rig.stiffness_at(*factored_at))`` rebuilds this
+        linearisation bit for bit (a resumed take continues as the interrupted run would have)."""
+        return getattr(getattr(self, self._chord_attr), "at", None)
+
+
 @dataclass
-class RigLinearization:
+class RigLinearization(_OwnsChord):
     """The rig linearised at an equilibrium: dY/d(a, b_jaw) and the factor of K_UU there.
 
     ``chord`` (``solve(rhs)`` and ``coupling(dx_c)``, see ``wface.physics.newton``) is None when no
@@ -65,29 +97,6 @@ class RigLinearization:
 
     full = True  # dY/dc of every node (``RowsLinearization``: of a few)
 
-    def free(self) -> None:
-        if self.chord is not None:
-            self.chord.free()
-            self.chord = None
-
-    def replace_chord(self, new) -> None:
-        """Adaptive refactorisation: ``new`` (a solve's ``new_chord``) replaces the factor, which is freed."""
-        if new is not None and new is not self.chord:
-            self.free()
-            self.chord = new
-
-    def take_chord(self):
-        """The factor, handed over (this linearisation no longer owns it)."""
-        chord, self.chord = self.chord, None
-        return chord
-
-    @property
-    def factored_at(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(controls, cranium-frame positions (n, 3)) where the chord's factor was taken, or None:
-        ``FaceRig.linearize(state, stiffness=rig.stiffness_at(*factored_at))`` rebuilds this
-        linearisation bit for bit (a resumed take continues as the interrupted run would have)."""
-        return getattr(self.chord, "at", None)
-
     def node_rows(self, nodes: np.ndarray) -> np.ndarray:
         """(k, 3, M + 12) dY/d(a, b_jaw) of the nodes ``nodes``."""
         return self.jy.reshape(-1, 3, self.jy.shape[1])[nodes]
@@ -97,7 +106,7 @@ class RigLinearization:
         return (self.jy @ dc_y).reshape(-1, 3)
 
 
-class RowsLinearization:
+class RowsLinearization(_OwnsChord):
     """The rig at an equilibrium whose Jacobian is known on some nodes only (a first pass's rows, kept
     in its frame file: ``FaceRig.linearize_rows``). A Gauss-Newton step needs only the marker nodes'
     rows; the linear prediction dY/dc dc of every node, the warm start of the line search's solves,
@@ -106,6 +115,7 @@ class RowsLinearization:
     a frame from its first-pass solution with one factorisation and no Jacobian columns."""
 
     full = False
+    _chord_attr = "_chord"
 
     def __init__(self, rig: FaceRig, state: RigState, nodes: np.ndarray, rows: np.ndarray, chord=None):
         self.rig, self.state = rig, state
@@ -120,24 +130,6 @@ class RowsLinearization:
         if self._chord is None:
             self._chord = self.rig.stiffness_at(self.state.controls, self.state.y_m, warn=False)
         return self._chord
-
-    @property
-    def factored_at(self) -> tuple[np.ndarray, np.ndarray] | None:
-        return getattr(self._chord, "at", None)
-
-    def free(self) -> None:
-        if self._chord is not None:
-            self._chord.free()
-            self._chord = None
-
-    def replace_chord(self, new) -> None:
-        if new is not None and new is not self._chord:
-            self.free()
-            self._chord = new
-
-    def take_chord(self):
-        chord, self._chord = self._chord, None
-        return chord
 
     def node_rows(self, nodes: np.ndarray) -> np.ndarray:
         if not np.array_equal(nodes, self.nodes):
