@@ -177,3 +177,32 @@ def test_the_float32_twin_reads_the_residual_to_well_under_the_trackers_toleranc
     a2 = model.clip_activations(c2[:M])
     true = np.linalg.norm(rig.sim.forces(st.y_m, a2)[free]) / rig.load_force_scale(a2, targets)
     assert st.converged and true <= 1.5 * tol, true
+
+
+def test_usage_passes_keep_one_factor_across_frames_and_choose_the_length_once(take, tmp_path):
+    """The usage passes (prior="auto", three): a pass whose frames have no Jacobian rows handed on solves
+    each frame's Jacobian with the previous frame's factor, so past its first frame it factors nothing;
+    the usage prior's correlation length is chosen by cross-validation on the first fit only."""
+    model, markers, perf = take
+    recs = track_sequence(
+        model,
+        perf.markers_m,
+        marker_names=model.marker_names,
+        markers=markers,
+        options=TrackOptions(prior="auto", prior_passes=3),
+        out_dir=tmp_path,
+    )
+    from wface.takes.frames import frame_path, read_frame
+    from wface.takes.store import REFINE_DIR_PREFIX
+
+    frames = [r.frame for r in recs]
+    before, after = (  # the records of passes 2 and 3
+        {f: read_frame(frame_path(tmp_path, f, folder=f"{REFINE_DIR_PREFIX}{k}")) for f in frames} for k in (2, 3)
+    )
+    pass3 = {f: after[f].stats["factorizations"] - before[f].stats["factorizations"] for f in frames}
+    assert any(before[f].state.get("marker_jy") is None for f in frames[1:])  # pass 3 had frames without rows
+    assert sum(pass3.values()) <= 1 + sum(1 for f in frames if "marker_jy" in before[f].state), pass3
+    fits = recs[-1].stats["usage_prior_passes"]
+    assert len(fits) == 3 and all(f["seconds"] > 0 for f in fits)
+    assert len({f["correlation_length_frames"] for f in fits}) == 1
+    assert all(f.get("length_chosen_in_pass") == 2 for f in fits[1:] if f["cv_log_likelihood"] is not None)

@@ -17,6 +17,8 @@ solved control columns together, timed in the same run (median of ``--repeat``),
 = seconds per frame / that (``limit_ratio_float64`` against double-precision factors, for reference;
 ``limit_ratio_cpu`` the same with process CPU time, which a machine shared with other jobs inflates
 less than wall time);
+the usage prior's take-wide fits between passes (``usage_fit_seconds``, each fit; their sum over the
+frames in the breakdown, and ``limit_ratio_with_usage_fits`` with it added to a frame);
 peak RSS (the process's high-water mark, reset before tracking where Linux allows it); and the
 accuracy against the known truth (activation RMS error over the observable muscles and over all,
 tracked-marker error against the clean markers, jaw angle error).
@@ -151,6 +153,10 @@ def bench_size(n_tets: int, *, device: str = "cpu", frames: int = 6, repeat: int
         "peak_rss_scope": "tracking" if rss_reset else "process",
         "wall_seconds": wall,
     }
+    fits = recs[-1].stats.get("usage_prior_passes", [])  # the usage prior's fits between passes (take-wide)
+    if fits:
+        out["usage_fit_seconds"] = [float(f.get("seconds", 0.0)) for f in fits]
+        out["breakdown_seconds_per_frame"]["usage_fits"] = sum(out["usage_fit_seconds"]) / len(recs)
     if any("pass1_seconds" in r.stats for r in later):
         out["pass1_seconds_per_frame"] = med("pass1_seconds")  # the first pass alone (the temporal prior)
     if rig.sim.linear_solver == "direct":
@@ -158,6 +164,9 @@ def bench_size(n_tets: int, *, device: str = "cpu", frames: int = 6, repeat: int
         out["limit"] = limit_seconds(rig, last, repeat=repeat)
         out["limit_seconds"] = out["limit"]["seconds"]
         out["limit_ratio"] = out["seconds_per_frame"] / out["limit_seconds"]
+        if fits:  # with the take-wide usage fits shared out over the frames
+            with_fits = out["seconds_per_frame"] + out["breakdown_seconds_per_frame"]["usage_fits"]
+            out["limit_ratio_with_usage_fits"] = with_fits / out["limit_seconds"]
         out["limit_ratio_cpu"] = out["cpu_seconds_per_frame"] / out["limit"]["cpu_seconds"]  # CPU time, less load-bound
         if out["limit"]["precision"] == "float32":  # for reference: the limit with double-precision factors
             out["limit_float64"] = limit_seconds(rig, last, repeat=repeat, precision="float64")

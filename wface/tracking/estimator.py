@@ -79,10 +79,8 @@ class TrackOptions:
     extrapolate: bool = True  # start each frame from a constant-velocity prediction of the controls
     # (only when no linearisation of the previous frame is handed on, see ``reuse_factor``)
     min_improvement: float = 0.05  # stop GN when the objective drops by less than this fraction
-    reuse_factor: bool = True  # keep the factor and Jacobian of each new equilibrium: the stopping test
-    # uses the next step's predicted decrease, the next frame starts from it (no start solve), and the
-    # solves near it take chord steps; False: the paper's loop (a Jacobian per step, tests on the
-    # achieved decrease)
+    reuse_factor: bool = True  # keep the factor and Jacobian of each new equilibrium (the stopping test on
+    # the next step's predicted decrease, no start solve, chord steps); False: the paper's loop
     factor_at: str = "adaptive"  # with reuse_factor, where factorisations are done: "adaptive" keeps the
     # factor and the Jacobian from frame to frame, refactoring where a chord step contracts poorly and
     # solving the Jacobian again where a step falls short of its prediction (wface.tracking.adaptive);
@@ -244,7 +242,7 @@ class FrameEstimator:
         timings = {"quasistatic_s": 0.0, "jacobian_s": 0.0, "gauss_newton_system_s": 0.0}
         t = time.perf_counter()
         state, lin = self._start(c0, y0, start, equilibrium, marker_jy)
-        timings["quasistatic_s"] += time.perf_counter() - t
+        timings["jacobian_s" if equilibrium is not None else "quasistatic_s"] += time.perf_counter() - t
         c = state.controls
         m = self.markers.positions(state.x_m)
         w = self._weights(np.where(present[:, None], m - target, 0.0))
@@ -331,12 +329,14 @@ class FrameEstimator:
         if start is not None:
             return start.state, start
         state = equilibrium if equilibrium is not None else self.rig.equilibrium(c0, y0)
-        lin = None
-        if equilibrium is not None and marker_jy is not None and self.options.reuse_factor:
-            spare, self._spare = (self._spare, None) if is_adaptive(self) else (None, None)
-            lin = self.rig.linearize_rows(state, self.markers.nodes, marker_jy, chord=spare)  # None: cannot serve
-            if lin is None and spare is not None:
-                spare.free()
+        if equilibrium is None or not self.options.reuse_factor:
+            return state, None
+        spare, self._spare = (self._spare, None) if is_adaptive(self) else (None, None)
+        if marker_jy is None:  # no rows: the Jacobian solved with the previous frame's factor (none: in the loop)
+            return state, (None if spare is None else self.rig.linearize(state, keep_factor=True, stiffness=spare))
+        lin = self.rig.linearize_rows(state, self.markers.nodes, marker_jy, chord=spare)  # None: cannot serve
+        if lin is None and spare is not None:
+            spare.free()
         return state, lin
 
     def _done_without_jacobian(self, lin, state, m, target, present, w, a_prev, step, cache):

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -359,8 +360,10 @@ def _refine_chunk(
                     state["information"], state["information_vector"] = measured
                 if lin is not None and getattr(lin, "full", False) and lin.state is res.state:
                     state["marker_jy"] = lin.node_rows(est.markers.nodes)  # the next pass's first step
-            if lin is not None:
-                lin.free()  # each pass starts each frame from the previous pass's solution
+            if lin is not None:  # each pass starts each frame from the previous pass's solution
+                if is_adaptive(est):
+                    est.keep_spare(lin.take_chord())  # its factor serves the next frame
+                lin.free()
             for k in ("cg_iterations", "factorizations", "back_solves", "chord_steps"):
                 stats[k] = first.stats.get(k, 0) + res.counts.get(k, 0)
             for k in ("gauss_newton_steps", "quasistatic_solves", "linear_solves", "seconds"):
@@ -475,8 +478,14 @@ def track_sequence(
         return records
     summaries = []
     passes = max(1, int(options.prior_passes))
+    length = None  # the usage prior's correlation length: chosen by cross-validation on the first fit, kept
     for k in range(passes):  # each pass under priors fitted to the one before (wface.tracking.refine)
-        priors, _, summary = usage_priors(records)
+        t = time.perf_counter()
+        priors, fit, summary = usage_priors(records, length_frames=length)
+        summary["seconds"] = time.perf_counter() - t
+        length = None if fit is None else fit.length_frames
+        if k and summaries[0].get("cv_log_likelihood") is not None:  # the length was chosen on the first fit
+            summary.update(cv_log_likelihood=summaries[0]["cv_log_likelihood"], length_chosen_in_pass=2)
         summaries.append(summary)
         extra = _priors_digest(priors)
         last = k == passes - 1
