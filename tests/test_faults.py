@@ -160,6 +160,7 @@ def test_resume_into_another_take_is_refused(reference, tmp_path, capsys):
     code, text = _cli([*args, "--out", out, "--resume"], capsys)
     assert code == 1
     assert "holds another take" in text and "--overwrite" in text
+    assert "another input (seed differ" in text  # what differs, where the two descriptions may read alike
     assert _controls(out)["activations"].shape[0] == int(FRAMES)  # nothing was touched
 
 

@@ -58,7 +58,7 @@ from wface.takes.frames import (
     write_frame,
 )
 from wface.takes.pose import bone_projection_error_m
-from wface.takes.provenance import describe_source, same_take
+from wface.takes.provenance import describe_source, explain_mismatch, same_take
 from wface.takes.take import Take
 
 __all__ = [
@@ -175,7 +175,8 @@ def claim_take_dir(out_dir: str | Path, run: dict, *, resume: bool = False, over
         elif not same_take(found, run):
             raise TakeDirectoryError(
                 f"{out} holds another take's results ({describe_source(found)}; this run is "
-                f"{describe_source(run)}): choose another --out, or pass --overwrite to replace them"
+                f"{describe_source(run)}; {explain_mismatch(run, found)}): choose another --out, or pass "
+                "--overwrite to replace them"
             )
         elif not resume:
             n = len(frame_numbers_on_disk(out))
