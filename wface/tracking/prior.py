@@ -42,8 +42,6 @@ __all__ = [
     "TemporalPrior",
     "activation_information",
     "activation_measurement",
-    "fit_usage_prior",
-    "usage_prior",
 ]
 
 _Q0 = 1.0  # prior guess of the activation change per frame (unit): the whole range, i.e. no prior
@@ -194,56 +192,3 @@ class TemporalPrior:
             out.change_sq = np.array(arrays["prior_change_sq"], dtype=np.float64)
             out.changes = int(arrays["prior_changes"])
         return out
-
-
-# ---------------------------------------------------------------------- the usage prior (second pass)
-def fit_usage_prior(
-    activations: np.ndarray,
-    informations: np.ndarray,
-    noise_var_m2: float,
-    *,
-    iterations: int = 500,
-    floor: float = 1e-8,
-    rtol: float = 1e-6,
-) -> np.ndarray:
-    """gamma (M,): each muscle's prior variance about rest, by evidence maximisation over the take.
-
-    Multiple-measurement sparse Bayesian learning (M-SBL; Wipf & Rao 2007, EM form): each frame's
-    first-pass activations y_t are a Gaussian measurement of a_t with information P_t = I_t / sigma^2,
-    a_t ~ N(0, diag(gamma)) shared over the take. EM alternates the posteriors
-    S_t = (P_t + diag(1/gamma))^-1, mu_t = S_t P_t y_t and gamma_i = mean_t (mu_t,i^2 + S_t,ii) until
-    gamma settles. Muscles the performance does not use get gamma -> 0 (held at rest), the others a
-    variance near their mean square activation: the data choose which muscles act.
-
-    Args:
-        activations: (F, M) first-pass activations.
-        informations: (F, M, M) their data information J^T W J (Schur complement over the bones;
-            ``activation_information`` / 2), m^2 per unit^2.
-        noise_var_m2: sigma^2, marker noise variance per coordinate (m^2).
-        iterations: EM iterations at most.
-        floor: smallest gamma (unit^2).
-        rtol: stop when no gamma changes by more than this fraction.
-    """
-    Y = np.asarray(activations, dtype=np.float64)
-    info = np.asarray(informations, dtype=np.float64) / max(float(noise_var_m2), 1e-30)
-    F, M = Y.shape
-    gamma = np.full(M, max(float(np.mean(Y**2)), floor))
-    Py = np.einsum("tij,tj->ti", info, Y)
-    for _ in range(iterations):
-        acc = np.zeros(M)
-        for t in range(F):
-            S = np.linalg.inv(info[t] + np.diag(1.0 / gamma))
-            mu = S @ Py[t]
-            acc += mu**2 + np.diag(S)
-        new = np.maximum(acc / F, floor)
-        done = np.max(np.abs(new - gamma) / gamma) < rtol
-        gamma = new
-        if done:
-            break
-    return gamma
-
-
-def usage_prior(gamma: np.ndarray, noise_var_m2: float) -> GaussianPrior:
-    """The second pass's prior: activations about rest with variances ``gamma`` (weight sigma^2 / gamma)."""
-    gamma = np.asarray(gamma, dtype=np.float64)
-    return GaussianPrior(np.zeros(len(gamma)), np.diag(float(noise_var_m2) / gamma))
