@@ -139,3 +139,19 @@ def test_refinement_passes_reach_the_heavy_corruption_goal(heavy_take):
         assert len(summary) == passes and all(s["noise_mm"] > 0 for s in summary)
     assert err[3] < 0.15, err
     assert err[3] < err[1], err
+
+
+def test_a_long_take_chooses_its_length_on_a_window_and_fits_gamma_on_every_frame():
+    """Past ``cv_frames`` the cross-validation runs on the take's middle frames only: a length near the
+    truth (4 frames) as the whole take's cross-validation, gamma then fitted at that length on every
+    frame (the fixed-length fit's). The window bounds the cross-validation's memory (25 fold fits of
+    every frame at once) and time on long takes."""
+    X, Y, info, gamma, s2 = _problem(seed=4, frames=120)
+    whole = fit_usage(Y, info, s2)
+    windowed = fit_usage(Y, info, s2, cv_frames=60)
+    assert whole.length_frames in (2.0, 4.0, 8.0) and windowed.length_frames in (2.0, 4.0, 8.0), windowed.cv_score
+    fixed = fit_usage(Y, info, s2, length_frames=windowed.length_frames)
+    np.testing.assert_allclose(windowed.gamma, fixed.gamma, rtol=1e-12)
+    used = gamma > 0
+    ratio = windowed.gamma[used] / gamma[used]
+    assert np.all((ratio > 0.4) & (ratio < 2.5)), ratio

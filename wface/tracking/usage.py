@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = [
+    "CV_MAX_FRAMES",
     "LENGTHS_FRAMES",
     "UsageFit",
     "ar1_coefficient",
@@ -45,6 +46,8 @@ _FOLDS = 5
 _FLOOR = 1e-8  # smallest gamma (unit^2): a muscle held at rest
 _FOLD_ITERATIONS = 30  # fixed-point steps of a fold's fit, started from the whole take's (4/5 of its data)
 _RHO_MAX = 0.98  # largest AR(1) coefficient (keeps the prediction covariance away from singular)
+CV_MAX_FRAMES = 300  # the length's cross-validation runs on at most this many consecutive frames (the
+# take's middle): its batch of 25 fold fits costs ~0.3 s and ~1.6 MB per frame at 36 muscles
 
 
 @dataclass
@@ -216,6 +219,7 @@ def fit_usage(
     rtol: float = 1e-3,
     residual_m2=None,
     dof=None,
+    cv_frames: int = CV_MAX_FRAMES,
 ) -> UsageFit:
     """The usage prior of a pass: gamma by evidence maximisation, (``length_frames`` None) the AR(1)
     length by 5-fold cross-validation over frames among ``lengths``, and (with ``residual_m2`` and
@@ -227,6 +231,9 @@ def fit_usage(
         noise_var_m2: sigma^2, marker noise variance per coordinate (m^2): fixed, or the EM's start.
         residual_m2: (F,) the weighted squared marker residual at z_t (m^2), phi_min,t.
         dof: (F,) the residual's degrees of freedom per frame (3 sum w_k minus the bones' 9).
+        cv_frames: a longer take chooses its length on its middle ``cv_frames`` frames (the correlation
+            length is a property of the motion, not of the take's length) and fits gamma at that length
+            on every frame: the cross-validation's time and memory stay bounded on long takes.
     """
     Y = np.asarray(activations, dtype=np.float64)
     I = np.asarray(informations, dtype=np.float64)
@@ -242,9 +249,14 @@ def fit_usage(
     scores = None
     if length_frames is None:
         L = _factor_information(I / s2)
-        scores, fits = choose_length(L, Y, gamma0[0], lengths, iterations=iterations, rtol=rtol)
+        s0 = max(0, (F - int(cv_frames)) // 2)
+        window = slice(s0, min(F, s0 + max(int(cv_frames), _FOLDS)))
+        scores, fits = choose_length(L[window], Y[window], gamma0[0], lengths, iterations=iterations, rtol=rtol)
         length_frames = max(scores, key=lambda k: (scores[k], -k))
         gamma = fits[length_frames][None]
+        if window.stop - window.start < F:  # gamma of the chosen length on the whole take
+            rho = [ar1_coefficient(length_frames)]
+            gamma, _, _ = _fit_gamma(L, Y, every, rho, gamma0, iterations, rtol)
     return UsageFit(gamma[0], float(length_frames), float(s2), scores, its)
 
 
