@@ -179,7 +179,7 @@ def test_the_float32_twin_reads_the_residual_to_well_under_the_trackers_toleranc
     assert st.converged and true <= 1.5 * tol, true
 
 
-def test_usage_passes_keep_one_factor_across_frames_and_choose_the_length_once(take, tmp_path):
+def test_usage_passes_keep_one_factor_across_frames_and_choose_the_length_once(take, tmp_path, capsys):
     """The usage passes (prior="auto", three): a pass whose frames have no Jacobian rows handed on solves
     each frame's Jacobian with the previous frame's factor, so past its first frame it factors nothing;
     the usage prior's correlation length is chosen by cross-validation on the first fit only."""
@@ -191,7 +191,10 @@ def test_usage_passes_keep_one_factor_across_frames_and_choose_the_length_once(t
         markers=markers,
         options=TrackOptions(prior="auto", prior_passes=3),
         out_dir=tmp_path,
+        progress=True,
     )
+    err = capsys.readouterr().err  # progress: the passes counted right, each fit said
+    assert "pass 1 of 4" in err and err.count("usage prior: correlation length") == 3, err[-2000:]
     from wface.takes.frames import frame_path, read_frame
     from wface.takes.store import REFINE_DIR_PREFIX
 

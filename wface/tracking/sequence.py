@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -291,7 +292,7 @@ def _track_chunk(
         for j in range(n_warm):
             tracker.step(int(frames[0]) - n_warm + j, targets[j])
     out = []
-    desc = "tracking" if folder == FRAMES_DIR else "tracking (pass 1 of 2)"
+    desc = "tracking" if folder == FRAMES_DIR else f"tracking (pass 1 of {1 + max(1, int(options.prior_passes))})"
     for j, f in enumerate(tqdm(frames, desc=desc, disable=not progress, unit="frame")):
         if f in done:
             tracker.resume_from(done[f])
@@ -481,8 +482,17 @@ def track_sequence(
     length = None  # the usage prior's correlation length: chosen by cross-validation on the first fit, kept
     for k in range(passes):  # each pass under priors fitted to the one before (wface.tracking.refine)
         t = time.perf_counter()
+        if progress:
+            print(f"fitting the usage prior to pass {k + 1} ({len(records)} frames)", file=sys.stderr, flush=True)
         priors, fit, summary = usage_priors(records, length_frames=length)
         summary["seconds"] = time.perf_counter() - t
+        if progress and fit is not None:
+            print(
+                f"usage prior: correlation length {fit.length_frames:g} frames, marker noise "
+                f"{summary['noise_mm']:.2f} mm ({summary['seconds']:.1f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
         length = None if fit is None else fit.length_frames
         if k and summaries[0].get("cv_log_likelihood") is not None:  # the length was chosen on the first fit
             summary.update(cv_log_likelihood=summaries[0]["cv_log_likelihood"], length_chosen_in_pass=2)
