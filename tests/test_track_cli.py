@@ -27,6 +27,9 @@ def test_demo_writes_everything(tmp_path):
         assert key in report, key
     assert report["frames"] == 3 and len(report["marker_rms_mm"]) == 3
     assert report["truth_marker_rms_mm"] < 1.0 and report["inverted_elements"] == 0
+    usage = report["usage_prior"]  # what the data chose, per muscle by name, and what the fits cost
+    assert set(usage["activation_sd"]) == set(report["muscle_identifiability"]) and usage["noise_mm"] > 0
+    assert len(report["usage_prior_fit_seconds"]) == 3
     for name in ("controls.npz", "controls.csv", "animation.usdc", "report.html", "activations.png"):
         assert (out / name).exists(), name
     assert len(list((out / "frames").glob("frame_*.npz"))) == 3
@@ -42,6 +45,9 @@ def test_demo_with_lip_contact(tmp_path):
     report = json.loads((out / "report.json").read_text())
     assert report["contact"] == "lips" and report["frames"] == 2
     assert report["truth_marker_rms_mm"] < 1.0 and report["inverted_elements"] == 0
+    usage = report["usage_prior"]  # what the data chose, per muscle by name, and what the fits cost
+    assert set(usage["activation_sd"]) == set(report["muscle_identifiability"]) and usage["noise_mm"] > 0
+    assert len(report["usage_prior_fit_seconds"]) == 3
 
 
 def test_track_a_csv_file(tmp_path):

@@ -106,6 +106,11 @@ def build_report(
         "observable_muscles": [n for n, o in zip(model.muscle_names, observable, strict=True) if o],
         "jaw_opening_deg": _jaw_deg(model, B).tolist(),
     }
+    usage = records[-1].stats.get("usage_prior") if records else None
+    if usage:  # what the data chose (wface.tracking.refine): per-muscle usage, correlation length, noise
+        sd = dict(zip(model.muscle_names, usage["activation_sd"], strict=True))
+        rep["usage_prior"] = {**usage, "activation_sd": sd}
+        rep["usage_prior_fit_seconds"] = [p.get("seconds") for p in records[-1].stats.get("usage_prior_passes", [])]
     if truth is not None:
         dA = A - truth.activations[: len(records)]
         rep["activation_rms_error"] = float(np.sqrt(np.mean(dA[:, observable] ** 2))) if observable.any() else None
