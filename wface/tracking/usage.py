@@ -84,7 +84,6 @@ class _Smoothed:
     mean: np.ndarray  # (B, F, M) whitened posterior means
     cov: np.ndarray  # (B, F, M, M) whitened posterior covariances
     lag: np.ndarray  # (B, F-1, M, M) Cov(u_t+1, u_t | data)
-    loglik: np.ndarray  # (B, F) log predictive likelihood of each observed frame's measurement (nats)
 
 
 def _smooth_white(Lw, zs, observed, rho) -> _Smoothed:
@@ -99,7 +98,6 @@ def _smooth_white(Lw, zs, observed, rho) -> _Smoothed:
     r2, q = (rho * rho)[:, None, None], (1.0 - rho * rho)[:, None, None]
     mf, Cf = np.zeros((B, F, M)), np.zeros((B, F, M, M))
     mp, Cp = np.zeros((B, F, M)), np.zeros((B, F, M, M))
-    loglik = np.zeros((B, F))
     m, C = np.zeros((B, M)), np.broadcast_to(eye, (B, M, M)).copy()
     for t in range(F):
         if t > 0:
@@ -109,10 +107,6 @@ def _smooth_white(Lw, zs, observed, rho) -> _Smoothed:
         LtC = np.swapaxes(L, 1, 2) @ C
         S = LtC @ L + eye
         e = zs[t][None, :] - np.einsum("bij,bi->bj", L, m)
-        cS = np.linalg.cholesky(S)
-        sol = np.linalg.solve(cS, e[..., None])[..., 0]
-        ll = -0.5 * np.sum(sol**2, axis=1) - np.log(np.diagonal(cS, axis1=1, axis2=2)).sum(axis=1)
-        loglik[:, t] = obs[:, t] * (ll - 0.5 * M * np.log(2.0 * np.pi))
         K = np.swapaxes(np.linalg.solve(S, LtC), 1, 2) * obs[:, t, None, None]  # C L S^-1 where observed
         m = m + np.einsum("bij,bj->bi", K, e)
         C = C - K @ LtC
@@ -126,7 +120,7 @@ def _smooth_white(Lw, zs, observed, rho) -> _Smoothed:
         Cs[:, t] = Cf[:, t] + G @ (Cs[:, t + 1] - Cp[:, t + 1]) @ np.swapaxes(G, 1, 2)
         Cs[:, t] = 0.5 * (Cs[:, t] + np.swapaxes(Cs[:, t], 1, 2))
         lag[:, t] = Cs[:, t + 1] @ np.swapaxes(G, 1, 2)
-    return _Smoothed(ms, Cs, lag, loglik)
+    return _Smoothed(ms, Cs, lag)
 
 
 def _whitened(L, Y, gamma):
