@@ -12,6 +12,7 @@ from wface.controls import attached_positions, jaw_from_intuitive
 from wface.faces.builtin import build_face
 from wface.physics.newton import _force_scale
 from wface.solvers.linear import direct_backend
+from wface.takes.frames import REFINE_DIR_PREFIX, frame_path, read_frame
 from wface.tracking.estimator import TrackOptions
 from wface.tracking.rig import FaceRig
 from wface.tracking.sequence import embed_model_markers, track_sequence
@@ -195,9 +196,6 @@ def test_usage_passes_keep_one_factor_across_frames_and_choose_the_length_once(t
     )
     err = capsys.readouterr().err  # progress: the passes counted right, each fit said
     assert "pass 1 of 4" in err and err.count("usage prior: correlation length") == 3, err[-2000:]
-    from wface.takes.frames import frame_path, read_frame
-    from wface.takes.store import REFINE_DIR_PREFIX
-
     frames = [r.frame for r in recs]
     before, after = (  # the records of passes 2 and 3
         {f: read_frame(frame_path(tmp_path, f, folder=f"{REFINE_DIR_PREFIX}{k}")) for f in frames} for k in (2, 3)
