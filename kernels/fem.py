@@ -74,8 +74,8 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
     isotropic_volume_terms = fibre.isotropic_volume_terms
     volume_factor = fibre.volume_factor
     flesh = flesh_functions(S)
-    flesh_energy_s = flesh.flesh_energy_s
-    flesh_gradient_s = flesh.flesh_gradient_s
+    flesh_energy = flesh.flesh_energy
+    flesh_stress = flesh.flesh_stress
     flesh_response = flesh.flesh_response
 
     # ------------------------------------------------------------------ element helpers
@@ -127,13 +127,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         t = wp.tid()
         Dmi = dm_inv[t]
         F = deformation_gradient(x, tets, Dmi, t)
-        U = mat33()
-        s = vec3()
-        V = mat33()
-        wp.svd3(F, U, s, V)
-        psi, G = flesh_gradient_s(s, mu10, mu01, mu20, kappa, clamp)
-        P = U * wp.diag(G) * wp.transpose(V)
-        energy = psi
+        energy, P = flesh_stress(F, mu10, mu01, mu20, kappa, clamp)
         for e in range(entry_start[t], entry_start[t + 1]):
             d = entry_direction[e]
             if deviatoric != 0:
@@ -178,11 +172,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         """Per-tet energy V0 (psi_ext(s) + sum over fibre entries of W)."""
         t = wp.tid()
         F = deformation_gradient(x, tets, dm_inv[t], t)
-        U = mat33()
-        s = vec3()
-        V = mat33()
-        wp.svd3(F, U, s, V)
-        energy = flesh_energy_s(s, mu10, mu01, mu20, kappa, clamp)
+        energy = flesh_energy(F, mu10, mu01, mu20, kappa, clamp)
         for e in range(entry_start[t], entry_start[t + 1]):
             lam = wp.length(F * entry_direction[e])
             if deviatoric != 0:

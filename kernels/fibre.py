@@ -29,8 +29,8 @@ __all__ = ["fibre_functions"]
 @functools.cache
 def fibre_functions(dtype):
     """Namespace with ``force_length``, ``passive_curve``, ``fibre_tension``, the deviatoric entry's
-    ``volume_factor``, ``deviatoric_fibre``, ``deviatoric_fibre_tangent``, ``isotropic_volume_terms``
-    (wp.func) and the ``fibre_curves`` kernel for scalar ``dtype``."""
+    ``volume_factor``, ``deviatoric_fibre``, ``deviatoric_fibre_tangent``, ``isotropic_volume_terms``,
+    ``cofactor`` (wp.func) and the ``fibre_curves`` kernel for scalar ``dtype``."""
     S = dtype
     vec3 = wp.types.vector(3, S)
     mat33 = wp.types.matrix((3, 3), S)
@@ -219,4 +219,5 @@ def fibre_functions(dtype):
     ns.deviatoric_fibre = deviatoric_fibre
     ns.deviatoric_fibre_tangent = deviatoric_fibre_tangent
     ns.isotropic_volume_terms = isotropic_volume_terms
+    ns.cofactor = cofactor
     return ns

@@ -6,6 +6,16 @@ F = U diag(s) V^T (det U = det V = +1, the smallest carrying the sign of det F: 
 The mu20 term is ArtiSynth's C20 (I1~ - 3)^2 (its ``MooneyRivlinMaterial``); with mu20 = 0 it is
 skipped, so the other terms' arithmetic is that of the law without it, bit for bit.
 
+Where no singular value is below the clamp, the energy and its first Piola stress are evaluated
+from the invariants of C = F^T F instead (``flesh_invariants``: no SVD, about half the cost of a
+force evaluation; docs/design.md, "Performance"):
+    psi = mu10 u + mu01 (J^-4/3 I2 - 3) + mu20 u^2 + kappa/2 (ln J)^2,
+    P = (mu10 + 2 mu20 u) J^-2/3 (2 F - 2/3 I1 F^-T) + mu01 J^-4/3 (2 (I1 F - F C) - 4/3 I2 F^-T)
+        + kappa ln J F^-T,
+the same function. The test for it is s_min >= 2 J / I1 >= c (the two larger eigenvalues of C
+multiply to at most (I1 / 2)^2, so the smallest is at least 4 J^2 / I1^2): sufficient, never
+wrong; near inversion it falls back to the SVD.
+
 Below the clamp c the energy is continued by its first-order Taylor expansion in the clamped
 values, psi_ext(s) = psi(s^) + sum_i g_i(s^)(s_i - s^_i) with s^ = max(s, c), so the stress is the
 exact gradient of an energy (Stomakhin et al. 2012). psi is a sum of monomials c prod s_i^a_i
@@ -22,6 +32,8 @@ import functools
 
 import warp as wp
 
+from wface.kernels.fibre import fibre_functions
+
 wp.set_module_options({"enable_backward": False})
 
 __all__ = ["flesh_functions"]
@@ -30,12 +42,15 @@ __all__ = ["flesh_functions"]
 @functools.cache
 def flesh_functions(dtype):
     """Namespace with the flesh wp.funcs (``clamp_values``, ``flesh_derivatives``,
-    ``flesh_energy_s``, ``flesh_gradient_s``, ``flesh_response``) and the test kernels
-    ``singular_values`` and ``flesh_in_singular_values`` for scalar ``dtype``."""
+    ``flesh_energy_s``, ``flesh_gradient_s``, ``flesh_response``; ``flesh_invariants``,
+    ``flesh_stress``, ``flesh_energy`` on F) and the test kernels ``singular_values``,
+    ``flesh_in_singular_values`` and ``flesh_stress_paths`` for scalar ``dtype``."""
     S = dtype
     vec3 = wp.types.vector(3, S)
     mat33 = wp.types.matrix((3, 3), S)
     M2_3, M4_3 = -2.0 / 3.0, -4.0 / 3.0  # folded in double precision (see fibre.py)
+    C2_3, C4_3 = 2.0 / 3.0, 4.0 / 3.0
+    cofactor = fibre_functions(S).cofactor  # cof F = J F^-T
 
     @wp.func
     def add_monomial(g: vec3, H: mat33, Tc: mat33, a: vec3, m: S, inv: vec3, delta: vec3, order: int):
@@ -181,6 +196,83 @@ def flesh_functions(dtype):
                 G[j] = G[j] + Hd[j]
         return psi + wp.dot(g, delta), G
 
+    @wp.func
+    def flesh_invariants(F: mat33, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
+        """(ok, psi, P) from the invariants of F (module docstring); ok = 0 where the singular values
+        may reach below ``clamp`` (then psi = 0, P = 0: use the SVD)."""
+        J = wp.determinant(F)
+        C = wp.transpose(F) * F
+        I1 = wp.trace(C)
+        if J <= S(0.0) or S(2.0) * J < clamp * I1:
+            return 0, S(0.0), mat33()
+        finv_t = cofactor(F) * (S(1.0) / J)  # F^-T
+        L = wp.log(J)
+        j23 = wp.exp(S(M2_3) * L)
+        FC = F * C
+        I2 = S(0.5) * (I1 * I1 - wp.ddot(C, C))
+        u = j23 * I1 - S(3.0)
+        psi = mu10 * u + mu01 * (j23 * j23 * I2 - S(3.0)) + mu20 * u * u + S(0.5) * kappa * L * L
+        d1 = j23 * (S(2.0) * F - S(C2_3) * I1 * finv_t)
+        d2 = (j23 * j23) * (S(2.0) * (I1 * F - FC) - S(C4_3) * I2 * finv_t)
+        P = (mu10 + S(2.0) * mu20 * u) * d1 + mu01 * d2 + (kappa * L) * finv_t
+        return 1, psi, P
+
+    @wp.func
+    def flesh_stress(F: mat33, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
+        """(psi_ext, P = d psi_ext / dF) of the flesh at F: the invariants where no singular value is
+        near the clamp, else the signed SVD (module docstring)."""
+        ok, psi, P = flesh_invariants(F, mu10, mu01, mu20, kappa, clamp)
+        if ok == 0:
+            U = mat33()
+            s = vec3()
+            V = mat33()
+            wp.svd3(F, U, s, V)
+            psi, G = flesh_gradient_s(s, mu10, mu01, mu20, kappa, clamp)
+            P = U * wp.diag(G) * wp.transpose(V)
+        return psi, P
+
+    @wp.func
+    def flesh_energy(F: mat33, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
+        """psi_ext at F: the invariants where no singular value is near the clamp, else the SVD."""
+        ok, psi, P = flesh_invariants(F, mu10, mu01, mu20, kappa, clamp)
+        if ok == 0:
+            U = mat33()
+            s = vec3()
+            V = mat33()
+            wp.svd3(F, U, s, V)
+            psi = flesh_energy_s(s, mu10, mu01, mu20, kappa, clamp)
+        return psi
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def flesh_stress_paths(
+        # In:
+        F: wp.array(dtype=mat33),
+        mu10: S,
+        mu01: S,
+        mu20: S,
+        kappa: S,
+        clamp: S,
+        # Out:
+        ok_out: wp.array(dtype=wp.int32),
+        psi_inv_out: wp.array(dtype=S),
+        P_inv_out: wp.array(dtype=mat33),
+        psi_svd_out: wp.array(dtype=S),
+        P_svd_out: wp.array(dtype=mat33),
+    ):
+        """Both evaluations of the flesh stress at F (tests: they agree wherever the invariants apply)."""
+        i = wp.tid()
+        ok, psi, P = flesh_invariants(F[i], mu10, mu01, mu20, kappa, clamp)
+        ok_out[i] = ok
+        psi_inv_out[i] = psi
+        P_inv_out[i] = P
+        U = mat33()
+        s = vec3()
+        V = mat33()
+        wp.svd3(F[i], U, s, V)
+        psi_s, G = flesh_gradient_s(s, mu10, mu01, mu20, kappa, clamp)
+        psi_svd_out[i] = psi_s
+        P_svd_out[i] = U * wp.diag(G) * wp.transpose(V)
+
     @wp.kernel(module="unique", enable_backward=False)
     def singular_values(
         # In:
@@ -248,8 +340,19 @@ def flesh_functions(dtype):
         pass
 
     ns = _Functions()
-    for f in (clamp_values, c20_derivatives, flesh_derivatives, flesh_energy_s, flesh_gradient_s, flesh_response):
+    for f in (
+        clamp_values,
+        c20_derivatives,
+        flesh_derivatives,
+        flesh_energy_s,
+        flesh_gradient_s,
+        flesh_response,
+        flesh_invariants,
+        flesh_stress,
+        flesh_energy,
+    ):
         setattr(ns, f.func.__name__, f)
     ns.singular_values = singular_values
+    ns.flesh_stress_paths = flesh_stress_paths
     ns.flesh_in_singular_values = flesh_in_singular_values
     return ns

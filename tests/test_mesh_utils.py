@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from wface.mesh.closest import SurfaceQuery, closest_point_on_triangles
-from wface.mesh.quality import dihedral_angles_deg, quality_report, volume_ratio_quality
+from wface.mesh.quality import count_inverted, dihedral_angles_deg, quality_report, signed_volumes, volume_ratio_quality
 from wface.mesh.surface import boundary_faces, triangle_normals
 from wface.mesh.tetio import read_tet_mesh, write_tet_mesh
 
@@ -108,3 +108,22 @@ def test_read_reorients_and_reports(tmp_path):
     meshio.write(tmp_path / "tri.vtu", meshio.Mesh(x, [("triangle", t[:, :3])]))
     with pytest.raises(ValueError, match="no tetrahedra"):
         read_tet_mesh(tmp_path / "tri.vtu")
+
+
+def test_count_inverted_counts_the_non_positive_signed_volumes():
+    """The Warp count against numpy's signed volumes: inverted, flattened (exactly zero volume) and
+    positive tets of a perturbed grid."""
+    from types import SimpleNamespace
+
+    x, t = _box(4)
+    rng = np.random.default_rng(2)
+    y = x + rng.normal(scale=0.12, size=x.shape)  # inverts some tets
+    model = SimpleNamespace(tets=t.astype(np.int64))  # any integer type
+    expected = int(np.count_nonzero(signed_volumes(y, t) <= 0.0))
+    assert 0 < expected < len(t)
+    assert count_inverted(model, y) == expected
+    flat = x.copy()
+    flat[t[0, 3]] = flat[t[0, 0]]  # a collapsed tet: zero volume counts
+    assert count_inverted(model, flat) == int(np.count_nonzero(signed_volumes(flat, t) <= 0.0)) >= 1
+    assert count_inverted(model, x) == 0
+    assert count_inverted(SimpleNamespace(tets=np.zeros((0, 4), int)), x) == 0

@@ -11,6 +11,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from wface.warp_runtime import init_warp
+
 __all__ = [
     "QualityReport",
     "count_inverted",
@@ -34,10 +36,26 @@ def signed_volumes(x: np.ndarray, tets: np.ndarray) -> np.ndarray:
 
 def count_inverted(model, x: np.ndarray) -> int:
     """Number of tets of ``model`` (anything with ``tets`` (m, 4), e.g. a ``FaceModel``) with
-    det F <= 0 at positions ``x`` (n, 3): the inverted and the degenerate ones."""
-    p = np.asarray(x, dtype=np.float64)[model.tets]
-    e1, e2, e3 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]
-    return int(np.count_nonzero(np.einsum("ij,ij->i", e1, np.cross(e2, e3)) <= 0.0))
+    det F <= 0 at positions ``x`` (n, 3): the inverted and the degenerate ones. The signed volumes
+    come from a Warp kernel on the CPU (``wface.kernels.geometry``; 5 ms at 370K tets against 55 ms
+    for the same sum in numpy, and every quasistatic solve counts)."""
+    import warp as wp
+
+    from wface.kernels.geometry import tet_signed_volume
+
+    init_warp()
+    tets = np.ascontiguousarray(model.tets, dtype=np.int32)
+    if len(tets) == 0:
+        return 0
+    volume = wp.empty(len(tets), dtype=wp.float64, device="cpu")
+    wp.launch(
+        tet_signed_volume,
+        len(tets),
+        inputs=[wp.array(np.asarray(x, dtype=np.float64), dtype=wp.vec3d, device="cpu"), wp.array(tets, device="cpu")],
+        outputs=[volume],
+        device="cpu",
+    )
+    return int(np.count_nonzero(volume.numpy() <= 0.0))
 
 
 def dihedral_angles_deg(x: np.ndarray, tets: np.ndarray, *, chunk: int = 200_000) -> np.ndarray:
