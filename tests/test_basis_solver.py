@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import lsq_linear
 
-from wface.basis.bvls import bounded_lstsq, bounded_qp
+from wface.solvers.bvls import bounded_lstsq, bounded_qp
 
 # Optimal costs agree to round-off relative to |b|^2 (both are exact active-set / interior
 # solutions of the same convex QP); minimisers agree only when A has full column rank.
@@ -104,6 +104,38 @@ def test_general_box_and_errors():
         bounded_lstsq(a, b[:3])
     with pytest.raises(ValueError, match="below its lower"):
         bounded_lstsq(a, b, 1.0, 0.0)
+    with pytest.raises(ValueError, match="bounds must be numbers"):
+        bounded_lstsq(a, b, np.nan, 1.0)
+
+
+@pytest.mark.parametrize("warm", [False, True])
+def test_unbounded_variables_beside_a_box(warm):
+    """The tracker's Gauss-Newton QP: boxed activations beside free bone parameters (lower -inf,
+    upper inf), in normal-equation form, against scipy's BVLS; cold, and warm-started from a
+    neighbouring problem's working set (the same minimiser in fewer iterations)."""
+    rng = np.random.default_rng(4)
+    m, n_box, n_free = 120, 36, 21
+    a = rng.normal(size=(m, n_box + n_free))
+    b = a @ np.concatenate([rng.uniform(-0.4, 1.2, n_box), rng.normal(size=n_free)]) + 0.05 * rng.normal(size=m)
+    c0 = rng.uniform(0.0, 1.0, n_box)  # current activations: the step's box is [-c0, 1 - c0]
+    lo = np.concatenate([-c0, np.full(n_free, -np.inf)])
+    hi = np.concatenate([1.0 - c0, np.full(n_free, np.inf)])
+    ref = lsq_linear(a, b, bounds=(lo, hi), method="bvls", tol=1e-14).x
+    q, c = a.T @ a, a.T @ b
+    start = {}
+    if warm:
+        near = bounded_qp(q + 1e-3 * np.eye(len(c)), c, lo, hi, x0=np.zeros(len(c)))
+        start = {"x0": near.x, "state0": near.state}
+        cold = bounded_qp(q, c, lo, hi, x0=np.zeros(len(c)))
+    res = bounded_qp(q, c, lo, hi, **({"x0": np.zeros(len(c))} | start))
+    assert res.converged
+    assert np.all(res.state[n_box:] == 0)  # the unbounded ones never join the working set
+    assert 0 < np.count_nonzero(res.state[:n_box]) < n_box  # some activations at a bound
+    np.testing.assert_allclose(res.x, ref, atol=1e-8)
+    if warm:
+        assert res.iterations < cold.iterations
+    cold_start = bounded_qp(q, c, lo, hi)  # no start: the finite bound, 0 where there is none
+    np.testing.assert_allclose(cold_start.x, ref, atol=1e-8)
 
 
 @settings(max_examples=80, deadline=None)

@@ -5,7 +5,7 @@ For frame f with measured marker displacements d^_j (model frame, metres) and ma
 
     minimise  sum_j |d^_j - sum_i x_i d_ij|^2   subject to  0 <= x_i <= 1   (or x_i >= 0)
 
-i.e. the QP with Q = 2 D^T D, c = 2 D^T d^, solved by :func:`wface.basis.bvls.bounded_lstsq`
+i.e. the QP with Q = 2 D^T D, c = 2 D^T d^, solved by :func:`wface.solvers.bvls.bounded_lstsq`
 warm-started from the previous frame. Missing markers drop their rows. With a face split the
 markers and elements form disjoint groups (e.g. upper and lower face) solved independently.
 """
@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm.auto import tqdm
 
-from wface.basis.bvls import bounded_lstsq, bounded_qp
+from wface.solvers.bvls import bounded_lstsq, bounded_qp
 
 __all__ = ["Analysis", "FaceSplit", "MarkerBasis", "analyze", "default_face_split"]
 

@@ -1,5 +1,7 @@
 """Generic linear algebra: sparse direct / conjugate-gradient solvers of SPD systems, the block
-sparsity pattern of a tet mesh's stiffness, and ``LinearSolver``, the one place that picks the engine."""
+sparsity pattern of a tet mesh's stiffness, ``LinearSolver``, the one place that picks the engine, and
+``bvls``, bounded least squares by a warm-startable active set (the basis's per-frame QP and the
+tracker's Gauss-Newton steps)."""
 
 from wface.solvers.linear import (
     SOLVERS,

@@ -35,7 +35,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import null_space
-from scipy.optimize import lsq_linear
 
 from wface.controls import (
     _joint_rows,
@@ -45,6 +44,7 @@ from wface.controls import (
     jaw_to_intuitive,
     params_from_affine,
 )
+from wface.solvers.bvls import bounded_qp
 from wface.tracking.adaptive import carry_after_step, is_adaptive, release_at_end
 from wface.tracking.rig import FaceRig, RigLinearization, RigState
 
@@ -438,30 +438,28 @@ class FrameEstimator:
                 return cache, near  # the model predicted well: the Gauss-Newton point is taken
         return self._golden_section(trial, cache), near
 
-    def _bounded_step(self, H: np.ndarray, g: np.ndarray, c: np.ndarray) -> np.ndarray:
-        """argmin 1/2 dc^T H dc + g^T dc with 0 <= a + da <= 1 and the jaw-joint equalities kept.
+    def _bounded_step(self, H: np.ndarray, g: np.ndarray, c: np.ndarray, start=None) -> tuple[np.ndarray, tuple]:
+        """(argmin 1/2 dc^T H dc + g^T dc with 0 <= a + da <= 1 and the jaw-joint equalities kept, the
+        reduced problem's (solution, working set): a neighbouring problem's ``start``).
 
         The activation penalty is flat at its bound (no curvature at a = 0), so a linearised
         penalty model cannot stop a step from crossing it: the box is enforced exactly instead.
         The joint equalities psi1..psi3 are linear in the jaw parameters: the step lives in their
         null space (dc = T z, T = blockdiag(I, N_jaw)), which leaves the activation box a box, and
-        the reduced problem is a bounded least squares on the Cholesky factor (BVLS).
-        """
-
+        the reduced problem is a bounded QP, by a primal active set (``wface.solvers.bvls``) from
+        z = 0 or warm-started at ``start`` (the same minimiser: Hz is definite)."""
         T = self._step_basis
         Hz = T.T @ (0.5 * (H + H.T)) @ T
         gz = T.T @ g
         p = len(gz)
         Hz += 1e-10 * max(np.trace(Hz) / p, 1e-30) * np.eye(p)  # damping for unobservable directions
-        R = np.linalg.cholesky(Hz).T  # Hz = R^T R
-        rhs = -np.linalg.solve(R.T, gz)
-        lo = np.full(p, -np.inf)
-        hi = np.full(p, np.inf)
+        lo, hi = np.full(p, -np.inf), np.full(p, np.inf)
         lower = self.rig.model.activation_lower_bounds
         a = np.clip(c[: self.M], lower, 1.0)
         lo[: self.M], hi[: self.M] = lower - a, 1.0 - a
-        z = lsq_linear(R, rhs, bounds=(lo, hi), method="bvls").x
-        return T @ z
+        x0, state0 = start if start is not None else (np.zeros(p), None)
+        res = bounded_qp(Hz, -gz, lo, hi, x0=x0, state0=state0)
+        return T @ res.x, (res.x, res.state)
 
     @property
     def _step_basis(self) -> np.ndarray:
@@ -481,11 +479,13 @@ class FrameEstimator:
         opt = self.options
         K = int(np.ceil(np.log(opt.rho_max / opt.rho0) / np.log(opt.rho_growth)))
         steps: dict[int, np.ndarray] = {}
+        start = None  # the last solve's active set: the next rho's warm start
 
         def step_at(k: int) -> np.ndarray:
+            nonlocal start
             if k not in steps:
                 r_k = opt.rho0 * scale * opt.rho_growth**k
-                steps[k] = self._bounded_step(A + r_k * Hp, g + r_k * gp, c)
+                steps[k], start = self._bounded_step(A + r_k * Hp, g + r_k * gp, c, start)
             return steps[k]
 
         lo_k, hi_k = 0, K

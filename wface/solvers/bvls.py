@@ -1,6 +1,6 @@
 """Bounded least squares by a primal active-set method (Lawson & Hanson 1974; Stark & Parker 1995).
 
-    minimise  1/2 |A x - b|^2   subject to  lower <= x <= upper      (upper may be +inf)
+    minimise  1/2 |A x - b|^2   subject to  lower <= x <= upper      (either bound may be infinite)
 
 This is the convex QP of Choe & Ko (2001, sec. 4.1.2) with Q = 2 A^T A, c = 2 A^T b. The working
 set W holds variables fixed at a bound; the others are free. Each iteration solves the
@@ -18,6 +18,9 @@ The objective falls strictly at every release, so no working set repeats (finite
 barring ties broken by round-off; an iteration cap guards that).
 
 Warm start: pass the previous frame's solution and working set; only the changes are paid for.
+Without one the start is the lower bound (the upper where only that is finite, 0 where neither is).
+Users: the basis's per-frame contractions (``wface.basis.analysis``) and the tracker's bounded
+Gauss-Newton steps (``wface.tracking.estimator``, unbounded bone parameters beside boxed activations).
 """
 
 from __future__ import annotations
@@ -96,7 +99,7 @@ def bounded_lstsq(
     Args:
         a: (m, n) matrix (any rank).
         b: (m,) right-hand side.
-        lower: (n,) or scalar lower bounds (finite).
+        lower: (n,) or scalar lower bounds (may be -inf).
         upper: (n,) or scalar upper bounds (may be inf).
         x0: warm-start point (clipped into the box); default all at the lower bound.
         state0: warm-start working set (-1 / +1 / 0); variables it marks are put at their bound.
@@ -179,8 +182,8 @@ def bounded_qp(
 def _bounds(lower, upper, n):
     lo = np.broadcast_to(np.asarray(lower, dtype=np.float64), (n,)).copy()
     hi = np.broadcast_to(np.asarray(upper, dtype=np.float64), (n,)).copy()
-    if not np.all(np.isfinite(lo)):
-        raise ValueError("bounded least squares: lower bounds must be finite")
+    if np.isnan(lo).any() or np.isnan(hi).any() or np.any(lo == np.inf) or np.any(hi == -np.inf):
+        raise ValueError("bounded least squares: bounds must be numbers, lower < inf and upper > -inf")
     if np.any(hi < lo):
         raise ValueError("bounded least squares: some upper bound is below its lower bound")
     return lo, hi
@@ -191,8 +194,8 @@ def _active_set(step, grad, lo, hi, x0, state0, max_iter, gtol):
     n = len(lo)
     # Feasible start consistent with the working set.
     if x0 is None:
-        x = lo.copy()
-        state = np.full(n, -1, dtype=np.int8)
+        x = np.where(np.isfinite(lo), lo, np.where(np.isfinite(hi), hi, 0.0))
+        state = np.where(np.isfinite(lo), -1, np.where(np.isfinite(hi), 1, 0)).astype(np.int8)
     else:
         x = np.clip(np.asarray(x0, dtype=np.float64).reshape(n), lo, hi)
         state = np.zeros(n, dtype=np.int8)
@@ -201,6 +204,7 @@ def _active_set(step, grad, lo, hi, x0, state0, max_iter, gtol):
     if state0 is not None:
         state = np.asarray(state0, dtype=np.int8).reshape(n).copy()
         state[(state == 1) & ~np.isfinite(hi)] = 0
+        state[(state == -1) & ~np.isfinite(lo)] = 0
     x[state == -1] = lo[state == -1]
     x[state == 1] = hi[state == 1]
     fixed_eq = hi == lo
@@ -222,7 +226,7 @@ def _active_set(step, grad, lo, hi, x0, state0, max_iter, gtol):
         if step_norm > 1e-14 * (1.0 + np.linalg.norm(x)):
             # Ratio test against the bounds of the free variables.
             alpha, block, block_side = 1.0, -1, 0
-            neg = free & (p < 0)
+            neg = free & (p < 0) & np.isfinite(lo)
             if neg.any():
                 t = (lo[neg] - x[neg]) / p[neg]
                 k = int(np.argmin(t))
