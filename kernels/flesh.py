@@ -8,7 +8,7 @@ skipped, so the other terms' arithmetic is that of the law without it, bit for b
 
 Where no singular value is below the clamp, the energy and its first Piola stress are evaluated
 from the invariants of C = F^T F instead (``flesh_invariants``: no SVD, about half the cost of a
-force evaluation; docs/design.md, "Performance"):
+force evaluation; docs/design.md, "Inversion safety"):
     psi = mu10 u + mu01 (J^-4/3 I2 - 3) + mu20 u^2 + kappa/2 (ln J)^2,
     P = (mu10 + 2 mu20 u) J^-2/3 (2 F - 2/3 I1 F^-T) + mu01 J^-4/3 (2 (I1 F - F C) - 4/3 I2 F^-T)
         + kappa ln J F^-T,

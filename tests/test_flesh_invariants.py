@@ -1,7 +1,7 @@
 """The flesh stress from the invariants of C (``flesh_invariants``, the force and energy kernels'
 path wherever no singular value is near the inversion clamp) against the signed-SVD path it replaces
 there: the same energy and first Piola stress, a test that only ever accepts where the SVD path
-would not clamp, and the SVD path taken near and past inversion (docs/design.md, "Performance")."""
+would not clamp, and the SVD path taken near and past inversion (docs/design.md, "Inversion safety")."""
 
 from __future__ import annotations
 
