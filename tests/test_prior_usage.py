@@ -155,3 +155,22 @@ def test_a_long_take_chooses_its_length_on_a_window_and_fits_gamma_on_every_fram
     used = gamma > 0
     ratio = windowed.gamma[used] / gamma[used]
     assert np.all((ratio > 0.4) & (ratio < 2.5)), ratio
+
+
+def test_the_accelerated_fixed_point_is_the_plain_one_in_fewer_steps(monkeypatch):
+    """SQUAREM on MacKay's fixed point (``_fit_gamma_squarem``) ends where the plain iteration ends (every
+    gamma within the tolerance) in a fraction of the steps; with the step length held at -1 it is the
+    plain iteration."""
+    from wface.tracking import usage
+
+    X, Y, info, gamma, s2 = _problem(seed=5, frames=60)
+    L = usage._factor_information(info / s2)
+    rhos = np.array([ar1_coefficient(v) for v in (0.0, 2.0, 8.0)])
+    g0 = np.full((3, Y.shape[1]), float(np.mean(Y**2)))
+    observed = np.ones((3, len(Y)), bool)
+    fast, _, n_fast = usage._fit_gamma(L, Y, observed, rhos, g0, 3000, 1e-4)
+    monkeypatch.setattr(usage, "_SQUAREM_ALPHA", 1.0)
+    plain, _, n_plain = usage._fit_gamma(L, Y, observed, rhos, g0, 3000, 1e-4)
+    assert n_plain < 3000 and n_fast < n_plain / 2, (n_fast, n_plain)
+    scale = np.maximum(plain, 1e-3 * plain.max(axis=1, keepdims=True))  # pruned ones: near the floor
+    assert np.max(np.abs(fast - plain) / scale) < 3e-3, np.abs(fast - plain) / scale
