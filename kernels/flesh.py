@@ -42,8 +42,8 @@ __all__ = ["flesh_functions"]
 @functools.cache
 def flesh_functions(dtype):
     """Namespace with the flesh wp.funcs (``clamp_values``, ``flesh_derivatives``,
-    ``flesh_energy_s``, ``flesh_gradient_s``, ``flesh_response``; ``flesh_invariants``,
-    ``flesh_stress``, ``flesh_energy`` on F) and the test kernels ``singular_values``,
+    ``flesh_gradient_s``, ``flesh_response``; ``flesh_invariants``,
+    ``flesh_stress_svd``, ``flesh_stress``, ``flesh_energy`` on F) and the test kernels ``singular_values``,
     ``flesh_in_singular_values`` and ``flesh_stress_paths`` for scalar ``dtype``."""
     S = dtype
     vec3 = wp.types.vector(3, S)
@@ -176,12 +176,6 @@ def flesh_functions(dtype):
         return sh, delta
 
     @wp.func
-    def flesh_energy_s(s: vec3, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
-        sh, delta = clamp_values(s, clamp)
-        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, mu20, kappa, 1)
-        return psi + wp.dot(g, delta)
-
-    @wp.func
     def flesh_gradient_s(s: vec3, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
         """psi_ext and its gradient G in singular values."""
         sh, delta = clamp_values(s, clamp)
@@ -218,17 +212,22 @@ def flesh_functions(dtype):
         return 1, psi, P
 
     @wp.func
+    def flesh_stress_svd(F: mat33, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
+        """(psi_ext, P = U diag(G) V^T) by the signed SVD: the path near and past inversion."""
+        U = mat33()
+        s = vec3()
+        V = mat33()
+        wp.svd3(F, U, s, V)
+        psi, G = flesh_gradient_s(s, mu10, mu01, mu20, kappa, clamp)
+        return psi, U * wp.diag(G) * wp.transpose(V)
+
+    @wp.func
     def flesh_stress(F: mat33, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
         """(psi_ext, P = d psi_ext / dF) of the flesh at F: the invariants where no singular value is
         near the clamp, else the signed SVD (module docstring)."""
         ok, psi, P = flesh_invariants(F, mu10, mu01, mu20, kappa, clamp)
         if ok == 0:
-            U = mat33()
-            s = vec3()
-            V = mat33()
-            wp.svd3(F, U, s, V)
-            psi, G = flesh_gradient_s(s, mu10, mu01, mu20, kappa, clamp)
-            P = U * wp.diag(G) * wp.transpose(V)
+            psi, P = flesh_stress_svd(F, mu10, mu01, mu20, kappa, clamp)
         return psi, P
 
     @wp.func
@@ -236,11 +235,7 @@ def flesh_functions(dtype):
         """psi_ext at F: the invariants where no singular value is near the clamp, else the SVD."""
         ok, psi, P = flesh_invariants(F, mu10, mu01, mu20, kappa, clamp)
         if ok == 0:
-            U = mat33()
-            s = vec3()
-            V = mat33()
-            wp.svd3(F, U, s, V)
-            psi = flesh_energy_s(s, mu10, mu01, mu20, kappa, clamp)
+            psi, P = flesh_stress_svd(F, mu10, mu01, mu20, kappa, clamp)
         return psi
 
     @wp.kernel(module="unique", enable_backward=False)
@@ -265,13 +260,9 @@ def flesh_functions(dtype):
         ok_out[i] = ok
         psi_inv_out[i] = psi
         P_inv_out[i] = P
-        U = mat33()
-        s = vec3()
-        V = mat33()
-        wp.svd3(F[i], U, s, V)
-        psi_s, G = flesh_gradient_s(s, mu10, mu01, mu20, kappa, clamp)
+        psi_s, P_s = flesh_stress_svd(F[i], mu10, mu01, mu20, kappa, clamp)
         psi_svd_out[i] = psi_s
-        P_svd_out[i] = U * wp.diag(G) * wp.transpose(V)
+        P_svd_out[i] = P_s
 
     @wp.kernel(module="unique", enable_backward=False)
     def singular_values(
@@ -344,10 +335,10 @@ def flesh_functions(dtype):
         clamp_values,
         c20_derivatives,
         flesh_derivatives,
-        flesh_energy_s,
         flesh_gradient_s,
         flesh_response,
         flesh_invariants,
+        flesh_stress_svd,
         flesh_stress,
         flesh_energy,
     ):
