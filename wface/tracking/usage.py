@@ -209,8 +209,7 @@ def _fit_gamma_squarem(L, Y, observed, rho, gamma, iterations, rtol) -> tuple[np
     r = x1 - x0 and v = x2 - 2 x1 + x0, alpha = -|r| / |v| (at most -1: two plain steps; at least
     -``_SQUAREM_ALPHA``), x' = x0 - 2 alpha r + alpha^2 v, and one more plain step from x' keeps the
     iteration stable. Converged where a plain step settles (``_settled``): the same fixed point as the
-    plain iteration, in 2-5x fewer steps (docs/design.md, "Priors
-    chosen by the data")."""
+    plain iteration, in 2-5x fewer steps (docs/design.md, "Priors chosen by the data")."""
     lo, hi = np.log(_FLOOR), np.log(_GAMMA_MAX)
     it = 0
     while it < iterations:
