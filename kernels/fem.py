@@ -182,6 +182,33 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
             energy = energy + W
         energy_out[t] = rest_volume[t] * energy
 
+    @wp.func
+    def fibre_nodal_forces(
+        x: wp.array(dtype=vec3),
+        tets: wp.array2d(dtype=wp.int32),
+        Dmi: mat33,
+        V0: S,
+        t: int,
+        d: vec3,
+        k: S,
+        clamp: S,
+        deviatoric: int,
+    ):
+        """H = -V0 P_f Dm^-T of one fibre entry at full activation (columns: the forces on nodes 1..3)."""
+        F = deformation_gradient(x, tets, Dmi, t)
+        q = F * d
+        lam = wp.length(q)
+        P = mat33()
+        if lam > S(1.0e-12):
+            if deviatoric != 0:
+                lam0, lt, T, dT, W, g = deviatoric_fibre(F, d, S(0.0), k, clamp * clamp * clamp)
+                fl, dfl, gl = force_length(lt - S(1.0))
+                P = (k * fl) * g
+            else:
+                fl, dfl, gl = force_length(lam - S(1.0))
+                P = (k * fl / lam) * wp.outer(q, d)
+        return -V0 * (P * wp.transpose(Dmi))
+
     @wp.kernel(module="unique", enable_backward=False)
     def muscle_forces(
         # Model:
@@ -203,29 +230,52 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         (k f_L(lam) d lam/dF, with lam~ and d lam~/dF if ``deviatoric``)."""
         e = wp.tid()
         t = entry_tet[e]
-        Dmi = dm_inv[t]
-        F = deformation_gradient(x, tets, Dmi, t)
-        d = entry_direction[e]
-        q = F * d
-        lam = wp.length(q)
-        if lam > S(1.0e-12):
-            P = mat33()
-            if deviatoric != 0:
-                lam0, lt, T, dT, W, g = deviatoric_fibre(F, d, S(0.0), entry_coef[e], clamp * clamp * clamp)
-                fl, dfl, gl = force_length(lt - S(1.0))
-                P = (entry_coef[e] * fl) * g
-            else:
-                fl, dfl, gl = force_length(lam - S(1.0))
-                P = (entry_coef[e] * fl / lam) * wp.outer(q, d)
-            H = -rest_volume[t] * (P * wp.transpose(Dmi))
+        H = fibre_nodal_forces(
+            x, tets, dm_inv[t], rest_volume[t], t, entry_direction[e], entry_coef[e], clamp, deviatoric
+        )
+        c1 = vec3(H[0, 0], H[1, 0], H[2, 0])
+        c2 = vec3(H[0, 1], H[1, 1], H[2, 1])
+        c3 = vec3(H[0, 2], H[1, 2], H[2, 2])
+        m = entry_muscle[e]
+        wp.atomic_add(forces_out, m, tets[t, 1], c1)
+        wp.atomic_add(forces_out, m, tets[t, 2], c2)
+        wp.atomic_add(forces_out, m, tets[t, 3], c3)
+        wp.atomic_add(forces_out, m, tets[t, 0], -(c1 + c2 + c3))
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def muscle_force_sum(
+        # Model:
+        tets: wp.array2d(dtype=wp.int32),
+        dm_inv: wp.array(dtype=mat33),
+        rest_volume: wp.array(dtype=S),
+        entry_tet: wp.array(dtype=wp.int32),
+        entry_muscle: wp.array(dtype=wp.int32),
+        entry_direction: wp.array(dtype=vec3),
+        entry_coef: wp.array(dtype=S),
+        clamp: S,
+        deviatoric: int,
+        # State in:
+        x: wp.array(dtype=vec3),
+        weights: wp.array(dtype=S),
+        # Out:
+        forces_out: wp.array(dtype=vec3),
+    ):
+        """sum_i w_i f_i(x), (n,) accumulated: ``muscle_forces`` weighted and summed over the muscles,
+        without the (M, n) array (the load of a linear prediction, ``RowsLinearization.predict``)."""
+        e = wp.tid()
+        w = weights[entry_muscle[e]]
+        if w != S(0.0):
+            t = entry_tet[e]
+            H = w * fibre_nodal_forces(
+                x, tets, dm_inv[t], rest_volume[t], t, entry_direction[e], entry_coef[e], clamp, deviatoric
+            )
             c1 = vec3(H[0, 0], H[1, 0], H[2, 0])
             c2 = vec3(H[0, 1], H[1, 1], H[2, 1])
             c3 = vec3(H[0, 2], H[1, 2], H[2, 2])
-            m = entry_muscle[e]
-            wp.atomic_add(forces_out, m, tets[t, 1], c1)
-            wp.atomic_add(forces_out, m, tets[t, 2], c2)
-            wp.atomic_add(forces_out, m, tets[t, 3], c3)
-            wp.atomic_add(forces_out, m, tets[t, 0], -(c1 + c2 + c3))
+            wp.atomic_add(forces_out, tets[t, 1], c1)
+            wp.atomic_add(forces_out, tets[t, 2], c2)
+            wp.atomic_add(forces_out, tets[t, 3], c3)
+            wp.atomic_add(forces_out, tets[t, 0], -(c1 + c2 + c3))
 
     @wp.func
     def vec_outer_mode(U: mat33, V: mat33, i: int, j: int):
@@ -506,6 +556,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         element_forces,
         element_energy,
         muscle_forces,
+        muscle_force_sum,
         element_tangent,
         tangent_matvec,
         tangent_assemble,

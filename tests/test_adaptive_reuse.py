@@ -82,8 +82,8 @@ def test_load_force_scale_is_the_first_order_residual_scale(face):
 
 
 def test_the_trackers_solve_tolerance_moves_markers_by_microns(face):
-    """TrackOptions.solve_tol (1e-4 against the linearised load) from a linear prediction: the
-    markers lie within 5 um RMS (1 % of a 0.5 mm capture noise), 20 um at worst, of the converged
+    """TrackOptions.solve_tol (3e-4 against the linearised load) from a linear prediction: the
+    markers lie within 25 um RMS (5 % of a 0.5 mm capture noise), 60 um at worst, of the converged
     equilibrium's."""
     model, rig, markers = face
     M = rig.n_muscles
@@ -102,8 +102,9 @@ def test_the_trackers_solve_tolerance_moves_markers_by_microns(face):
         lin.free()
     tight = rig.equilibrium(c2, eq1.y_m, tol=1e-10)
     err_mm = np.linalg.norm(markers.positions(loose.x_m) - markers.positions(tight.x_m), axis=1) * 1e3
-    # measured at 2K tets: 9 um at the worst marker for this 1-degree, 0.05-activation step
-    assert np.sqrt(np.mean(err_mm**2)) < 5e-3 and err_mm.max() < 2e-2, err_mm
+    # measured at 2K tets for this 1-degree, 0.05-activation step: 13 um RMS, 38 um at the worst marker
+    # (3.0 and 8.9 um at 1e-4, the earlier default; docs/design.md, "Performance")
+    assert np.sqrt(np.mean(err_mm**2)) < 25e-3 and err_mm.max() < 60e-3, err_mm
 
 
 @pytest.fixture(scope="module")

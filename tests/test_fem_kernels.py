@@ -239,6 +239,24 @@ def test_forces_are_affine_in_activations(box_sim):
     assert np.abs(fi[0]).max() > 0 and np.abs(fi[1]).max() > 0
 
 
+def test_muscle_force_sum_is_the_weighted_sum_of_the_muscle_forces(box_sim):
+    """``muscle_force_sum(w, x)`` = sum_i w_i f_i(x) in one launch, with a per-muscle force scale, a
+    zero weight (skipped entries) and a negative one (a step), to round-off."""
+    X = box_sim.model.rest_positions_m
+    x = X @ np.diag([1.1, 0.9, 1.0]).T + 0.002 * np.random.default_rng(15).normal(size=X.shape)
+    try:
+        for scale, w in ((1.0, [0.3, -0.8]), (np.array([0.5, 1.7]), [0.0, 0.6])):
+            box_sim.force_length_scale = scale
+            ref = np.einsum("i,inc->nc", np.array(w), box_sim.muscle_forces(x))
+            got = box_sim.muscle_force_sum(np.array(w), x)
+            assert got.shape == (box_sim.model.n_nodes, 3) and np.abs(ref).max() > 0
+            np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+        with pytest.raises(ValueError, match="weights"):
+            box_sim.muscle_force_sum(np.ones(3), x)
+    finally:
+        box_sim.force_length_scale = 1.0
+
+
 def test_matrix_free_product_and_diagonal_match_assembled_matrix(box_sim):
     model = box_sim.model
     X = model.rest_positions_m

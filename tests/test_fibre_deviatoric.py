@@ -226,6 +226,10 @@ def test_muscle_force_columns_are_the_activation_derivative_of_the_forces():
             fd = (sim.forces(x, a + e) - sim.forces(x, a - e)) / 0.2  # forces are affine in a: exact to round-off
             np.testing.assert_allclose(fi[i], fd, atol=1e-9 * np.abs(fd).max())
             assert np.abs(fi[i]).max() > 0
+        w = np.array([0.4, -0.7])
+        np.testing.assert_allclose(
+            sim.muscle_force_sum(w, x), np.einsum("i,inc->nc", w, fi), atol=1e-12 * np.abs(fi).max()
+        )
 
 
 def test_float32_agrees_with_float64():

@@ -73,6 +73,7 @@ def test_force_is_linear_in_the_control_with_muscle_forces_as_its_column(bar):
     f_minus = sim.forces(x, [0.0, -0.5])
     column = sim.muscle_forces(x)[1]
     np.testing.assert_allclose(f_plus - f_minus, column, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(sim.muscle_force_sum(np.array([0.0, 0.7]), x), 0.7 * column, rtol=0, atol=1e-12)
 
 
 def test_a_pressurised_bar_shortens_by_p_l_over_e(bar):

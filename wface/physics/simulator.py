@@ -400,6 +400,20 @@ class Simulator:
         self.energy(x, activations)
         return self._e.numpy().astype(np.float64)
 
+    def _fibre_inputs(self) -> list:
+        """The model inputs of the per-fibre-entry muscle force kernels."""
+        return [
+            self._tets,
+            self._dm_inv,
+            self._volume,
+            self._entry_tet,
+            self._entry_muscle,
+            self._entry_dir,
+            self._entry_coef,
+            self._np_dtype(self.model.material.inversion_clamp),
+            self._deviatoric,
+        ]
+
     def muscle_forces(self, x: np.ndarray | None = None) -> np.ndarray:
         """f_i(x): active force of each muscle at full activation, (M, n, 3) newtons, one launch
         (times ``force_length_scale``); a pressure actuator's row is its constant dead load."""
@@ -411,25 +425,38 @@ class Simulator:
             wp.launch(
                 self._k.muscle_forces,
                 self.model.fibre_tet.size,
-                inputs=[
-                    self._tets,
-                    self._dm_inv,
-                    self._volume,
-                    self._entry_tet,
-                    self._entry_muscle,
-                    self._entry_dir,
-                    self._entry_coef,
-                    self._np_dtype(self.model.material.inversion_clamp),
-                    self._deviatoric,
-                    self._x,
-                    out,
-                ],
+                inputs=[*self._fibre_inputs(), self._x, out],
                 device=self.device,
             )
-        forces = out.numpy().astype(np.float64)[:M]
+        forces = out.numpy()[:M].astype(np.float64)  # a copy: scaled in place
         for load in self._pressure:
             forces[load.channel, load.nodes] = load.force_n
-        return forces * self._muscle_scale()
+        forces *= self._muscle_scale()
+        return forces
+
+    def muscle_force_sum(self, weights: np.ndarray, x: np.ndarray | None = None) -> np.ndarray:
+        """sum_i w_i f_i(x), (n, 3) newtons: ``weights @ muscle_forces(x)`` in one launch, without the
+        (M, n, 3) array (``weights``: (M,) per muscle, e.g. an activation step)."""
+        wp = self._wp
+        M, n = self.model.n_muscles, self.model.n_nodes
+        w = np.asarray(weights, dtype=np.float64).reshape(-1)
+        if w.shape != (M,):
+            raise ValueError(f"weights have shape {w.shape}, expected ({M},)")
+        w = w * self._force_length_scale  # float, or (M,) per muscle
+        self._set_state(x, None)
+        out = wp.zeros(n, dtype=self._k.vec3, device=self.device)
+        if self.model.fibre_tet.size and np.any(w != 0.0):
+            w_wp = wp.array(w.astype(self._np_dtype), dtype=self._k.scalar, device=self.device)
+            wp.launch(
+                self._k.muscle_force_sum,
+                self.model.fibre_tet.size,
+                inputs=[*self._fibre_inputs(), self._x, w_wp, out],
+                device=self.device,
+            )
+        forces = out.numpy().astype(np.float64)
+        for load in self._pressure:
+            forces[load.nodes] += w[load.channel] * load.force_n
+        return forces
 
     # ------------------------------------------------------------------ stiffness
     def tangent(self, x: np.ndarray | None = None, activations=None, *, project: bool = True) -> Tangent:

@@ -121,7 +121,6 @@ class RowsLinearization(_OwnsChord):
         self.rig, self.state = rig, state
         self.nodes, self.rows = np.asarray(nodes), np.asarray(rows, dtype=np.float64)
         self._chord: _Chord | None = chord  # a nearby factor handed on (adaptive refactorisation), else made here
-        self._muscle_forces: np.ndarray | None = None
         self.seconds: dict = {}
 
     @property
@@ -139,12 +138,10 @@ class RowsLinearization(_OwnsChord):
     def predict(self, dc_y: np.ndarray) -> np.ndarray:
         rig, M = self.rig, self.rig.n_muscles
         chord = self.chord
-        if self._muscle_forces is None:
-            self._muscle_forces = rig.sim.muscle_forces(self.state.y_m).reshape(M, -1) if M else None
         dxc = rig._dxc_djaw @ dc_y[M:]
         rhs = -(chord.k_uc @ dxc)
         if M:
-            rhs += (dc_y[:M] @ self._muscle_forces)[rig._free_dofs]
+            rhs += rig.sim.muscle_force_sum(dc_y[:M], self.state.y_m).reshape(-1)[rig._free_dofs]
         counts0 = rig._linear.counters()
         sol = chord.bound.solve(rhs[:, None], rtol=1e-10)[:, 0]
         rig._count(counts0)
