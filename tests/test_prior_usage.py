@@ -174,3 +174,43 @@ def test_the_accelerated_fixed_point_is_the_plain_one_in_fewer_steps(monkeypatch
     assert n_plain < 3000 and n_fast < n_plain / 2, (n_fast, n_plain)
     scale = np.maximum(plain, 1e-3 * plain.max(axis=1, keepdims=True))  # pruned ones: near the floor
     assert np.max(np.abs(fast - plain) / scale) < 3e-3, np.abs(fast - plain) / scale
+
+
+def test_a_batch_problem_settles_where_it_would_alone_and_leaves_the_batch():
+    """Each problem of a SQUAREM batch stops at its own settled step (``_fit_gamma_squarem`` drops it from
+    the batch's sweeps there): its gamma is the one it reaches fitted alone, to round-off, and the
+    batch takes as many steps as its slowest problem."""
+    from wface.tracking import usage
+
+    X, Y, info, gamma, s2 = _problem(seed=6, frames=50)
+    L = usage._factor_information(info / s2)
+    rhos = np.array([ar1_coefficient(v) for v in (0.0, 1.0, 8.0)])
+    g0 = np.full((3, Y.shape[1]), float(np.mean(Y**2)))
+    observed = np.ones((3, len(Y)), bool)
+    observed[2, ::4] = False  # a fold: the third problem holds frames out
+    batch, _, n_batch = usage._fit_gamma(L, Y, observed, rhos, g0, 3000, 1e-4)
+    alone = [usage._fit_gamma(L, Y, observed[b : b + 1], rhos[b : b + 1], g0[b : b + 1], 3000, 1e-4) for b in range(3)]
+    for b, (g, _, _) in enumerate(alone):
+        np.testing.assert_allclose(batch[b], g[0], rtol=1e-9, atol=1e-12 * g.max())
+    steps = [n for _, _, n in alone]
+    assert n_batch == max(steps) and min(steps) < max(steps), steps
+
+
+def test_the_independent_frames_posterior_is_the_smoothers_at_rho_zero():
+    """At rho = 0 the frames are independent: the closed-form posterior (``_smooth_independent``, all
+    frames at once) equals the Kalman filter and RTS smoother's, held-out frames included, alone and
+    mixed into a batch with correlated problems."""
+    from wface.tracking import usage
+
+    rng = np.random.default_rng(7)
+    B, F, M = 4, 15, 6
+    Lw, zs = 0.7 * rng.normal(size=(B, F, M, M)), rng.normal(size=(F, M))
+    observed = rng.random((B, F)) > 0.3
+    rho = np.array([0.0, 0.6, 0.0, 0.95])
+    ref = usage._smooth_recursive(Lw, zs, observed, rho)
+    for got in (usage._smooth_white(Lw, zs, observed, rho), usage._smooth_independent(Lw[[0]], zs, observed[[0]])):
+        rows = slice(None) if got.mean.shape[0] == B else [0]
+        for name in ("mean", "cov", "lag"):
+            want = getattr(ref, name)[rows]
+            np.testing.assert_allclose(getattr(got, name), want, rtol=0, atol=1e-12 * max(np.abs(want).max(), 1.0))
+    assert np.abs(ref.lag[[0, 2]]).max() == 0.0 and np.abs(ref.lag[1]).max() > 0.0

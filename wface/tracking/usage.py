@@ -89,12 +89,44 @@ class _Smoothed:
 
 
 def _smooth_white(Lw, zs, observed, rho) -> _Smoothed:
-    """Kalman filter + RTS smoother of u_t = rho u_t-1 + sqrt(1 - rho^2) e_t, u_1 ~ N(0, I), with the
-    measurements z_t = L_t^T u_t + N(0, I) on the observed frames; B problems at once (the lengths and
-    folds of the cross-validation share every step). Lw (B, F, M, M) whitened factors, zs (F, M),
-    observed (B, F) bool, rho (B,)."""
-    B, F, M, _ = Lw.shape
+    """The posterior of u_t = rho u_t-1 + sqrt(1 - rho^2) e_t, u_1 ~ N(0, I), given the measurements
+    z_t = L_t^T u_t + N(0, I) on the observed frames; B problems at once (the lengths and folds of the
+    cross-validation share every step). Lw (B, F, M, M) whitened factors, zs (F, M), observed (B, F)
+    bool, rho (B,). Problems with rho = 0 (frames independent) in closed form, all frames at once
+    (``_smooth_independent``); the others by the Kalman filter and RTS smoother (``_smooth_recursive``)."""
+    B = Lw.shape[0]
     rho = np.asarray(rho, dtype=np.float64).reshape(B)
+    obs = np.asarray(observed, dtype=bool).reshape(B, -1)
+    zero = rho == 0.0
+    if not zero.any():
+        return _smooth_recursive(Lw, zs, obs, rho)
+    if zero.all():
+        return _smooth_independent(Lw, zs, obs)
+    a, b = _smooth_recursive(Lw[~zero], zs, obs[~zero], rho[~zero]), _smooth_independent(Lw[zero], zs, obs[zero])
+    out = []
+    for name in ("mean", "cov", "lag"):
+        part = np.empty((B, *getattr(a, name).shape[1:]))
+        part[~zero], part[zero] = getattr(a, name), getattr(b, name)
+        out.append(part)
+    return _Smoothed(*out)
+
+
+def _smooth_independent(Lw, zs, observed) -> _Smoothed:
+    """``_smooth_white`` at rho = 0: each frame's posterior alone, precision I + L_t L_t^T and mean
+    (I + L_t L_t^T)^-1 L_t z_t where observed, the prior N(0, I) where not; no lag covariance."""
+    B, F, M, _ = Lw.shape
+    eye = np.eye(M)
+    cov = np.linalg.inv(eye + Lw @ np.swapaxes(Lw, 2, 3))
+    cov = 0.5 * (cov + np.swapaxes(cov, 2, 3))
+    mean = np.einsum("bfij,bfj->bfi", cov, np.einsum("bfij,fj->bfi", Lw, zs))
+    held = ~np.asarray(observed, dtype=bool).reshape(B, F)
+    cov[held], mean[held] = eye, 0.0
+    return _Smoothed(mean, cov, np.zeros((B, max(F - 1, 0), M, M)))
+
+
+def _smooth_recursive(Lw, zs, observed, rho) -> _Smoothed:
+    """``_smooth_white`` by the Kalman filter and Rauch-Tung-Striebel smoother over the frames."""
+    B, F, M, _ = Lw.shape
     obs = np.asarray(observed, dtype=np.float64).reshape(B, F)
     eye = np.eye(M)
     r2, q = (rho * rho)[:, None, None], (1.0 - rho * rho)[:, None, None]
@@ -170,11 +202,16 @@ def _mackay_step(L, Y, observed, rho, gamma):
     return np.maximum(gamma * mean_q / denom, _FLOOR), sm
 
 
-def _settled(gamma, new, rtol) -> bool:
-    """A fixed-point step changed no gamma by more than ``rtol`` of itself; a pruned one (below 1e-3 of
-    its problem's largest) counts as settled."""
+def _settled_rows(gamma, new, rtol) -> np.ndarray:
+    """(B,) bool: a fixed-point step changed no gamma of the problem by more than ``rtol`` of itself; a
+    pruned one (below 1e-3 of its problem's largest) counts as settled."""
     scale = np.maximum(np.maximum(gamma, new), 1e-3 * new.max(axis=1, keepdims=True))
-    return bool(np.max(np.abs(new - gamma) / scale) < rtol)
+    return np.max(np.abs(new - gamma) / scale, axis=1) < rtol
+
+
+def _settled(gamma, new, rtol) -> bool:
+    """Every problem of the batch settled (``_settled_rows``)."""
+    return bool(np.all(_settled_rows(gamma, new, rtol)))
 
 
 def _fit_gamma(L, Y, observed, rho, gamma0, iterations, rtol, *, noise_var_m2=1.0, noise=None):
@@ -208,33 +245,47 @@ def _fit_gamma_squarem(L, Y, observed, rho, gamma, iterations, rtol) -> tuple[np
     scheme S3) in x = log gamma, each problem of the batch with its own step: from x0 two steps give
     r = x1 - x0 and v = x2 - 2 x1 + x0, alpha = -|r| / |v| (at most -1: two plain steps; at least
     -``_SQUAREM_ALPHA``), x' = x0 - 2 alpha r + alpha^2 v, and one more plain step from x' keeps the
-    iteration stable. Converged where a plain step settles (``_settled``): the same fixed point as the
-    plain iteration, in 2-5x fewer steps (docs/design.md, "Priors chosen by the data")."""
+    iteration stable. A problem is done where a plain step settles (``_settled_rows``) and leaves the
+    batch there (the sweeps' cost is per problem): the same fixed point as the plain iteration, in 2-5x
+    fewer steps (docs/design.md, "Priors chosen by the data"). Steps: the most any problem took."""
     lo, hi = np.log(_FLOOR), np.log(_GAMMA_MAX)
-    it = 0
-    while it < iterations:
-        g1, _ = _mackay_step(L, Y, observed, rho, gamma)
+    out = np.array(gamma, dtype=np.float64)
+    rho, observed = np.asarray(rho, dtype=np.float64), np.asarray(observed)
+    live = np.arange(len(out))  # the problems not yet settled
+    g0, it = out.copy(), 0
+
+    def step(g_from):
+        nonlocal it
         it += 1
-        if _settled(gamma, g1, rtol) or it >= iterations:
-            return g1, it
-        g2, _ = _mackay_step(L, Y, observed, rho, g1)
-        it += 1
-        if _settled(g1, g2, rtol) or it >= iterations:
-            return g2, it
-        x0, x1, x2 = np.log(gamma), np.log(g1), np.log(g2)
+        return _mackay_step(L, Y, observed[live], rho[live], g_from)[0]
+
+    def retire(done, g_final, *others):
+        """Record the settled problems' gamma, keep the rest (and the rows of ``others``)."""
+        nonlocal live
+        done = done | (it >= iterations)
+        out[live[done]] = g_final[done]
+        live = live[~done]
+        return [a[~done] for a in (g_final, *others)]
+
+    while live.size:
+        g1 = step(g0)
+        g1, g0 = retire(_settled_rows(g0, g1, rtol), g1, g0)
+        if not live.size:
+            break
+        g2 = step(g1)
+        g2, g1, g0 = retire(_settled_rows(g1, g2, rtol), g2, g1, g0)
+        if not live.size:
+            break
+        x0, x1, x2 = np.log(g0), np.log(g1), np.log(g2)
         r, v = x1 - x0, x2 - 2.0 * x1 + x0
         nr, nv = np.linalg.norm(r, axis=1), np.linalg.norm(v, axis=1)
         alpha = np.clip(-nr / np.maximum(nv, 1e-300), -_SQUAREM_ALPHA, -1.0)[:, None]
         jump = np.exp(np.clip(x0 - 2.0 * alpha * r + alpha * alpha * v, lo, hi))
-        g3, _ = _mackay_step(L, Y, observed, rho, jump)
-        it += 1
-        if not np.all(np.isfinite(g3)):  # the extrapolation left the fixed point's basin: plain steps
-            jump, g3 = g1, g2
-        settled = _settled(jump, g3, rtol)
-        gamma = g3
-        if settled:
-            break
-    return gamma, it
+        g3 = step(jump)
+        lost = ~np.all(np.isfinite(g3), axis=1)  # the extrapolation left the fixed point's basin: plain steps
+        jump[lost], g3[lost] = g1[lost], g2[lost]
+        (g0,) = retire(_settled_rows(jump, g3, rtol), g3)
+    return out, it
 
 
 def _noise_update(noise, Y, sm: _Smoothed, gamma, noise_var_m2: float) -> float:
