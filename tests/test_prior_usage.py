@@ -214,3 +214,21 @@ def test_the_independent_frames_posterior_is_the_smoothers_at_rho_zero():
             want = getattr(ref, name)[rows]
             np.testing.assert_allclose(getattr(got, name), want, rtol=0, atol=1e-12 * max(np.abs(want).max(), 1.0))
     assert np.abs(ref.lag[[0, 2]]).max() == 0.0 and np.abs(ref.lag[1]).max() > 0.0
+
+
+def test_the_smoothers_diagonal_mode_is_the_diagonal_of_the_full_one():
+    """``_smooth_white(diagonal=True)`` (what MacKay's step uses) returns the diagonals of the full
+    posterior and lag covariances, and the same means, for correlated and independent problems."""
+    from wface.tracking import usage
+
+    rng = np.random.default_rng(8)
+    B, F, M = 3, 11, 5
+    Lw, zs = 0.8 * rng.normal(size=(B, F, M, M)), rng.normal(size=(F, M))
+    observed = rng.random((B, F)) > 0.25
+    rho = np.array([0.7, 0.0, 0.3])
+    full = usage._smooth_white(Lw, zs, observed, rho)
+    diag = usage._smooth_white(Lw, zs, observed, rho, diagonal=True)
+    assert diag.cov.shape == (B, F, M) and diag.lag.shape == (B, F - 1, M)
+    np.testing.assert_allclose(diag.mean, full.mean, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(diag.cov, np.einsum("bfii->bfi", full.cov), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(diag.lag, np.einsum("bfii->bfi", full.lag), rtol=0, atol=1e-14)

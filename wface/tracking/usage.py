@@ -88,21 +88,24 @@ class _Smoothed:
     lag: np.ndarray  # (B, F-1, M, M) Cov(u_t+1, u_t | data)
 
 
-def _smooth_white(Lw, zs, observed, rho) -> _Smoothed:
+def _smooth_white(Lw, zs, observed, rho, *, diagonal: bool = False) -> _Smoothed:
     """The posterior of u_t = rho u_t-1 + sqrt(1 - rho^2) e_t, u_1 ~ N(0, I), given the measurements
     z_t = L_t^T u_t + N(0, I) on the observed frames; B problems at once (the lengths and folds of the
     cross-validation share every step). Lw (B, F, M, M) whitened factors, zs (F, M), observed (B, F)
     bool, rho (B,). Problems with rho = 0 (frames independent) in closed form, all frames at once
-    (``_smooth_independent``); the others by the Kalman filter and RTS smoother (``_smooth_recursive``)."""
+    (``_smooth_independent``); the others by the Kalman filter and RTS smoother (``_smooth_recursive``).
+    ``diagonal``: only the diagonals of the covariances and lag covariances, (B, F, M) and (B, F-1, M)
+    (all that MacKay's step needs; the full (B, F, M, M) arrays are most of a sweep's memory traffic)."""
     B = Lw.shape[0]
     rho = np.asarray(rho, dtype=np.float64).reshape(B)
     obs = np.asarray(observed, dtype=bool).reshape(B, -1)
     zero = rho == 0.0
     if not zero.any():
-        return _smooth_recursive(Lw, zs, obs, rho)
+        return _smooth_recursive(Lw, zs, obs, rho, diagonal)
     if zero.all():
-        return _smooth_independent(Lw, zs, obs)
-    a, b = _smooth_recursive(Lw[~zero], zs, obs[~zero], rho[~zero]), _smooth_independent(Lw[zero], zs, obs[zero])
+        return _smooth_independent(Lw, zs, obs, diagonal)
+    a = _smooth_recursive(Lw[~zero], zs, obs[~zero], rho[~zero], diagonal)
+    b = _smooth_independent(Lw[zero], zs, obs[zero], diagonal)
     out = []
     for name in ("mean", "cov", "lag"):
         part = np.empty((B, *getattr(a, name).shape[1:]))
@@ -111,7 +114,7 @@ def _smooth_white(Lw, zs, observed, rho) -> _Smoothed:
     return _Smoothed(*out)
 
 
-def _smooth_independent(Lw, zs, observed) -> _Smoothed:
+def _smooth_independent(Lw, zs, observed, diagonal: bool = False) -> _Smoothed:
     """``_smooth_white`` at rho = 0: each frame's posterior alone, precision I + L_t L_t^T and mean
     (I + L_t L_t^T)^-1 L_t z_t where observed, the prior N(0, I) where not; no lag covariance."""
     B, F, M, _ = Lw.shape
@@ -121,10 +124,12 @@ def _smooth_independent(Lw, zs, observed) -> _Smoothed:
     mean = np.einsum("bfij,bfj->bfi", cov, np.einsum("bfij,fj->bfi", Lw, zs))
     held = ~np.asarray(observed, dtype=bool).reshape(B, F)
     cov[held], mean[held] = eye, 0.0
+    if diagonal:
+        return _Smoothed(mean, np.einsum("bfii->bfi", cov).copy(), np.zeros((B, max(F - 1, 0), M)))
     return _Smoothed(mean, cov, np.zeros((B, max(F - 1, 0), M, M)))
 
 
-def _smooth_recursive(Lw, zs, observed, rho) -> _Smoothed:
+def _smooth_recursive(Lw, zs, observed, rho, diagonal: bool = False) -> _Smoothed:
     """``_smooth_white`` by the Kalman filter and Rauch-Tung-Striebel smoother over the frames."""
     B, F, M, _ = Lw.shape
     obs = np.asarray(observed, dtype=np.float64).reshape(B, F)
@@ -146,14 +151,21 @@ def _smooth_recursive(Lw, zs, observed, rho) -> _Smoothed:
         C = C - K @ LtC
         C = 0.5 * (C + np.swapaxes(C, 1, 2))
         mf[:, t], Cf[:, t] = m, C
-    ms, Cs = mf.copy(), Cf.copy()
-    lag = np.zeros((B, max(F - 1, 0), M, M))
+    ms = mf.copy()
+    shape = (M,) if diagonal else (M, M)
+    Cs, lag = np.empty((B, F, *shape)), np.zeros((B, max(F - 1, 0), *shape))
+    C_next = Cf[:, F - 1]  # the smoothed covariance of the frame after t (the recursion needs it whole)
+    Cs[:, F - 1] = np.einsum("bii->bi", C_next) if diagonal else C_next
     for t in range(F - 2, -1, -1):
         G = np.swapaxes(np.linalg.solve(Cp[:, t + 1], rho[:, None, None] * Cf[:, t]), 1, 2)  # rho Cf Cp^-1
         ms[:, t] = mf[:, t] + np.einsum("bij,bj->bi", G, ms[:, t + 1] - mp[:, t + 1])
-        Cs[:, t] = Cf[:, t] + G @ (Cs[:, t + 1] - Cp[:, t + 1]) @ np.swapaxes(G, 1, 2)
-        Cs[:, t] = 0.5 * (Cs[:, t] + np.swapaxes(Cs[:, t], 1, 2))
-        lag[:, t] = Cs[:, t + 1] @ np.swapaxes(G, 1, 2)
+        C = Cf[:, t] + G @ (C_next - Cp[:, t + 1]) @ np.swapaxes(G, 1, 2)
+        C = 0.5 * (C + np.swapaxes(C, 1, 2))
+        if diagonal:  # diag(C_next G^T)
+            Cs[:, t], lag[:, t] = np.einsum("bii->bi", C), np.einsum("bij,bij->bi", C_next, G)
+        else:
+            Cs[:, t], lag[:, t] = C, C_next @ np.swapaxes(G, 1, 2)
+        C_next = C
     return _Smoothed(ms, Cs, lag)
 
 
@@ -185,15 +197,15 @@ def _quadratic_b_inverse(x2: np.ndarray, xx: np.ndarray, rho: np.ndarray) -> np.
     return inner / (1.0 - r * r)
 
 
-def _mackay_step(L, Y, observed, rho, gamma):
+def _mackay_step(L, Y, observed, rho, gamma, *, diagonal: bool = True):
     """One step of MacKay's fixed point, B problems at once: (gamma_new (B, M), the smoother's sweep at
     ``gamma``): gamma_i <- mu_i^T B^-1 mu_i / (n - tr(B^-1 S_ii) / gamma_i) (``_fit_gamma``)."""
     F = Y.shape[0]
     Lw, zs = _whitened(L, Y, gamma)
-    sm = _smooth_white(Lw, zs, observed, rho)
+    sm = _smooth_white(Lw, zs, observed, rho, diagonal=diagonal)
     mu = sm.mean
-    diag = np.einsum("btii->bti", sm.cov)
-    lag_d = np.einsum("btii->bti", sm.lag)
+    diag = sm.cov if diagonal else np.einsum("btii->bti", sm.cov)
+    lag_d = sm.lag if diagonal else np.einsum("btii->bti", sm.lag)
     mean_q = _quadratic_b_inverse(mu**2, mu[:, 1:] * mu[:, :-1], rho)
     cov_q = _quadratic_b_inverse(diag, lag_d, rho)
     # whitened: gamma_new = gamma * mean_q / (F - cov_q); an unobserved frame adds ~1 to both F and
@@ -228,7 +240,7 @@ def _fit_gamma(L, Y, observed, rho, gamma0, iterations, rtol, *, noise_var_m2=1.
         return gamma, s2, it
     it = 0
     for it in range(1, iterations + 1):  # noqa: B007
-        new, sm = _mackay_step(L, Y, observed, rho, gamma)
+        new, sm = _mackay_step(L, Y, observed, rho, gamma, diagonal=False)  # the noise step needs S_t whole
         done = _settled(gamma, new, rtol)
         s2_new = _noise_update(noise, Y, sm, gamma[0], s2)
         done = done and abs(s2_new - s2) < rtol * s2
