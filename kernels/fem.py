@@ -193,8 +193,10 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         k: S,
         clamp: S,
         deviatoric: int,
+        w: S,
     ):
-        """H = -V0 P_f Dm^-T of one fibre entry at full activation (columns: the forces on nodes 1..3)."""
+        """The forces (c1, c2, c3) on nodes 1..3 of one fibre entry at activation ``w`` (node 0 gets minus
+        their sum): the columns of H = -w V0 P_f Dm^-T, P_f at full activation."""
         F = deformation_gradient(x, tets, Dmi, t)
         q = F * d
         lam = wp.length(q)
@@ -207,7 +209,8 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
             else:
                 fl, dfl, gl = force_length(lam - S(1.0))
                 P = (k * fl / lam) * wp.outer(q, d)
-        return -V0 * (P * wp.transpose(Dmi))
+        H = (-w * V0) * (P * wp.transpose(Dmi))
+        return vec3(H[0, 0], H[1, 0], H[2, 0]), vec3(H[0, 1], H[1, 1], H[2, 1]), vec3(H[0, 2], H[1, 2], H[2, 2])
 
     @wp.kernel(module="unique", enable_backward=False)
     def muscle_forces(
@@ -230,12 +233,9 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         (k f_L(lam) d lam/dF, with lam~ and d lam~/dF if ``deviatoric``)."""
         e = wp.tid()
         t = entry_tet[e]
-        H = fibre_nodal_forces(
-            x, tets, dm_inv[t], rest_volume[t], t, entry_direction[e], entry_coef[e], clamp, deviatoric
+        c1, c2, c3 = fibre_nodal_forces(
+            x, tets, dm_inv[t], rest_volume[t], t, entry_direction[e], entry_coef[e], clamp, deviatoric, S(1.0)
         )
-        c1 = vec3(H[0, 0], H[1, 0], H[2, 0])
-        c2 = vec3(H[0, 1], H[1, 1], H[2, 1])
-        c3 = vec3(H[0, 2], H[1, 2], H[2, 2])
         m = entry_muscle[e]
         wp.atomic_add(forces_out, m, tets[t, 1], c1)
         wp.atomic_add(forces_out, m, tets[t, 2], c2)
@@ -266,12 +266,9 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         w = weights[entry_muscle[e]]
         if w != S(0.0):
             t = entry_tet[e]
-            H = w * fibre_nodal_forces(
-                x, tets, dm_inv[t], rest_volume[t], t, entry_direction[e], entry_coef[e], clamp, deviatoric
+            c1, c2, c3 = fibre_nodal_forces(
+                x, tets, dm_inv[t], rest_volume[t], t, entry_direction[e], entry_coef[e], clamp, deviatoric, w
             )
-            c1 = vec3(H[0, 0], H[1, 0], H[2, 0])
-            c2 = vec3(H[0, 1], H[1, 1], H[2, 1])
-            c3 = vec3(H[0, 2], H[1, 2], H[2, 2])
             wp.atomic_add(forces_out, tets[t, 1], c1)
             wp.atomic_add(forces_out, tets[t, 2], c2)
             wp.atomic_add(forces_out, tets[t, 3], c3)
