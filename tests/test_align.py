@@ -107,6 +107,28 @@ def test_embedding_normal_offset():
     np.testing.assert_allclose(emb.marker_positions(v, tris), p, atol=2e-4)
 
 
+def test_marker_positions_on_the_ring_equal_the_whole_surface():
+    """Normals summed over the triangles touching the markers' triangles alone are the whole
+    surface's at those vertices, bit for bit, on a deformed surface too."""
+    v, tris = _sphere()
+    rng = np.random.default_rng(3)
+    from wface.mesh.surface import vertex_normals
+
+    n = vertex_normals(v, tris)
+    picks = rng.choice(len(v), 12, replace=False)
+    emb = embed_markers(v[picks] + 0.004 * n[picks], v, tris)
+    ring = emb.ring_triangles(tris)
+    assert 0 < len(ring) < len(tris) // 4
+    moved = v * np.array([1.2, 0.9, 1.05]) + 0.01 * np.sin(7.0 * v[:, [1, 2, 0]])
+    whole = emb.surface_points(moved, tris)
+    normals = vertex_normals(moved, tris)
+    tri = tris[emb.triangle]
+    nm = np.einsum("kj,kjd->kd", emb.barycentric, normals[tri])
+    whole += emb.normal_offset_m[:, None] * nm / np.linalg.norm(nm, axis=1, keepdims=True)
+    np.testing.assert_array_equal(emb.marker_positions(moved, tris, ring=ring), whole)
+    np.testing.assert_array_equal(emb.marker_positions(moved, tris), whole)
+
+
 def test_remove_head_motion_rigid():
     rng = np.random.default_rng(3)
     rest = rng.normal(scale=0.05, size=(12, 3))

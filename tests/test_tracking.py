@@ -256,3 +256,26 @@ def test_chunks_match_the_serial_run(contact):
         [np.sqrt(np.mean((a.controls[:M] - b.controls[:M]) ** 2)) for a, b in zip(serial, chunked, strict=True)]
     )
     assert warm.max() < _WORKERS_TOL, np.round(warm, 4)
+
+
+def test_the_penalty_weight_search_finds_the_bisections_k_from_any_start():
+    """The doubling bracket around the last step's k, then bisection, lands on the smallest rigid k
+    of the whole grid from every start, and in two tests where k has not moved."""
+    from wface.tracking.estimator import _bracket
+
+    K = 425  # the default grid: rho0 1e-3 to rho_max 1e6 in steps of 1.05
+    for first in (0, 1, 2, 37, 200, 424, K):  # the smallest rigid k (K: none below the top)
+        for k0 in (0, 1, 36, 37, 38, 300, K):
+            calls = []
+
+            def rigid(k, first=first, calls=calls):
+                calls.append(k)
+                return k >= first
+
+            lo, hi = _bracket(rigid, k0, K)
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                lo, hi = (lo, mid) if rigid(mid) else (mid, hi)
+            assert hi == first, (first, k0)
+            if k0 == first:
+                assert len(calls) <= 2

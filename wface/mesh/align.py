@@ -159,21 +159,33 @@ class MarkerEmbedding:
         out[ok] = np.einsum("kj,kjd->kd", self.barycentric[ok], corners)
         return out
 
-    def marker_positions(self, vertices_m: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-        """(k, 3) marker positions: surface point plus the rest offset along the current normal."""
+    def marker_positions(
+        self, vertices_m: np.ndarray, triangles: np.ndarray, *, ring: np.ndarray | None = None
+    ) -> np.ndarray:
+        """(k, 3) marker positions: surface point plus the rest offset along the current normal.
+
+        ``ring``: the ids of the triangles touching the embedding's vertices (``ring_triangles``),
+        when the caller keeps them: the vertex normals are then summed over those alone, the same
+        sums in the same order as over the whole surface (a tracker calls this every solve)."""
 
         p = self.surface_points(vertices_m, triangles)
         ok = self.triangle >= 0
-        tris = np.asarray(triangles)[self.triangle[ok]]
+        triangles = np.asarray(triangles)
+        tris = triangles[self.triangle[ok]]
         used = np.unique(tris)
+        ring = self.ring_triangles(triangles) if ring is None else ring
         normals = np.zeros((len(vertices_m), 3))
-        # Normals only from the triangles around the used vertices would be cheaper; the full
-        # surface keeps it simple and exact for shared vertices.
-        normals[used] = vertex_normals(np.asarray(vertices_m, dtype=np.float64), np.asarray(triangles))[used]
+        normals[used] = vertex_normals(np.asarray(vertices_m, dtype=np.float64), triangles[ring])[used]
         n = np.einsum("kj,kjd->kd", self.barycentric[ok], normals[tris])
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
         p[ok] += self.normal_offset_m[ok, None] * n
         return p
+
+    def ring_triangles(self, triangles: np.ndarray) -> np.ndarray:
+        """Sorted ids of the triangles that share a vertex with an embedding triangle."""
+        triangles = np.asarray(triangles)
+        used = np.unique(triangles[self.triangle[self.triangle >= 0]])
+        return np.flatnonzero(np.isin(triangles, used).any(axis=1))
 
 
 def embed_markers(

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wface.mesh.align import align_to_surface, umeyama
-from wface.tracking.estimator import MarkerMap
+from wface.tracking.markers import MarkerMap
 
 __all__ = ["CaptureCheck", "CaptureError", "PreparedCapture", "check_capture", "prepare_capture"]
 

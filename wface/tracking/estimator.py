@@ -46,9 +46,10 @@ from wface.controls import (
 )
 from wface.solvers.bvls import bounded_qp
 from wface.tracking.adaptive import carry_after_step, is_adaptive, release_at_end
+from wface.tracking.markers import MarkerMap
 from wface.tracking.rig import FaceRig, RigLinearization, RigState
 
-__all__ = ["TrackOptions", "FrameResult", "FrameEstimator", "MarkerMap"]
+__all__ = ["TrackOptions", "FrameResult", "FrameEstimator"]
 
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
@@ -120,28 +121,6 @@ class FrameResult:
     linearization: RigLinearization | None = None  # at ``state``: the next frame's ``start``
     system: dict = field(default_factory=dict)  # the last Gauss-Newton system: data_hessian (p, p) = 2 J^T W J
     # (m^2 per unit^2), weighted_rss_m2 and weighted_count (sum of w_k over the coordinates) at the solution
-
-
-class MarkerMap:
-    """Markers embedded in the skin: positions m(X) and the node set their Jacobian needs."""
-
-    def __init__(self, model, embedding):
-        self.model = model
-        self.embedding = embedding
-        tri = model.skin_triangles[embedding.triangle]
-        self.nodes, inverse = np.unique(tri.ravel(), return_inverse=True)
-        self._local = inverse.reshape(-1, 3)  # corner -> index into self.nodes
-        self._offset = np.nan_to_num(embedding.normal_offset_m)
-        self._bary = embedding.barycentric
-
-    def positions(self, x_m: np.ndarray) -> np.ndarray:
-        """(k, 3) marker positions on the deformed skin."""
-        return self.embedding.marker_positions(x_m, self.model.skin_triangles)
-
-    def jacobian(self, node_jacobian: np.ndarray) -> np.ndarray:
-        """(3k, p) marker Jacobian from (len(nodes), 3, p) node Jacobians (offsets held fixed in direction)."""
-        Jn = node_jacobian[self._local]  # (k, 3 corners, 3, p)
-        return np.einsum("kj,kjdp->kdp", self._bary, Jn).reshape(-1, node_jacobian.shape[-1])
 
 
 class FrameEstimator:
@@ -475,7 +454,8 @@ class FrameEstimator:
 
     def _penalty_step(self, A, g, Hp, gp, c, scale) -> tuple[np.ndarray, float]:
         """(dc, rho): the step for the smallest rho on the grid rho0 phi growth^k (k = 0..K) whose bone
-        step is rigid to first order, found by bisection over k (rigidity improves with rho)."""
+        step is rigid to first order (rigidity improves with rho), bisected in a bracket found by doubling
+        steps from the last step's k (two solves where k has not moved; ten over the whole grid)."""
         opt = self.options
         K = int(np.ceil(np.log(opt.rho_max / opt.rho0) / np.log(opt.rho_growth)))
         steps: dict[int, np.ndarray] = {}
@@ -488,15 +468,17 @@ class FrameEstimator:
                 steps[k], start = self._bounded_step(A + r_k * Hp, g + r_k * gp, c, start)
             return steps[k]
 
-        lo_k, hi_k = 0, K
-        if self._step_violation(c, step_at(0)) <= opt.rigid_step_tol:
-            hi_k = 0
+        def rigid(k: int) -> bool:
+            return self._step_violation(c, step_at(k)) <= opt.rigid_step_tol
+
+        lo_k, hi_k = _bracket(rigid, min(getattr(self, "_rho_k", 0), K), K)
         while hi_k - lo_k > 1:
             mid = (lo_k + hi_k) // 2
-            if self._step_violation(c, step_at(mid)) <= opt.rigid_step_tol:
+            if rigid(mid):
                 hi_k = mid
             else:
                 lo_k = mid
+        self._rho_k = hi_k
         return step_at(hi_k), opt.rho0 * scale * opt.rho_growth**hi_k
 
     def _trial(self, tau, *, c, dc, state, lin, target, present, w, rho, a_prev, chord=None, holder=None) -> tuple:
@@ -598,3 +580,21 @@ class FrameEstimator:
     def _dc_y(self, dc: np.ndarray) -> np.ndarray:
         """The part of dc that Y (cranium frame) depends on: activations and jaw parameters."""
         return np.concatenate([dc[: self.M], dc[self.M + 12 :]])
+
+
+def _bracket(rigid, k0: int, K: int) -> tuple[int, int]:
+    """(lo, hi): rigid(hi) (or hi = K) and not rigid(lo) (or lo = -1), by steps doubling away from k0."""
+    if rigid(k0):
+        hi, d = k0, 1
+        while hi > 0:
+            probe = max(hi - d, 0)
+            if not rigid(probe):
+                return probe, hi
+            hi, d = probe, 2 * d
+        return -1, 0
+    lo, d = k0, 1
+    while lo + d < K:
+        if rigid(lo + d):
+            return lo, lo + d
+        lo, d = lo + d, 2 * d
+    return lo, K

@@ -41,7 +41,8 @@ from wface.model import model_sha256
 from wface.takes.provenance import array_sha256, frame_fingerprint, run_provenance
 from wface.takes.store import FRAMES_DIR, REFINE_DIR_PREFIX, SURVEY_DIR, FrameRecord, verified_frames, write_frame
 from wface.tracking.adaptive import is_adaptive, rebuild_linearization, restore_spare, spare_state
-from wface.tracking.estimator import FrameEstimator, MarkerMap, TrackOptions
+from wface.tracking.estimator import FrameEstimator, TrackOptions
+from wface.tracking.markers import MarkerMap
 from wface.tracking.prior import TemporalPrior, activation_measurement
 from wface.tracking.refine import usage_priors
 from wface.tracking.rig import FaceRig, RigState
