@@ -259,23 +259,21 @@ def test_chunks_match_the_serial_run(contact):
 
 
 def test_the_penalty_weight_search_finds_the_bisections_k_from_any_start():
-    """The doubling bracket around the last step's k, then bisection, lands on the smallest rigid k
-    of the whole grid from every start, and in two tests where k has not moved."""
-    from wface.tracking.estimator import _bracket
+    """The doubling bracket around a guess, then bisection, lands on the smallest true k of the whole
+    grid from every guess (K when none below it is true), in two tests where the guess is right."""
+    from wface.solvers.search import first_true
 
     K = 425  # the default grid: rho0 1e-3 to rho_max 1e6 in steps of 1.05
-    for first in (0, 1, 2, 37, 200, 424, K):  # the smallest rigid k (K: none below the top)
-        for k0 in (0, 1, 36, 37, 38, 300, K):
+    for first in (0, 1, 2, 37, 200, 424, K, K + 5):  # the smallest true k (K and above: none below K)
+        for k0 in (-3, 0, 1, 36, 37, 38, 300, 424, K, K + 9):
             calls = []
 
-            def rigid(k, first=first, calls=calls):
+            def test(k, first=first, calls=calls):
+                assert 0 <= k < K
                 calls.append(k)
                 return k >= first
 
-            lo, hi = _bracket(rigid, k0, K)
-            while hi - lo > 1:
-                mid = (lo + hi) // 2
-                lo, hi = (lo, mid) if rigid(mid) else (mid, hi)
-            assert hi == first, (first, k0)
-            if k0 == first:
+            assert first_true(test, K, guess=k0) == min(first, K), (first, k0)
+            if k0 == first < K:
                 assert len(calls) <= 2
+    assert first_true(lambda k: True, 0) == 0

@@ -45,6 +45,7 @@ from wface.controls import (
     params_from_affine,
 )
 from wface.solvers.bvls import bounded_qp
+from wface.solvers.search import first_true
 from wface.tracking.adaptive import carry_after_step, is_adaptive, release_at_end
 from wface.tracking.markers import MarkerMap
 from wface.tracking.rig import FaceRig, RigLinearization, RigState
@@ -455,7 +456,7 @@ class FrameEstimator:
     def _penalty_step(self, A, g, Hp, gp, c, scale) -> tuple[np.ndarray, float]:
         """(dc, rho): the step for the smallest rho on the grid rho0 phi growth^k (k = 0..K) whose bone
         step is rigid to first order (rigidity improves with rho), bisected in a bracket found by doubling
-        steps from the last step's k (two solves where k has not moved; ten over the whole grid)."""
+        steps from the last step's weight (two solves where it has not moved; ten over the whole grid)."""
         opt = self.options
         K = int(np.ceil(np.log(opt.rho_max / opt.rho0) / np.log(opt.rho_growth)))
         steps: dict[int, np.ndarray] = {}
@@ -471,15 +472,11 @@ class FrameEstimator:
         def rigid(k: int) -> bool:
             return self._step_violation(c, step_at(k)) <= opt.rigid_step_tol
 
-        lo_k, hi_k = _bracket(rigid, min(getattr(self, "_rho_k", 0), K), K)
-        while hi_k - lo_k > 1:
-            mid = (lo_k + hi_k) // 2
-            if rigid(mid):
-                hi_k = mid
-            else:
-                lo_k = mid
-        self._rho_k = hi_k
-        return step_at(hi_k), opt.rho0 * scale * opt.rho_growth**hi_k
+        last = getattr(self, "_rho_last", None)  # the last step's weight, as k on this phi's grid
+        k0 = 0 if last is None else round(np.log(last / (opt.rho0 * scale)) / np.log(opt.rho_growth))
+        hi_k = first_true(rigid, K, guess=k0)
+        self._rho_last = opt.rho0 * scale * opt.rho_growth**hi_k
+        return step_at(hi_k), self._rho_last
 
     def _trial(self, tau, *, c, dc, state, lin, target, present, w, rho, a_prev, chord=None, holder=None) -> tuple:
         """(objective, state, markers) at the retracted controls ct = retract(c + tau dc), warm-started
@@ -580,21 +577,3 @@ class FrameEstimator:
     def _dc_y(self, dc: np.ndarray) -> np.ndarray:
         """The part of dc that Y (cranium frame) depends on: activations and jaw parameters."""
         return np.concatenate([dc[: self.M], dc[self.M + 12 :]])
-
-
-def _bracket(rigid, k0: int, K: int) -> tuple[int, int]:
-    """(lo, hi): rigid(hi) (or hi = K) and not rigid(lo) (or lo = -1), by steps doubling away from k0."""
-    if rigid(k0):
-        hi, d = k0, 1
-        while hi > 0:
-            probe = max(hi - d, 0)
-            if not rigid(probe):
-                return probe, hi
-            hi, d = probe, 2 * d
-        return -1, 0
-    lo, d = k0, 1
-    while lo + d < K:
-        if rigid(lo + d):
-            return lo, lo + d
-        lo, d = lo + d, 2 * d
-    return lo, K
