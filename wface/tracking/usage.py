@@ -357,7 +357,8 @@ def fit_usage(
     gamma0 = np.full((1, M), max(float(np.mean(Y**2)), _FLOOR))  # a cold start: a muscle the fixed
     # point has pruned (gamma at the floor) would not come back from a warm start left at the floor
     if start is not None and length_frames is not None and len(start.gamma) == M:
-        gamma0 = _lifted(start.gamma)[None]
+        g = np.asarray(start.gamma, dtype=np.float64)
+        gamma0 = np.maximum(g, _WARM_FLOOR * max(float(g.max()), _FLOOR))[None]
     noise = None if residual_m2 is None or dof is None else (I, np.asarray(residual_m2), np.asarray(dof))
     rho = 0.0 if length_frames is None else ar1_coefficient(length_frames)
     L = _factor_information(I / s2)
@@ -367,21 +368,13 @@ def fit_usage(
         L = _factor_information(I / s2)
         s0 = max(0, (F - int(cv_frames)) // 2)
         window = slice(s0, min(F, s0 + max(int(cv_frames), _FOLDS)))
-        warm = _lifted(gamma[0])  # every length starts from the length-0 fit
-        scores, fits = choose_length(L[window], Y[window], warm, lengths, iterations=iterations, rtol=rtol)
+        scores, fits = choose_length(L[window], Y[window], gamma0[0], lengths, iterations=iterations, rtol=rtol)
         length_frames = max(scores, key=lambda k: (scores[k], -k))
         gamma = fits[length_frames][None]
         if window.stop - window.start < F:  # gamma of the chosen length on the whole take
             rho = [ar1_coefficient(length_frames)]
-            gamma, _, _ = _fit_gamma(L, Y, every, rho, _lifted(gamma[0])[None], iterations, rtol)
+            gamma, _, _ = _fit_gamma(L, Y, every, rho, gamma0, iterations, rtol)
     return UsageFit(gamma[0], float(length_frames), float(s2), scores, its)
-
-
-def _lifted(gamma) -> np.ndarray:
-    """A neighbouring fit's gamma as a fixed point's start: each raised to ``_WARM_FLOOR`` of the largest
-    (a muscle left at the floor would stay there; from just above it, one the data use grows back)."""
-    g = np.asarray(gamma, dtype=np.float64)
-    return np.maximum(g, _WARM_FLOOR * max(float(g.max()), _FLOOR))
 
 
 def choose_length(L, Y, gamma0, lengths, *, iterations: int = 300, rtol: float = 1e-3) -> tuple[dict, dict]:
