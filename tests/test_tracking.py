@@ -276,4 +276,7 @@ def test_the_penalty_weight_search_finds_the_bisections_k_from_any_start():
             assert first_true(test, K, guess=k0) == min(first, K), (first, k0)
             if k0 == first < K:
                 assert len(calls) <= 2
+        calls = []
+        assert first_true(lambda k, first=first, calls=calls: calls.append(k) or k >= first, K) == min(first, K)
+        assert calls[0] == 0 and len(calls) <= 10  # no guess: k = 0, then bisection over the grid
     assert first_true(lambda k: True, 0) == 0

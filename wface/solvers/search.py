@@ -9,12 +9,16 @@ from collections.abc import Callable
 __all__ = ["first_true"]
 
 
-def first_true(test: Callable[[int], bool], K: int, *, guess: int = 0) -> int:
+def first_true(test: Callable[[int], bool], K: int, *, guess: int | None = None) -> int:
     """The smallest k in 0..K with ``test(k)`` for a test that is false below some k and true from
-    there on; K when it holds nowhere below K (K itself is not tested)."""
+    there on; K when it holds nowhere below K (K itself is not tested). Without a guess: k = 0 tested
+    first, then bisection over the whole grid."""
     if K <= 0:
         return 0
-    lo, hi = _bracket(test, min(max(int(guess), 0), K - 1), K)
+    if guess is None:
+        lo, hi = (-1, 0) if test(0) else (0, K)
+    else:
+        lo, hi = _bracket(test, min(max(int(guess), 0), K - 1), K)
     while hi - lo > 1:
         mid = (lo + hi) // 2
         if test(mid):

@@ -133,6 +133,7 @@ class FrameEstimator:
         self.options = options or TrackOptions()
         self.M = rig.n_muscles
         self._spare = None  # "adaptive": a second pass's factor, handed to its next frame
+        self._rho_last: float | None = None  # this frame's last penalty weight (the next system's guess)
 
     def keep_spare(self, chord) -> None:
         """Keep ``chord`` (a factor) for the next frame's second-pass solves, freeing the one kept before."""
@@ -210,7 +211,7 @@ class FrameEstimator:
                 these rows, so a frame that converges in one step needs no Jacobian at all.
         """
         opt = self.options
-        self._prior = prior
+        self._prior, self._rho_last = prior, None  # a frame's result depends on its inputs alone (resume, chunks)
         t_start, cpu_start = time.perf_counter(), time.process_time()
         rig = self.rig
         counters0 = dict(rig.counters)
@@ -455,8 +456,9 @@ class FrameEstimator:
 
     def _penalty_step(self, A, g, Hp, gp, c, scale) -> tuple[np.ndarray, float]:
         """(dc, rho): the step for the smallest rho on the grid rho0 phi growth^k (k = 0..K) whose bone
-        step is rigid to first order (rigidity improves with rho), bisected in a bracket found by doubling
-        steps from the last step's weight (two solves where it has not moved; ten over the whole grid)."""
+        step is rigid to first order (rigidity improves with rho): bisection over the grid for a frame's
+        first system, then in a bracket found by doubling steps from the frame's last weight (two solves
+        where it has not moved; ten over the whole grid)."""
         opt = self.options
         K = int(np.ceil(np.log(opt.rho_max / opt.rho0) / np.log(opt.rho_growth)))
         steps: dict[int, np.ndarray] = {}
@@ -472,8 +474,8 @@ class FrameEstimator:
         def rigid(k: int) -> bool:
             return self._step_violation(c, step_at(k)) <= opt.rigid_step_tol
 
-        last = getattr(self, "_rho_last", None)  # the last step's weight, as k on this phi's grid
-        k0 = 0 if last is None else round(np.log(last / (opt.rho0 * scale)) / np.log(opt.rho_growth))
+        last = self._rho_last  # as k on this phi's grid
+        k0 = None if last is None else round(np.log(last / (opt.rho0 * scale)) / np.log(opt.rho_growth))
         hi_k = first_true(rigid, K, guess=k0)
         self._rho_last = opt.rho0 * scale * opt.rho_growth**hi_k
         return step_at(hi_k), self._rho_last

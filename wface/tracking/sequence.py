@@ -480,8 +480,7 @@ def track_sequence(
         return records
     summaries = []
     passes = max(1, int(options.prior_passes))
-    length, fit = None, None  # the usage prior's correlation length: chosen by cross-validation on the first
-    # fit, kept; each later fit starts from the one before (``usage_priors``' ``start``)
+    length, fit = None, None  # the correlation length (chosen on the first fit, kept); the fit the next starts from
     for k in range(passes):  # each pass under priors fitted to the one before (wface.tracking.refine)
         t = time.perf_counter()
         if progress:
