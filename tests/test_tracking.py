@@ -256,27 +256,3 @@ def test_chunks_match_the_serial_run(contact):
         [np.sqrt(np.mean((a.controls[:M] - b.controls[:M]) ** 2)) for a, b in zip(serial, chunked, strict=True)]
     )
     assert warm.max() < _WORKERS_TOL, np.round(warm, 4)
-
-
-def test_the_penalty_weight_search_finds_the_bisections_k_from_any_start():
-    """The doubling bracket around a guess, then bisection, lands on the smallest true k of the whole
-    grid from every guess (K when none below it is true), in two tests where the guess is right."""
-    from wface.solvers.search import first_true
-
-    K = 425  # the default grid: rho0 1e-3 to rho_max 1e6 in steps of 1.05
-    for first in (0, 1, 2, 37, 200, 424, K, K + 5):  # the smallest true k (K and above: none below K)
-        for k0 in (-3, 0, 1, 36, 37, 38, 300, 424, K, K + 9):
-            calls = []
-
-            def test(k, first=first, calls=calls):
-                assert 0 <= k < K
-                calls.append(k)
-                return k >= first
-
-            assert first_true(test, K, guess=k0) == min(first, K), (first, k0)
-            if k0 == first < K:
-                assert len(calls) <= 2
-        calls = []
-        assert first_true(lambda k, first=first, calls=calls: calls.append(k) or k >= first, K) == min(first, K)
-        assert calls[0] == 0 and len(calls) <= 10  # no guess: k = 0, then bisection over the grid
-    assert first_true(lambda k: True, 0) == 0

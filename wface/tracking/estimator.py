@@ -45,7 +45,6 @@ from wface.controls import (
     params_from_affine,
 )
 from wface.solvers.bvls import bounded_qp
-from wface.solvers.search import first_true
 from wface.tracking.adaptive import carry_after_step, is_adaptive, release_at_end
 from wface.tracking.markers import MarkerMap
 from wface.tracking.rig import FaceRig, RigLinearization, RigState
@@ -133,7 +132,6 @@ class FrameEstimator:
         self.options = options or TrackOptions()
         self.M = rig.n_muscles
         self._spare = None  # "adaptive": a second pass's factor, handed to its next frame
-        self._rho_last: float | None = None  # this frame's last penalty weight (the next system's guess)
 
     def keep_spare(self, chord) -> None:
         """Keep ``chord`` (a factor) for the next frame's second-pass solves, freeing the one kept before."""
@@ -211,7 +209,7 @@ class FrameEstimator:
                 these rows, so a frame that converges in one step needs no Jacobian at all.
         """
         opt = self.options
-        self._prior, self._rho_last = prior, None  # a frame's result depends on its inputs alone (resume, chunks)
+        self._prior = prior
         t_start, cpu_start = time.perf_counter(), time.process_time()
         rig = self.rig
         counters0 = dict(rig.counters)
@@ -456,9 +454,7 @@ class FrameEstimator:
 
     def _penalty_step(self, A, g, Hp, gp, c, scale) -> tuple[np.ndarray, float]:
         """(dc, rho): the step for the smallest rho on the grid rho0 phi growth^k (k = 0..K) whose bone
-        step is rigid to first order (rigidity improves with rho): bisection over the grid for a frame's
-        first system, then in a bracket found by doubling steps from the frame's last weight (two solves
-        where it has not moved; ten over the whole grid)."""
+        step is rigid to first order, found by bisection over k (rigidity improves with rho)."""
         opt = self.options
         K = int(np.ceil(np.log(opt.rho_max / opt.rho0) / np.log(opt.rho_growth)))
         steps: dict[int, np.ndarray] = {}
@@ -471,14 +467,16 @@ class FrameEstimator:
                 steps[k], start = self._bounded_step(A + r_k * Hp, g + r_k * gp, c, start)
             return steps[k]
 
-        def rigid(k: int) -> bool:
-            return self._step_violation(c, step_at(k)) <= opt.rigid_step_tol
-
-        last = self._rho_last  # as k on this phi's grid
-        k0 = None if last is None else round(np.log(last / (opt.rho0 * scale)) / np.log(opt.rho_growth))
-        hi_k = first_true(rigid, K, guess=k0)
-        self._rho_last = opt.rho0 * scale * opt.rho_growth**hi_k
-        return step_at(hi_k), self._rho_last
+        lo_k, hi_k = 0, K
+        if self._step_violation(c, step_at(0)) <= opt.rigid_step_tol:
+            hi_k = 0
+        while hi_k - lo_k > 1:
+            mid = (lo_k + hi_k) // 2
+            if self._step_violation(c, step_at(mid)) <= opt.rigid_step_tol:
+                hi_k = mid
+            else:
+                lo_k = mid
+        return step_at(hi_k), opt.rho0 * scale * opt.rho_growth**hi_k
 
     def _trial(self, tau, *, c, dc, state, lin, target, present, w, rho, a_prev, chord=None, holder=None) -> tuple:
         """(objective, state, markers) at the retracted controls ct = retract(c + tau dc), warm-started
