@@ -56,32 +56,6 @@ def test_the_noise_variance_is_learned_with_gamma():
     assert abs(fit.noise_var_m2 / s2 - 1.0) < 0.08, fit.noise_var_m2 / s2
 
 
-def test_a_refit_started_from_the_last_passs_fit_reaches_the_same_fixed_point_in_fewer_steps():
-    """A later pass's refit starts at the previous pass's gamma: the converged answer (to the fixed
-    point's tolerance) in fewer steps than the cold start, the noise learned as before; a muscle the
-    previous fit pruned comes back when the new measurements use it."""
-    from wface.tracking.usage import _FLOOR
-
-    X, Y, info, gamma, s2 = _problem(seed=1, frames=120)
-    rng = np.random.default_rng(2)
-    dof = np.full(len(Y), 60.0)
-    residual = s2 * rng.chisquare(dof - len(gamma))
-    kw = {"length_frames": 4.0, "residual_m2": residual, "dof": dof}
-    truth = fit_usage(Y, info, 1.3 * s2, rtol=1e-7, iterations=5000, **kw)
-    cold = fit_usage(Y, info, 1.3 * s2, **kw)
-    before = fit_usage(Y + 0.01 * rng.normal(size=Y.shape), info, 1.3 * s2, **kw)  # estimates moved since
-    warm = fit_usage(Y, info, 1.3 * s2, start=before, **kw)
-    assert warm.iterations < 0.5 * cold.iterations, (warm.iterations, cold.iterations)
-    for fit in (cold, warm):
-        assert np.max(np.abs(fit.gamma - truth.gamma)) < 1e-3 * gamma.max(), (fit.gamma, truth.gamma)
-        assert abs(fit.noise_var_m2 / truth.noise_var_m2 - 1.0) < 1e-3
-    used = truth.gamma[4]
-    assert used > 0.3 * gamma[4]
-    pruned = type(before)(before.gamma * np.array([1.0, 1.0, 1.0, 1.0, 0.0, 1.0]) + _FLOOR, 4.0, before.noise_var_m2)
-    back = fit_usage(Y, info, 1.3 * s2, start=pruned, **kw)
-    assert abs(back.gamma[4] / used - 1.0) < 1e-2, (back.gamma[4], used)  # muscle 4 is used: it comes back
-
-
 def test_frame_priors_are_the_cavity_of_the_smoother():
     X, Y, info, gamma, s2 = _problem(seed=3, frames=12)
     fit0 = fit_usage(Y, info, s2, length_frames=0.0)

@@ -480,12 +480,12 @@ def track_sequence(
         return records
     summaries = []
     passes = max(1, int(options.prior_passes))
-    length, fit = None, None  # the correlation length (chosen on the first fit, kept); the fit the next starts from
+    length = None  # the usage prior's correlation length: chosen by cross-validation on the first fit, kept
     for k in range(passes):  # each pass under priors fitted to the one before (wface.tracking.refine)
         t = time.perf_counter()
         if progress:
             print(f"fitting the usage prior to pass {k + 1} ({len(records)} frames)", file=sys.stderr, flush=True)
-        priors, fit, summary = usage_priors(records, length_frames=length, start=fit)
+        priors, fit, summary = usage_priors(records, length_frames=length)
         summary["seconds"] = time.perf_counter() - t
         if progress and fit is not None:
             print(

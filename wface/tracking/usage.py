@@ -46,7 +46,6 @@ _FOLDS = 5
 _FLOOR = 1e-8  # smallest gamma (unit^2): a muscle held at rest
 _GAMMA_MAX = 1e3  # largest gamma an accelerated step may propose (unit^2; activations live in [0, 1])
 _SQUAREM_ALPHA = 16.0  # largest SQUAREM step length |alpha| (``_fit_gamma_squarem``)
-_WARM_FLOOR = 1e-5  # a warm start's smallest gamma, relative to its largest (``fit_usage``'s ``start``)
 _FOLD_ITERATIONS = 30  # fixed-point steps of a fold's fit, started from the whole take's (4/5 of its data)
 _RHO_MAX = 0.98  # largest AR(1) coefficient (keeps the prediction covariance away from singular)
 CV_MAX_FRAMES = 300  # the length's cross-validation runs on at most this many consecutive frames (the
@@ -328,7 +327,6 @@ def fit_usage(
     residual_m2=None,
     dof=None,
     cv_frames: int = CV_MAX_FRAMES,
-    start: UsageFit | None = None,
 ) -> UsageFit:
     """The usage prior of a pass: gamma by evidence maximisation, (``length_frames`` None) the AR(1)
     length by 5-fold cross-validation over frames among ``lengths``, and (with ``residual_m2`` and
@@ -343,22 +341,14 @@ def fit_usage(
         cv_frames: a longer take chooses its length on its middle ``cv_frames`` frames (the correlation
             length is a property of the motion, not of the take's length) and fits gamma at that length
             on every frame: the cross-validation's time and memory stay bounded on long takes.
-        start: with ``length_frames``, a neighbouring fit (the previous pass's, on measurements at nearby
-            estimates) whose gamma the fixed point starts from, each muscle's raised to ``_WARM_FLOOR`` of
-            the largest so that one it pruned can grow back: JawMoCap's last refit takes 53 steps where
-            a cold start takes 267, and stops nearer the converged fixed point (docs/design.md, "Priors
-            chosen by the data").
     """
     Y = np.asarray(activations, dtype=np.float64)
     I = np.asarray(informations, dtype=np.float64)
     F, M = Y.shape
     s2 = max(float(noise_var_m2), 1e-30)
     every = np.ones((1, F), bool)
-    gamma0 = np.full((1, M), max(float(np.mean(Y**2)), _FLOOR))  # a cold start: a muscle the fixed
-    # point has pruned (gamma at the floor) would not come back from a warm start left at the floor
-    if start is not None and length_frames is not None and len(start.gamma) == M:
-        g = np.asarray(start.gamma, dtype=np.float64)
-        gamma0 = np.maximum(g, _WARM_FLOOR * max(float(g.max()), _FLOOR))[None]
+    gamma0 = np.full((1, M), max(float(np.mean(Y**2)), _FLOOR))  # every fit starts here: a muscle the
+    # fixed point has pruned (gamma at the floor) does not come back from a warm start
     noise = None if residual_m2 is None or dof is None else (I, np.asarray(residual_m2), np.asarray(dof))
     rho = 0.0 if length_frames is None else ar1_coefficient(length_frames)
     L = _factor_information(I / s2)
