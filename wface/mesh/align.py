@@ -173,7 +173,7 @@ class MarkerEmbedding:
         triangles = np.asarray(triangles)
         tris = triangles[self.triangle[ok]]
         used = np.unique(tris)
-        ring = self.ring_triangles(triangles) if ring is None else ring
+        ring = _touching(triangles, used) if ring is None else ring
         normals = np.zeros((len(vertices_m), 3))
         normals[used] = vertex_normals(np.asarray(vertices_m, dtype=np.float64), triangles[ring])[used]
         n = np.einsum("kj,kjd->kd", self.barycentric[ok], normals[tris])
@@ -184,8 +184,12 @@ class MarkerEmbedding:
     def ring_triangles(self, triangles: np.ndarray) -> np.ndarray:
         """Sorted ids of the triangles that share a vertex with an embedding triangle."""
         triangles = np.asarray(triangles)
-        used = np.unique(triangles[self.triangle[self.triangle >= 0]])
-        return np.flatnonzero(np.isin(triangles, used).any(axis=1))
+        return _touching(triangles, np.unique(triangles[self.triangle[self.triangle >= 0]]))
+
+
+def _touching(triangles: np.ndarray, vertices: np.ndarray) -> np.ndarray:
+    """Sorted ids of the triangles with a corner among ``vertices``."""
+    return np.flatnonzero(np.isin(triangles, vertices).any(axis=1))
 
 
 def embed_markers(
