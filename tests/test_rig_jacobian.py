@@ -98,3 +98,28 @@ def test_attached_positions_follow_bones(setup):
     M = model.n_muscles
     world = attached_positions(model, c[M:], frame="world")
     assert np.abs(state.x_m[model.attached_nodes] - world).max() < 1e-12
+
+
+def test_held_muscles_columns_are_zero_and_the_others_unchanged(setup):
+    """``FaceRig.linearize(held=)`` solves only the columns of the muscles not held (the jaw's always):
+    those equal the full Jacobian's, the held ones are zero, and the solves counted are the columns solved."""
+    model, rig, c, state, _ = setup
+    M = model.n_muscles
+    held = np.zeros(M, dtype=bool)
+    held[[0, 3, model.muscle_index("mentalis_r")]] = True
+    full = rig.linearize(state, keep_factor=False)
+    before = rig.counters["linear_solves"]
+    part = rig.linearize(state, keep_factor=False, held=held)
+    assert rig.counters["linear_solves"] - before == M + 12 - held.sum()
+    assert np.array_equal(part.held, held)
+    assert not np.any(part.jy[:, np.flatnonzero(held)])
+    keep = np.concatenate([~held, np.ones(12, dtype=bool)])
+    np.testing.assert_allclose(part.jy[:, keep], full.jy[:, keep], rtol=0, atol=1e-10 * np.abs(full.jy).max())
+    assert rig.linearize(state, keep_factor=False, held=np.zeros(M, dtype=bool)).held is None
+    nodes = np.array([3, 17, 40])  # older rows stand in for the held columns at their nodes only
+    older = np.random.default_rng(1).normal(size=(3, 3, M + 12))
+    part.fill = (nodes, older)
+    rows = part.node_rows(nodes)
+    assert np.array_equal(rows[:, :, np.flatnonzero(held)], older[:, :, np.flatnonzero(held)])
+    assert np.array_equal(rows[:, :, keep], part.jy.reshape(-1, 3, M + 12)[nodes][:, :, keep])
+    assert not np.any(part.node_rows(nodes + 1)[:, :, np.flatnonzero(held)])

@@ -51,7 +51,7 @@ def carry_after_step(est, lin, state: RigState, achieved: float, predicted: floa
     opt = est.options
     stale = jacobian_is_stale(achieved, predicted, lin.age, refresh=opt.jacobian_refresh, max_age=opt.max_jacobian_age)
     t = time.perf_counter()
-    lin = carry_linearization(est.rig, lin, state, stale=stale)
+    lin = carry_linearization(est, lin, state, stale=stale)
     timings["jacobian_s"] += time.perf_counter() - t
     return lin
 
@@ -71,19 +71,21 @@ def jacobian_is_stale(achieved: float, predicted: float, age: int, *, refresh: f
     return age >= max_age or not (predicted > 0 and achieved >= refresh * predicted)
 
 
-def carry_linearization(rig: FaceRig, lin: RigLinearization, state: RigState, *, stale: bool) -> RigLinearization:
+def carry_linearization(est, lin: RigLinearization, state: RigState, *, stale: bool) -> RigLinearization:
     """The linearisation at the new equilibrium ``state`` from ``lin`` (at the previous one), which is
     consumed: its Jacobian kept with its factor (``stale`` False), or solved again at ``state`` with
-    the factor made during this step when there is one (``fresh``), else with a new factor there."""
+    the factor made during this step when there is one (``fresh``), else with a new factor there
+    (``FrameEstimator._linearize`` of ``est``: the held muscles' columns left out)."""
     chord = lin.take_chord()
     if not stale:
-        return RigLinearization(state, lin.jy, chord, age=lin.age + 1, jacobian_at=lin.jacobian_at)
+        kept = {"age": lin.age + 1, "jacobian_at": lin.jacobian_at, "held": lin.held, "fill": lin.fill}
+        return RigLinearization(state, lin.jy, chord, **kept)
     if chord is not None and not getattr(chord, "fresh", False):
         chord.free()  # from an earlier frame: factor at the new equilibrium instead
         chord = None
     if chord is not None:
         chord.fresh = False
-    return rig.linearize(state, keep_factor=True, stiffness=chord)
+    return est._linearize(state, keep_factor=True, stiffness=chord)
 
 
 # ---------------------------------------------------------------------- resumed takes

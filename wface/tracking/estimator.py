@@ -34,24 +34,24 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import null_space
 
 from wface.controls import (
-    _joint_rows,
     activation_penalty,
     bone_penalty,
     jaw_from_intuitive,
     jaw_to_intuitive,
     params_from_affine,
 )
-from wface.solvers.bvls import bounded_qp
 from wface.tracking.adaptive import carry_after_step, is_adaptive, release_at_end
 from wface.tracking.markers import MarkerMap
 from wface.tracking.rig import FaceRig, RigLinearization, RigState
+from wface.tracking.steps import bounded_step, step_basis, step_violation
 
 __all__ = ["TrackOptions", "FrameResult", "FrameEstimator"]
 
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+HELD_AT_REST = 1e-4  # a muscle the prior holds at rest is there within this (activation units; a
+# usage pass leaves it ~1e-6 from the prior's mean)
 
 
 @dataclass
@@ -187,29 +187,29 @@ class FrameEstimator:
         prior=None,
         equilibrium: RigState | None = None,
         marker_jy: np.ndarray | None = None,
+        stale_rows: np.ndarray | None = None,
     ) -> FrameResult:
         """Controls for one frame of marker data.
 
         Args:
-            frame: frame number (for the record).
-            target_m: (k, 3) marker positions, NaN rows = missing markers.
+            frame: frame number (for the record). target_m: (k, 3) marker positions, NaN rows missing.
             c0: starting controls (the previous frame's, or the rest controls).
             y0: warm start of the equilibrium (cranium frame), e.g. the previous frame's.
-            steps: Gauss-Newton steps (default from the options: first / later frame).
+            steps: Gauss-Newton steps (default from the options).
             a_prev: activations of the previous frame for the temporal term.
             start: the rig linearised at the previous frame's equilibrium (its ``FrameResult.linearization``):
-                the frame starts there, with no quasistatic solve and no new Jacobian, and its
-                solves take chord steps with that factor; ``c0`` and ``y0`` are then ignored.
-                The estimator owns it from here (it is freed when replaced).
+                the frame starts there (no solve, no Jacobian; chord steps with its factor; ``c0`` and
+                ``y0`` ignored), owned by the estimator from here.
             prior: (a - mean)^T weight (a - mean) added to phi (``wface.tracking.prior.GaussianPrior``).
-            equilibrium: the equilibrium at ``c0``, already solved (e.g. a first pass's): no start solve.
+            equilibrium: the equilibrium at ``c0``, already solved (a first pass's): no start solve.
             marker_jy: with ``equilibrium``, its marker nodes' Jacobian rows (k, 3, M + 12), e.g. a first
-                pass's (``FaceRig.linearize_rows``): no Jacobian for the first step, its solves chord
-                with one factor at ``equilibrium``, and the stopping test predicts the next step with
-                these rows, so a frame that converges in one step needs no Jacobian at all.
+                pass's (``FaceRig.linearize_rows``): the steps and the stopping test use them, so a
+                frame that converges in one step needs no Jacobian at all.
+            stale_rows: older marker-node rows of this frame (k, 3, M + 12), e.g. the first pass's: they
+                stand in for the columns of the muscles the prior holds at rest (``_held``).
         """
         opt = self.options
-        self._prior = prior
+        self._prior, self._stale_rows = prior, stale_rows
         t_start, cpu_start = time.perf_counter(), time.process_time()
         rig = self.rig
         counters0 = dict(rig.counters)
@@ -237,7 +237,7 @@ class FrameEstimator:
                 t = time.perf_counter()
                 if lin is not None:
                     lin.free()  # the chord of an older equilibrium: its factor slot is needed now
-                lin = rig.linearize(state, keep_factor=opt.reuse_factor, stiffness=near)
+                lin = self._linearize(state, keep_factor=opt.reuse_factor, stiffness=near)
                 near = None
                 timings["jacobian_s"] += time.perf_counter() - t
             if gn_done >= steps:
@@ -312,11 +312,30 @@ class FrameEstimator:
             return state, None
         spare, self._spare = (self._spare, None) if is_adaptive(self) else (None, None)
         if marker_jy is None:  # no rows: the Jacobian solved with the previous frame's factor (none: in the loop)
-            return state, (None if spare is None else self.rig.linearize(state, keep_factor=True, stiffness=spare))
+            return state, (None if spare is None else self._linearize(state, keep_factor=True, stiffness=spare))
         lin = self.rig.linearize_rows(state, self.markers.nodes, marker_jy, chord=spare)  # None: cannot serve
         if lin is None and spare is not None:
             spare.free()
         return state, lin
+
+    def _held(self, c: np.ndarray) -> np.ndarray | None:
+        """Muscles the frame's prior holds at rest (``GaussianPrior.held``) and that are there at controls
+        ``c`` (within ``HELD_AT_REST`` of the prior's mean), when the frame has stale rows to stand in for
+        their Jacobian columns (``estimate``); None when there are none (docs/design.md, "Performance")."""
+        prior = self._prior
+        if prior is None or prior.held is None or self._stale_rows is None:
+            return None
+        held = prior.held & (np.abs(c[: self.M] - prior.mean) <= HELD_AT_REST)
+        return held if held.any() else None
+
+    def _linearize(self, state: RigState, **kwargs) -> RigLinearization:
+        """``FaceRig.linearize`` at ``state`` without the columns of the muscles held at rest (``_held``),
+        whose marker rows come from the frame's stale rows."""
+        held = self._held(state.controls)
+        lin = self.rig.linearize(state, held=held, **kwargs)
+        if held is not None:
+            lin.fill = (self.markers.nodes, self._stale_rows)
+        return lin
 
     def _done_without_jacobian(self, lin, state, m, target, present, w, a_prev, step, cache):
         """(stop here, the last Gauss-Newton system: ``_gn_step``'s dict) after the step ``step`` whose new
@@ -354,7 +373,8 @@ class FrameEstimator:
             A[: self.M, : self.M] += 2.0 * opt.activation_prior * np.eye(self.M)
             g[: self.M] += 2.0 * opt.activation_prior * c[: self.M]
         pen, gp, Hp = self._penalty(c)
-        dc, rho = self._penalty_step(A, g, Hp, gp, c, max(phi, 1e-12))
+        frozen = lin.held if lin.full else None  # no columns at the other nodes: the prediction cannot move them
+        dc, rho = self._penalty_step(A, g, Hp, gp, c, max(phi, 1e-12), frozen=frozen)
         total0 = phi + rho * pen + self._reg(c, a_prev)
         predicted = total0 - (float(np.sum(wr * (r + Jp @ dc) ** 2)) + rho * pen + self._reg(c + dc, a_prev))
         return {
@@ -417,62 +437,37 @@ class FrameEstimator:
                 return cache, near  # the model predicted well: the Gauss-Newton point is taken
         return self._golden_section(trial, cache), near
 
-    def _bounded_step(self, H: np.ndarray, g: np.ndarray, c: np.ndarray, start=None) -> tuple[np.ndarray, tuple]:
-        """(argmin 1/2 dc^T H dc + g^T dc with 0 <= a + da <= 1 and the jaw-joint equalities kept, the
-        reduced problem's (solution, working set): a neighbouring problem's ``start``).
-
-        The activation penalty is flat at its bound (no curvature at a = 0), so a linearised
-        penalty model cannot stop a step from crossing it: the box is enforced exactly instead.
-        The joint equalities psi1..psi3 are linear in the jaw parameters: the step lives in their
-        null space (dc = T z, T = blockdiag(I, N_jaw)), which leaves the activation box a box, and
-        the reduced problem is a bounded QP, by a primal active set (``wface.solvers.bvls``) from
-        z = 0 or warm-started at ``start`` (the same minimiser: Hz is definite)."""
-        T = self._step_basis
-        Hz = T.T @ (0.5 * (H + H.T)) @ T
-        gz = T.T @ g
-        p = len(gz)
-        Hz += 1e-10 * max(np.trace(Hz) / p, 1e-30) * np.eye(p)  # damping for unobservable directions
-        lo, hi = np.full(p, -np.inf), np.full(p, np.inf)
-        lower = self.rig.model.activation_lower_bounds
-        a = np.clip(c[: self.M], lower, 1.0)
-        lo[: self.M], hi[: self.M] = lower - a, 1.0 - a
-        x0, state0 = start if start is not None else (np.zeros(p), None)
-        res = bounded_qp(Hz, -gz, lo, hi, x0=x0, state0=state0)
-        return T @ res.x, (res.x, res.state)
-
     @property
     def _step_basis(self) -> np.ndarray:
+        """The step's basis in the null space of the jaw joint's equalities (``wface.tracking.steps``)."""
         if not hasattr(self, "_T"):
-            A, _, lo, hi = _joint_rows(self.rig.model.jaw_joint)
-            N = null_space(A[lo == hi])  # (12, 9)
-            p = self.M + 24
-            T = np.zeros((p, self.M + 12 + N.shape[1]))
-            T[: self.M + 12, : self.M + 12] = np.eye(self.M + 12)
-            T[self.M + 12 :, self.M + 12 :] = N
-            self._T = T
+            self._T = step_basis(self.rig.model.jaw_joint, self.M)
         return self._T
 
-    def _penalty_step(self, A, g, Hp, gp, c, scale) -> tuple[np.ndarray, float]:
+    def _penalty_step(self, A, g, Hp, gp, c, scale, frozen=None) -> tuple[np.ndarray, float]:
         """(dc, rho): the step for the smallest rho on the grid rho0 phi growth^k (k = 0..K) whose bone
-        step is rigid to first order, found by bisection over k (rigidity improves with rho)."""
+        step is rigid to first order, found by bisection over k (rigidity improves with rho), each a
+        bounded least-squares step (``wface.tracking.steps``). ``frozen``: (M,) bool, activations the
+        step leaves unchanged (their Jacobian columns unknown)."""
         opt = self.options
         K = int(np.ceil(np.log(opt.rho_max / opt.rho0) / np.log(opt.rho_growth)))
         steps: dict[int, np.ndarray] = {}
         start = None  # the last solve's active set: the next rho's warm start
+        lower = self.rig.model.activation_lower_bounds
 
         def step_at(k: int) -> np.ndarray:
             nonlocal start
             if k not in steps:
                 r_k = opt.rho0 * scale * opt.rho_growth**k
-                steps[k], start = self._bounded_step(A + r_k * Hp, g + r_k * gp, c, start)
+                steps[k], start = bounded_step(self._step_basis, A + r_k * Hp, g + r_k * gp, c, lower, start, frozen)
             return steps[k]
 
         lo_k, hi_k = 0, K
-        if self._step_violation(c, step_at(0)) <= opt.rigid_step_tol:
+        if step_violation(c, step_at(0), self.M) <= opt.rigid_step_tol:
             hi_k = 0
         while hi_k - lo_k > 1:
             mid = (lo_k + hi_k) // 2
-            if self._step_violation(c, step_at(mid)) <= opt.rigid_step_tol:
+            if step_violation(c, step_at(mid), self.M) <= opt.rigid_step_tol:
                 hi_k = mid
             else:
                 lo_k = mid
@@ -544,16 +539,6 @@ class FrameEstimator:
         if self.options.temporal_weight > 0 and a_prev is not None:
             out += self.options.temporal_weight * float(np.sum((a - a_prev) ** 2))
         return out
-
-    def _step_violation(self, c: np.ndarray, dc: np.ndarray) -> float:
-        """First-order rigidity violation of a step, |M^T dM + dM^T M|_F / |dM|_F, worst bone."""
-        worst = 0.0
-        for s0 in (self.M, self.M + 12):
-            Mb, dM = c[s0 : s0 + 9].reshape(3, 3), dc[s0 : s0 + 9].reshape(3, 3)
-            norm = np.linalg.norm(dM)
-            if norm > 1e-12:
-                worst = max(worst, np.linalg.norm(Mb.T @ dM + dM.T @ Mb) / norm)
-        return worst
 
     def retract(self, c: np.ndarray) -> np.ndarray:
         """Project controls onto valid ones: activations into [0, 1] ([-1, 1] for a pressure actuator),

@@ -54,6 +54,8 @@ class GaussianPrior:
 
     mean: np.ndarray  # (M,) activations
     weight: np.ndarray  # (M, M) symmetric positive semi-definite, m^2 per unit^2
+    held: np.ndarray | None = None  # (M,) bool: muscles held at rest (a usage fit's variance at its floor),
+    # whose Jacobian columns the tracker need not solve (``FaceRig.linearize``)
 
 
 def activation_information(joint, controls: np.ndarray, data_hessian: np.ndarray, n_muscles: int) -> np.ndarray:

@@ -67,7 +67,7 @@ def usage_priors(records, *, length_frames: float | None = None):
     priors: list[GaussianPrior | None] = [None] * len(records)
     for k, j in enumerate(rows):
         w = sigma2 * precisions[k]
-        priors[j] = GaussianPrior(means[k], 0.5 * (w + w.T))
+        priors[j] = GaussianPrior(means[k], 0.5 * (w + w.T), held=fit.held if fit.held.any() else None)
     return priors, fit, summary(fit, len(rows))
 
 

@@ -94,12 +94,18 @@ class RigLinearization(_OwnsChord):
     seconds: dict = field(default_factory=dict)
     age: int = 0  # frames since ``jy`` was solved (``wface.tracking.adaptive``: a kept Jacobian)
     jacobian_at: tuple | None = None  # (cranium-frame y where jy was solved, (controls, y) of its factor)
+    held: np.ndarray | None = None  # (M,) bool: muscles whose columns were not solved (zero; ``linearize``)
+    fill: tuple | None = None  # (nodes, rows (k, 3, M + 12)): older rows standing in for the held columns there
 
     full = True  # dY/dc of every node (``RowsLinearization``: of a few)
 
     def node_rows(self, nodes: np.ndarray) -> np.ndarray:
-        """(k, 3, M + 12) dY/d(a, b_jaw) of the nodes ``nodes``."""
-        return self.jy.reshape(-1, 3, self.jy.shape[1])[nodes]
+        """(k, 3, M + 12) dY/d(a, b_jaw) of the nodes ``nodes`` (held columns from ``fill`` at its nodes)."""
+        rows = self.jy.reshape(-1, 3, self.jy.shape[1])[nodes]
+        if self.held is not None and self.fill is not None and np.array_equal(nodes, self.fill[0]):
+            cols = np.flatnonzero(self.held)
+            rows[:, :, cols] = np.asarray(self.fill[1])[:, :, cols]
+        return rows
 
     def predict(self, dc_y: np.ndarray) -> np.ndarray:
         """(n, 3) dY = dY/d(a, b_jaw) dc_y: the linear change of the equilibrium (cranium frame)."""
@@ -399,7 +405,12 @@ class FaceRig:
             self.counters[key] += getattr(self._linear, key) - counts0[key]
 
     def linearize(
-        self, state: RigState, *, keep_factor: bool = True, stiffness: _Chord | None = None
+        self,
+        state: RigState,
+        *,
+        keep_factor: bool = True,
+        stiffness: _Chord | None = None,
+        held: np.ndarray | None = None,
     ) -> RigLinearization:
         """dY/d(a, b_jaw) at the equilibrium ``state`` and, with ``keep_factor``, the factor of K_UU
         there for chord steps of nearby equilibria (module docstring).
@@ -408,6 +419,9 @@ class FaceRig:
         started from) whose factor and K_UC serve instead of the exact ones at ``state``: no new
         factorisation, at the price of a Jacobian error of the order of the prediction's (measured
         1 % at 100K tets; docs/design.md, "Performance"). It is owned by the result from here.
+        ``held``: (M,) bool, muscles whose columns are not solved and stay zero: those a prior holds at
+        rest (``GaussianPrior.held``), whose activation the markers cannot move (docs/design.md,
+        "Performance").
         """
         if self.contact is not None:
             return RigLinearization(state, self._jacobian_y_contact(state))
@@ -416,10 +430,12 @@ class FaceRig:
         t0 = time.perf_counter()
         chord = stiffness if stiffness is not None else self.stiffness_at(state.controls, y)
         t1 = time.perf_counter()
-        rhs = np.empty((len(U), M + 12))
-        if M:
-            rhs[:, :M] = self.sim.muscle_forces(y).reshape(M, -1)[:, U].T
-        rhs[:, M:] = -(chord.k_uc @ self._dxc_djaw)
+        solved = np.arange(M) if held is None else np.flatnonzero(~np.asarray(held, dtype=bool))
+        columns = np.concatenate([solved, np.arange(M, M + 12)])  # of J solved here; the others stay zero
+        rhs = np.empty((len(U), columns.size))
+        if solved.size:
+            rhs[:, : solved.size] = self.sim.muscle_forces(y).reshape(M, -1)[solved][:, U].T
+        rhs[:, solved.size :] = -(chord.k_uc @ self._dxc_djaw)
         t2 = time.perf_counter()
         counts0 = self._linear.counters()
         sol = chord.bound.solve(rhs, rtol=1e-10)
@@ -427,6 +443,9 @@ class FaceRig:
         t3 = time.perf_counter()
         self.counters["linear_solves"] += rhs.shape[1]
         J = np.zeros((3 * self._n, M + 12))
+        if solved.size < M:  # the held columns stay zero
+            sol, packed = np.zeros((len(U), M + 12)), sol
+            sol[:, columns] = packed
         J[U] = sol
         J[self._fixed_dofs, M:] = self._dxc_djaw
         at = getattr(chord, "at", None)
@@ -434,7 +453,8 @@ class FaceRig:
             chord.free()
             chord = None
         seconds = {"stiffness_s": t1 - t0, "rhs_s": t2 - t1, "back_solve_s": t3 - t2}
-        return RigLinearization(state, J, chord, seconds, jacobian_at=None if at is None else (y, at))
+        held = None if solved.size == M else np.asarray(held, dtype=bool).copy()
+        return RigLinearization(state, J, chord, seconds, jacobian_at=None if at is None else (y, at), held=held)
 
     def linearize_rows(
         self, state: RigState, nodes: np.ndarray, rows: np.ndarray, chord=None

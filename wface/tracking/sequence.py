@@ -354,6 +354,7 @@ def _refine_chunk(
                 prior=priors[j],
                 equilibrium=start,
                 marker_jy=first.state.get("marker_jy"),
+                stale_rows=first.state.get("marker_jy_old"),
             )
             lin = res.linearization
             if keep_information:
@@ -362,6 +363,10 @@ def _refine_chunk(
                     state["information"], state["information_vector"] = measured
                 if lin is not None and getattr(lin, "full", False) and lin.state is res.state:
                     state["marker_jy"] = lin.node_rows(est.markers.nodes)  # the next pass's first step
+                else:  # the rows this pass had, for the held muscles' columns of the next pass's Jacobian
+                    old = first.state.get("marker_jy", first.state.get("marker_jy_old"))
+                    if old is not None:
+                        state["marker_jy_old"] = old
             if lin is not None:  # each pass starts each frame from the previous pass's solution
                 if is_adaptive(est):
                     est.keep_spare(lin.take_chord())  # its factor serves the next frame

@@ -66,6 +66,11 @@ class UsageFit:
     def rho(self) -> float:
         return ar1_coefficient(self.length_frames)
 
+    @property
+    def held(self) -> np.ndarray:
+        """(M,) bool: muscles the fit holds at rest, their variance at its floor (``_FLOOR``, up to 10x)."""
+        return np.asarray(self.gamma) <= 10.0 * _FLOOR
+
 
 def ar1_coefficient(length_frames: float) -> float:
     """rho = exp(-1 / length) of the AR(1) correlation over frames (0 for length 0: frames independent)."""
