@@ -420,7 +420,7 @@ class FaceRig:
         factorisation, at the price of a Jacobian error of the order of the prediction's (measured
         1 % at 100K tets; docs/design.md, "Performance"). It is owned by the result from here.
         ``held``: (M,) bool, muscles whose columns are not solved and stay zero: those a prior holds at
-        rest (``GaussianPrior.held``), whose activation the markers cannot move (docs/design.md,
+        rest (``GaussianPrior.held``), which the steps leave where they are (docs/design.md,
         "Performance").
         """
         if self.contact is not None:
