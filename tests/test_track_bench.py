@@ -28,3 +28,17 @@ def test_track_bench_reports_the_breakdown_the_counts_and_the_limit():
     acc = r["accuracy"]
     assert all(np.isfinite(acc[k]) for k in ("activation_rms_error_all", "truth_marker_rms_mm", "jaw_angle_error_deg"))
     assert acc["truth_marker_rms_mm"] < acc["input_noise_rms_mm"]  # the fit filters the 0.5 mm noise
+
+
+@pytest.mark.skipif(direct_backend() is None, reason="the limit is a factorisation: needs a direct backend")
+def test_track_bench_reports_each_pass_of_the_usage_prior():
+    """With the usage prior each warm frame is tracked once per pass: the bench reports each pass's median
+    alone, the first equal to ``pass1_seconds_per_frame``; over two warm frames the medians are means, so
+    the passes add up to the frame."""
+    from wface.tracking.estimator import TrackOptions
+
+    r = bench_size(1000, frames=3, repeat=1, options=TrackOptions(prior_passes=2))
+    passes = r["pass_seconds_per_frame"]
+    assert len(passes) == 3 and all(p > 0 for p in passes)
+    assert passes[0] == pytest.approx(r["pass1_seconds_per_frame"])
+    assert sum(passes) == pytest.approx(r["seconds_per_frame"], rel=1e-9)

@@ -7,7 +7,8 @@ motion between frames is that of a 30 Hz capture. The first frame starts cold; t
 per frame are medians over the later, warm-started frames. ``--prior`` is the tracker's
 (``TrackOptions.prior``): "auto" (default, as ``wface track``) tracks a first pass and then
 ``--prior-passes`` passes under the take-wide usage prior, and a frame's numbers are all its passes'
-sums (``pass1_seconds_per_frame`` the first alone); "temporal" is the one pass.
+sums (``pass1_seconds_per_frame`` the first alone, ``pass_seconds_per_frame`` each pass's median in
+order); "temporal" is the one pass.
 
 Reported per size: seconds per frame and its breakdown; Gauss-Newton steps, quasistatic solves,
 Newton iterations (chord steps among them), numeric factorisations and back-solves per frame;
@@ -159,6 +160,9 @@ def bench_size(n_tets: int, *, device: str = "cpu", frames: int = 6, repeat: int
         out["breakdown_seconds_per_frame"]["usage_fits"] = sum(out["usage_fit_seconds"]) / len(recs)
     if any("pass1_seconds" in r.stats for r in later):
         out["pass1_seconds_per_frame"] = med("pass1_seconds")  # the first pass alone (the temporal prior)
+    each = [r.stats["pass_seconds"] for r in later if "pass_seconds" in r.stats]
+    if each and len({len(e) for e in each}) == 1:  # each pass alone, first to last
+        out["pass_seconds_per_frame"] = [float(v) for v in np.median(np.array(each), axis=0)]
     if rig.sim.linear_solver == "direct":
         last = RigState(recs[-1].controls, recs[-1].y_m, recs[-1].x_m)
         out["limit"] = limit_seconds(rig, last, repeat=repeat)

@@ -375,6 +375,7 @@ def _refine_chunk(
                 stats[k] = first.stats.get(k, 0) + res.counts.get(k, 0)
             for k in ("gauss_newton_steps", "quasistatic_solves", "linear_solves", "seconds"):
                 stats[k] = first.stats[k] + getattr(res, k)
+            stats["pass_seconds"] = [*first.stats.get("pass_seconds", [first.stats["seconds"]]), float(res.seconds)]
             stats.update(
                 {k: first.stats.get(k, 0.0) + float(v) for k, v in res.timings.items()},
                 newton_iterations=res.state.newton_iterations,
