@@ -158,11 +158,11 @@ def bench_size(n_tets: int, *, device: str = "cpu", frames: int = 6, repeat: int
     if fits:
         out["usage_fit_seconds"] = [float(f.get("seconds", 0.0)) for f in fits]
         out["breakdown_seconds_per_frame"]["usage_fits"] = sum(out["usage_fit_seconds"]) / len(recs)
-    if any("pass1_seconds" in r.stats for r in later):
-        out["pass1_seconds_per_frame"] = med("pass1_seconds")  # the first pass alone (the temporal prior)
-    each = [r.stats["pass_seconds"] for r in later if "pass_seconds" in r.stats]
-    if each and len({len(e) for e in each}) == 1:  # each pass alone, first to last
-        out["pass_seconds_per_frame"] = [float(v) for v in np.median(np.array(each), axis=0)]
+    each = [r.stats.get("pass_seconds") for r in later]
+    if any(each):
+        out["pass1_seconds_per_frame"] = float(np.median([e[0] if e else 0.0 for e in each]))  # the temporal prior's
+        if all(each) and len({len(e) for e in each}) == 1:  # each pass alone, first to last
+            out["pass_seconds_per_frame"] = [float(v) for v in np.median(np.array(each), axis=0)]
     if rig.sim.linear_solver == "direct":
         last = RigState(recs[-1].controls, recs[-1].y_m, recs[-1].x_m)
         out["limit"] = limit_seconds(rig, last, repeat=repeat)

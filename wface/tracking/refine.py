@@ -65,9 +65,10 @@ def usage_priors(records, *, length_frames: float | None = None):
     sigma2 = fit.noise_var_m2
     means, precisions = frame_priors(Z, info, fit)
     priors: list[GaussianPrior | None] = [None] * len(records)
+    held = fit.held if fit.held.any() else None  # the muscles the fit holds at rest, shared by every frame
     for k, j in enumerate(rows):
         w = sigma2 * precisions[k]
-        priors[j] = GaussianPrior(means[k], 0.5 * (w + w.T), held=fit.held if fit.held.any() else None)
+        priors[j] = GaussianPrior(means[k], 0.5 * (w + w.T), held=held)
     return priors, fit, summary(fit, len(rows))
 
 

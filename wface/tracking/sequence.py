@@ -333,7 +333,7 @@ def _refine_chunk(
         if pending is not None:
             restore_spare(est, pending)
             pending = None
-        stats = dict(first.stats, pass1_seconds=first.stats.get("pass1_seconds", first.stats["seconds"]))
+        stats = dict(first.stats, pass_seconds=list(first.stats.get("pass_seconds", [first.stats["seconds"]])))
         state = {}
         if first.stats.get("carried"):
             rec = FrameRecord(f, first.controls, first.x_m, first.y_m, first.markers_m, first.marker_error_m, stats)
@@ -375,7 +375,7 @@ def _refine_chunk(
                 stats[k] = first.stats.get(k, 0) + res.counts.get(k, 0)
             for k in ("gauss_newton_steps", "quasistatic_solves", "linear_solves", "seconds"):
                 stats[k] = first.stats[k] + getattr(res, k)
-            stats["pass_seconds"] = [*first.stats.get("pass_seconds", [first.stats["seconds"]]), float(res.seconds)]
+            stats["pass_seconds"].append(float(res.seconds))  # each pass's own, first to last
             stats.update(
                 {k: first.stats.get(k, 0.0) + float(v) for k, v in res.timings.items()},
                 newton_iterations=res.state.newton_iterations,
