@@ -65,3 +65,32 @@ def test_contact_changes_the_jacobian_and_none_changes_nothing(pressed):
     assert np.array_equal(J0, J1)
     col = face.muscle_index("orbicularis_oris_lower")
     assert np.abs(J0[:, :, col] - J[:, :, col]).max() > 0.1 * np.abs(J[:, :, col]).max()  # measured 27 %
+
+
+def test_the_contact_jacobian_keeps_its_factor_for_chord_steps(pressed):
+    """With contact, ``linearize`` keeps the factor of K_UU plus the contact Hessian (the Jacobian the
+    same as without keeping it) and a nearby solve takes chord steps with it, no new factorisation, to
+    the equilibrium a fresh Newton solve finds; a RowsLinearization predicts with it too."""
+    face, rig, c, state, _ = pressed
+    lin = rig.linearize(state)
+    plain = rig.linearize(state, keep_factor=False)
+    assert lin.chord is not None and plain.chord is None
+    np.testing.assert_array_equal(lin.jy, plain.jy)
+    c2 = c.copy()
+    c2[face.muscle_index("orbicularis_oris_lower")] += 0.02
+    dc_y = np.concatenate([c2[: face.n_muscles] - c[: face.n_muscles], np.zeros(12)])
+    guess = state.y_m + lin.predict(dc_y)
+    before = dict(rig.counters)
+    chorded = rig.equilibrium(c2, guess, chord=lin.chord, tol=1e-8)
+    assert chorded.converged and rig.counters["chord_steps"] > before["chord_steps"]
+    assert rig.counters["factorizations"] == before["factorizations"]
+    fresh = FaceRig(face, tol=1e-8, contact=rig.contact, max_iterations=100).equilibrium(c2, guess)
+    assert np.abs(chorded.y_m - fresh.y_m).max() < 1e-6
+    rows = rig.linearize_rows(state, np.arange(5), lin.jy.reshape(-1, 3, lin.jy.shape[1])[:5])
+    assert rows is not None
+    np.testing.assert_allclose(rows.predict(dc_y), lin.predict(dc_y), atol=1e-9)
+    jaw = np.zeros_like(dc_y)
+    jaw[face.n_muscles + 10] = 1e-4  # the jaw's vertical translation: the lower teeth push the lip
+    np.testing.assert_allclose(rows.predict(jaw), lin.predict(jaw), atol=1e-9 + 1e-6 * np.abs(lin.predict(jaw)).max())
+    rows.free()
+    lin.free()

@@ -27,6 +27,9 @@ equilibrium together with dY/dc and the coupling block K_UC (``RigLinearization`
 equilibria near it (the line-search trials of the next Gauss-Newton step, the next frame) take
 chord Newton steps with that factor (``equilibrium(..., chord=...)``) instead of factoring anew, so
 a tracked frame costs one factorisation at its new equilibrium plus one back-solve per column.
+With contact the kept factor is of K_UU plus the contact Hessian at the equilibrium, and the solves'
+chord steps use it the same way (where the contact set has changed, a chord step contracts poorly
+and the solve refactors at its iterate, contact included).
 """
 
 from __future__ import annotations
@@ -85,7 +88,8 @@ class RigLinearization(_OwnsChord):
     """The rig linearised at an equilibrium: dY/d(a, b_jaw) and the factor of K_UU there.
 
     ``chord`` (``solve(rhs)`` and ``coupling(dx_c)``, see ``wface.physics.newton``) is None when no
-    factorisation exists (the CG engine) or with contact. ``free()`` releases the factor.
+    factorisation exists (the CG engine); with contact it is the factor of K_UU plus the contact
+    Hessian. ``free()`` releases the factor.
     """
 
     state: RigState
@@ -148,6 +152,12 @@ class RowsLinearization(_OwnsChord):
         rhs = -(chord.k_uc @ dxc)
         if M:
             rhs += rig.sim.muscle_force_sum(dc_y[:M], self.state.y_m).reshape(-1)[rig._free_dofs]
+        if rig.contact is not None:  # the obstacles that follow the jaw push the flesh with it
+            y = self.state.y_m
+            rig.contact.set_pose(attached_positions(rig.model, rig.split(self.state.controls)[1], frame="cranium"))
+            pairs = rig.contact.evaluate(y)
+            if len(pairs.node):
+                rhs += rig._contact_jaw_rhs(pairs, y)[rig._free_dofs] @ dc_y[M:]
         counts0 = rig._linear.counters()
         sol = chord.bound.solve(rhs[:, None], rtol=1e-10)[:, 0]
         rig._count(counts0)
@@ -289,7 +299,7 @@ class FaceRig:
         if self.factor_precision != "float64":
             kwargs["factor_precision"] = self.factor_precision
         targets = attached_positions(self.model, b, frame="cranium")
-        if chord is not None and refactor and self.contact is None:
+        if chord is not None and refactor:
             kwargs["refactor"] = lambda x: self.stiffness_at(c, x, warn=False)
         if load_scale and self.contact is None:
             kwargs["force_scale"] = self.load_force_scale(a_phys, targets)
@@ -374,9 +384,10 @@ class FaceRig:
         """The factorised K_UU (exact; projected, with a warning, where the exact one is not positive
         definite) and K_UC at controls c and cranium-frame positions y, e.g. the linear prediction of
         an equilibrium: the chord of its solve and the factor of its Jacobian (``projected`` says which
-        tangent was factored; ``warn``: say so when it is the projected one). None with contact."""
+        tangent was factored; ``warn``: say so when it is the projected one). With contact, K_UU and
+        K_UC include the contact Hessian of the pairs at y (``_contact_stiffness``)."""
         if self.contact is not None:
-            return None
+            return self._contact_stiffness(c, y, warn=warn)[0]
         a = self.model.clip_activations(self.split(c)[0])
         sim, pattern = self.sim, self.sim.pattern("free")
         t0 = time.perf_counter()
@@ -424,7 +435,7 @@ class FaceRig:
         "Performance").
         """
         if self.contact is not None:
-            return RigLinearization(state, self._jacobian_y_contact(state))
+            return self._linearize_contact(state, keep_factor=keep_factor, stiffness=stiffness)
         y = state.y_m
         M, U = self.n_muscles, self._free_dofs
         t0 = time.perf_counter()
@@ -460,43 +471,78 @@ class FaceRig:
         self, state: RigState, nodes: np.ndarray, rows: np.ndarray, chord=None
     ) -> RowsLinearization | None:
         """The rig at the equilibrium ``state`` from Jacobian rows ``rows`` (k, 3, M + 12) of the nodes
-        ``nodes`` known there (``RowsLinearization``); None where it cannot serve (contact, no factor).
+        ``nodes`` known there (``RowsLinearization``); None where it cannot serve (no factor).
         ``chord``: a nearby factor to use instead of factoring at ``state`` (owned by the result)."""
-        if self.contact is not None or self.sim.linear_solver != "direct":
+        if self.sim.linear_solver != "direct":
             return None
         return RowsLinearization(self, state, nodes, rows, chord=chord)
 
-    def _jacobian_y_contact(self, state: RigState) -> np.ndarray:
-        """``jacobian_y`` with contact: the exact contact Hessian joins K (module docstring)."""
-        a, b = self.split(state.controls)
-        a = self.model.clip_activations(a)
-        y = state.y_m
-        U, C = self._free_dofs, self._fixed_dofs
-        M = self.n_muscles
+    def _contact_stiffness(self, c: np.ndarray, y: np.ndarray, *, warn: bool = True) -> tuple[_Chord, object]:
+        """(``stiffness_at`` with contact, the contact pairs at y): the exact elastic tangent plus the
+        exact contact Hessian of the pairs at y (module docstring), factored; the projected tangent
+        plus the contact Gauss-Newton Hessian where that is not positive definite."""
+        (a, b), (U, C) = self.split(c), (self._free_dofs, self._fixed_dofs)
+        a, t0 = self.model.clip_activations(a), time.perf_counter()
+        self.contact.set_pose(attached_positions(self.model, b, frame="cranium"))
+        pairs = self.contact.evaluate(y)
         K = self.sim.assemble_stiffness(y, a, project=False).tocsr()
-        pairs = None
-        if self.contact is not None:
-            self.contact.set_pose(attached_positions(self.model, b, frame="cranium"))
-            pairs = self.contact.evaluate(y)
+        if len(pairs.node):
+            K = (K + exact_self_hessian(self.contact, pairs, y, self.sim.pattern("all"))).tocsr()
+        t1 = time.perf_counter()
+        pattern = self.sim.pattern("free")
+        counts0 = self._linear.counters()
+        projected = False
+        try:
+            bound = self._linear.bind(MatrixOperator(K), pattern)
+        except NotPositiveDefiniteError:
+            if warn:
+                warnings.warn(
+                    "exact tangent not positive definite at this equilibrium; Jacobians use the projected tangent",
+                    stacklevel=3,
+                )
+            K = self.sim.assemble_stiffness(y, a, project=True).tocsr()
             if len(pairs.node):
-                K = (K + exact_self_hessian(self.contact, pairs, y, self.sim.pattern("all"))).tocsr()
-        K_uc = K[U][:, C]
+                K = (K + pairs.assemble(self.sim.pattern("all"))).tocsr()
+            bound, projected = self._linear.bind(MatrixOperator(K), pattern), True
+        self._count(counts0)
+        chord = _Chord(bound, K[U][:, C], {"tangent_s": t1 - t0, "factor_s": time.perf_counter() - t1})
+        chord.projected = projected
+        chord.at = (np.array(c, dtype=np.float64), np.array(y, dtype=np.float64))
+        return chord, pairs
+
+    def _linearize_contact(self, state: RigState, *, keep_factor: bool, stiffness: _Chord | None) -> RigLinearization:
+        """``linearize`` with contact: every column solved with the factor of K_UU plus the contact
+        Hessian at ``state`` (``_contact_stiffness``), or with ``stiffness``'s (a nearby one), the
+        jaw columns with the contact forces of the obstacles that follow the jaw (module docstring)."""
+        y = state.y_m
+        M, U = self.n_muscles, self._free_dofs
+        t0 = time.perf_counter()
+        if stiffness is None:
+            chord, pairs = self._contact_stiffness(state.controls, y)
+        else:
+            chord = stiffness
+            self.contact.set_pose(attached_positions(self.model, self.split(state.controls)[1], frame="cranium"))
+            pairs = self.contact.evaluate(y)
+        t1 = time.perf_counter()
         rhs = np.empty((len(U), M + 12))
         if M:
-            f = self.sim.muscle_forces(y).reshape(M, -1)  # (M, 3n)
-            rhs[:, :M] = f[:, U].T
-        rhs[:, M:] = -(K_uc @ self._dxc_djaw)
-        if pairs is not None and len(pairs.node):
+            rhs[:, :M] = self.sim.muscle_forces(y).reshape(M, -1)[:, U].T
+        rhs[:, M:] = -(chord.k_uc @ self._dxc_djaw)
+        if len(pairs.node):
             rhs[:, M:] += self._contact_jaw_rhs(pairs, y)[U]
+        t2 = time.perf_counter()
         counts0 = self._linear.counters()
-        sol = self._solve_many(K, y, a, rhs, pairs)
-        for key in ("factorizations", "back_solves", "cg_iterations"):
-            self.counters[key] += getattr(self._linear, key) - counts0[key]
+        sol = chord.bound.solve(rhs, rtol=1e-10)
+        self._count(counts0)
         self.counters["linear_solves"] += rhs.shape[1]
         J = np.zeros((3 * self._n, M + 12))
         J[U] = sol
-        J[C, M:] = self._dxc_djaw
-        return J
+        J[self._fixed_dofs, M:] = self._dxc_djaw
+        seconds = {"stiffness_s": t1 - t0, "rhs_s": t2 - t1, "back_solve_s": time.perf_counter() - t2}
+        lin = RigLinearization(state, J, chord, seconds, jacobian_at=(y, chord.at))
+        if not (keep_factor and chord.bound.factor is not None):
+            lin.free()
+        return lin
 
     def _contact_jaw_rhs(self, pairs, y: np.ndarray) -> np.ndarray:
         """(3n, 12) d f_c / d b_jaw of the pairs on obstacles that follow the jaw (module docstring)."""
@@ -529,22 +575,6 @@ class FaceRig:
                 df[:, :, 3 * r + col] += (face * pairs.force_magnitude[sel])[:, None] * dn
         np.add.at(out, node, df)
         return out.reshape(-1, 12)
-
-    def _solve_many(self, K, y, a, rhs, pairs=None):
-        """K_UU X = rhs with the exact tangent K (all nodes, CSR); the projected tangent (plus the
-        contact Gauss-Newton Hessian) when the exact one is not positive definite here."""
-        pattern = self.sim.pattern("free")
-        try:
-            return self._linear.solve(MatrixOperator(K), pattern, rhs, rtol=1e-10)
-        except NotPositiveDefiniteError:
-            warnings.warn(
-                "exact tangent not positive definite at this equilibrium; Jacobians use the projected tangent",
-                stacklevel=3,
-            )
-            Kp = self.sim.assemble_stiffness(y, a, project=True).tocsr()
-            if pairs is not None and len(pairs.node):
-                Kp = (Kp + pairs.assemble(self.sim.pattern("all"))).tocsr()
-            return self._linear.solve(MatrixOperator(Kp), pattern, rhs, rtol=1e-10)
 
     def jacobian(self, state: RigState, nodes: np.ndarray | None = None) -> np.ndarray:
         """World dX/dc for the given nodes (default all): (len(nodes), 3, M + 24)."""
