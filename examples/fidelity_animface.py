@@ -137,10 +137,20 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="faces without the intra-oral pressure actuator (the muscles alone; results keyed '<face>-nopressure')",
     )
+    p.add_argument(
+        "--free-to-mm",
+        type=float,
+        default=18.0,
+        help="the built-in face's bone side free up to this height above the mouth line (default 18, the "
+        "vestibule; results keyed '<face>-free<MM>' otherwise)",
+    )
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    template = build_face(args.tets, intraoral_pressure=not args.no_pressure)
+    template = build_face(args.tets, intraoral_pressure=not args.no_pressure, free_to_mm=args.free_to_mm)
+    variant = ("-nopressure" if args.no_pressure else "") + (
+        f"-free{args.free_to_mm:g}" if args.free_to_mm != 18.0 else ""
+    )
     results_path = out / "fidelity.json"
     results = json.loads(results_path.read_text()) if results_path.exists() else {}
     for name in [t.strip() for t in args.takes.split(",") if t.strip()]:
@@ -158,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
                 face = template
             else:
                 raise ValueError(f"unknown face {face_name!r} (builtin or fitted)")
-            key = f"{name}/{face_name}" + ("-nopressure" if args.no_pressure else "")
+            key = f"{name}/{face_name}" + variant
             print(f"{key}: {len(frames)} frames, {face.n_tets} tets")
             run_dir = out / key.replace("/", "_")  # one take directory per take, face and variant
             results[key] = run_one(face, take, frames, args.holdout, run_dir, args.workers)

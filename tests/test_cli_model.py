@@ -26,6 +26,22 @@ def test_build_and_info_json(tmp_path, capsys):
     assert info["min_dihedral_deg"] > 5 and len(info["muscles"]) >= 26 and len(info["markers"]) >= 40
 
 
+def test_build_with_a_freer_midface(tmp_path, capsys):
+    """--free-to-mm frees the bone side higher (fewer cranium nodes), is kept in the file, and a value
+    out of range is a one-line error naming it."""
+    from wface.model import load_model
+
+    base, free = tmp_path / "base.npz", tmp_path / "free.npz"
+    assert main(["model", "build", "--tets", "2000", "--out", str(base), "--quiet"]) == 0
+    assert main(["model", "build", "--tets", "2000", "--free-to-mm", "34", "--out", str(free), "--quiet"]) == 0
+    a, b = load_model(base), load_model(free)
+    assert b.metadata["free_to_mm"] == 34.0 and len(b.nodes_of_bone("cranium")) < len(a.nodes_of_bone("cranium"))
+    capsys.readouterr()
+    assert main(["model", "build", "--tets", "2000", "--free-to-mm", "60", "--out", str(tmp_path / "x.npz")]) == 1
+    err = capsys.readouterr().err
+    assert "free_to_mm" in err and "60" in err and "Traceback" not in err and not (tmp_path / "x.npz").exists()
+
+
 def test_info_on_missing_file_is_one_line_error(tmp_path, capsys):
     assert main(["model", "info", str(tmp_path / "nope.npz")]) == 1
     err = capsys.readouterr().err

@@ -17,7 +17,7 @@ import numpy as np
 
 from wface.faces.builtin.shape import THETA_MOUTH, Y_MOUTH
 
-__all__ = ["MUSCLES", "MARKERS", "MuscleSpec", "muscle_paths", "bone_region"]
+__all__ = ["MUSCLES", "MARKERS", "VESTIBULE_TOP_M", "MuscleSpec", "muscle_paths", "bone_region"]
 
 
 @dataclass(frozen=True)
@@ -143,15 +143,20 @@ def muscle_paths(spec: MuscleSpec, n_per_segment: int = 24) -> list[tuple[str, n
     return [(f"{spec.name}_l", path), (f"{spec.name}_r", mirrored)]
 
 
-def bone_region(theta: np.ndarray, y: np.ndarray) -> np.ndarray:
+VESTIBULE_TOP_M = 0.018  # the oral vestibule's upper fornix, above the mouth line (m)
+
+
+def bone_region(theta: np.ndarray, y: np.ndarray, free_to_m: float = VESTIBULE_TOP_M) -> np.ndarray:
     """Bone that the tissue at (theta, y) on the bone surface attaches to: 0 cranium, 1 jaw, -1 free.
 
-    Free: the oral vestibule behind lips and cheeks (tissue over teeth and gums, not bound to bone).
-    Jaw: the mandible below the vestibule and the ramus at the sides; cranium: the rest.
+    Free: the oral vestibule behind lips and cheeks (tissue over teeth and gums, not bound to bone),
+    up to ``free_to_m`` above the mouth line (default the vestibule's fornix; higher frees the deep
+    surface of the midface over the maxilla too). Jaw: the mandible below the vestibule and the ramus
+    at the sides; cranium: the rest.
     """
     at = np.abs(theta)
     jaw = (y < Y_MOUTH - 0.020) | ((at > 1.05) & (y < -0.035))
-    free = ~jaw & (at <= 1.05) & (y <= Y_MOUTH + 0.018) & (y >= Y_MOUTH - 0.020)
+    free = ~jaw & (at <= 1.05) & (y <= Y_MOUTH + free_to_m) & (y >= Y_MOUTH - 0.020)
     out = np.zeros(theta.shape, dtype=np.int8)
     out[jaw] = 1
     out[free] = -1

@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 from tqdm.auto import tqdm
 
 from wface import facs
-from wface.faces.builtin.anatomy import MARKERS, MUSCLES, bone_region, muscle_paths
+from wface.faces.builtin.anatomy import MARKERS, MUSCLES, VESTIBULE_TOP_M, bone_region, muscle_paths
 from wface.faces.builtin.bones import bone_meshes
 from wface.faces.builtin.grid import build_grid, graded_axis
 from wface.faces.builtin.shape import THETA_MAX, THETA_MOUTH, Y_BOTTOM, Y_MOUTH, Y_TOP, FaceShape
@@ -117,9 +117,11 @@ def _surface_groups(grid, tets: np.ndarray, n0: int, region: np.ndarray, intraor
     upper_lip = near_mouth & (y_f.min(axis=1) >= Y_MOUTH - 1e-12) & (y_f.max(axis=1) <= Y_MOUTH + LIP_BAND_M)
     lower_lip = near_mouth & (y_f.max(axis=1) <= Y_MOUTH + 1e-12) & (y_f.min(axis=1) >= Y_MOUTH - LIP_BAND_M)
     # The buccal wall that the intra-oral pressure pushes: bone-side faces of the free vestibule
-    # (touching a free node) lateral of the central lips, which orbicularis oris holds sealed in a
-    # puff (on these free-edged lips the pressure would part them by ~16 mm at full pressure).
-    buccal = np.isin(faces, np.flatnonzero(region < 0)).any(axis=1)
+    # (touching a free node up to its fornix, however far up the bone side is free) lateral of the
+    # central lips, which orbicularis oris holds sealed in a puff (on these free-edged lips the
+    # pressure would part them by ~16 mm at full pressure).
+    vestibule = (region < 0) & (grid.y <= Y_MOUTH + VESTIBULE_TOP_M + 1e-12)
+    buccal = np.isin(faces, np.flatnonzero(vestibule)).any(axis=1)
     buccal &= np.abs(grid.theta[faces]).mean(axis=1) >= _BUCCAL_THETA_RAD
     surfaces = {
         "skin": skin,
@@ -140,6 +142,7 @@ def build_face(
     progress: bool = False,
     material: Material | None = None,
     intraoral_pressure: bool = True,
+    free_to_mm: float = 1e3 * VESTIBULE_TOP_M,
 ) -> FaceModel:
     """Build the built-in face with about ``target_tets`` tetrahedra (1K .. 2M).
 
@@ -149,12 +152,18 @@ def build_face(
         material: flesh/muscle material (defaults to ``Material()``, docs/design.md, "Flesh").
         intraoral_pressure: give the face its intra-oral pressure actuator (the last channel,
             docs/design.md "Intra-oral pressure"); False builds the muscles alone.
+        free_to_mm: how far above the mouth line the bone side of lips and cheeks is free (not
+            attached to the maxilla): the oral vestibule's fornix, 18 mm, by default; up to 40 mm
+            frees the deep surface of the midface as well (docs/design.md, "Built-in face
+            attachments"; the intra-oral pressure stays on the vestibule's wall).
 
     Returns:
         A validated ``FaceModel`` in metres.
     """
     if not (MIN_TETS <= int(target_tets) <= MAX_TETS):
         raise ValueError(f"target_tets must be within [{MIN_TETS}, {MAX_TETS}], got {target_tets}")
+    if not (np.isfinite(free_to_mm) and 5.0 <= free_to_mm <= 40.0):
+        raise ValueError(f"free_to_mm must be within [5, 40] mm above the mouth line, got {free_to_mm}")
 
     bar = tqdm(total=6, desc=f"building face (~{target_tets} tets)", disable=not progress, unit="stage")
     shape = FaceShape()
@@ -177,7 +186,7 @@ def build_face(
     # Bone attachments: the bone-side layer by region; the top and side borders of the patch whole.
     region = np.full(len(x), -1, dtype=np.int8)
     inner = grid.w == 0.0
-    region[inner] = bone_region(grid.theta[inner], grid.y[inner])
+    region[inner] = bone_region(grid.theta[inner], grid.y[inner], free_to_m=1e-3 * float(free_to_mm))
     n0 = grid.index.size  # lower-lip duplicates (ids >= n0) sit in the free vestibule
     region[n0:][inner[n0:]] = -1
     border = (np.abs(grid.y - Y_TOP) < 1e-12) | (np.abs(np.abs(grid.theta) - THETA_MAX) < 1e-12)
@@ -229,6 +238,7 @@ def build_face(
             "name": "wface built-in face",
             "builder_version": BUILDER_VERSION,
             "target_tets": int(target_tets),
+            "free_to_mm": float(free_to_mm),
             "grid": {"theta_cells": len(theta_axis) - 1, "y_cells": len(y_axis) - 1, "layers": layers},
             "frame": "+x subject's left, +y up, +z forward; metres",
         },
