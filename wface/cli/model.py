@@ -67,8 +67,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         default=18.0,
         help="how far above the mouth line the bone side of lips and cheeks is free of the maxilla, 5-40 mm "
-        "(default 18: the oral vestibule; 34 frees the midface's deep surface, which fits real capture "
-        "better between markers: README, 'Your actor, your head')",
+        "(default 18: the oral vestibule; 34 frees the midface's deep surface too, measured on real capture "
+        "in README, 'Your actor, your head')",
     )
     b.add_argument("--vtu", help="also export the tet mesh (with muscle and bone data) to this .vtu/.msh file")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
