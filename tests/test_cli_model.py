@@ -37,6 +37,10 @@ def test_build_with_a_freer_midface(tmp_path, capsys):
     a, b = load_model(base), load_model(free)
     assert b.metadata["free_to_mm"] == 34.0 and len(b.nodes_of_bone("cranium")) < len(a.nodes_of_bone("cranium"))
     capsys.readouterr()
+    assert main(["model", "info", str(free)]) == 0
+    assert "bone side free to 34 mm above the mouth line" in capsys.readouterr().out
+    assert main(["model", "info", str(free), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["free_to_mm"] == 34.0
     assert main(["model", "build", "--tets", "2000", "--free-to-mm", "60", "--out", str(tmp_path / "x.npz")]) == 1
     err = capsys.readouterr().err
     assert "free_to_mm" in err and "60" in err and "Traceback" not in err and not (tmp_path / "x.npz").exists()

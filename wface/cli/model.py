@@ -148,7 +148,8 @@ def _info(args: argparse.Namespace) -> int:
         f"min volume ratio {s['min_volume_ratio']:.3f}, min volume {s['min_volume_m3']:.3g} m^3"
     )
     print(f"  bbox {[round(v, 4) for v in lo]} .. {[round(v, 4) for v in hi]} m")
-    print(f"  attached nodes: cranium {s['attached_nodes']['cranium']}, jaw {s['attached_nodes']['jaw']}")
+    free = "" if s["free_to_mm"] is None else f"; bone side free to {s['free_to_mm']:g} mm above the mouth line"
+    print(f"  attached nodes: cranium {s['attached_nodes']['cranium']}, jaw {s['attached_nodes']['jaw']}{free}")
     print(f"  {len(s['muscles'])} muscles: {', '.join(s['muscles'])}")
     for name, p in s["pressure_actuators"].items():
         print(
