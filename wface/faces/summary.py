@@ -27,7 +27,7 @@ def model_summary(model: FaceModel) -> dict:
             "cranium": int(len(model.nodes_of_bone("cranium"))),
             "jaw": int(len(model.nodes_of_bone("jaw"))),
         },
-        "free_to_mm": model.metadata.get("free_to_mm"),  # a built-in face's free bone side (None: not recorded)
+        "free_to_mm": model.metadata.get("free_to_mm"),  # a built-in face's free bone side (None: the default)
         "min_dihedral_deg": float(dihedral_angles_deg(x, model.tets).min()),
         "min_volume_ratio": float(volume_ratio_quality(x, model.tets).min()),
         "min_volume_m3": float(model.rest_volume_m3.min()),

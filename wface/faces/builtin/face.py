@@ -186,7 +186,7 @@ def build_face(
     # Bone attachments: the bone-side layer by region; the top and side borders of the patch whole.
     region = np.full(len(x), -1, dtype=np.int8)
     inner = grid.w == 0.0
-    region[inner] = bone_region(grid.theta[inner], grid.y[inner], free_to_m=1e-3 * float(free_to_mm))
+    region[inner] = bone_region(grid.theta[inner], grid.y[inner], free_to_m=float(free_to_mm) / 1e3)
     n0 = grid.index.size  # lower-lip duplicates (ids >= n0) sit in the free vestibule
     region[n0:][inner[n0:]] = -1
     border = (np.abs(grid.y - Y_TOP) < 1e-12) | (np.abs(np.abs(grid.theta) - THETA_MAX) < 1e-12)
@@ -238,11 +238,12 @@ def build_face(
             "name": "wface built-in face",
             "builder_version": BUILDER_VERSION,
             "target_tets": int(target_tets),
-            "free_to_mm": float(free_to_mm),
             "grid": {"theta_cells": len(theta_axis) - 1, "y_cells": len(y_axis) - 1, "layers": layers},
             "frame": "+x subject's left, +y up, +z forward; metres",
         },
     )
+    if free_to_mm != 1e3 * VESTIBULE_TOP_M:  # recorded when not the default: the default face's content
+        model.metadata["free_to_mm"] = float(free_to_mm)  # (and its fingerprint) stays as before the option
     model.validate()
     q = quality_report(x, tets)
     model.metadata["quality"] = q.as_dict()
