@@ -131,6 +131,7 @@ class RowsLinearization(_OwnsChord):
         self.rig, self.state = rig, state
         self.nodes, self.rows = np.asarray(nodes), np.asarray(rows, dtype=np.float64)
         self._chord: _Chord | None = chord  # a nearby factor handed on (adaptive refactorisation), else made here
+        self._jaw_contact: np.ndarray | None = None  # with contact: (3|U|, 12) jaw-following obstacles' forces
         self.seconds: dict = {}
 
     @property
@@ -153,11 +154,10 @@ class RowsLinearization(_OwnsChord):
         if M:
             rhs += rig.sim.muscle_force_sum(dc_y[:M], self.state.y_m).reshape(-1)[rig._free_dofs]
         if rig.contact is not None:  # the obstacles that follow the jaw push the flesh with it
-            y = self.state.y_m
-            rig.contact.set_pose(attached_positions(rig.model, rig.split(self.state.controls)[1], frame="cranium"))
-            pairs = rig.contact.evaluate(y)
-            if len(pairs.node):
-                rhs += rig._contact_jaw_rhs(pairs, y)[rig._free_dofs] @ dc_y[M:]
+            if self._jaw_contact is None:  # d f_c / d b_jaw at the equilibrium, once for all predictions
+                pairs = rig._contact_pairs(self.state.controls, self.state.y_m)
+                self._jaw_contact = rig._contact_jaw_rhs(pairs, self.state.y_m)[rig._free_dofs]
+            rhs += self._jaw_contact @ dc_y[M:]
         counts0 = rig._linear.counters()
         sol = chord.bound.solve(rhs[:, None], rtol=1e-10)[:, 0]
         rig._count(counts0)
@@ -477,14 +477,18 @@ class FaceRig:
             return None
         return RowsLinearization(self, state, nodes, rows, chord=chord)
 
+    def _contact_pairs(self, c: np.ndarray, y: np.ndarray):
+        """The contact pairs at cranium-frame positions y with the bones posed by controls c."""
+        self.contact.set_pose(attached_positions(self.model, self.split(c)[1], frame="cranium"))
+        return self.contact.evaluate(y)
+
     def _contact_stiffness(self, c: np.ndarray, y: np.ndarray, *, warn: bool = True) -> tuple[_Chord, object]:
         """(``stiffness_at`` with contact, the contact pairs at y): the exact elastic tangent plus the
         exact contact Hessian of the pairs at y (module docstring), factored; the projected tangent
         plus the contact Gauss-Newton Hessian where that is not positive definite."""
-        (a, b), (U, C) = self.split(c), (self._free_dofs, self._fixed_dofs)
-        a, t0 = self.model.clip_activations(a), time.perf_counter()
-        self.contact.set_pose(attached_positions(self.model, b, frame="cranium"))
-        pairs = self.contact.evaluate(y)
+        U, C, t0 = self._free_dofs, self._fixed_dofs, time.perf_counter()
+        a = self.model.clip_activations(self.split(c)[0])
+        pairs = self._contact_pairs(c, y)
         K = self.sim.assemble_stiffness(y, a, project=False).tocsr()
         if len(pairs.node):
             K = (K + exact_self_hessian(self.contact, pairs, y, self.sim.pattern("all"))).tocsr()
@@ -517,12 +521,8 @@ class FaceRig:
         y = state.y_m
         M, U = self.n_muscles, self._free_dofs
         t0 = time.perf_counter()
-        if stiffness is None:
-            chord, pairs = self._contact_stiffness(state.controls, y)
-        else:
-            chord = stiffness
-            self.contact.set_pose(attached_positions(self.model, self.split(state.controls)[1], frame="cranium"))
-            pairs = self.contact.evaluate(y)
+        c = state.controls
+        chord, pairs = self._contact_stiffness(c, y) if stiffness is None else (stiffness, self._contact_pairs(c, y))
         t1 = time.perf_counter()
         rhs = np.empty((len(U), M + 12))
         if M:
