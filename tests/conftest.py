@@ -6,6 +6,15 @@ import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# Property tests draw the same examples on every run (CI judges one run, and a failure must be
+# repeatable). A fresh random draw once sent scipy's TRF reference in test_basis_solver into a
+# backtracking loop that did not end, hanging CI for 20+ minutes. `--hypothesis-seed` or
+# HYPOTHESIS_PROFILE=explore still draws new examples when exploring by hand.
+settings.register_profile("ci", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DATA_DIR = Path(os.environ.get("WFACE_DATA", REPO_ROOT.parent / "shared" / "data"))
