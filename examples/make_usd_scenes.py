@@ -267,9 +267,21 @@ def make_scenes(out_dir: Path, names: list[str] | None = None, *, quiet: bool = 
 # lever arm = 1e-4 on bone transforms, and 1e-5 m / (1 mm per unit activation, the observability
 # threshold) = 1e-2 on activations and the activation colours. Measured between main's scene (mkl
 # 2025.3, parallel ordering) and this one (mkl 2026.2, reproducible mode): 2.3e-6 m, 4.3e-6, 3.6e-5.
+# The same libraries on another x86-64 CPU (AVX-512: other round-off in the Warp kernels and MKL)
+# moved the rig's blend-shape weights (activations, so 1e-2 as above) by 4.2e-4, the skin normals
+# (unit vectors at nodes moved by a few um on mm-long edges) by 1.7e-4, the rig's fit errors in the
+# layer metadata by 3e-4 relative, and which points the jaw corrective lists (its offsets at the
+# sparsity threshold): compared as dense offsets.
 TRACKED_TOLERANCES = {
     "atol": 1e-5,
-    "atol_by_attribute": {"wface:activation": 1e-2, "displayColor": 1e-2, "xformOp:transform": 1e-4},
+    "atol_by_attribute": {
+        "wface:activation": 1e-2,
+        "displayColor": 1e-2,
+        "blendShapeWeights": 1e-2,
+        "normals": 1e-3,
+        "xformOp:transform": 1e-4,
+    },
+    "metadata_rtol": 1e-3,
 }
 SCENE_TOLERANCES: dict[str, dict] = {"fem_tracked_take": TRACKED_TOLERANCES}
 

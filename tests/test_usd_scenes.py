@@ -83,3 +83,24 @@ def test_compare_stages_tolerates_round_off_in_layer_metadata(tmp_path):
     layer.customLayerData = {**dict(layer.customLayerData), "wface": {"kind": "other"}}
     layer.Save()
     assert any("customLayerData" in d for d in compare_stages(a, b))
+
+
+def test_sparse_blend_shapes_compare_as_dense_offsets(tmp_path):
+    """A point listed with a zero offset in one stage and left out in the other is no difference (the
+    writer's sparsity threshold decides the listing); a changed offset is."""
+    from pxr import Usd, UsdSkel, Vt
+
+    def write(path, indices, offsets):
+        stage = Usd.Stage.CreateNew(str(path))
+        shape = UsdSkel.BlendShape.Define(stage, "/Shape")
+        shape.CreatePointIndicesAttr(Vt.IntArray(indices))
+        shape.CreateOffsetsAttr(Vt.Vec3fArray.FromNumpy(np.asarray(offsets, dtype=np.float32)))
+        stage.Save()
+        return path
+
+    a = write(tmp_path / "a.usda", [0, 2], [[1e-3, 0, 0], [0, 2e-3, 0]])
+    b = write(tmp_path / "b.usda", [0, 1, 2], [[1e-3, 0, 0], [0, 0, 1e-9], [0, 2e-3, 0]])
+    c = write(tmp_path / "c.usda", [0, 2], [[1e-3, 0, 0], [0, 2.5e-3, 0]])
+    assert compare_stages(a, b, atol=1e-7) == []
+    diffs = compare_stages(a, c, atol=1e-7)
+    assert len(diffs) == 1 and "/Shape.offsets" in diffs[0] and "dense" in diffs[0], diffs

@@ -232,6 +232,24 @@ def _same_value(a, b, rtol: float, atol: float) -> bool:
     return a == b
 
 
+def _compare_sparse_offsets(aa: dict, ab: dict, rtol: float, atol: float) -> str:
+    """'' when two blend shapes' offsets agree as dense arrays (absent points: zero offset), else why."""
+    dense = []
+    for attrs in (aa, ab):
+        idx = np.asarray(attrs["pointIndices"].Get(), dtype=np.int64)
+        off = np.asarray(attrs["offsets"].Get(), dtype=np.float64).reshape(-1, 3)
+        if idx.size != len(off):
+            return f"{len(off)} offsets for {idx.size} point indices"
+        dense.append(dict(zip(idx.tolist(), off, strict=True)))
+    points = sorted(set(dense[0]) | set(dense[1]))
+    zero = np.zeros(3)
+    va = np.array([dense[0].get(i, zero) for i in points]).reshape(-1, 3)
+    vb = np.array([dense[1].get(i, zero) for i in points]).reshape(-1, 3)
+    if np.allclose(va, vb, rtol=rtol, atol=atol):
+        return ""
+    return f"max |difference| {np.max(np.abs(va - vb)):.3g} (as dense offsets over {len(points)} points)"
+
+
 def compare_stages(
     a,
     b,
@@ -239,6 +257,7 @@ def compare_stages(
     rtol: float = 1e-5,
     atol: float = 1e-7,
     atol_by_attribute: dict[str, float] | None = None,
+    metadata_rtol: float | None = None,
     max_report: int = 20,
 ) -> list[str]:
     """Differences in authored content between two stages (e.g. a committed scene and a fresh one).
@@ -248,7 +267,10 @@ def compare_stages(
     and values (numbers with ``rtol`` / ``atol``: float32 round-off across platforms), and
     relationship targets. ``atol_by_attribute`` gives other absolute tolerances to attributes whose
     name contains a key (e.g. ``{"wface:activation": 1e-3}`` for the curves of a tracked take,
-    which the tracker determines only to its stopping tolerance).
+    which the tracker determines only to its stopping tolerance). ``metadata_rtol``: the relative
+    tolerance of numbers in customLayerData (default ``rtol``). A sparse blend shape (``offsets`` with
+    ``pointIndices``) is compared as the dense offsets it stands for, so a point whose offset lies at
+    the writer's sparsity threshold may be listed in one stage and not the other.
 
     Returns:
         Up to ``max_report`` lines describing differences; empty when the stages match.
@@ -271,7 +293,8 @@ def compare_stages(
         ("defaultPrim", lambda s: str(s.GetDefaultPrim().GetPath()) if s.GetDefaultPrim() else None),
         ("customLayerData", lambda s: dict(s.GetRootLayer().customLayerData)),
     ):
-        if not _same_value(get(sa), get(sb), rtol, atol) and note(f"stage {label}: {get(sa)!r} != {get(sb)!r}"):
+        tol = metadata_rtol if label == "customLayerData" and metadata_rtol is not None else rtol
+        if not _same_value(get(sa), get(sb), tol, atol) and note(f"stage {label}: {get(sa)!r} != {get(sb)!r}"):
             return out
     prims_a = {str(p.GetPath()): p for p in sa.TraverseAll()}
     prims_b = {str(p.GetPath()): p for p in sb.TraverseAll()}
@@ -293,7 +316,15 @@ def compare_stages(
         for name in sorted(set(aa) ^ set(ab)):
             if note(f"{path}.{name} authored only in {'first' if name in aa else 'second'} stage"):
                 return out
+        dense = {"offsets", "pointIndices"} <= set(aa) & set(ab) and pa.GetTypeName() == "BlendShape"
+        if dense:
+            tol = next((v for k, v in (atol_by_attribute or {}).items() if k in "offsets"), atol)
+            why = _compare_sparse_offsets(aa, ab, rtol, tol)
+            if why and note(f"{path}.offsets: {why}"):
+                return out
         for name in sorted(set(aa) & set(ab)):
+            if dense and name in ("offsets", "pointIndices"):
+                continue
             xa, xb = aa[name], ab[name]
             ta, tb = xa.GetTimeSamples(), xb.GetTimeSamples()
             if ta != tb:
