@@ -17,6 +17,7 @@
 
 from __future__ import annotations
 
+import functools
 import importlib
 import platform
 import time
@@ -56,7 +57,13 @@ DIRECT_BACKENDS = ("pardiso", "cholmod", "cholespy")
 def available_direct_backends() -> list[str]:
     """The sparse direct backends importable here, in the order "auto" prefers them (docs/design.md,
     "Linear solvers": PARDISO measured fastest on the CPU; CHOLMOD through scikit-sparse, or the
-    CHOLMOD that the cholespy wheel bundles, where MKL is absent)."""
+    CHOLMOD that the cholespy wheel bundles, where MKL is absent). Found once per process: a failed
+    import searches the path again each time (5-6 ms, and every factor asks)."""
+    return list(_find_direct_backends())
+
+
+@functools.cache
+def _find_direct_backends() -> tuple[str, ...]:
     out = []
     if platform.machine().lower() in ("x86_64", "amd64") and mkl_runtime() is not None:
         out.append("pardiso")
@@ -66,7 +73,7 @@ def available_direct_backends() -> list[str]:
             out.append(name)
         except ImportError:
             pass
-    return out
+    return tuple(out)
 
 
 def direct_backend() -> str | None:
