@@ -443,9 +443,9 @@ class FaceRig:
         t1 = time.perf_counter()
         solved = np.arange(M) if held is None else np.flatnonzero(~np.asarray(held, dtype=bool))
         columns = np.concatenate([solved, np.arange(M, M + 12)])  # of J solved here; the others stay zero
-        rhs = np.empty((len(U), columns.size))
+        rhs = np.empty((len(U), columns.size), order="F")  # column-major: the solvers' layout
         if solved.size:
-            rhs[:, : solved.size] = self.sim.muscle_forces(y).reshape(M, -1)[solved][:, U].T
+            rhs[:, : solved.size] = self.sim.muscle_forces(y).reshape(M, -1)[np.ix_(solved, U)].T
         rhs[:, solved.size :] = -(chord.k_uc @ self._dxc_djaw)
         t2 = time.perf_counter()
         counts0 = self._linear.counters()
@@ -454,10 +454,7 @@ class FaceRig:
         t3 = time.perf_counter()
         self.counters["linear_solves"] += rhs.shape[1]
         J = np.zeros((3 * self._n, M + 12))
-        if solved.size < M:  # the held columns stay zero
-            sol, packed = np.zeros((len(U), M + 12)), sol
-            sol[:, columns] = packed
-        J[U] = sol
+        J[np.ix_(U, columns)] = sol  # the held columns stay zero
         J[self._fixed_dofs, M:] = self._dxc_djaw
         at = getattr(chord, "at", None)
         if not (keep_factor and chord.bound.factor is not None):
