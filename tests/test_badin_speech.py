@@ -164,6 +164,9 @@ def test_closure_closes_the_lips_cli(tmp_path, badin_model_path):
     assert np.allclose(t, [0.0, 0.5, 1.0])  # 101 frames at 100 fps, subsampled to 3
     # the aperture: 39.5 mm^2 at rest (ArtiSynth's camera), shut once the lips pass through each other
     assert area[0] == pytest.approx(39.5, abs=0.5) and area[1] == 0.0 and area[2] == 0.0
+    # ArtiSynth counts every green pixel of its window; here nothing but the mouth shows any of it
+    seen = table[:, header.index("window_seen_mm2")]
+    assert np.allclose(seen, area, rtol=0, atol=1e-9) and np.allclose(rep["window_seen_mm2"], seen, atol=1e-4)
     # measured: 17.19 -> 7.70 (t = 0.5) -> 5.72 mm; the lips close steadily as OOM, MENT and RIS rise
     assert lo[1] < lo[0] - 5.0 and lo[2] < lo[1] - 1.0 and lo[2] < lo[0] - 8.0
     assert (out / "lip_opening.png").stat().st_size > 1000 and (out / "animation.usdc").stat().st_size > 1000

@@ -23,7 +23,8 @@ def write_lip_opening(
     """lip_opening.csv and lip_opening.png of a played gesture.
 
     CSV columns: time_s, lip_opening_area_mm2 (the mouth aperture, ``wface.speech.aperture``),
-    lip_opening_area_error_mm2, lip_opening_width_mm, lip_opening_height_mm, lip_opening_mm and
+    lip_opening_area_error_mm2, lip_opening_width_mm, lip_opening_height_mm, window_seen_mm2 (all of
+    the window seen, mouth or not: ArtiSynth's green-pixel measure), lip_opening_mm and
     lip_vertical_mm (Mouth_Up - Mouth_Down distance and its vertical part), lip_gap_mm (smallest
     signed lip-lip distance), then the activation of each driven muscle. The picture: the area (with
     ``reference``, (k, 2) time and area of the original, when given), the marker distance and the
@@ -38,6 +39,7 @@ def write_lip_opening(
         "lip_opening_area_error_mm2": _or_nan(result.lip_opening_area_error_mm2, F),
         "lip_opening_width_mm": _or_nan(result.lip_opening_width_mm, F),
         "lip_opening_height_mm": _or_nan(result.lip_opening_height_mm, F),
+        "window_seen_mm2": _or_nan(result.window_seen_mm2, F),
         "lip_opening_mm": result.lip_opening_mm,
         "lip_vertical_mm": result.lip_vertical_mm,
         "lip_gap_mm": _or_nan(result.lip_gap_mm, F),

@@ -92,6 +92,8 @@ class GestureResult:
     lip_opening_area_error_mm2: np.ndarray | None = None  # (F,) its discretisation error estimate
     lip_opening_width_mm: np.ndarray | None = None  # (F,) its extent across the image
     lip_opening_height_mm: np.ndarray | None = None  # (F,) and up the image
+    window_seen_mm2: np.ndarray | None = None  # (F,) all of the window seen, mouth or not: what
+    # ArtiSynth's BadinFaceDemoLipOpening measures (it counts every green pixel of its viewer)
     area_view: dict | None = None  # the ApertureView, as a dict
     area_resolution_m: float | None = None
     mode: str = "quasistatic"  # or "dynamic"
@@ -258,6 +260,7 @@ def _result(model, gesture, mapping, fps, times, run, contact, dynamics, view, r
         lip_opening_area_error_mm2=np.array([a.error_mm2 for a in area]),
         lip_opening_width_mm=np.array([a.width_mm for a in area]),
         lip_opening_height_mm=np.array([a.height_mm for a in area]),
+        window_seen_mm2=np.array([a.window_seen_mm2 for a in area]),
         area_view=view.to_dict(),
         area_resolution_m=float(resolution_m),
         mode="quasistatic" if dynamics is None else "dynamic",
@@ -295,6 +298,7 @@ def summarize(result: GestureResult) -> dict:
         else None,
         "lip_opening_width_mm": _list(result.lip_opening_width_mm),
         "lip_opening_height_mm": _list(result.lip_opening_height_mm),
+        "window_seen_mm2": _list(result.window_seen_mm2),
         "lip_opening_area_view": result.area_view,
         "lip_opening_area_resolution_m": result.area_resolution_m,
         "kinetic_energy_j": _list(result.kinetic_energy_j),
