@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -15,10 +17,12 @@ from wface.controls import (
     jaw_joint_penalty,
     jaw_joint_values,
     jaw_limits,
+    jaw_params_unchecked,
     jaw_to_intuitive,
     rigidity_penalty,
 )
 from wface.faces.builtin.face import JAW_JOINT
+from wface.model import ModelError
 
 _FD_TOL = 1e-6  # central differences with h = 1e-6 on quartic/quadratic functions: O(h^2) + round-off
 
@@ -79,12 +83,37 @@ def test_jaw_joint_penalty_derivatives():
 def test_intuitive_jaw_stays_inside_the_joint(opening, protrusion, lateral):
     p = jaw_from_intuitive(JAW_JOINT, opening, protrusion, lateral)
     psi = jaw_joint_values(JAW_JOINT, p)
-    d, s = JAW_JOINT.track_length_m, JAW_JOINT.max_opening_sine
+    d, s, s_c = JAW_JOINT.track_length_m, JAW_JOINT.max_opening_sine, JAW_JOINT.max_closing_sine
     assert np.allclose(psi[:3], 0.0, atol=1e-12)
     assert -1e-12 <= psi[3] <= d + 1e-12 and -1e-12 <= psi[4] <= d + 1e-12
-    assert -s - 1e-12 <= psi[5] <= 1e-12
+    assert -s - 1e-12 <= psi[5] <= s_c + 1e-12
     assert jaw_joint_penalty(JAW_JOINT, p).value < 1e-24
     assert rigidity_penalty(p[:9].reshape(3, 3)).value < 1e-24
+
+
+def test_closing_past_rest_down_to_the_freeway_space():
+    # The built-in face's rest is the postural rest: the jaw closes past it by 4 mm at the incisors
+    # (100 mm from the hinge axis), 2.29 degrees; a joint without a closing range keeps rest as its limit.
+    closing = np.degrees(np.arcsin(JAW_JOINT.max_closing_sine))
+    assert closing == pytest.approx(np.degrees(0.004 / 0.100)) and jaw_limits(JAW_JOINT)["opening_deg"][0] == -closing
+    pose = jaw_to_intuitive(JAW_JOINT, jaw_from_intuitive(JAW_JOINT, -1.5, 0.002, 1.0))
+    assert pose["opening_deg"] == pytest.approx(-1.5) and pose["protrusion_m"] == pytest.approx(0.002)
+    p = jaw_from_intuitive(JAW_JOINT, -1.5)
+    assert jaw_joint_penalty(JAW_JOINT, p).value < 1e-24  # inside the range: no penalty
+    chin = np.array([0.0, -0.10, 0.09])
+    assert (p[:9].reshape(3, 3) @ chin + p[9:] - chin)[1] > 0.002  # closing lifts the chin
+    assert jaw_to_intuitive(JAW_JOINT, jaw_from_intuitive(JAW_JOINT, -9.0))["opening_deg"] == pytest.approx(-closing)
+    with pytest.raises(ValueError, match="allowed \\[-2.3, 35.0\\]"):
+        jaw_from_intuitive(JAW_JOINT, -3.0, clamp=False)
+    at_limit = jaw_from_intuitive(JAW_JOINT, -closing, clamp=False)
+    beyond = jaw_params_unchecked(JAW_JOINT, -np.radians(closing + 1.0), 0.0, 0.0)  # 1 degree further
+    assert jaw_joint_penalty(JAW_JOINT, at_limit).value < 1e-24 < jaw_joint_penalty(JAW_JOINT, beyond).value
+    closed = replace(JAW_JOINT, max_closing_sine=0.0)  # the default: rest is the closed limit
+    assert jaw_limits(closed)["opening_deg"][0] == 0.0
+    assert jaw_to_intuitive(closed, jaw_from_intuitive(closed, -1.5))["opening_deg"] == pytest.approx(0.0, abs=1e-9)
+    assert jaw_joint_penalty(closed, p).value > 0
+    with pytest.raises(ModelError, match="max_closing_sine"):
+        replace(JAW_JOINT, max_closing_sine=-0.1).validate()
 
 
 def test_intuitive_round_trip_and_limits():

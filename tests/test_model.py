@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from wface.faces.builtin import build_face
-from wface.model import FORMAT_VERSION, FaceModel, JawJoint, ModelError, load_model, save_model
+from wface.model import FORMAT_VERSION, FaceModel, JawJoint, ModelError, load_model, model_sha256, save_model
 
 
 @pytest.fixture(scope="module")
@@ -116,6 +117,21 @@ def test_missing_and_foreign_files(tmp_path):
     np.savez(tmp_path / "other.npz", a=np.zeros(3))
     with pytest.raises(ModelError, match="not a wface face model"):
         load_model(tmp_path / "other.npz")
+
+
+def test_jaw_closing_range_round_trip_and_older_files(face, tmp_path):
+    # The built-in face closes past rest (format 4); a joint without a closing range is written as
+    # before (no key, the older format) and an older file's joint reads as closing 0.
+    assert face.jaw_joint.max_closing_sine > 0
+    back = load_model(save_model(face, tmp_path / "face.npz"))
+    assert back.jaw_joint == face.jaw_joint and model_sha256(back) == model_sha256(face)
+    header = json.loads(bytes(np.load(tmp_path / "face.npz")["header_json"]).decode())
+    assert header["format_version"] == 4 and "max_closing_sine" in header["jaw_joint"]
+    closed = _copy(face, jaw_joint=replace(face.jaw_joint, max_closing_sine=0.0))
+    save_model(closed, tmp_path / "closed.npz")
+    header = json.loads(bytes(np.load(tmp_path / "closed.npz")["header_json"]).decode())
+    assert header["format_version"] < 4 and "max_closing_sine" not in header["jaw_joint"]
+    assert load_model(tmp_path / "closed.npz").jaw_joint.max_closing_sine == 0.0
 
 
 def test_jaw_joint_checks():

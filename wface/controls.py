@@ -167,12 +167,15 @@ def jaw_opening_affine(model: FaceModel, opening_deg: float) -> np.ndarray:
         3x4 affine [R | m - R m].
 
     Raises:
-        ValueError: ``opening_deg`` outside the joint's range [0, asin(max_opening_sine)].
+        ValueError: ``opening_deg`` outside the joint's range [-asin(max_closing_sine),
+            asin(max_opening_sine)] (negative: closed past the rest pose).
     """
     jj = model.jaw_joint
-    limit_deg = float(np.degrees(np.arcsin(min(1.0, jj.max_opening_sine))))
-    if not (np.isfinite(opening_deg) and 0.0 <= opening_deg <= limit_deg + 1e-9):
-        raise ValueError(f"jaw opening {opening_deg:g} deg is outside this model's jaw range [0, {limit_deg:.1f}] deg")
+    lo_deg, limit_deg = jaw_limits(jj)["opening_deg"]
+    if not (np.isfinite(opening_deg) and lo_deg - 1e-9 <= opening_deg <= limit_deg + 1e-9):
+        raise ValueError(
+            f"jaw opening {opening_deg:g} deg is outside this model's jaw range [{lo_deg:.1f}, {limit_deg:.1f}] deg"
+        )
     R = rotation_about_axis(np.asarray(jj.u), np.deg2rad(opening_deg))
     m = np.asarray(jj.midpoint_m, dtype=np.float64)
     return np.hstack([R, (m - R @ m)[:, None]])
@@ -288,7 +291,7 @@ def _joint_rows(joint: JawJoint) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     )
     c = np.array([0.0, -w @ m, -u @ m, -v @ m, -v @ m, 0.0])
     lo = np.array([0.0, 0.0, 0.0, 0.0, 0.0, -s])
-    hi = np.array([0.0, 0.0, 0.0, d, d, 0.0])
+    hi = np.array([0.0, 0.0, 0.0, d, d, joint.max_closing_sine])
     return A, c, lo, hi
 
 
@@ -327,9 +330,13 @@ def bone_penalty(joint: JawJoint, b: np.ndarray) -> Penalty:
 
 # ---------------------------------------------------------------------- intuitive jaw controls
 def jaw_limits(joint: JawJoint) -> dict:
-    """Largest opening (deg), protrusion range (m) and yaw (deg) allowed by the joint."""
+    """Opening range (deg; negative: closed past the rest pose), protrusion range (m) and largest yaw
+    (deg) allowed by the joint."""
     return {
-        "opening_deg": (0.0, float(np.degrees(np.arcsin(joint.max_opening_sine)))),
+        "opening_deg": (
+            -float(np.degrees(np.arcsin(joint.max_closing_sine))),
+            float(np.degrees(np.arcsin(joint.max_opening_sine))),
+        ),
         "protrusion_m": (0.0, float(joint.track_length_m)),
         "lateral_deg": float(np.degrees(np.arcsin(min(1.0, joint.track_length_m / joint.condyle_distance_m)))),
     }
@@ -345,25 +352,28 @@ def jaw_from_intuitive(
 ) -> np.ndarray:
     """12 jaw parameters from opening angle, protrusion and lateral yaw, inside the joint limits.
 
-    The jaw rotates by ``opening_deg`` about the condyle axis u (chin down), yaws by ``lateral_deg``
+    The jaw rotates by ``opening_deg`` about the condyle axis u (chin down; negative: closed past the
+    rest pose, down to -asin(``max_closing_sine``)), yaws by ``lateral_deg``
     about w (the chin moves toward the subject's left for positive values), and both condyles slide
     forward along the tracks by ``protrusion_m`` on average (each condyle stays within [0, d]).
     With ``clamp`` the numbers are clipped into the joint's range; without it, out-of-range values raise.
     """
     half, d = 0.5 * joint.condyle_distance_m, joint.track_length_m
     alpha, beta, p = np.radians(opening_deg), np.radians(lateral_deg), float(protrusion_m)
-    a_max = np.arcsin(joint.max_opening_sine)
+    a_min, a_max = -np.arcsin(joint.max_closing_sine), np.arcsin(joint.max_opening_sine)
     b_max = np.arcsin(min(1.0, d / (2 * half)))
     if clamp:
-        alpha = float(np.clip(alpha, 0.0, a_max))
+        alpha = float(np.clip(alpha, a_min, a_max))
         beta = float(np.clip(beta, -b_max, b_max))
         slack = half * abs(np.sin(beta))
         p = float(np.clip(p, slack, d - slack))
     else:
         slack = half * abs(np.sin(beta))
-        if not (0 <= alpha <= a_max + 1e-12 and abs(beta) <= b_max + 1e-12 and slack - 1e-12 <= p <= d - slack + 1e-12):
+        inside = a_min - 1e-12 <= alpha <= a_max + 1e-12 and abs(beta) <= b_max + 1e-12
+        if not (inside and slack - 1e-12 <= p <= d - slack + 1e-12):
             raise ValueError(
-                f"jaw pose outside the joint limits: opening {opening_deg} deg (max {np.degrees(a_max):.1f}), "
+                f"jaw pose outside the joint limits: opening {opening_deg} deg "
+                f"(allowed [{np.degrees(a_min):.1f}, {np.degrees(a_max):.1f}]), "
                 f"lateral {lateral_deg} deg (max {np.degrees(b_max):.1f}), protrusion {protrusion_m} m "
                 f"(allowed [{slack:.4f}, {d - slack:.4f}])"
             )

@@ -41,10 +41,11 @@ __all__ = [
     "without_timings",
 ]
 
-# 2: the material may carry mu20_pa or fibre_stress. 3: the model has pressure actuators. A model
-# without these is still written as format 1, byte for byte as before, so older wface versions read
-# it; one with any of them is refused by a version that would lose it.
-FORMAT_VERSION = 3
+# 2: the material may carry mu20_pa or fibre_stress. 3: the model has pressure actuators. 4: the jaw
+# joint has a closing range (JawJoint.max_closing_sine > 0). A model without these is still written
+# as format 1, byte for byte as before, so older wface versions read it; one with any of them is
+# refused by a version that would lose it.
+FORMAT_VERSION = 4
 FIBRE_STRESSES = ("uniaxial", "deviatoric")  # Material.fibre_stress; the first is the default
 BONES = ("cranium", "jaw")  # bone ids 0 and 1 in attachment arrays
 
@@ -115,7 +116,10 @@ class JawJoint:
 
     ``u``: unit vector from the right to the left condyle; ``v``: unit vector along the sliding
     tracks, back to front; ``w = v x u``; ``midpoint_m``: condyle midpoint; ``condyle_distance_m``
-    (l); ``track_length_m`` (d); ``max_opening_sine`` (s = sin of the largest opening angle).
+    (l); ``track_length_m`` (d); ``max_opening_sine`` (s = sin of the largest opening angle);
+    ``max_closing_sine`` (sin of the largest angle the jaw may rotate closed past the rest pose: 0 when
+    the rest pose has the teeth in occlusion, the freeway space when it is the postural rest with the
+    teeth apart; docs/design.md, "Controls and the jaw joint").
     """
 
     u: tuple[float, float, float]
@@ -124,6 +128,7 @@ class JawJoint:
     condyle_distance_m: float
     track_length_m: float
     max_opening_sine: float
+    max_closing_sine: float = 0.0
 
     @property
     def w(self) -> np.ndarray:
@@ -141,6 +146,8 @@ class JawJoint:
             raise ModelError(f"jaw joint: u and v must be orthogonal (u.v = {u @ v:.3g})")
         if not (self.condyle_distance_m > 0 and self.track_length_m >= 0 and 0 < self.max_opening_sine <= 1):
             raise ModelError("jaw joint: need condyle_distance_m > 0, track_length_m >= 0, 0 < max_opening_sine <= 1")
+        if not (np.isfinite(self.max_closing_sine) and 0 <= self.max_closing_sine < 1):
+            raise ModelError(f"jaw joint: need 0 <= max_closing_sine < 1, got {self.max_closing_sine}")
 
 
 @dataclass
@@ -475,7 +482,11 @@ def _model_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
         "marker_names": model.marker_names,
         "bones": {name: mesh.bone for name, mesh in model.bone_meshes.items()},
         "surface_groups": list(model.surface_groups),
-        "jaw_joint": {f.name: getattr(model.jaw_joint, f.name) for f in fields(JawJoint)},
+        "jaw_joint": {  # without a closing range, as formats 1-3 wrote it
+            f.name: getattr(model.jaw_joint, f.name)
+            for f in fields(JawJoint)
+            if f.name != "max_closing_sine" or model.jaw_joint.max_closing_sine
+        },
         "material": _material_header(model.material),
         "facs": model.facs,
         "metadata": model.metadata,
@@ -487,6 +498,8 @@ def _model_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
 
 def _format_version(model: FaceModel) -> int:
     """The oldest format that holds everything the model has (see FORMAT_VERSION)."""
+    if model.jaw_joint.max_closing_sine:
+        return 4
     if model.pressure_actuators:
         return 3
     return 2 if model.material.mu20_pa or model.material.fibre_stress != "uniaxial" else 1

@@ -295,6 +295,7 @@ def _carry_model(
         condyle_distance_m=cr.scale * s * joint.condyle_distance_m,
         track_length_m=cr.scale * s * joint.track_length_m,
         max_opening_sine=joint.max_opening_sine,
+        max_closing_sine=joint.max_closing_sine,
     )
     bones = {
         k: BoneMesh(bone_sim[b.bone].apply(s * b.vertices_m), b.triangles.copy(), b.bone)

@@ -30,6 +30,11 @@ MIN_TETS, MAX_TETS = 1_000, 2_000_000
 
 # Temporomandibular joint of the built-in face: condyles 10.4 cm apart, just in front of the ears;
 # sliding tracks inclined 22 degrees down toward the front (articular eminence); 35 degrees max opening.
+# The rest pose is the postural rest (lips together, incisal edges 1.6 mm apart), from which the jaw
+# closes by the freeway space, 2-4 mm at the incisors (the upper end; the lower incisal edge lies
+# 100 mm from the hinge axis): 2.3 degrees closing past rest (docs/design.md, "Controls and the jaw
+# joint"; captures need it, README "Your actor, your head").
+FREEWAY_SPACE_M, INCISOR_TO_HINGE_M = 0.004, 0.100
 JAW_JOINT = JawJoint(
     u=(1.0, 0.0, 0.0),
     v=tuple(np.array([0.0, -0.4, 1.0]) / np.linalg.norm([0.0, -0.4, 1.0])),
@@ -37,6 +42,7 @@ JAW_JOINT = JawJoint(
     condyle_distance_m=0.104,
     track_length_m=0.012,
     max_opening_sine=float(np.sin(np.radians(35.0))),
+    max_closing_sine=float(np.sin(FREEWAY_SPACE_M / INCISOR_TO_HINGE_M)),
 )
 
 LIP_BAND_M = 0.010  # height of the lip contact regions above / below the mouth line
