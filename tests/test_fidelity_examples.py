@@ -89,3 +89,18 @@ def test_the_imported_badin_face_fits_the_jaw_capture_neutral_frame(badin_model)
     assert rep["quality_relaxed"]["min_dihedral_deg"] < 3.0
     assert rep["quality_after"]["min_dihedral_deg"] > 6.5
     assert rep["quality_after"]["min_volume_ratio"] >= rep["quality_before"]["min_volume_ratio"]
+
+
+def test_jaw_closing_past_rest_on_cheeks(tmp_path, monkeypatch):
+    """examples/jaw_closing.py: in CheeksMoCap's first puff the actor's jaw closes past the neutral frame;
+    with rest as the closed limit the tracked jaw sits on it, with the freeway space it closes."""
+    monkeypatch.setenv("WFACE_DATA", str(data_path("animface").parent))
+    out = tmp_path / "jaw"
+    args = ["--out", str(out), "--tets", "2000", "--frames", "150:162"]
+    assert _example("jaw_closing").main(args) == 0
+    res = json.loads((out / "jaw_closing.json").read_text())
+    assert (out / "jaw_closing.png").stat().st_size > 0 and res["closing_limit_deg"] > 2.0
+    closed, closing = res["closed_at_rest"], res["closing"]
+    assert closed["frames_on_the_closed_limit"] > 0.5 and closed["jaw_opening_min_deg"] > -1e-3
+    assert closing["jaw_opening_min_deg"] < -0.5
+    assert closing["used_mean_mm"] < closed["used_mean_mm"]
