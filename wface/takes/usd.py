@@ -200,7 +200,7 @@ def _rig(model: FaceModel, take: Take, activations: np.ndarray, jaw: np.ndarray,
     if jaw_moves:
         params = (params_from_affine(j[:, :3], j[:, 3]) for j in jaw)
         opening = np.array([jaw_to_intuitive(model.jaw_joint, p)["opening_deg"] for p in params])
-        columns.append(np.clip(opening / skel.info["jaw_open_full_deg"], 0.0, 1.0)[:, None])
+        columns.append(np.clip(opening / skel.info["jaw_open_full_deg"], -1.0, 1.0)[:, None])
     return skel, np.concatenate(columns, axis=1)
 
 
