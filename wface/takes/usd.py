@@ -200,7 +200,9 @@ def _rig(model: FaceModel, take: Take, activations: np.ndarray, jaw: np.ndarray,
     if jaw_moves:
         params = (params_from_affine(j[:, :3], j[:, 3]) for j in jaw)
         opening = np.array([jaw_to_intuitive(model.jaw_joint, p)["opening_deg"] for p in params])
-        columns.append(np.clip(opening / skel.info["jaw_open_full_deg"], -1.0, 1.0)[:, None])
+        # clipped at 0 for a jaw closed past rest: DCCs clamp blend shape weights to [0, 1] (Blender's
+        # shape keys), and the rig must play the same everywhere (docs/design.md, "Controls and the jaw joint")
+        columns.append(np.clip(opening / skel.info["jaw_open_full_deg"], 0.0, 1.0)[:, None])
     return skel, np.concatenate(columns, axis=1)
 
 
