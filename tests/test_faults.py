@@ -484,7 +484,7 @@ _USAGE = [
     (["bench", "--suite", "forward", "--repeat", "0"], ">= 1"),
     (["model", "build", "--tets", "0"], ">= 1"),
     (["simulate", "--model", "m.npz", "--tol", "0"], "> 0"),
-    (["simulate", "--model", "m.npz", "--jaw-open", "-5"], ">= 0"),
+    (["simulate", "--model", "m.npz", "--jaw-open", "nan"], "finite"),
     (["resim", "--substeps", "0"], ">= 1"),
     (["edit", "retime", "--take", "t", "--speed", "0"], "> 0"),
     (["edit", "layer", "--take", "t", "--add", "smile", "--weight", "nan"], "finite"),
@@ -507,6 +507,12 @@ def test_jaw_beyond_the_joint_limit_is_refused(model_path, tmp_path, capsys):
     code, text = _cli(["simulate", "--model", model_path, "--jaw-open", "90", "--out", tmp_path / "j"], capsys)
     assert code == 1 and "outside this model's jaw range" in text
     assert not (tmp_path / "j" / "equilibrium.npz").exists()
+    # closing past rest: within the model's closing range, not beyond it
+    code, text = _cli(["simulate", "--model", model_path, "--jaw-open", "-5", "--out", tmp_path / "c"], capsys)
+    assert code == 1 and "outside this model's jaw range [-2.3, 35.0] deg" in text
+    assert not (tmp_path / "c" / "equilibrium.npz").exists()
+    code, _ = _cli(["simulate", "--model", model_path, "--jaw-open", "-1.5", "--out", tmp_path / "c"], capsys)
+    assert code == 0 and (tmp_path / "c" / "equilibrium.npz").exists()
 
 
 def test_speech_on_a_face_without_its_muscles_is_refused(model_path, tmp_path, capsys):

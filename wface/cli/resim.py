@@ -11,7 +11,7 @@ from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.cli.simulate import parse_activations
-from wface.cli.validate import non_negative_float, non_negative_int, positive_float, positive_int
+from wface.cli.validate import finite_float, non_negative_int, positive_float, positive_int
 from wface.faces.builtin import build_face
 from wface.model import load_model
 from wface.physics import Damping, Simulator
@@ -113,7 +113,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="synthetic: activation (repeatable; 'none' for no muscle)",
     )
     p.add_argument(
-        "--jaw-open", type=non_negative_float, default=0.0, metavar="DEG", help="synthetic: jaw opening at the onset"
+        "--jaw-open",
+        type=finite_float,
+        default=0.0,
+        metavar="DEG",
+        help="synthetic: jaw opening at the onset (negative: closed past rest, within the model's range)",
     )
     p.add_argument(
         "--head-shake",

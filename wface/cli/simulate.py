@@ -11,7 +11,7 @@ import numpy as np
 
 from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
-from wface.cli.validate import non_negative_float, positive_float, positive_int
+from wface.cli.validate import finite_float, positive_float, positive_int
 from wface.controls import attached_positions_from_affines, jaw_opening_affine
 from wface.files import save_npz, write_json
 from wface.model import load_model
@@ -56,7 +56,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the cheeks, -0.6 sucks them in; repeatable)",
     )
     p.add_argument(
-        "--jaw-open", type=non_negative_float, default=0.0, metavar="DEG", help="jaw opening angle in degrees"
+        "--jaw-open",
+        type=finite_float,
+        default=0.0,
+        metavar="DEG",
+        help="jaw opening angle in degrees (negative: closed past rest, within the model's closing range)",
     )
     add_contact_arguments(p)
     p.add_argument(
