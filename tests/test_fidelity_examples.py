@@ -91,13 +91,19 @@ def test_the_imported_badin_face_fits_the_jaw_capture_neutral_frame(badin_model)
     assert rep["quality_after"]["min_volume_ratio"] >= rep["quality_before"]["min_volume_ratio"]
 
 
-def test_jaw_closing_past_rest_on_cheeks(tmp_path, monkeypatch):
+def test_jaw_closing_past_rest_on_cheeks(tmp_path, monkeypatch, capsys):
     """examples/jaw_closing.py: in CheeksMoCap's first puff the actor's jaw closes past the neutral frame;
     with rest as the closed limit the tracked jaw sits on it, with the freeway space it closes."""
     monkeypatch.setenv("WFACE_DATA", str(data_path("animface").parent))
     out = tmp_path / "jaw"
     args = ["--out", str(out), "--tets", "2000", "--frames", "150:162"]
     assert _example("jaw_closing").main(args) == 0
+    # the run with rest as the closed limit says so, naming the cure (the closing run sits on its own limit)
+    err = capsys.readouterr().err
+    assert "wface: warning: the tracked jaw sat on its closed limit (0.0 deg) in 100 % of the frames" in err
+    assert "no closing range past its rest" in err and "`wface model build`" in err
+    report = json.loads((out / "closed_at_rest" / "report.json").read_text())
+    assert report["jaw_on_closed_limit_fraction"] > 0.5
     res = json.loads((out / "jaw_closing.json").read_text())
     assert (out / "jaw_closing.png").stat().st_size > 0 and res["closing_limit_deg"] > 2.0
     closed, closing = res["closed_at_rest"], res["closing"]

@@ -334,7 +334,7 @@ def jaw_limits(joint: JawJoint) -> dict:
     (deg) allowed by the joint."""
     return {
         "opening_deg": (
-            -float(np.degrees(np.arcsin(joint.max_closing_sine))),
+            0.0 - float(np.degrees(np.arcsin(joint.max_closing_sine))),  # 0.0, not -0.0, without a closing range
             float(np.degrees(np.arcsin(joint.max_opening_sine))),
         ),
         "protrusion_m": (0.0, float(joint.track_length_m)),

@@ -24,6 +24,7 @@ from wface.cli.validate import (
     positive_int,
     probability,
 )
+from wface.controls import jaw_limits
 from wface.faces.builtin import build_face
 from wface.files import file_sha256, save_npz
 from wface.io.mocap import read_mocap
@@ -302,9 +303,31 @@ def _run(args, model, targets, marker_names, markers, fps, rig_kwargs, truth=Non
             f"(first: frame {carried[0]}; listed in report.json under carried_frames)",
             stacklevel=1,
         )
+    _warn_jaw_on_closed_limit(model, report, truth)
     print("  ".join(f"{k}={report[k]:.4g}" for k in keys if report.get(k) is not None))
     print_outputs(out, written)
     return 0
+
+
+def _warn_jaw_on_closed_limit(model, report: dict, truth) -> None:
+    """Say so when a capture's jaw sat on the model's closed limit in more than 10 % of the frames (the
+    actor closes it further past the neutral frame than the model allows; docs/design.md, "Controls and
+    the jaw joint")."""
+    share = report.get("jaw_on_closed_limit_fraction") or 0.0
+    if truth is not None or share <= 0.1:
+        return
+    lo = jaw_limits(model.jaw_joint)["opening_deg"][0]
+    hint = (
+        "this model has no closing range past its rest (saved before wface had one?): "
+        "`wface model build` makes a face whose jaw closes by the freeway space"
+        if model.jaw_joint.max_closing_sine == 0
+        else "the capture closes the jaw further past its neutral frame than the model allows"
+    )
+    warnings.warn(
+        f"the tracked jaw sat on its closed limit ({lo:.1f} deg) in {100 * share:.0f} % of the frames "
+        f"(jaw_on_closed_limit_fraction in report.json): {hint}",
+        stacklevel=1,
+    )
 
 
 def run_demo(args: argparse.Namespace) -> int:

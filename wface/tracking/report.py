@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wface.controls import jaw_to_intuitive
+from wface.controls import jaw_limits, jaw_to_intuitive
 from wface.tracking.identifiability import OBSERVABLE_MM
 
 __all__ = ["build_report"]
@@ -53,6 +53,15 @@ def _marker_stats(err_mm: np.ndarray, marker_names, robust_mm: float | None) -> 
 
 def _jaw_deg(model, bones: np.ndarray) -> np.ndarray:
     return np.array([jaw_to_intuitive(model.jaw_joint, b[12:])["opening_deg"] for b in bones])
+
+
+def _on_closed_limit(model, bones: np.ndarray) -> float:
+    """Share of frames whose jaw sits on the joint's closed limit (within 1e-3 deg): a capture that
+    closes the jaw further than the model allows past its rest (docs/design.md, "Controls and the jaw joint")."""
+    if not len(bones):
+        return 0.0
+    lo = jaw_limits(model.jaw_joint)["opening_deg"][0]
+    return float(np.mean(_jaw_deg(model, bones) <= lo + 1e-3))
 
 
 def build_report(
@@ -105,6 +114,7 @@ def build_report(
         "observable_threshold_mm_per_unit_activation": OBSERVABLE_MM,
         "observable_muscles": [n for n, o in zip(model.muscle_names, observable, strict=True) if o],
         "jaw_opening_deg": _jaw_deg(model, B).tolist(),
+        "jaw_on_closed_limit_fraction": _on_closed_limit(model, B),
     }
     usage = records[-1].stats.get("usage_prior") if records else None
     if usage:  # what the data chose (wface.tracking.refine): per-muscle usage, correlation length, noise
