@@ -39,8 +39,9 @@ def data_dir() -> Path:
     return Path(os.environ.get("WFACE_DATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "data"))
 
 
-def track_both(out: Path, take: Path, tets: int, frames: str) -> dict:
-    """Track ``take`` with the built-in face's joint and with rest as the closed limit: {run: report}."""
+def track_both(out: Path, take: Path, tets: int, frames: str) -> tuple[dict, float]:
+    """Track ``take`` with the built-in face's joint and with rest as the closed limit: ({run: report},
+    the built-in face's closing limit in degrees)."""
     face = build_face(tets)
     models = {"closing": face, "closed_at_rest": replace(face, jaw_joint=replace(face.jaw_joint, max_closing_sine=0.0))}
     reports = {}
@@ -51,8 +52,7 @@ def track_both(out: Path, take: Path, tets: int, frames: str) -> dict:
         if wface_main([*args, "--no-pictures", "--no-usd", "--out", str(out / run)]) != 0:
             raise SystemExit(f"wface track failed for {run}")
         reports[run] = json.loads((out / run / "report.json").read_text())
-    reports["closing_limit_deg"] = -jaw_limits(face.jaw_joint)["opening_deg"][0]
-    return reports
+    return reports, -jaw_limits(face.jaw_joint)["opening_deg"][0]
 
 
 def nose_to_chin_mm(take_path: Path, frames: str) -> tuple[np.ndarray, float]:
@@ -113,10 +113,10 @@ def main(argv: list[str] | None = None) -> int:
     take = data_dir() / "animface" / f"{args.take}MoCap.c3d"
     if not take.is_file():
         raise SystemExit(f"{take} not found (set WFACE_DATA to the folder holding animface/)")
-    reports = track_both(out, take, args.tets, args.frames)
+    reports, closing_limit_deg = track_both(out, take, args.tets, args.frames)
     distance, rate = nose_to_chin_mm(take, args.frames)
     res = {"take": f"{args.take}MoCap", "frames": args.frames, "tets": reports["closing"]["tets"], "rate_hz": rate}
-    res["closing_limit_deg"] = reports["closing_limit_deg"]
+    res["closing_limit_deg"] = closing_limit_deg
     res["nose_to_chin_mm"] = distance.tolist()
     limits = {"closed_at_rest": 0.0, "closing": -res["closing_limit_deg"]}
     for run in RUNS:

@@ -55,13 +55,12 @@ def _jaw_deg(model, bones: np.ndarray) -> np.ndarray:
     return np.array([jaw_to_intuitive(model.jaw_joint, b[12:])["opening_deg"] for b in bones])
 
 
-def _on_closed_limit(model, bones: np.ndarray) -> float:
-    """Share of frames whose jaw sits on the joint's closed limit (within 1e-3 deg): a capture that
-    closes the jaw further than the model allows past its rest (docs/design.md, "Controls and the jaw joint")."""
-    if not len(bones):
+def _on_closed_limit(model, jaw_deg: np.ndarray) -> float:
+    """Share of frames whose jaw opening (deg) sits on the joint's closed limit (within 1e-3 deg): a capture
+    that closes the jaw further than the model allows past its rest (docs/design.md, "Controls and the jaw joint")."""
+    if not len(jaw_deg):
         return 0.0
-    lo = jaw_limits(model.jaw_joint)["opening_deg"][0]
-    return float(np.mean(_jaw_deg(model, bones) <= lo + 1e-3))
+    return float(np.mean(jaw_deg <= jaw_limits(model.jaw_joint)["opening_deg"][0] + 1e-3))
 
 
 def build_report(
@@ -80,6 +79,7 @@ def build_report(
     M = model.n_muscles
     C = np.array([r.controls for r in records])
     A, B = C[:, :M], C[:, M:]
+    jaw_deg = _jaw_deg(model, B)
     err = np.array([r.marker_error_m for r in records]) * 1e3  # (F, k) mm, NaN = missing
     per_frame = np.sqrt(np.nanmean(err**2, axis=1))
     secs = np.array([r.stats["seconds"] for r in records])
@@ -113,8 +113,8 @@ def build_report(
         "muscle_identifiability": dict(zip(model.muscle_names, identifiability_mm.tolist(), strict=True)),
         "observable_threshold_mm_per_unit_activation": OBSERVABLE_MM,
         "observable_muscles": [n for n, o in zip(model.muscle_names, observable, strict=True) if o],
-        "jaw_opening_deg": _jaw_deg(model, B).tolist(),
-        "jaw_on_closed_limit_fraction": _on_closed_limit(model, B),
+        "jaw_opening_deg": jaw_deg.tolist(),
+        "jaw_on_closed_limit_fraction": _on_closed_limit(model, jaw_deg),
     }
     usage = records[-1].stats.get("usage_prior") if records else None
     if usage:  # what the data chose (wface.tracking.refine): per-muscle usage, correlation length, noise
@@ -128,9 +128,7 @@ def build_report(
         sim = np.array([r.markers_m for r in records])
         d = np.linalg.norm(sim - truth.clean_markers_m[: len(records)], axis=2)
         rep["truth_marker_rms_mm"] = float(np.sqrt(np.mean(d**2)) * 1e3)
-        rep["jaw_angle_error_deg"] = float(
-            np.sqrt(np.mean((_jaw_deg(model, B) - truth.jaw_opening_deg[: len(records)]) ** 2))
-        )
+        rep["jaw_angle_error_deg"] = float(np.sqrt(np.mean((jaw_deg - truth.jaw_opening_deg[: len(records)]) ** 2)))
         noise = np.linalg.norm(truth.markers_m - truth.clean_markers_m, axis=2)[: len(records)]
         rep["input_noise_rms_mm"] = float(np.sqrt(np.nanmean(noise[~truth.outlier_mask[: len(records)]] ** 2)) * 1e3)
     return rep
