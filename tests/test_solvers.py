@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from wface.physics import Simulator
-from wface.solvers import linear
+from wface.solvers import LinearSolver, linear
 from wface.solvers.linear import (
     DirectFactor,
     FactorPreconditioner,
@@ -319,3 +319,73 @@ def test_single_precision_factors_solve_to_float32_accuracy(stiffness, backend):
     assert f32.precision == "float32" and X32.dtype == np.float64
     err = np.linalg.norm(X32 - X64) / np.linalg.norm(X64)
     assert 1e-12 < err < 1e-3, err  # float32 round-off (eps 6e-8) times the box's condition (~1e4)
+
+
+# ------------------------------------------------------------------ cuDSS guard (checked on the CPU)
+class _DeviceTangent:
+    """Stands in for a CUDA ``Tangent``: what ``LinearSolver.factor`` reads to pick cuDSS."""
+
+    device = "cuda:0"
+
+    def __init__(self, projected: bool):
+        self.projected = projected
+
+    def device_matvec(self, x, out):  # pragma: no cover - never called here
+        raise AssertionError
+
+
+def test_cudss_is_handed_projected_stiffnesses_only(monkeypatch):
+    """On CUDA with cuDSS an exact tangent is refused before the GPU sees it (an indefinite one stalled
+    cuDSS's Cholesky on an H200, docs/design.md "The GPU path"); a projected one is factored."""
+    import wface.solvers.solver as solver_module
+
+    handed = []
+    monkeypatch.setattr(solver_module, "cudss_available", lambda: True)
+    monkeypatch.setattr(solver_module, "resolve_linear_solver", lambda solver, device: "direct")
+    monkeypatch.setattr(solver_module.CudssFactor, "of_operator", classmethod(lambda cls, op, p: handed.append(op)))
+    lin = LinearSolver("auto", "cuda:0")
+    assert not lin.exact_tangents_ok
+    with pytest.raises(NotPositiveDefiniteError, match="projected"):
+        lin.factor(_DeviceTangent(projected=False), None)
+    assert handed == [] and lin.factorizations == 0
+    lin.factor(_DeviceTangent(projected=True), None)
+    assert len(handed) == 1 and lin.factorizations == 1
+    assert LinearSolver("auto", "cpu").exact_tangents_ok  # PARDISO reports an indefinite matrix itself
+
+
+def test_cudss_refuses_non_finite_stiffness_before_factoring():
+    from wface.solvers.cudss import _Session
+
+    class Untouched:  # no solver: the check comes first
+        pass
+
+    values = np.ones(5)
+    values[3] = np.nan
+    with pytest.raises(NotPositiveDefiniteError, match="non-finite"):
+        _Session.factor(Untouched(), values, owner=None)
+
+
+def test_without_exact_tangents_newton_and_the_rig_use_the_projected_stiffness(monkeypatch):
+    """What the GPU path does (``exact_tangents_ok`` False), run on the CPU: Newton takes projected steps
+    only and reaches the same equilibrium; the tracker's chord is the projected tangent, without a warning."""
+    import warnings
+
+    from wface.faces.builtin import build_face
+    from wface.tracking.rig import FaceRig
+
+    model = build_face(2000)
+    a = {"zygomaticus_major_l": 0.6, "orbicularis_oris_upper": 0.3}
+    ref = Simulator(model).solve(a, tol=1e-9)
+    monkeypatch.setattr(LinearSolver, "exact_tangents_ok", property(lambda self: False))
+    eq = Simulator(model).solve(a, tol=1e-9)
+    assert ref.projected_steps < ref.iterations - ref.chord_steps  # exact steps where they work
+    assert eq.converged and eq.projected_steps == eq.iterations - eq.chord_steps  # 12 projected vs 5
+    assert np.abs(eq.x - ref.x).max() <= 1e-6 * np.abs(ref.x - model.rest_positions_m).max()
+    rig = FaceRig(model)
+    c = rig.rest_controls()
+    c[model.muscle_index("zygomaticus_major_l")] = 0.6
+    state = rig.equilibrium(c)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        chord = rig.stiffness_at(state.controls, state.y_m)
+    assert chord.projected

@@ -424,7 +424,9 @@ class _NewtonRun:
         residual, scale, x = self.residual, self.scale, self.x
         eta = float(np.clip(0.1 * residual / scale, 1e-12, 1e-2))
         dx = None
-        attempted = stiffness == "exact" or (stiffness == "auto" and residual / scale < self.exact_retry_below)
+        attempted = stiffness == "exact" or (
+            stiffness == "auto" and residual / scale < self.exact_retry_below and self.linear.exact_tangents_ok
+        )
         if attempted:
             tan = self.problem.tangent(x, project=False)
             try:

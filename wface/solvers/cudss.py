@@ -6,17 +6,25 @@ holds the reordering and symbolic factorisation (``plan``) of one sparsity patte
 the same pattern only resets the values and refactors (``reset_operands`` + ``factorize``), the GPU
 counterpart of PARDISO's kept analysis (docs/design.md, "Linear solvers"). The right-hand-side block
 has a fixed width (the Jacobian's M + 12 columns by default); narrower blocks are padded with zeros,
-which costs the GPU little and keeps one plan per pattern.
+which keeps one plan per pattern but, measured on the H200, makes one column cost about as much as
+48 (56 vs 60 ms at 100K tets, mostly the padded block's transfers): the tracker's single-column
+chord solves are the GPU path's next cost.
 
-Not run on the machine this was written on (no GPU): ``examples/gpu_check.py`` is the prepared check.
+Run on an H200 (docs/design.md, "The GPU path"): factors and solves match the CPU's to 1e-14
+(``examples/gpu_check.py``). Only projected, definite stiffnesses are handed to it
+(``LinearSolver.exact_tangents_ok``): an exact tangent at a line-search trial point stalled its
+Cholesky there. A factorisation whose INFO is not 0 raises ``NotPositiveDefiniteError``.
 """
 
 from __future__ import annotations
 
+import logging
 import weakref
 
 import numpy as np
 import scipy.sparse as sp
+
+from wface.solvers.linear import NotPositiveDefiniteError
 
 __all__ = ["CudssFactor", "cudss_session"]
 
@@ -36,6 +44,14 @@ def _enums():
     return adv, mtype, view
 
 
+def _quiet_logger() -> logging.Logger:
+    """nvmath's logger for the solver: errors only (it warns at every ``reset_operands`` of the matrix
+    that a refactorisation is due, which is what wface always does next)."""
+    logger = logging.getLogger("wface.cudss")
+    logger.setLevel(logging.ERROR)
+    return logger
+
+
 class _Session:
     """One ``DirectSolver`` (plan kept) for one sparsity pattern and right-hand-side width."""
 
@@ -46,16 +62,24 @@ class _Session:
         self._structure = (upper.indptr, upper.indices)
         A = sp.csr_matrix((np.asarray(values, np.float64), upper.indices, upper.indptr), shape=(upper.n, upper.n))
         B = np.zeros((self.n, self.width), order="F")
-        options = adv.DirectSolverOptions(sparse_system_type=mtype.SPD, sparse_system_view=view.UPPER)
+        options = adv.DirectSolverOptions(
+            sparse_system_type=mtype.SPD, sparse_system_view=view.UPPER, logger=_quiet_logger()
+        )
         self._solver = adv.DirectSolver(A, B, options=options, execution={"name": "cuda", "device_id": device_id})
         self._solver.plan()
         self._current = None  # the CudssFactor whose values are factored now
 
     def factor(self, values: np.ndarray, owner) -> None:
+        if not np.isfinite(values).all():  # never hand cuDSS NaN or inf (PARDISO reports them; cuDSS may not)
+            raise NotPositiveDefiniteError("the stiffness has non-finite entries: not factored")
         indptr, indices = self._structure
         A = sp.csr_matrix((np.asarray(values, np.float64), indices, indptr), shape=(self.n, self.n))
         self._solver.reset_operands(a=A)
-        self._solver.factorize()
+        info = self._solver.factorize()
+        self._current = None
+        status = int(getattr(info, "info", 0) or 0)
+        if status != 0:  # cuDSS's Cholesky met a non-positive pivot (its INFO is not 0)
+            raise NotPositiveDefiniteError(f"cuDSS factorisation failed (INFO {status}): K_UU is not positive definite")
         self._current = owner
 
     def solve(self, B: np.ndarray) -> np.ndarray:

@@ -43,6 +43,14 @@ from wface.solvers.warp_cg import warp_pcg
 
 __all__ = ["BoundSolve", "LinearSolver", "MatrixOperator"]
 
+# Measured on an H200 (docs/design.md, "The GPU path"): cuDSS's SPD factorisation of an exact tangent
+# at a line-search trial point of a 100K-tet track did not return in 100 s, where PARDISO reports the
+# matrix indefinite at once; so the GPU factors only projected (definite by construction) stiffnesses.
+_CUDSS_EXACT = (
+    "cuDSS factors projected stiffnesses only (an indefinite exact tangent can stall its Cholesky); "
+    "use the projected tangent on CUDA"
+)
+
 
 def _unknown_matvec(operator, pattern):
     """v (3k,) or (3k, c) on the unknowns -> K_UU v, through the nodal ``operator.matvec``."""
@@ -128,6 +136,13 @@ class LinearSolver:
         self.cg_iterations = 0
         self._factor: DirectFactor | None = None
 
+    @property
+    def exact_tangents_ok(self) -> bool:
+        """Whether this solver may be handed an exact (unprojected, possibly indefinite) stiffness:
+        True but for cuDSS factors on CUDA, which take projected ones only (``_CUDSS_EXACT``).
+        Newton's exact steps and the tracker's exact chords ask this first."""
+        return not (self.engine == "direct" and self.device.startswith("cuda") and cudss_available())
+
     def counters(self) -> dict:
         """The counters above as a dict (for statistics)."""
         keys = ("factorizations", "factor_seconds", "back_solves", "solve_seconds", "cg_iterations")
@@ -156,6 +171,8 @@ class LinearSolver:
         CUDA operator, else from the assembled CSR matrix."""
         t0 = time.perf_counter()
         if _on_device(operator) and cudss_available():
+            if getattr(operator, "projected", True) is False:
+                raise NotPositiveDefiniteError(_CUDSS_EXACT)
             factor = CudssFactor.of_operator(operator, pattern)
         elif hasattr(operator, "assemble_upper") and pattern.square:
             values = operator.assemble_upper(pattern)

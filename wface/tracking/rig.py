@@ -382,7 +382,8 @@ class FaceRig:
 
     def stiffness_at(self, c: np.ndarray, y: np.ndarray, *, warn: bool = True) -> _Chord | None:
         """The factorised K_UU (exact; projected, with a warning, where the exact one is not positive
-        definite) and K_UC at controls c and cranium-frame positions y, e.g. the linear prediction of
+        definite; projected always where the solver takes no exact tangents: cuDSS) and K_UC at
+        controls c and cranium-frame positions y, e.g. the linear prediction of
         an equilibrium: the chord of its solve and the factor of its Jacobian (``projected`` says which
         tangent was factored; ``warn``: say so when it is the projected one). With contact, K_UU and
         K_UC include the contact Hessian of the pairs at y (``_contact_stiffness``)."""
@@ -391,11 +392,11 @@ class FaceRig:
         a = self.model.clip_activations(self.split(c)[0])
         sim, pattern = self.sim, self.sim.pattern("free")
         t0 = time.perf_counter()
-        tan = sim.tangent(y, a, project=False)
-        k_uc = tan.assemble_free_and_coupling()  # (3|U|, 3|C|) of the exact tangent, K_UU kept for the factor
+        projected = not self._linear.exact_tangents_ok  # cuDSS: projected only (wface.solvers.solver)
+        tan = sim.tangent(y, a, project=projected)
+        k_uc = tan.assemble_free_and_coupling()  # (3|U|, 3|C|) of the tangent factored below
         t1 = time.perf_counter()
         counts0 = self._linear.counters()
-        projected = False
         try:
             bound = self._linear.bind(tan, pattern)
         except NotPositiveDefiniteError:
