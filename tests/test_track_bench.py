@@ -34,11 +34,12 @@ def test_track_bench_reports_the_breakdown_the_counts_and_the_limit():
 def test_track_bench_reports_each_pass_of_the_usage_prior():
     """With the usage prior each warm frame is tracked once per pass: the bench reports each pass's median
     alone, the first equal to ``pass1_seconds_per_frame``; over two warm frames the medians are means, so
-    the passes add up to the frame."""
+    the passes add up to the frame (every pass run: no refit test)."""
     from wface.tracking.estimator import TrackOptions
 
-    r = bench_size(1000, frames=3, repeat=1, options=TrackOptions(prior_passes=2))
+    r = bench_size(1000, frames=3, repeat=1, options=TrackOptions(prior_passes=2, prior_refit_change=0.0))
     passes = r["pass_seconds_per_frame"]
     assert len(passes) == 3 and all(p > 0 for p in passes)
+    assert r["prior_passes_run"] == 2 and len(r["activation_change_rms"]) == 2
     assert passes[0] == pytest.approx(r["pass1_seconds_per_frame"])
     assert sum(passes) == pytest.approx(r["seconds_per_frame"], rel=1e-9)

@@ -29,7 +29,7 @@ def test_demo_writes_everything(tmp_path):
     assert report["truth_marker_rms_mm"] < 1.0 and report["inverted_elements"] == 0
     usage = report["usage_prior"]  # what the data chose, per muscle by name, and what the fits cost
     assert set(usage["activation_sd"]) == set(report["muscle_identifiability"]) and usage["noise_mm"] > 0
-    assert len(report["usage_prior_fit_seconds"]) == 3
+    _check_usage_passes(report)
     for name in ("controls.npz", "controls.csv", "animation.usdc", "report.html", "activations.png"):
         assert (out / name).exists(), name
     assert len(list((out / "frames").glob("frame_*.npz"))) == 3
@@ -47,7 +47,16 @@ def test_demo_with_lip_contact(tmp_path):
     assert report["truth_marker_rms_mm"] < 1.0 and report["inverted_elements"] == 0
     usage = report["usage_prior"]  # what the data chose, per muscle by name, and what the fits cost
     assert set(usage["activation_sd"]) == set(report["muscle_identifiability"]) and usage["noise_mm"] > 0
-    assert len(report["usage_prior_fit_seconds"]) == 3
+    _check_usage_passes(report)
+
+
+def _check_usage_passes(report) -> None:
+    """One usage pass, or all three when the first moved the activations by more than the refit test's 0.15."""
+    from wface.tracking.estimator import TrackOptions
+
+    changes = report["usage_pass_activation_change_rms"]
+    refit = changes[0] > TrackOptions.prior_refit_change
+    assert len(changes) == len(report["usage_prior_fit_seconds"]) == (3 if refit else 1), changes
 
 
 def test_track_a_csv_file(tmp_path):

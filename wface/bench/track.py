@@ -150,13 +150,16 @@ def bench_size(n_tets: int, *, device: str = "cpu", frames: int = 6, repeat: int
         },
         **{f"{k}_per_frame": med(k) for k in _PER_FRAME},
         "prior": options.prior,  # "auto": 1 + prior_passes passes (the usage prior's refits), each frame's cost summed
-        "prior_passes": options.prior_passes if options.prior == "auto" else 0,
+        "prior_passes": options.prior_passes if options.prior == "auto" else 0,  # at most
+        "prior_refit_change": options.prior_refit_change,
         "peak_rss_mb": peak,
         "peak_rss_scope": "tracking" if rss_reset else "process",
         "wall_seconds": wall,
     }
     fits = recs[-1].stats.get("usage_prior_passes", [])  # the usage prior's fits between passes (take-wide)
+    out["prior_passes_run"] = len(fits)  # usage passes done (prior_refit_change may stop them after one)
     if fits:
+        out["activation_change_rms"] = [f.get("activation_change_rms") for f in fits]
         out["usage_fit_seconds"] = [float(f.get("seconds", 0.0)) for f in fits]
         out["breakdown_seconds_per_frame"]["usage_fits"] = sum(out["usage_fit_seconds"]) / len(recs)
     each = [r.stats.get("pass_seconds") for r in later]
@@ -201,7 +204,11 @@ def run(args) -> dict:
     frames = int(getattr(args, "frames", None) or 6)
     repeat = max(1, int(getattr(args, "repeat", 3) or 3))
     passes = getattr(args, "prior_passes", None) or TrackOptions.prior_passes
-    options = TrackOptions(prior=getattr(args, "prior", None) or "auto", prior_passes=int(passes))
+    change = getattr(args, "prior_refit_change", None)
+    change = TrackOptions.prior_refit_change if change is None else float(change)
+    options = TrackOptions(
+        prior=getattr(args, "prior", None) or "auto", prior_passes=int(passes), prior_refit_change=change
+    )
     results = [bench_size(int(n), device=device, frames=frames, repeat=repeat, options=options) for n in sizes]
     notes = {"take": f"frames {WINDOW_START}.. of a {TAKE_FRAMES}-frame 30 Hz synthetic take, {NOISE_MM} mm noise"}
     return suite_result("track", device, results, notes)

@@ -35,7 +35,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--prior-passes",
         type=positive_int,
         default=TrackOptions.prior_passes,
-        help=f"with --prior auto (track suite): usage passes after the first (default {TrackOptions.prior_passes})",
+        help="with --prior auto (track suite): usage passes after the first, at most "
+        f"(default {TrackOptions.prior_passes})",
+    )
+    p.add_argument(
+        "--prior-refit-change",
+        type=float,
+        default=TrackOptions.prior_refit_change,
+        help="with --prior auto (track suite): as wface track, refit the usage prior only when its first pass "
+        f"moved the activations by more than this RMS (default {TrackOptions.prior_refit_change:g})",
     )
     p.add_argument("--json", action="store_true", help="print JSON only")
     p.add_argument("--out", help="also write the JSON to this file")

@@ -104,8 +104,16 @@ def _common(p: argparse.ArgumentParser) -> None:
         "--prior-passes",
         type=positive_int,
         default=TrackOptions.prior_passes,
-        help="with --prior auto: passes under the take-wide usage prior after the first, each re-linearised "
-        f"at the one before with its prior refitted (default {TrackOptions.prior_passes})",
+        help="with --prior auto: at most this many passes under the take-wide usage prior after the first, each "
+        f"re-linearised at the one before with its prior refitted (default {TrackOptions.prior_passes})",
+    )
+    p.add_argument(
+        "--prior-refit-change",
+        type=non_negative_float,
+        default=TrackOptions.prior_refit_change,
+        help="with --prior auto: refit the usage prior (the passes after the first usage pass) only when that pass "
+        f"moved the activations by more than this RMS (default {TrackOptions.prior_refit_change:g}: heavy noise, "
+        "outliers or dropout; 0: always --prior-passes)",
     )
     p.add_argument(
         "--robust-mm",
@@ -186,6 +194,7 @@ def _options(args) -> TrackOptions:
         temporal_weight=args.temporal_weight,
         prior=args.prior,
         prior_passes=args.prior_passes,
+        prior_refit_change=args.prior_refit_change,
     )
 
 

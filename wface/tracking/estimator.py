@@ -74,7 +74,12 @@ class TrackOptions:
     prior: str = "auto"  # data-chosen priors (wface.tracking.prior): "auto" temporal + usage (two passes),
     # "temporal" the temporal prior alone (one pass), "off" none
     prior_passes: int = 3  # with prior="auto": passes under the take-wide usage prior after the first, each
-    # re-linearised at the one before and its prior refitted (wface.tracking.refine)
+    # re-linearised at the one before and its prior refitted (wface.tracking.refine); at most, see below
+    prior_refit_change: float = 0.15  # the usage prior is refitted (the passes after the first usage pass)
+    # only when that pass moved the activations by more than this (RMS over tracked frames and muscles,
+    # activation units): a take the prior corrects heavily (noise, outliers, dropout: 0.25-0.30) gets all
+    # prior_passes, a cleaner one (0.5 mm noise: 0.05-0.07) one usage pass; 0: always prior_passes
+    # (docs/design.md, "Priors chosen by the data")
     temporal_weight: float = 0.0  # lam: pull of activations toward the previous frame (m^2 per unit^2)
     activation_prior: float = 0.0  # mu: pull of activations toward zero (m^2 per unit^2), a small prior
     extrapolate: bool = True  # start each frame from a constant-velocity prediction of the controls

@@ -120,7 +120,9 @@ def build_report(
     if usage:  # what the data chose (wface.tracking.refine): per-muscle usage, correlation length, noise
         sd = dict(zip(model.muscle_names, usage["activation_sd"], strict=True))
         rep["usage_prior"] = {**usage, "activation_sd": sd}
-        rep["usage_prior_fit_seconds"] = [p.get("seconds") for p in records[-1].stats.get("usage_prior_passes", [])]
+        passes = records[-1].stats.get("usage_prior_passes", [])
+        rep["usage_prior_fit_seconds"] = [p.get("seconds") for p in passes]
+        rep["usage_pass_activation_change_rms"] = [p.get("activation_change_rms") for p in passes]  # refit test
     if truth is not None:
         dA = A - truth.activations[: len(records)]
         rep["activation_rms_error"] = float(np.sqrt(np.mean(dA[:, observable] ** 2))) if observable.any() else None

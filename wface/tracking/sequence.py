@@ -293,7 +293,7 @@ def _track_chunk(
         for j in range(n_warm):
             tracker.step(int(frames[0]) - n_warm + j, targets[j])
     out = []
-    desc = "tracking" if folder == FRAMES_DIR else f"tracking (pass 1 of {1 + max(1, int(options.prior_passes))})"
+    desc = "tracking" if folder == FRAMES_DIR else f"tracking (pass 1 of up to {1 + max(1, int(options.prior_passes))})"
     for j, f in enumerate(tqdm(frames, desc=desc, disable=not progress, unit="frame")):
         if f in done:
             tracker.resume_from(done[f])
@@ -507,17 +507,40 @@ def track_sequence(
         extra = _priors_digest(priors)
         last = k == passes - 1
         where = FRAMES_DIR if last else f"{REFINE_DIR_PREFIX}{k + 2}"
-        desc = f"tracking (pass {k + 2} of {passes + 1})"
+        desc = f"tracking (pass {k + 2} of up to {passes + 1})"
         args = [
             (model, markers.embedding, targets[s:e], records[s:e], options, rig_kwargs, out_dir, run, bool(resume))
             + (priors[s:e], extra, where, desc)
             for s, e in chunks
         ]
-        records = _run_chunks(_refine_chunk, args, executor, progress)
+        before, records = records, _run_chunks(_refine_chunk, args, executor, progress)
+        summary["activation_change_rms"] = activation_change_rms(before, records, model.n_muscles)
+        if k == 0 and not last and summary["activation_change_rms"] <= options.prior_refit_change:
+            if progress:
+                print(
+                    f"pass 2 moved the activations by {summary['activation_change_rms']:.3f} RMS "
+                    f"(<= {options.prior_refit_change:g}): the usage prior is not refitted",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            if out_dir is not None:  # the take's result: this pass's frames
+                for rec in records:
+                    write_frame(out_dir, rec, folder=FRAMES_DIR)
+            break
     for rec in records:
         rec.stats["usage_prior"] = summaries[-1]
         rec.stats["usage_prior_passes"] = summaries
     return records
+
+
+def activation_change_rms(before: list[FrameRecord], after: list[FrameRecord], n_muscles: int) -> float:
+    """RMS change of the muscle activations from one pass to the next over the frames tracked in both
+    (carried frames left out; 0.0 when there are none)."""
+    rows = [j for j, (b, a) in enumerate(zip(before, after, strict=True)) if not a.stats.get("carried")]
+    if not rows:
+        return 0.0
+    d = np.array([after[j].controls[:n_muscles] - before[j].controls[:n_muscles] for j in rows])
+    return float(np.sqrt(np.mean(d**2)))
 
 
 def _priors_digest(priors) -> str:
