@@ -6,10 +6,11 @@ Run it on a machine with an NVIDIA GPU (README, "Performance"):
     python examples/gpu_check.py --out gpu_out --tets 20000    # a quick look
 
 On a short lease, compile the kernels beforehand on any machine (``examples/gpu_aot.py``) and run
-this with ``WFACE_KERNEL_CACHE`` pointing at that cache. It writes gpu_out/forward_cuda.json and gpu_out/track_cuda.json (the ``wface bench`` JSON shape) and
-prints one line per size. Without a CUDA device it says so and exits 0, so it also runs (as a no-op)
-in the test suite. cuDSS (nvmath-python) is used when it is importable; without it the Jacobians
-run Warp CG column by column, which is slow at 370K, so the track bench then keeps to the smallest size.
+this with ``WFACE_KERNEL_CACHE`` pointing at that cache. It writes gpu_out/forward_cuda.json and
+gpu_out/track_cuda.json (the ``wface bench`` JSON shape) and prints one line per size. Without a CUDA
+device it says so and exits 0, so it also runs (as a no-op) in the test suite. cuDSS (nvmath-python)
+is used when it is importable; without it the Jacobians run Warp CG column by column, which is slow
+at 370K, so the track bench then keeps to the smallest size.
 """
 
 from __future__ import annotations

@@ -484,6 +484,16 @@ def track_sequence(
     records = _run_chunks(_track_chunk, args, executor, progress)
     if not two_pass:
         return records
+    ctx = (model, markers, targets, options, rig_kwargs, out_dir, run, resume, chunks, executor, progress)
+    return _usage_passes(records, *ctx)
+
+
+def _usage_passes(
+    records, model, markers, targets, options, rig_kwargs, out_dir, run, resume, chunks, executor, progress
+):
+    """The passes under the take-wide usage prior after the first pass's ``records`` (module docstring):
+    up to ``options.prior_passes``, the refits only when the first moved the activations by more than
+    ``options.prior_refit_change``. Returns the last pass's records, each with the fits' summaries."""
     summaries = []
     passes = max(1, int(options.prior_passes))
     length = None  # the usage prior's correlation length: chosen by cross-validation on the first fit, kept
@@ -523,9 +533,12 @@ def track_sequence(
                     file=sys.stderr,
                     flush=True,
                 )
-            if out_dir is not None:  # the take's result: this pass's frames
+            if out_dir is not None:  # the take's result: this pass's frames (kept where already written)
+                frames = [r.frame for r in records]
+                kept = verified_frames(out_dir, frames, targets, run, extra=extra, folder=FRAMES_DIR)[0]
                 for rec in records:
-                    write_frame(out_dir, rec, folder=FRAMES_DIR)
+                    if rec.frame not in kept:
+                        write_frame(out_dir, rec, folder=FRAMES_DIR)
             break
     for rec in records:
         rec.stats["usage_prior"] = summaries[-1]
