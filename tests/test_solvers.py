@@ -389,3 +389,101 @@ def test_without_exact_tangents_newton_and_the_rig_use_the_projected_stiffness(m
         warnings.simplefilter("error")
         chord = rig.stiffness_at(state.controls, state.y_m)
     assert chord.projected
+
+
+class _StandInDirectSolver:
+    """nvmath's ``DirectSolver`` as ``wface.solvers.cudss`` uses it (plan, reset_operands, factorize with
+    INFO, solve, free), dense and on the CPU: CI has no GPU, so this runs the wrapper's own logic (the
+    padded blocks, the one plan per pattern, refactoring when another factor of the pattern is used)."""
+
+    plans = factorizations = solves = 0
+
+    def __init__(self, a, b, options=None, execution=None):
+        self.a, self.b, self.shape = a, np.asarray(b), np.asarray(b).shape
+
+    def plan(self):
+        type(self).plans += 1
+
+    def reset_operands(self, a=None, b=None):
+        if a is not None:
+            self.a = a
+        if b is not None:
+            assert np.asarray(b).shape == self.shape  # nvmath refuses another shape
+            self.b = np.asarray(b)
+
+    def factorize(self):
+        type(self).factorizations += 1
+        upper = self.a.toarray()
+        full = upper + np.triu(upper, 1).T
+        info = type("Info", (), {"info": 0})()
+        try:
+            self.L = np.linalg.cholesky(full)
+        except np.linalg.LinAlgError:
+            info.info = 1  # cuDSS: the column where the Cholesky failed
+        return info
+
+    def solve(self):
+        type(self).solves += 1
+        return np.linalg.solve(self.L.T, np.linalg.solve(self.L, self.b))
+
+    def free(self):
+        pass
+
+
+@pytest.fixture
+def stand_in_cudss(monkeypatch):
+    import sys
+    import types
+    import weakref
+
+    import wface.solvers.cudss as cudss_module
+
+    adv = types.ModuleType("nvmath.sparse.advanced")
+    adv.DirectSolverMatrixType = types.SimpleNamespace(SPD="spd")
+    adv.DirectSolverMatrixViewType = types.SimpleNamespace(UPPER="upper")
+    adv.DirectSolverOptions = lambda **kw: kw
+    solver = type("DirectSolver", (_StandInDirectSolver,), {})
+    adv.DirectSolver = solver
+    for name, mod in (("nvmath", types.ModuleType("nvmath")), ("nvmath.sparse", types.ModuleType("nvmath.sparse"))):
+        monkeypatch.setitem(sys.modules, name, mod)
+    monkeypatch.setitem(sys.modules, "nvmath.sparse.advanced", adv)
+    monkeypatch.setattr(cudss_module, "_SESSIONS", weakref.WeakKeyDictionary())
+    return solver
+
+
+def test_cudss_factor_pads_blocks_keeps_one_plan_and_refactors_on_switch(stiffness, stand_in_cudss):
+    from wface.solvers.cudss import DEFAULT_WIDTH, CudssFactor
+
+    sim, x, a, _ = stiffness
+    tan = sim.tangent(x, a)
+    pattern = sim.pattern("free")
+    K = tan.assemble(pattern).toarray()
+    rng = np.random.default_rng(4)
+    first = CudssFactor.of_operator(tan, pattern)
+    for width in (None, 1, 5, DEFAULT_WIDTH, 2 * DEFAULT_WIDTH + 3):  # a vector, narrow, full and several blocks
+        B = rng.normal(size=K.shape[0] if width is None else (K.shape[0], width))
+        X = first.solve(B)
+        assert X.shape == B.shape
+        assert np.abs(K @ X - B).max() <= 1e-9 * np.abs(B).max()
+    assert stand_in_cudss.plans == 1 and stand_in_cudss.factorizations == 1
+    second = CudssFactor(pattern, 2.0 * tan.assemble_upper(pattern))  # another matrix of the pattern
+    b = rng.normal(size=K.shape[0])
+    assert np.allclose(second.solve(b), np.linalg.solve(2.0 * K, b))
+    assert np.allclose(first.solve(b), np.linalg.solve(K, b))  # refactored: the session held the second
+    assert stand_in_cudss.plans == 1 and stand_in_cudss.factorizations == 3
+    first.free()
+    with pytest.raises(RuntimeError, match="freed"):
+        first.solve(b)
+
+
+def test_cudss_failed_cholesky_raises_and_leaves_no_current_factor(stiffness, stand_in_cudss):
+    from wface.solvers.cudss import CudssFactor
+
+    sim, x, a, _ = stiffness
+    tan = sim.tangent(x, a)
+    pattern = sim.pattern("free")
+    with pytest.raises(NotPositiveDefiniteError, match="INFO 1"):
+        CudssFactor(pattern, -tan.assemble_upper(pattern))
+    good = CudssFactor(pattern, tan.assemble_upper(pattern))  # the same session serves the next matrix
+    b = np.ones(pattern.shape[0])
+    assert np.allclose(tan.assemble(pattern) @ good.solve(b), b)
