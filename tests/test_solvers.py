@@ -460,17 +460,25 @@ def test_cudss_factor_pads_blocks_keeps_one_plan_and_refactors_on_switch(stiffne
     K = tan.assemble(pattern).toarray()
     rng = np.random.default_rng(4)
     first = CudssFactor.of_operator(tan, pattern)
-    for width in (None, 1, 5, DEFAULT_WIDTH, 2 * DEFAULT_WIDTH + 3):  # a vector, narrow, full and several blocks
+    for width in (None, 1, 5, DEFAULT_WIDTH):  # a vector, narrow and full blocks: one plan, one factor
         B = rng.normal(size=K.shape[0] if width is None else (K.shape[0], width))
         X = first.solve(B)
         assert X.shape == B.shape
         assert np.abs(K @ X - B).max() <= 1e-9 * np.abs(B).max()
     assert stand_in_cudss.plans == 1 and stand_in_cudss.factorizations == 1
+    solves = stand_in_cudss.solves
+    B = rng.normal(size=(K.shape[0], DEFAULT_WIDTH + 1))  # the built-in face's M + 12 = 48 columns
+    assert np.abs(K @ first.solve(B) - B).max() <= 1e-9 * np.abs(B).max()
+    assert stand_in_cudss.solves == solves + 1  # one wider block (a new plan, the factor made again)
+    assert stand_in_cudss.plans == 2 and stand_in_cudss.factorizations == 2
+    B = rng.normal(size=(K.shape[0], 300))  # wider than MAX_WIDTH: in pieces of the kept width
+    assert np.abs(K @ first.solve(B) - B).max() <= 1e-9 * np.abs(B).max()
+    assert stand_in_cudss.plans == 2
     second = CudssFactor(pattern, 2.0 * tan.assemble_upper(pattern))  # another matrix of the pattern
     b = rng.normal(size=K.shape[0])
     assert np.allclose(second.solve(b), np.linalg.solve(2.0 * K, b))
     assert np.allclose(first.solve(b), np.linalg.solve(K, b))  # refactored: the session held the second
-    assert stand_in_cudss.plans == 1 and stand_in_cudss.factorizations == 3
+    assert stand_in_cudss.plans == 2 and stand_in_cudss.factorizations == 4  # the wider plan kept
     first.free()
     with pytest.raises(RuntimeError, match="freed"):
         first.solve(b)

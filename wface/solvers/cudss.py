@@ -5,8 +5,9 @@ matrix type SPD, so cuDSS runs a Cholesky factorisation. ``nvmath.sparse.advance
 holds the reordering and symbolic factorisation (``plan``) of one sparsity pattern: a new matrix of
 the same pattern only resets the values and refactors (``reset_operands`` + ``factorize``), the GPU
 counterpart of PARDISO's kept analysis (docs/design.md, "Linear solvers"). The right-hand-side block
-has a fixed width (the Jacobian's M + 12 columns by default); narrower blocks are padded with zeros,
-which keeps one plan per pattern but, measured on the H200, makes one column cost about as much as
+has a fixed width (47 columns, widened once, with a new plan, to the widest block asked for up to 256:
+the built-in face's Jacobian has M + 12 = 48); narrower blocks are padded with zeros, which keeps one
+plan per pattern but, measured on the H200, makes one column cost about as much as
 48 (56 vs 60 ms at 100K tets, mostly the padded block's transfers): the tracker's single-column
 chord solves are the GPU path's next cost.
 
@@ -30,6 +31,7 @@ __all__ = ["CudssFactor", "cudss_session"]
 
 _SESSIONS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 DEFAULT_WIDTH = 47
+MAX_WIDTH = 256  # wider blocks are solved in pieces of the session's width
 
 
 def _enums():
@@ -98,9 +100,10 @@ class _Session:
 
 
 def cudss_session(pattern, values: np.ndarray, *, width: int = DEFAULT_WIDTH, device_id: int = 0) -> _Session:
-    """The cuDSS plan of a ``BlockPattern`` (made on first use with these values, then kept)."""
+    """The cuDSS plan of a ``BlockPattern`` (made on first use with these values, then kept), for blocks
+    of at least ``width`` columns: a wider request plans anew once and the wider plan is kept."""
     session = _SESSIONS.get(pattern)
-    if session is None or session.width != width:
+    if session is None or session.width < width:
         session = _Session(pattern.upper, values, width, device_id)
         _SESSIONS[pattern] = session
     return session
@@ -114,6 +117,7 @@ class CudssFactor:
 
     def __init__(self, pattern, values: np.ndarray, *, device_id: int = 0):
         self.shape = pattern.shape
+        self._pattern, self._device_id = pattern, device_id
         self._values = np.ascontiguousarray(values, dtype=np.float64)
         self._session = cudss_session(pattern, self._values, device_id=device_id)
         self._session.factor(self._values, self)
@@ -128,10 +132,13 @@ class CudssFactor:
     def solve(self, B: np.ndarray) -> np.ndarray:
         if self._session is None:
             raise RuntimeError("this factorisation was freed")
+        B = np.asarray(B, dtype=np.float64)
+        B2 = B.reshape(B.shape[0], -1)
+        if self._session.width < B2.shape[1] <= MAX_WIDTH:  # e.g. M + 12 = 48 columns: one block, not two
+            self._session = cudss_session(self._pattern, self._values, width=B2.shape[1], device_id=self._device_id)
         if self._session._current is not self:  # another factor of this pattern was made since
             self._session.factor(self._values, self)
-        B = np.asarray(B, dtype=np.float64)
-        X = self._session.solve(B.reshape(B.shape[0], -1))
+        X = self._session.solve(B2)
         return X.reshape(B.shape)
 
     def free(self) -> None:
