@@ -102,3 +102,21 @@ def test_cudss_factor_solves_the_stiffness(cuda, box):
     B = np.random.default_rng(3).normal(size=(K.shape[0], 5))
     X = CudssFactor.of_operator(tan, pattern).solve(B)
     assert np.abs(K @ X - B).max() <= 1e-9 * np.abs(B).max()  # a Cholesky factor: round-off times cond
+
+
+def test_the_gpu_checks_cpu_reference_round_trips(tmp_path):
+    """``examples/gpu_check.py --make-reference`` on the CPU, then its comparison, here against the CPU:
+    the prepared GPU check compares before it benchmarks (runs without a GPU)."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("gpu_check", Path(__file__).parents[1] / "examples" / "gpu_check.py")
+    gpu_check = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gpu_check)
+    ref = tmp_path / "ref.npz"
+    assert gpu_check.main(["--make-reference", str(ref)]) == 0
+    assert gpu_check.compare_with_reference(ref, "cpu")
+    data = dict(np.load(ref))
+    data["forces"] = data["forces"] * (1 + 1e-6)  # a wrong answer is caught
+    np.savez(ref, **data)
+    assert not gpu_check.compare_with_reference(ref, "cpu")
