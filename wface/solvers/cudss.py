@@ -72,7 +72,8 @@ class _Session:
         self._current = None  # the CudssFactor whose values are factored now
 
     def factor(self, values: np.ndarray, owner) -> None:
-        if not np.isfinite(values).all():  # never hand cuDSS NaN or inf (PARDISO reports them; cuDSS may not)
+        if not np.isfinite(values.sum()):  # never hand cuDSS NaN or inf (PARDISO reports them; cuDSS may not):
+            # one reduction, no mask the size of the matrix (a sum that overflows is refused too)
             raise NotPositiveDefiniteError("the stiffness has non-finite entries: not factored")
         indptr, indices = self._structure
         A = sp.csr_matrix((np.asarray(values, np.float64), indices, indptr), shape=(self.n, self.n))

@@ -549,11 +549,9 @@ def _usage_passes(
 def activation_change_rms(before: list[FrameRecord], after: list[FrameRecord], n_muscles: int) -> float:
     """RMS change of the muscle activations from one pass to the next over the frames tracked in both
     (carried frames left out; 0.0 when there are none)."""
-    rows = [j for j, (b, a) in enumerate(zip(before, after, strict=True)) if not a.stats.get("carried")]
-    if not rows:
-        return 0.0
-    d = np.array([after[j].controls[:n_muscles] - before[j].controls[:n_muscles] for j in rows])
-    return float(np.sqrt(np.mean(d**2)))
+    d = [a.controls[:n_muscles] - b.controls[:n_muscles] for b, a in zip(before, after, strict=True)]
+    d = [row for row, a in zip(d, after, strict=True) if not a.stats.get("carried")]
+    return float(np.sqrt(np.mean(np.square(d)))) if d else 0.0
 
 
 def _priors_digest(priors) -> str:
