@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 
 from wface.mesh.closest import SurfaceQuery
 
-__all__ = ["PointBinding", "bind_points"]
+__all__ = ["PointBinding", "bind_points", "containing_tets"]
 
 _INSIDE_TOL = 1e-9  # barycentric slack: a point on a shared face belongs to either tet
 
@@ -64,7 +64,7 @@ class PointBinding:
         return out
 
 
-def _containing_tets(points, x, tets, k: int = 16):
+def containing_tets(points, x, tets, k: int = 16):
     """(tet id or -1, (n, 4) weights) of the tet containing each point (among the k nearest centroids)."""
     tree = cKDTree(x[tets].mean(axis=1))
     _, cand = tree.query(points, k=min(k, len(tets)))
@@ -128,7 +128,7 @@ def bind_points(
     skin = np.asarray(skin_triangles, dtype=np.int64)
     if not np.all(np.isfinite(p)):
         raise ValueError("bind_points: points contain NaN or inf")
-    tet, w = _containing_tets(p, x, tets)
+    tet, w = containing_tets(p, x, tets)
     inside = np.flatnonzero(tet >= 0)
     outside = np.flatnonzero(tet < 0)
     tri = np.zeros(0, dtype=np.int64)

@@ -1,0 +1,291 @@
+"""Trilinear hexahedra on wface's tet kernels: each 2x2x2 Gauss point of a hex as a quadrature tet.
+
+An 8-node hex (ANSYS SOLID185 / ArtiSynth order: corners I J K L then M N O P, natural coordinates
+(-1,-1,-1), (1,-1,-1), (1,1,-1), (-1,1,-1), then the same at +1) has the deformation gradient
+F_g = sum_a x_a (dN_a/dX)(xi_g)^T at Gauss point g. The linear tet with nodes
+
+    y0 = sum_a N_a(xi_g) x_a,    y_k = y0 + s_g sum_a (dN_a/dX_k)(xi_g) x_a    (k = 1, 2, 3)
+
+and rest edges y_k - y0 = s_g e_k has Dm = s_g I, so its deformation gradient is exactly F_g, and
+with s_g = (6 w_g det J_g)^(1/3) its rest volume s_g^3 / 6 is the Gauss weight times the Jacobian.
+The hex energy sum_g w_g det J_g psi(F_g) is therefore the energy of a tet mesh on the virtual nodes
+y = T x, a fixed sparse linear map of the hex nodes: forces T^T f_y, stiffness T^T K_y T. The flesh
+law, fibres, inversion clamp and projected tangent of ``wface.kernels.fem`` serve the hexes
+unchanged (each Gauss point's tangent is projected on its own, so the sum stays PSD).
+
+This is the element of ArtiSynth's face models (full 2x2x2 integration, ``HexElement``); a degenerate
+hex (repeated nodes: a wedge) is integrated as a collapsed hex, where ArtiSynth uses its
+``WedgeElement``. Used to set wface's split tets beside the original's hexes (README, "Speech
+gestures"; docs/design.md, "Hexes beside tets").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.sparse as sp
+
+from wface.mesh.embed import containing_tets
+from wface.model import FaceModel
+
+__all__ = ["HexQuadrature", "HexSolve", "hex_quadrature", "quadrature_model", "solve_hexes", "trilinear_points"]
+
+CORNERS = np.array(
+    [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]],
+    dtype=np.float64,
+)
+GAUSS_POINTS = CORNERS / np.sqrt(3.0)  # 2x2x2 Gauss-Legendre, weight 1 each
+_MIRROR = np.array([0, 3, 2, 1, 4, 7, 6, 5])  # the same hex with the opposite handedness
+
+
+def shape_functions(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N (g, 8), dN/dxi (g, 8, 3)) of the trilinear hex at natural coordinates ``xi`` (g, 3)."""
+    xi = np.atleast_2d(np.asarray(xi, dtype=np.float64))
+    f = 1.0 + xi[:, None, :] * CORNERS[None]  # (g, 8, 3) factors 1 + c_i xi_i
+    N = 0.125 * f.prod(axis=2)
+    dN = np.empty(f.shape)
+    for i in range(3):
+        others = [j for j in range(3) if j != i]
+        dN[:, :, i] = 0.125 * CORNERS[None, :, i] * f[:, :, others[0]] * f[:, :, others[1]]
+    return N, dN
+
+
+@dataclass(frozen=True)
+class HexQuadrature:
+    """The Gauss points of a hex mesh as quadrature tets (module docstring). G = 8 m points, 4 G virtual nodes."""
+
+    hexes: np.ndarray  # (m, 8) int node ids, right-handed (mirrored where the input was not)
+    rest_m: np.ndarray  # (n_nodes, 3) rest positions of the hex mesh's nodes (the map's columns)
+    map: sp.csr_matrix  # (4 G, n_nodes): virtual node positions y = map @ x
+    virtual_rest_m: np.ndarray  # (4 G, 3) rest positions of the virtual nodes
+    virtual_tets: np.ndarray  # (G, 4) int32
+    gauss_points_m: np.ndarray  # (G, 3) rest positions of the Gauss points
+    gauss_volume_m3: np.ndarray  # (G,) w_g det J_g
+    hex_of_point: np.ndarray  # (G,) row of ``hexes``
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.rest_m)
+
+    @property
+    def volume_m3(self) -> float:
+        return float(self.gauss_volume_m3.sum())
+
+    def virtual_positions(self, x_m: np.ndarray) -> np.ndarray:
+        """(4 G, 3) virtual node positions of hex-node positions ``x_m`` (n_nodes, 3)."""
+        return np.asarray(self.map @ np.asarray(x_m, dtype=np.float64))
+
+    def node_forces(self, virtual_forces: np.ndarray) -> np.ndarray:
+        """(n_nodes, 3) hex-node forces T^T f_y of virtual-node forces (4 G, 3)."""
+        return np.asarray(self.map.T @ virtual_forces)
+
+    def node_stiffness(self, virtual_stiffness: sp.spmatrix) -> sp.csr_matrix:
+        """(3 n, 3 n) T^T K_y T of the virtual nodes' (12 G, 12 G) stiffness."""
+        T3 = sp.kron(self.map, sp.identity(3), format="csr")
+        return (T3.T @ virtual_stiffness @ T3).tocsr()
+
+
+def hex_quadrature(x_rest_m: np.ndarray, hexes: np.ndarray) -> HexQuadrature:
+    """The quadrature tets of the hexes ``hexes`` (m, 8) over nodes ``x_rest_m`` (n, 3).
+
+    A hex whose Jacobian is negative at its centre is mirrored (its node order is left-handed);
+    a hex whose Jacobian is not positive at every Gauss point after that is an error naming it.
+    """
+    x = np.asarray(x_rest_m, dtype=np.float64)
+    hexes = np.array(hexes, dtype=np.int64).reshape(-1, 8)
+    if hexes.size and (hexes.min() < 0 or hexes.max() >= len(x)):
+        raise ValueError(f"hex node ids must lie in [0, {len(x)})")
+    _, dN_c = shape_functions(np.zeros((1, 3)))
+    det_c = np.linalg.det(np.einsum("mad,ae->mde", x[hexes], dN_c[0]))
+    hexes[det_c < 0] = hexes[det_c < 0][:, _MIRROR]
+    N, dN = shape_functions(GAUSS_POINTS)  # (8, 8), (8, 8, 3)
+    X = x[hexes]  # (m, 8, 3)
+    J = np.einsum("mad,gae->mgde", X, dN)  # (m, g, 3, 3): dX_d / dxi_e
+    det = np.linalg.det(J)
+    bad = np.flatnonzero((det <= 0).any(axis=1))
+    if bad.size:
+        raise ValueError(
+            f"{bad.size} hexes have a non-positive Jacobian at a Gauss point (rows {bad[:5].tolist()}): "
+            "twisted or inverted elements"
+        )
+    dNdX = np.einsum("gae,mged->mgad", dN, np.linalg.inv(J))  # (m, g, 8, 3)
+    m, G = len(hexes), 8 * len(hexes)
+    s = np.cbrt(6.0 * det).reshape(G)  # Gauss weights are 1
+    w_centre = np.broadcast_to(N[None], (m, 8, 8)).reshape(G, 8)
+    w_edge = dNdX.reshape(G, 8, 3) * s[:, None, None]
+    # rows of the virtual nodes 4 p + k: y0 = sum N x; y_k = y0 + s dN/dX_k . x
+    W = np.empty((G, 4, 8))
+    W[:, 0] = w_centre
+    W[:, 1:] = w_centre[:, None, :] + np.transpose(w_edge, (0, 2, 1))
+    cols = np.repeat(hexes, 8, axis=0)  # (G, 8)
+    T = sp.csr_matrix(
+        (W.reshape(-1), (np.repeat(np.arange(4 * G), 8), np.repeat(cols[:, None, :], 4, axis=1).reshape(-1))),
+        shape=(4 * G, len(x)),
+    )
+    T.sum_duplicates()  # repeated nodes of a degenerate hex
+    y0 = np.einsum("pa,pad->pd", w_centre, np.repeat(X, 8, axis=0))
+    rest = np.repeat(y0[:, None, :], 4, axis=1)
+    rest[:, 1:] += s[:, None, None] * np.eye(3)[None]
+    return HexQuadrature(
+        hexes=hexes,
+        rest_m=x,
+        map=T,
+        virtual_rest_m=rest.reshape(-1, 3),
+        virtual_tets=np.arange(4 * G, dtype=np.int32).reshape(G, 4),
+        gauss_points_m=y0,
+        gauss_volume_m3=det.reshape(G),
+        hex_of_point=np.repeat(np.arange(m), 8),
+    )
+
+
+def trilinear_points(quad: HexQuadrature, x_rest_m: np.ndarray, points_m: np.ndarray, *, iterations: int = 20):
+    """(hex row (k,), natural coordinates (k, 3)) of rest points in the hexes (nearest hex centroids tried
+    in turn, Newton on the trilinear map); a point in no hex is an error."""
+    from scipy.spatial import cKDTree
+
+    x = np.asarray(x_rest_m, dtype=np.float64)
+    p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    X = x[quad.hexes]
+    _, cand = cKDTree(X.mean(axis=1)).query(p, k=min(12, len(X)))
+    cand = cand.reshape(len(p), -1)
+    owner = np.full(len(p), -1)
+    xi_out = np.zeros((len(p), 3))
+    for j in range(cand.shape[1]):
+        todo = np.flatnonzero(owner < 0)
+        if not todo.size:
+            break
+        h = cand[todo, j]
+        xi = np.zeros((len(todo), 3))
+        for _ in range(iterations):
+            N, dN = shape_functions(xi)
+            r = np.einsum("ka,kad->kd", N, X[h]) - p[todo]
+            Jk = np.einsum("kad,kae->kde", X[h], dN)
+            xi = np.clip(xi - np.linalg.solve(Jk, r[:, :, None])[:, :, 0], -2.0, 2.0)
+        N, _ = shape_functions(xi)
+        close = np.linalg.norm(np.einsum("ka,kad->kd", N, X[h]) - p[todo], axis=1) < 1e-9
+        hit = close & (np.abs(xi) <= 1.0 + 1e-6).all(axis=1)
+        owner[todo[hit]] = h[hit]
+        xi_out[todo[hit]] = xi[hit]
+    if np.any(owner < 0):
+        raise ValueError(f"{int(np.sum(owner < 0))} points lie in no hex (first {np.flatnonzero(owner < 0)[:5]})")
+    return owner, xi_out
+
+
+def _holding_tets(points: np.ndarray, x: np.ndarray, tets: np.ndarray, k: int = 64) -> np.ndarray:
+    """(k,) the tet holding each point; a point just outside every tet (a Gauss point under a hex's
+    curved bilinear face, which the split tets flatten) takes the nearby tet it is least outside of."""
+    tet, _ = containing_tets(points, x, tets, k=k)
+    out = np.flatnonzero(tet < 0)
+    if out.size:
+        from scipy.spatial import cKDTree
+
+        _, cand = cKDTree(x[tets].mean(axis=1)).query(points[out], k=min(k, len(tets)))
+        cand = cand.reshape(len(out), -1)
+        p = x[tets[cand]]  # (o, k, 4, 3)
+        D = np.stack([p[..., i, :] - p[..., 0, :] for i in (1, 2, 3)], axis=-1)
+        w = np.linalg.solve(D, (points[out][:, None, :] - p[..., 0, :])[..., None])[..., 0]
+        worst = np.minimum(w.min(axis=-1), 1.0 - w.sum(axis=-1))
+        tet[out] = cand[np.arange(len(out)), worst.argmax(axis=1)]
+    return tet
+
+
+def quadrature_model(model: FaceModel, quad: HexQuadrature) -> FaceModel:
+    """The quadrature tets of ``quad`` as a ``FaceModel`` for ``wface.physics.Simulator``: ``model``'s
+    material and muscles, each Gauss point carrying the fibre entries (muscle, fraction, direction) of
+    the tet of ``model`` that holds it at rest, so the hexes see the tet model's muscle field.
+
+    Only the energy, forces and tangent of the result are meaningful (it has no skin, bones or
+    markers); the hex nodes are ``model``'s first ``quad.n_nodes`` nodes.
+    """
+    if model.pressure_actuators:
+        raise ValueError("quadrature_model: pressure actuators act on the tet model's surface; not carried")
+    tet = _holding_tets(quad.gauss_points_m, model.rest_positions_m, model.tets)
+    start = np.searchsorted(model.fibre_tet, np.arange(model.n_tets + 1))
+    counts = start[tet + 1] - start[tet]
+    point = np.repeat(np.arange(len(tet)), counts)
+    entry = np.concatenate([np.arange(start[t], start[t + 1]) for t in tet]) if counts.sum() else np.zeros(0, int)
+    return replace(
+        model,
+        rest_positions_m=quad.virtual_rest_m,
+        tets=quad.virtual_tets,
+        skin_triangles=np.zeros((0, 3), np.int32),
+        fibre_tet=point.astype(np.int32),
+        fibre_muscle=model.fibre_muscle[entry],
+        fibre_fraction=model.fibre_fraction[entry],
+        fibre_direction=model.fibre_direction[entry],
+        attached_nodes=np.zeros(0, np.int32),
+        attached_bone=np.zeros(0, np.int8),
+        bone_meshes={},
+        surface_groups={},
+        marker_names=[],
+        marker_positions_m=np.zeros((0, 3)),
+        metadata={**model.metadata, "hex_quadrature": {"hexes": int(len(quad.hexes))}},
+    )
+
+
+@dataclass
+class HexSolve:
+    """A quasistatic equilibrium of the hex mesh."""
+
+    x_m: np.ndarray  # (n_nodes, 3)
+    iterations: int
+    residual_rel: float
+    converged: bool
+    energy_j: float
+
+
+def solve_hexes(
+    sim,
+    quad: HexQuadrature,
+    free: np.ndarray,
+    activations,
+    x0_m: np.ndarray,
+    *,
+    tol: float = 1e-6,
+    max_iterations: int = 60,
+    force_scale: float | None = None,
+) -> HexSolve:
+    """Newton on the hex nodes ``free`` (the rest held at ``x0_m``), projected tangent, backtracking
+    line search on the energy; converged when |f_free| <= tol * force_scale (default: the free forces
+    at rest under ``activations``, floored, as ``wface.physics.newton``'s relative residual).
+
+    Args:
+        sim: a ``Simulator`` of ``quadrature_model(model, quad)``.
+    """
+    from wface.solvers.linear import DirectFactor
+
+    x = np.array(x0_m, dtype=np.float64)
+    free = np.asarray(free, dtype=np.int64)
+    dofs = (3 * free[:, None] + np.arange(3)).reshape(-1)
+
+    def energy_forces(xx):
+        e, fy = sim.energy_and_forces(quad.virtual_positions(xx), activations)
+        return e, quad.node_forces(fy)
+
+    if force_scale is None:
+        mat = sim.model.material
+        floor = 1e-3 * (mat.mu10_pa + mat.mu01_pa) * quad.volume_m3 ** (2.0 / 3.0)
+        force_scale = max(float(np.linalg.norm(energy_forces(quad.rest_m)[1][free])), floor)
+    e, f = energy_forces(x)
+    factor = None
+    for it in range(max_iterations + 1):
+        r = f[free].reshape(-1)
+        res = float(np.linalg.norm(r)) / force_scale
+        if res <= tol:
+            return HexSolve(x, it, res, True, e)
+        if it == max_iterations:
+            break
+        Ky = sim.tangent(quad.virtual_positions(x), activations).assemble()
+        K = quad.node_stiffness(Ky)[dofs][:, dofs].tocsr()
+        factor = DirectFactor(K, reuse=factor)
+        dx = np.zeros_like(x)
+        dx[free] = factor.solve(r).reshape(-1, 3)
+        step, slope = 1.0, -float(r @ dx[free].reshape(-1))
+        while True:
+            e_new, f_new = energy_forces(x + step * dx)
+            if e_new <= e + 1e-4 * step * slope or step < 1e-6:
+                break
+            step *= 0.5
+        x, e, f = x + step * dx, e_new, f_new
+    return HexSolve(x, max_iterations, res, False, e)
