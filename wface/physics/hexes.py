@@ -25,9 +25,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from wface.mesh.embed import containing_tets
 from wface.model import FaceModel
+from wface.solvers.linear import DirectFactor
 
 __all__ = ["HexQuadrature", "HexSolve", "hex_quadrature", "quadrature_model", "solve_hexes", "trilinear_points"]
 
@@ -142,8 +144,6 @@ def hex_quadrature(x_rest_m: np.ndarray, hexes: np.ndarray) -> HexQuadrature:
 def trilinear_points(quad: HexQuadrature, x_rest_m: np.ndarray, points_m: np.ndarray, *, iterations: int = 20):
     """(hex row (k,), natural coordinates (k, 3)) of rest points in the hexes (nearest hex centroids tried
     in turn, Newton on the trilinear map); a point in no hex is an error."""
-    from scipy.spatial import cKDTree
-
     x = np.asarray(x_rest_m, dtype=np.float64)
     p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
     X = x[quad.hexes]
@@ -178,8 +178,6 @@ def _holding_tets(points: np.ndarray, x: np.ndarray, tets: np.ndarray, k: int = 
     tet, _ = containing_tets(points, x, tets, k=k)
     out = np.flatnonzero(tet < 0)
     if out.size:
-        from scipy.spatial import cKDTree
-
         _, cand = cKDTree(x[tets].mean(axis=1)).query(points[out], k=min(k, len(tets)))
         cand = cand.reshape(len(out), -1)
         p = x[tets[cand]]  # (o, k, 4, 3)
@@ -253,8 +251,6 @@ def solve_hexes(
     Args:
         sim: a ``Simulator`` of ``quadrature_model(model, quad)``.
     """
-    from wface.solvers.linear import DirectFactor
-
     x = np.array(x0_m, dtype=np.float64)
     free = np.asarray(free, dtype=np.int64)
     dofs = (3 * free[:, None] + np.arange(3)).reshape(-1)

@@ -58,11 +58,12 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import Delaunay, cKDTree
 
 from wface.faces.ansys import hexes_to_tets, read_ansys_elements, read_ansys_nodes, read_int_list
 from wface.faces.artisynth import FIXED_NODE_FILES, JAW_NODE_FILE, MESH_PREFIX
 from wface.faces.fibres import point_segment_distance
+from wface.mesh.closest import closest_point_on_triangles
 from wface.model import FaceModel, Material
 
 __all__ = [
@@ -226,10 +227,6 @@ def delaunay_fibre_directions(points_m: np.ndarray, fibre_mid_m: np.ndarray, fib
     tetrahedron holding the point, or of the closest point on the convex hull for a point outside it;
     the fibres' directions added from the largest weight down, each sign-flipped to agree with the
     sum so far (a direction and its opposite are the same fibre), then normalised."""
-    from scipy.spatial import Delaunay
-
-    from wface.mesh.closest import closest_point_on_triangles
-
     p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
     mid, d = np.asarray(fibre_mid_m, dtype=np.float64), np.asarray(fibre_dir, dtype=np.float64)
     tri = Delaunay(mid)
