@@ -159,3 +159,20 @@ def test_demo_lists_the_render_mesh_layer_it_writes(tmp_path, capsys):
     assert main([*args, "--render-mesh", str(tmp_path / "patch.obj"), "--render-mesh-units", "m"]) == 0
     printed = capsys.readouterr().out
     assert (out / "animation_render_mesh.usdc").is_file() and "animation_render_mesh.usdc" in printed
+
+
+def test_containing_tets_nearest_for_points_just_outside():
+    """A point just outside the mesh is in no tet (-1); with nearest=True it takes the tet it is least
+    outside of, one whose face it lies beyond."""
+    from wface.mesh.embed import containing_tets
+    from wface.testing.box import box_tet_mesh
+
+    x, tets = box_tet_mesh((2, 2, 2), (1.0, 1.0, 1.0))
+    p = np.array([[0.5, 0.5, 0.5], [0.3, 0.7, -1e-4]])
+    found, _ = containing_tets(p, x, tets)
+    assert found[0] >= 0 and found[1] == -1
+    near, _ = containing_tets(p, x, tets, nearest=True)
+    assert near[0] == found[0]
+    corners = x[tets[near[1]]]
+    assert np.isclose(corners[:, 2], 0.0).sum() == 3  # a tet with a face on the box's z = 0 side
+    assert corners[:, 0].min() <= 0.3 <= corners[:, 0].max() and corners[:, 1].min() <= 0.7 <= corners[:, 1].max()

@@ -64,13 +64,17 @@ class PointBinding:
         return out
 
 
-def containing_tets(points, x, tets, k: int = 16):
-    """(tet id or -1, (n, 4) weights) of the tet containing each point (among the k nearest centroids)."""
+def containing_tets(points, x, tets, k: int = 16, *, nearest: bool = False):
+    """(tet id or -1, (n, 4) weights) of the tet containing each point (among the k nearest centroids).
+
+    ``nearest``: a point in none of them takes the candidate it is least outside of (largest smallest
+    barycentric weight; e.g. a point under a curved face that the tets flatten) instead of -1."""
     tree = cKDTree(x[tets].mean(axis=1))
     _, cand = tree.query(points, k=min(k, len(tets)))
     cand = cand.reshape(len(points), -1)
     found = np.full(len(points), -1, dtype=np.int64)
     weights = np.zeros((len(points), 4))
+    best, best_min = np.full(len(points), -1, dtype=np.int64), np.full(len(points), -np.inf)
     for j in range(cand.shape[1]):
         todo = np.flatnonzero(found < 0)
         if not todo.size:
@@ -83,6 +87,11 @@ def containing_tets(points, x, tets, k: int = 16):
         hit = w.min(axis=1) >= -_INSIDE_TOL
         found[todo[hit]] = t[hit]
         weights[todo[hit]] = w[hit]
+        better = w.min(axis=1) > best_min[todo]
+        best[todo[better]], best_min[todo[better]] = t[better], w.min(axis=1)[better]
+    if nearest:
+        out = found < 0
+        found[out] = best[out]
     return found, weights
 
 

@@ -82,9 +82,16 @@ class HexQuadrature:
         """(n_nodes, 3) hex-node forces T^T f_y of virtual-node forces (4 G, 3)."""
         return np.asarray(self.map.T @ virtual_forces)
 
-    def node_stiffness(self, virtual_stiffness: sp.spmatrix) -> sp.csr_matrix:
-        """(3 n, 3 n) T^T K_y T of the virtual nodes' (12 G, 12 G) stiffness."""
+    def dof_map(self, dofs: np.ndarray | None = None) -> sp.csr_matrix:
+        """(12 G, k) the map T per coordinate, restricted to the columns of hex-node ``dofs`` (3 node +
+        axis; None: all 3 n)."""
         T3 = sp.kron(self.map, sp.identity(3), format="csr")
+        return T3 if dofs is None else T3[:, dofs].tocsr()
+
+    def node_stiffness(self, virtual_stiffness: sp.spmatrix, dof_map: sp.csr_matrix | None = None) -> sp.csr_matrix:
+        """T^T K_y T of the virtual nodes' (12 G, 12 G) stiffness over the columns of ``dof_map``
+        (``self.dof_map(dofs)``; None: all hex-node coordinates, (3 n, 3 n))."""
+        T3 = self.dof_map() if dof_map is None else dof_map
         return (T3.T @ virtual_stiffness @ T3).tocsr()
 
 
@@ -172,22 +179,6 @@ def trilinear_points(quad: HexQuadrature, x_rest_m: np.ndarray, points_m: np.nda
     return owner, xi_out
 
 
-def _holding_tets(points: np.ndarray, x: np.ndarray, tets: np.ndarray, k: int = 64) -> np.ndarray:
-    """(k,) the tet holding each point; a point just outside every tet (a Gauss point under a hex's
-    curved bilinear face, which the split tets flatten) takes the nearby tet it is least outside of."""
-    tet, _ = containing_tets(points, x, tets, k=k)
-    out = np.flatnonzero(tet < 0)
-    if out.size:
-        _, cand = cKDTree(x[tets].mean(axis=1)).query(points[out], k=min(k, len(tets)))
-        cand = cand.reshape(len(out), -1)
-        p = x[tets[cand]]  # (o, k, 4, 3)
-        D = np.stack([p[..., i, :] - p[..., 0, :] for i in (1, 2, 3)], axis=-1)
-        w = np.linalg.solve(D, (points[out][:, None, :] - p[..., 0, :])[..., None])[..., 0]
-        worst = np.minimum(w.min(axis=-1), 1.0 - w.sum(axis=-1))
-        tet[out] = cand[np.arange(len(out)), worst.argmax(axis=1)]
-    return tet
-
-
 def quadrature_model(model: FaceModel, quad: HexQuadrature) -> FaceModel:
     """The quadrature tets of ``quad`` as a ``FaceModel`` for ``wface.physics.Simulator``: ``model``'s
     material and muscles, each Gauss point carrying the fibre entries (muscle, fraction, direction) of
@@ -198,7 +189,9 @@ def quadrature_model(model: FaceModel, quad: HexQuadrature) -> FaceModel:
     """
     if model.pressure_actuators:
         raise ValueError("quadrature_model: pressure actuators act on the tet model's surface; not carried")
-    tet = _holding_tets(quad.gauss_points_m, model.rest_positions_m, model.tets)
+    # a Gauss point under a hex's curved bilinear face, which the split tets flatten, lies just outside
+    # every tet: it takes the one it is least outside of
+    tet, _ = containing_tets(quad.gauss_points_m, model.rest_positions_m, model.tets, k=64, nearest=True)
     start = np.searchsorted(model.fibre_tet, np.arange(model.n_tets + 1))
     counts = start[tet + 1] - start[tet]
     point = np.repeat(np.arange(len(tet)), counts)
@@ -254,6 +247,7 @@ def solve_hexes(
     x = np.array(x0_m, dtype=np.float64)
     free = np.asarray(free, dtype=np.int64)
     dofs = (3 * free[:, None] + np.arange(3)).reshape(-1)
+    T_free = quad.dof_map(dofs)  # once per solve: K_UU = T_U^T K_y T_U at every iteration
 
     def energy_forces(xx):
         e, fy = sim.energy_and_forces(quad.virtual_positions(xx), activations)
@@ -273,7 +267,7 @@ def solve_hexes(
         if it == max_iterations:
             break
         Ky = sim.tangent(quad.virtual_positions(x), activations).assemble()
-        K = quad.node_stiffness(Ky)[dofs][:, dofs].tocsr()
+        K = quad.node_stiffness(Ky, T_free)
         factor = DirectFactor(K, reuse=factor)
         dx = np.zeros_like(x)
         dx[free] = factor.solve(r).reshape(-1, 3)

@@ -63,7 +63,7 @@ from scipy.spatial import Delaunay, cKDTree
 from wface.faces.ansys import hexes_to_tets, read_ansys_elements, read_ansys_nodes, read_int_list
 from wface.faces.artisynth import FIXED_NODE_FILES, JAW_NODE_FILE, MESH_PREFIX
 from wface.faces.fibres import point_segment_distance
-from wface.mesh.closest import closest_point_on_triangles
+from wface.mesh.closest import SurfaceQuery
 from wface.model import FaceModel, Material
 
 __all__ = [
@@ -237,18 +237,14 @@ def delaunay_fibre_directions(points_m: np.ndarray, fibre_mid_m: np.ndarray, fib
     bc = np.einsum("kij,kj->ki", T[:, :3], p[inside] - T[:, 3])
     weights[inside] = np.column_stack([bc, 1.0 - bc.sum(axis=1)])
     index[inside] = tri.simplices[simplex[inside]]
-    hull = tri.convex_hull
-    for k in np.flatnonzero(~inside):
-        q = np.broadcast_to(p[k], (len(hull), 3))
-        w = closest_point_on_triangles(q, mid[hull[:, 0]], mid[hull[:, 1]], mid[hull[:, 2]])
-        dist = np.linalg.norm(np.einsum("fj,fjd->fd", w, mid[hull]) - q, axis=1)
-        f = int(np.argmin(dist))
-        weights[k, :3], index[k, :3] = w[f], hull[f]
+    if not inside.all():
+        hit = SurfaceQuery(mid, tri.convex_hull).closest(p[~inside])
+        weights[~inside, :3], index[~inside, :3] = hit.barycentric, tri.convex_hull[hit.triangle]
     out = np.zeros((len(p), 3))
-    for j in range(4):  # largest weight first (ArtiSynth sorts the weights)
-        order = np.argsort(-weights, axis=1)[:, j]
-        w = weights[np.arange(len(p)), order]
-        dj = d[index[np.arange(len(p)), order]]
+    rows, order = np.arange(len(p)), np.argsort(-weights, axis=1)  # largest weight first, as ArtiSynth sorts
+    for j in range(4):
+        w = weights[rows, order[:, j]]
+        dj = d[index[rows, order[:, j]]]
         sign = np.where(np.einsum("kd,kd->k", out, dj) < 0, -1.0, 1.0)
         out += (sign * w)[:, None] * dj
     return out / np.linalg.norm(out, axis=1, keepdims=True)
