@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from tests.conftest import data_path
-from wface.mesh.align import Similarity, align_to_surface, embed_markers, remove_head_motion, umeyama
+from wface.mesh.align import Similarity, align_to_surface, embed_markers, remove_head_motion, tangent_frame, umeyama
 
 _EXACT = 1e-9  # float64 round-off on O(1) coordinates
 
@@ -124,9 +124,32 @@ def test_marker_positions_on_the_ring_equal_the_whole_surface():
     normals = vertex_normals(moved, tris)
     tri = tris[emb.triangle]
     nm = np.einsum("kj,kjd->kd", emb.barycentric, normals[tri])
-    whole += emb.normal_offset_m[:, None] * nm / np.linalg.norm(nm, axis=1, keepdims=True)
+    nm /= np.linalg.norm(nm, axis=1, keepdims=True)
+    whole += emb.normal_offset_m[:, None] * nm
+    t1, t2 = tangent_frame(moved[tri], nm)
+    whole += emb.tangent_offset_m[:, :1] * t1 + emb.tangent_offset_m[:, 1:] * t2
     np.testing.assert_array_equal(emb.marker_positions(moved, tris, ring=ring), whole)
     np.testing.assert_array_equal(emb.marker_positions(moved, tris), whole)
+
+
+def test_markers_off_a_ridge_sit_at_rest_and_turn_with_the_skin():
+    """A marker far off a coarse, curved surface has its closest point on an edge or a vertex, so
+    part of its offset is not along the interpolated normal: the embedding keeps that part in the
+    triangle's tangent frame, puts every marker exactly at its rest place and carries it rigidly."""
+    v, tris = _sphere()
+    rng = np.random.default_rng(11)
+    p = rng.normal(size=(20, 3))
+    p *= (0.12 + 0.02 * rng.random(20))[:, None] / np.linalg.norm(p, axis=1, keepdims=True)  # 0-2 cm off
+    emb = embed_markers(p, v, tris)
+    assert np.linalg.norm(emb.tangent_residual_m, axis=1).max() > 1e-4  # off the normal somewhere
+    np.testing.assert_allclose(emb.marker_positions(v, tris), p, rtol=0, atol=1e-14)
+    dropped = embed_markers(p, v, tris)
+    dropped.tangent_offset_m = None  # the normal part alone misses by the tangent residual
+    miss = np.linalg.norm(dropped.marker_positions(v, tris) - p, axis=1)
+    np.testing.assert_allclose(miss, np.linalg.norm(emb.tangent_residual_m, axis=1), rtol=1e-9, atol=1e-15)
+    rot = Rotation.from_rotvec([0.3, -0.5, 0.2]).as_matrix()
+    shift = np.array([0.01, -0.02, 0.03])
+    np.testing.assert_allclose(emb.marker_positions(v @ rot.T + shift, tris), p @ rot.T + shift, rtol=0, atol=1e-14)
 
 
 def test_remove_head_motion_rigid():

@@ -10,7 +10,10 @@ Alignment of a capture frame to a face surface (Choe & Ko 2001, sec. 4.1.1): sta
 similarity fit to named landmark vertices (or centroid / principal axes), then alternate
 projecting the transformed markers onto the surface and refitting the similarity to the
 projections until the RMS distance stops falling. Each marker keeps its surface embedding:
-triangle, barycentric weights and signed offset along the interpolated normal.
+triangle, barycentric weights, signed offset along the interpolated normal and the rest of its
+offset (the part off the normal where the closest point lies on an edge or a vertex of a ridge,
+up to millimetres for a marker a centimetre off a coarse nose) in the triangle's tangent frame,
+so that the embedded marker sits exactly where it was at rest and turns with the skin.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ __all__ = [
     "embed_markers",
     "landmark_array",
     "remove_head_motion",
+    "tangent_frame",
     "umeyama",
     "STABLE_MARKERS",
 ]
@@ -143,13 +147,17 @@ class MarkerEmbedding:
         triangle: (k,) triangle index per marker (-1: not embedded, e.g. missing at rest).
         barycentric: (k, 3) weights of the triangle's vertices.
         normal_offset_m: (k,) signed distance along the interpolated unit normal.
-        tangent_residual_m: (k, 3) part of (marker - surface point) not along the normal.
+        tangent_residual_m: (k, 3) part of (marker - surface point) not along the normal, at rest.
+        tangent_offset_m: (k, 2) the same part in the triangle's tangent frame (``tangent_frame``),
+            carried with the skin by ``marker_positions``; None: dropped (a marker sits off its
+            rest place by its ``tangent_residual_m``).
     """
 
     triangle: np.ndarray
     barycentric: np.ndarray
     normal_offset_m: np.ndarray
     tangent_residual_m: np.ndarray
+    tangent_offset_m: np.ndarray | None = None
 
     def surface_points(self, vertices_m: np.ndarray, triangles: np.ndarray) -> np.ndarray:
         """(k, 3) surface points of the embedding on a deformed surface (NaN where not embedded)."""
@@ -162,7 +170,7 @@ class MarkerEmbedding:
     def marker_positions(
         self, vertices_m: np.ndarray, triangles: np.ndarray, *, ring: np.ndarray | None = None
     ) -> np.ndarray:
-        """(k, 3) marker positions: surface point plus the rest offset along the current normal.
+        """(k, 3) marker positions: surface point plus the rest offset in the current normal and tangent frame.
 
         ``ring``: the ids of the triangles touching the embedding's vertices (``ring_triangles``),
         when the caller keeps them: the vertex normals are then summed over those alone, the same
@@ -179,12 +187,27 @@ class MarkerEmbedding:
         n = np.einsum("kj,kjd->kd", self.barycentric[ok], normals[tris])
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
         p[ok] += self.normal_offset_m[ok, None] * n
+        if self.tangent_offset_m is not None:
+            t1, t2 = tangent_frame(np.asarray(vertices_m)[tris], n)
+            p[ok] += self.tangent_offset_m[ok, :1] * t1 + self.tangent_offset_m[ok, 1:] * t2
         return p
 
     def ring_triangles(self, triangles: np.ndarray) -> np.ndarray:
         """Sorted ids of the triangles that share a vertex with an embedding triangle."""
         triangles = np.asarray(triangles)
         return _touching(triangles, np.unique(triangles[self.triangle[self.triangle >= 0]]))
+
+
+TANGENT_ROUNDING_M = 1e-9  # tangent offsets below a nanometre are the closest-point query's rounding
+
+
+def tangent_frame(corners_m: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit tangents (t1, t2) of (k, 3, 3) triangles about (k, 3) unit normals: t1 along the first
+    edge with its normal part removed, t2 = n x t1. Both turn with a rigid motion of the triangle."""
+    e = corners_m[:, 1] - corners_m[:, 0]
+    t1 = e - np.einsum("kd,kd->k", e, normals)[:, None] * normals
+    t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-300)
+    return t1, np.cross(normals, t1)
 
 
 def _touching(triangles: np.ndarray, vertices: np.ndarray) -> np.ndarray:
@@ -212,6 +235,7 @@ def embed_markers(
     bary = np.zeros((k, 3))
     off = np.full(k, np.nan)
     tang = np.full((k, 3), np.nan)
+    local = np.zeros((k, 2))
     ok = np.isfinite(m).all(axis=1)
     if ok.any():
         hit = q.closest(m[ok])
@@ -222,7 +246,10 @@ def embed_markers(
         along = np.einsum("ij,ij->i", delta, n)
         tri[ok], bary[ok], off[ok] = hit.triangle, hit.barycentric, along
         tang[ok] = delta - along[:, None] * n
-    return MarkerEmbedding(tri, bary, off, tang)
+        t1, t2 = tangent_frame(np.asarray(vertices_m, dtype=np.float64)[tris[hit.triangle]], n)
+        local[ok] = np.stack([np.einsum("kd,kd->k", tang[ok], t1), np.einsum("kd,kd->k", tang[ok], t2)], axis=1)
+        local[np.abs(local) < TANGENT_ROUNDING_M] = 0.0  # a marker on the skin: rounding, kept out of the sums
+    return MarkerEmbedding(tri, bary, off, tang, local)
 
 
 @dataclass

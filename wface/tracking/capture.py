@@ -12,7 +12,8 @@ landmarks. An implausible fit is refused with what to check (``CaptureError``): 
 [0.5, 2] (after the reader's unit conversion: a wrong unit gives 10x or 1000x), or, with fewer than
 three names matched, a shape fit worse than 10 mm RMS. The same similarity maps every frame, so the
 actor's rigid head motion stays in the data and is carried by the cranium controls. Each marker is
-embedded in its closest skin triangle with its offset along the normal.
+embedded in its closest skin triangle with its offset along the normal and in the triangle's tangent
+frame, so it sits exactly at its neutral-frame place at rest (``wface.mesh.align``).
 """
 
 from __future__ import annotations

@@ -3,8 +3,9 @@ golden-section line search (Sifakis et al. 2005, sections 5 and 9; docs/design.m
 
 Objective: phi(c) = sum_k w_k |m_k(X(c)) - t_k|^2 over the markers present in the frame, with
 m_k the embedded marker (barycentric point of its skin triangle plus its rest offset along the
-normal) and w_k robust weights, plus two optional regularisers, both off by default: temporal smoothness
-lam |a - a_prev|^2 and a prior mu |a|^2 toward the rest face. One Gauss-Newton step:
+normal and in the triangle's tangent frame) and w_k robust weights, plus two optional regularisers,
+both off by default: temporal smoothness lam |a - a_prev|^2 and a prior mu |a|^2 toward the rest face.
+One Gauss-Newton step:
   1. linearise m(c + dc) ~ m(c) + J dc with J = W dX/dc (``FaceRig.jacobian``);
   2. for rho rising geometrically (x1.05 grid, searched by bisection) from rho0 phi up to 1e6 phi,
      solve the small system (2 J^T W J + rho H_p + 2 lam I_a) dc = -(2 J^T W r + rho g_p + 2 lam (a - a_prev)),

@@ -126,9 +126,15 @@ def tracking_provenance(
     opts = {
         "track": _describe(options or TrackOptions()),
         "rig": _describe(rig_kwargs or {}),
-        "embedding_sha256": array_sha256(e.triangle, e.barycentric, e.normal_offset_m)[:16],
+        "embedding_sha256": array_sha256(*_embedding_arrays(e))[:16],
     }
     return run_provenance(kind=kind, model_sha256=model_sha256(model), source=source or {}, options=opts)
+
+
+def _embedding_arrays(e) -> tuple:
+    """The arrays that place the markers (the tangent part only where the embedding carries one)."""
+    base = (e.triangle, e.barycentric, e.normal_offset_m)
+    return base if e.tangent_offset_m is None else (*base, e.tangent_offset_m)
 
 
 class _Tracker:
