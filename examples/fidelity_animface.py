@@ -14,7 +14,9 @@ For each AnimFace take (``$WFACE_DATA/animface/<Take>MoCap.c3d``, ``WFACE_DATA``
 the capture is aligned and embedded at the neutral frame (``prepare_capture``), every
 ``--holdout``-th marker by height is hidden from the fit (``wface.tracking.holdout``), and the
 frames ``0:--frames:--step`` are tracked (``track_sequence``, warm-started frame to frame).
-Per take and face: the fitted markers' RMS (mean over frames), the held-out markers' RMS, and the
+Per take and face: the fitted markers' RMS (mean over frames), the held-out markers' RMS (both in
+the actor's millimetres: the capture comes onto the built-in face scaled by about 0.90, onto the
+fitted one by 1, and the face's millimetres would flatter the smaller face), and the
 share of frames in which each muscle sits at a bound (activation >= 0.999, "pinned high"; the lower
 bound 0 is a resting muscle and is reported apart). Writes ``fidelity.json`` and
 ``fidelity.md`` (the README's table) under --out, plus one take directory per run
@@ -37,6 +39,7 @@ from wface.io.mocap import read_mocap
 from wface.takes.store import take_from_records, write_controls, write_report
 from wface.tracking.capture import prepare_capture
 from wface.tracking.holdout import hide, holdout_report, select_holdout
+from wface.tracking.report import add_capture_units
 from wface.tracking.sequence import dask_executor, track_sequence
 
 TAKES = ("Jaw", "Nose", "Cheeks", "Eyebrows")
@@ -100,6 +103,7 @@ def run_one(face, take, frames, holdout: str, out: Path, workers: int) -> dict:
         "seconds": time.perf_counter() - t0,
         "seconds_per_frame_median": float(np.median([r.stats["seconds"] for r in records])),
     }
+    add_capture_units(result, cap.scale)  # the actor's millimetres beside the face's
     write_controls(out, face, take_from_records(face, records, fps=take.rate_hz / max(1, frames[1] - frames[0])))
     write_report(out, {**result, "marker_rms_mm": used.tolist(), "holdout_rms_mm": hold["holdout_rms_mm"]})
     return result
@@ -108,15 +112,16 @@ def run_one(face, take, frames, holdout: str, out: Path, workers: int) -> dict:
 def table(results: dict) -> str:
     """The README's markdown table."""
     rows = [
-        "| take | face | frames | marker RMS used (mm) | held-out RMS (mm) | muscles pinned high > 10 % of frames |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| take | face | frames | face / actor scale | marker RMS used (mm) | held-out RMS (mm) "
+        "| muscles pinned high > 10 % of frames |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
     ]
     for key, r in results.items():
         take, face = key.split("/")
         pinned = ", ".join(r["pinned_high_over_10pct"]) or "none"
         rows.append(
-            f"| {take} | {face} | {r['frames']} | {r['marker_rms_mm_mean']:.2f} | {r['holdout_rms_mm_mean']:.2f} | "
-            f"{pinned} |"
+            f"| {take} | {face} | {r['frames']} | {r['capture_to_model_scale']:.3f} | "
+            f"{r['marker_rms_capture_mm_mean']:.2f} | {r['holdout_rms_capture_mm_mean']:.2f} | {pinned} |"
         )
     return "\n".join(rows) + "\n"
 
@@ -173,8 +178,9 @@ def main(argv: list[str] | None = None) -> int:
             run_dir = out / key.replace("/", "_")  # one take directory per take, face and variant
             results[key] = run_one(face, take, frames, args.holdout, run_dir, args.workers)
             print(
-                f"{key}: used {results[key]['marker_rms_mm_mean']:.2f} mm, held out "
-                f"{results[key]['holdout_rms_mm_mean']:.2f} mm, pinned {results[key]['pinned_high_over_10pct']}"
+                f"{key}: used {results[key]['marker_rms_capture_mm_mean']:.2f} mm, held out "
+                f"{results[key]['holdout_rms_capture_mm_mean']:.2f} mm (the actor's mm; face / actor scale "
+                f"{results[key]['capture_to_model_scale']:.3f}), pinned {results[key]['pinned_high_over_10pct']}"
             )
             results_path.write_text(json.dumps(results, indent=2) + "\n")
     (out / "fidelity.md").write_text(table(results))

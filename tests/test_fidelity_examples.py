@@ -7,6 +7,8 @@ import importlib.util
 import json
 from pathlib import Path
 
+import pytest
+
 from tests.conftest import data_path
 
 _EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -34,6 +36,14 @@ def test_fidelity_table_on_two_jaw_frames(tmp_path, monkeypatch):
     builtin = json.loads((out / "Jaw_builtin" / "report.json").read_text())["marker_rms_mm"][0]
     assert fitted < builtin
     assert "| Jaw | fitted | 2 |" in (out / "fidelity.md").read_text()
+    # errors in the actor's millimetres: the capture comes onto the built-in face scaled by ~0.9, onto
+    # the face fitted to it by 1
+    assert 0.85 < res["Jaw/builtin"]["capture_to_model_scale"] < 0.95
+    assert abs(res["Jaw/fitted"]["capture_to_model_scale"] - 1.0) < 0.01
+    for r in res.values():
+        s = r["capture_to_model_scale"]
+        assert r["marker_rms_capture_mm_mean"] == pytest.approx(r["marker_rms_mm_mean"] / s, rel=1e-12)
+        assert r["holdout_rms_capture_mm_mean"] == pytest.approx(r["holdout_rms_mm_mean"] / s, rel=1e-12)
 
 
 def test_cheek_puff_analysis(tmp_path, monkeypatch):

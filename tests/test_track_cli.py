@@ -70,7 +70,8 @@ def test_track_a_csv_file(tmp_path):
     perf = synthesize_performance(FaceRig(model), embed_model_markers(model), frames=3, seed=4)
     # Frame 0 is the neutral face (the alignment embeds markers at the first frame of the range).
     rest = embed_model_markers(model).positions(model.rest_positions_m)[None]
-    take = MocapTake(np.concatenate([rest, perf.clean_markers_m]), list(model.marker_names), 30.0)
+    # An actor 1.25 times the face's size: the capture comes in at scale 0.8, errors also in its own mm.
+    take = MocapTake(1.25 * np.concatenate([rest, perf.clean_markers_m]), list(model.marker_names), 30.0)
     write_mocap(take, tmp_path / "take.csv")
     out = tmp_path / "run"
     assert (
@@ -92,6 +93,8 @@ def test_track_a_csv_file(tmp_path):
     )
     report = json.loads((out / "report.json").read_text())
     assert report["frames"] == 3 and report["marker_rms_mm_mean"] < 0.1
+    assert report["capture_to_model_scale"] == pytest.approx(0.8, rel=1e-6)
+    assert report["marker_rms_capture_mm_mean"] == pytest.approx(report["marker_rms_mm_mean"] / 0.8, rel=1e-9)
     assert sorted(p.name for p in (out / "frames").glob("*.npz"))[-1] == "frame_000002.npz"
 
 

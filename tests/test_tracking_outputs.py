@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from wface.cli import main
-from wface.tracking.report import _marker_stats
+from wface.tracking.report import _marker_stats, add_capture_units
 from wface.viz.report import headline_cards
 
 
@@ -66,3 +66,10 @@ def test_headline_is_the_error_a_person_should_read():
     synthetic = {**real, "truth_marker_rms_mm": 0.24}
     assert headline_cards(synthetic)[0] == ("0.24", "mm", "marker RMS error vs the clean truth")
     assert all("2.3" != c[0] for c in headline_cards(synthetic))  # the outlier-corrupted RMS is not a headline
+    scaled = add_capture_units({**real}, 0.9)  # a face 0.9 times the actor's size: the actor's mm shown too
+    assert scaled["marker_rms_capture_mm_mean"] == pytest.approx(2.3 / 0.9)
+    assert scaled["marker_rms_capture_mm_inliers"] == pytest.approx(0.4 / 0.9)
+    assert ("0.4444", "mm", "marker RMS in the capture's mm (face = 0.9 x actor)") in headline_cards(scaled)
+    assert not any("capture" in c[2] for c in headline_cards(add_capture_units({**real}, 1.0)))
+    with pytest.raises(ValueError, match="capture_to_model_scale"):
+        add_capture_units({}, 0.0)

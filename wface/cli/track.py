@@ -35,7 +35,7 @@ from wface.tracking.estimator import TrackOptions
 from wface.tracking.holdout import add_holdout, hide, select_holdout
 from wface.tracking.identifiability import rig_identifiability_mm
 from wface.tracking.output import write_tracking_outputs
-from wface.tracking.report import build_report
+from wface.tracking.report import CAPTURE_UNIT_KEYS, add_capture_units, build_report
 from wface.tracking.rig import FaceRig
 from wface.tracking.sequence import dask_executor, embed_model_markers, track_sequence, tracking_provenance
 from wface.tracking.synthetic import synthesize_performance
@@ -222,7 +222,20 @@ def _claim(args, model, markers, targets, source: dict, rig_kwargs: dict, first_
     return run
 
 
-def _run(args, model, targets, marker_names, markers, fps, rig_kwargs, truth=None, first_frame=0, run=None, info=None):
+def _run(
+    args,
+    model,
+    targets,
+    marker_names,
+    markers,
+    fps,
+    rig_kwargs,
+    truth=None,
+    first_frame=0,
+    run=None,
+    info=None,
+    capture_scale=None,
+):
     out = Path(args.out)
     hidden = select_holdout(args.holdout, marker_names, targets[0]) if args.holdout else None
     render_mesh = render_mesh_from_args(args, model)
@@ -278,6 +291,8 @@ def _run(args, model, targets, marker_names, markers, fps, rig_kwargs, truth=Non
     )
     if hidden is not None:
         add_holdout(report, records, targets, hidden, marker_names)
+    if capture_scale is not None:
+        add_capture_units(report, capture_scale)
     written = write_tracking_outputs(
         out,
         model,
@@ -305,6 +320,8 @@ def _run(args, model, targets, marker_names, markers, fps, rig_kwargs, truth=Non
         "jaw_angle_error_deg",
         "seconds_per_frame_median",
         "holdout_rms_mm_mean",
+        "capture_to_model_scale",
+        *CAPTURE_UNIT_KEYS.values(),
     )
     if carried:
         warnings.warn(
@@ -421,4 +438,5 @@ def run_track(args: argparse.Namespace) -> int:
         first_frame=first,
         run=run,
         info=info,
+        capture_scale=cap.scale,
     )

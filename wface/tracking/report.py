@@ -8,7 +8,33 @@ import numpy as np
 from wface.controls import jaw_limits, jaw_to_intuitive
 from wface.tracking.identifiability import OBSERVABLE_MM
 
-__all__ = ["build_report"]
+__all__ = ["CAPTURE_UNIT_KEYS", "add_capture_units", "build_report"]
+
+
+#: report keys in the model's millimetres -> the same measure in the capture's (``add_capture_units``)
+CAPTURE_UNIT_KEYS = {
+    "marker_rms_mm_mean": "marker_rms_capture_mm_mean",
+    "marker_rms_mm_inliers": "marker_rms_capture_mm_inliers",
+    "holdout_rms_mm_mean": "holdout_rms_capture_mm_mean",
+}
+
+
+def add_capture_units(report: dict, capture_to_model_scale: float) -> dict:
+    """``report`` with its marker errors also in the capture's millimetres (updated in place, returned).
+
+    A capture is brought onto the face by a similarity of scale s (``prepare_capture``), so errors
+    measured in the face's frame are s times the actor's: on the built-in face the AnimFace actor
+    comes in at s = 0.90, and its errors read 10 % smaller than on a face fitted to the actor (s = 1).
+    Adds ``capture_to_model_scale`` and, per key of ``CAPTURE_UNIT_KEYS`` present, the error / s.
+    """
+    s = float(capture_to_model_scale)
+    if not (np.isfinite(s) and s > 0):
+        raise ValueError(f"capture_to_model_scale must be finite and > 0, got {capture_to_model_scale}")
+    report["capture_to_model_scale"] = s
+    for key, capture_key in CAPTURE_UNIT_KEYS.items():
+        if isinstance(report.get(key), (int, float)):
+            report[capture_key] = float(report[key]) / s
+    return report
 
 
 def _per_marker_rms_mm(err_mm: np.ndarray, marker_names) -> dict:

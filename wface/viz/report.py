@@ -129,6 +129,13 @@ def headline_cards(report: dict) -> list[tuple[str, str, str]]:
         cards.append((_fmt(report["marker_rms_mm_mean"]), "mm", "marker RMS vs input"))
     if _is_number(report.get("holdout_rms_mm_mean")):  # the honest measure: markers the fit never saw
         cards.append((_fmt(report["holdout_rms_mm_mean"]), "mm", "held-out marker RMS (hidden from the fit)"))
+    scale = report.get("capture_to_model_scale")
+    if _is_number(scale) and abs(scale - 1.0) > 0.005:  # the face is not the actor's size: the actor's mm
+        inliers = _is_number(report.get("marker_rms_mm_inliers")) and not _is_number(report.get("truth_marker_rms_mm"))
+        shown = "marker_rms_capture_mm_inliers" if inliers else "marker_rms_capture_mm_mean"
+        for key, label in ((shown, "marker RMS"), ("holdout_rms_capture_mm_mean", "held-out RMS")):
+            if _is_number(report.get(key)):
+                cards.append((_fmt(report[key]), "mm", f"{label} in the capture's mm (face = {_fmt(scale)} x actor)"))
     if _is_number(report.get("marker_samples")):
         held = report.get("holdout_samples")
         cards.append(
