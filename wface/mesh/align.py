@@ -176,19 +176,20 @@ class MarkerEmbedding:
         when the caller keeps them: the vertex normals are then summed over those alone, the same
         sums in the same order as over the whole surface (a tracker calls this every solve)."""
 
-        p = self.surface_points(vertices_m, triangles)
+        v = np.asarray(vertices_m, dtype=np.float64)
+        p = self.surface_points(v, triangles)
         ok = self.triangle >= 0
         triangles = np.asarray(triangles)
         tris = triangles[self.triangle[ok]]
         used = np.unique(tris)
         ring = _touching(triangles, used) if ring is None else ring
-        normals = np.zeros((len(vertices_m), 3))
-        normals[used] = vertex_normals(np.asarray(vertices_m, dtype=np.float64), triangles[ring])[used]
+        normals = np.zeros((len(v), 3))
+        normals[used] = vertex_normals(v, triangles[ring])[used]
         n = np.einsum("kj,kjd->kd", self.barycentric[ok], normals[tris])
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
         p[ok] += self.normal_offset_m[ok, None] * n
-        if self.tangent_offset_m is not None:
-            t1, t2 = tangent_frame(np.asarray(vertices_m)[tris], n)
+        if self.tangent_offset_m is not None and self.tangent_offset_m[ok].any():  # markers on the skin: none
+            t1, t2 = tangent_frame(v[tris], n)
             p[ok] += self.tangent_offset_m[ok, :1] * t1 + self.tangent_offset_m[ok, 1:] * t2
         return p
 
@@ -239,14 +240,15 @@ def embed_markers(
     ok = np.isfinite(m).all(axis=1)
     if ok.any():
         hit = q.closest(m[ok])
-        normals = vertex_normals(np.asarray(vertices_m, dtype=np.float64), tris)
+        v = np.asarray(vertices_m, dtype=np.float64)
+        normals = vertex_normals(v, tris)
         n = np.einsum("kj,kjd->kd", hit.barycentric, normals[tris[hit.triangle]])
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
         delta = m[ok] - hit.point_m
         along = np.einsum("ij,ij->i", delta, n)
         tri[ok], bary[ok], off[ok] = hit.triangle, hit.barycentric, along
         tang[ok] = delta - along[:, None] * n
-        t1, t2 = tangent_frame(np.asarray(vertices_m, dtype=np.float64)[tris[hit.triangle]], n)
+        t1, t2 = tangent_frame(v[tris[hit.triangle]], n)
         local[ok] = np.stack([np.einsum("kd,kd->k", tang[ok], t1), np.einsum("kd,kd->k", tang[ok], t2)], axis=1)
         local[np.abs(local) < TANGENT_ROUNDING_M] = 0.0  # a marker on the skin: rounding, kept out of the sums
     return MarkerEmbedding(tri, bary, off, tang, local)
