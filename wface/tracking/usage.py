@@ -12,8 +12,9 @@ Sel. Topics Signal Process. 5(5), with B shared by the muscles as there). gamma_
 the performance does not use at rest; length_frames = 0 (rho = 0) is multiple-measurement SBL
 (M-SBL; Wipf & Rao 2007), the frames independent.
 
-Because B^-1 is tridiagonal the joint posterior is a Kalman filter and Rauch-Tung-Striebel smoother
-over the frames (``smooth``; O(F M^3)), run in whitened coordinates u_i = x_i / sqrt(gamma_i) so that
+Because B^-1 is tridiagonal the joint posterior's precision is block tridiagonal, and its block
+elimination over the frames (``smooth``; O(F M^3); the Kalman filter and Rauch-Tung-Striebel smoother
+in information form) is run in whitened coordinates u_i = x_i / sqrt(gamma_i) so that
 a muscle with gamma_i -> 0 does not make the matrices singular. gamma is fitted by MacKay's fixed
 point on the evidence (``fit_usage``), and the length by 5-fold cross-validation over frames
 (``choose_length``): the held-out frames' predictive likelihood of their own measurements given the
@@ -98,7 +99,7 @@ def _smooth_white(Lw, zs, observed, rho, *, diagonal: bool = False) -> _Smoothed
     z_t = L_t^T u_t + N(0, I) on the observed frames; B problems at once (the lengths and folds of the
     cross-validation share every step). Lw (B, F, M, M) whitened factors, zs (F, M), observed (B, F)
     bool, rho (B,). Problems with rho = 0 (frames independent) in closed form, all frames at once
-    (``_smooth_independent``); the others by the Kalman filter and RTS smoother (``_smooth_recursive``).
+    (``_smooth_independent``); the others by block elimination over the frames (``_smooth_recursive``).
     ``diagonal``: only the diagonals of the covariances and lag covariances, (B, F, M) and (B, F-1, M)
     (all that MacKay's step needs; the full (B, F, M, M) arrays are most of a sweep's memory traffic)."""
     B = Lw.shape[0]
@@ -135,43 +136,52 @@ def _smooth_independent(Lw, zs, observed, diagonal: bool = False) -> _Smoothed:
 
 
 def _smooth_recursive(Lw, zs, observed, rho, diagonal: bool = False) -> _Smoothed:
-    """``_smooth_white`` by the Kalman filter and Rauch-Tung-Striebel smoother over the frames."""
+    """``_smooth_white`` for rho > 0 by block elimination of the posterior's block-tridiagonal
+    precision. In whitened coordinates the prior precision is B^-1 (x) I_M, whose off-diagonal
+    blocks are c I with c = -rho / (1 - rho^2), so the posterior precision A has diagonal blocks
+    A_t = d_t I + L_t L_t^T (d_t = (1 + rho^2) / (1 - rho^2) inside, 1 / (1 - rho^2) at the ends)
+    and off-diagonal blocks c I. Its block LDL^T, U_1 = A_1, U_t = A_t - c^2 U_t-1^-1, gives the
+    means by two substitutions and the covariances by selected inversion (Takahashi et al. 1973):
+    S_F = U_F^-1, S_t+1,t = -c S_t+1 U_t^-1, S_t = U_t^-1 + c^2 U_t^-1 S_t+1 U_t^-1. One inverse and
+    three products per frame, where the Kalman filter and RTS smoother take two solves and five
+    products (docs/design.md, "Priors chosen by the data"); the posterior is the same."""
     B, F, M, _ = Lw.shape
+    rho = np.asarray(rho, dtype=np.float64).reshape(B)
     obs = np.asarray(observed, dtype=np.float64).reshape(B, F)
+    q = 1.0 / (1.0 - rho * rho)
+    d = np.repeat(((1.0 + rho * rho) * q)[:, None], F, axis=1)
+    d[:, 0] = d[:, -1] = q
+    if F == 1:
+        d[:] = 1.0
+    c = (-rho * q)[:, None, None]
     eye = np.eye(M)
-    r2, q = (rho * rho)[:, None, None], (1.0 - rho * rho)[:, None, None]
-    mf, Cf = np.zeros((B, F, M)), np.zeros((B, F, M, M))
-    mp, Cp = np.zeros((B, F, M)), np.zeros((B, F, M, M))
-    m, C = np.zeros((B, M)), np.broadcast_to(eye, (B, M, M)).copy()
-    for t in range(F):
+    Ui = np.empty((B, F, M, M))  # U_t^-1
+    w = np.empty((B, F, M))  # the forward substitution L w = h
+    for t in range(F):  # per frame: whole (B, F, M, M) temporaries cost more in memory traffic than flops
+        Lo = Lw[:, t] * obs[:, t, None, None]  # an unobserved frame has no data
+        U = Lo @ np.swapaxes(Lo, 1, 2) + d[:, t, None, None] * eye  # the data's precision L_t L_t^T + prior
+        w[:, t] = Lo @ zs[t]  # the data's information vector L_t z_t
         if t > 0:
-            m, C = rho[:, None] * m, r2 * C + q * eye
-        mp[:, t], Cp[:, t] = m, C
-        L = Lw[:, t]
-        LtC = np.swapaxes(L, 1, 2) @ C
-        S = LtC @ L + eye
-        e = zs[t][None, :] - np.einsum("bij,bi->bj", L, m)
-        K = np.swapaxes(np.linalg.solve(S, LtC), 1, 2) * obs[:, t, None, None]  # C L S^-1 where observed
-        m = m + np.einsum("bij,bj->bi", K, e)
-        C = C - K @ LtC
-        C = 0.5 * (C + np.swapaxes(C, 1, 2))
-        mf[:, t], Cf[:, t] = m, C
-    ms = mf.copy()
+            U -= c * c * Ui[:, t - 1]
+            w[:, t] -= c[:, :, 0] * np.einsum("bij,bj->bi", Ui[:, t - 1], w[:, t - 1])
+        inv = np.linalg.inv(U)
+        Ui[:, t] = 0.5 * (inv + np.swapaxes(inv, 1, 2))
+    mean = np.empty((B, F, M))
     shape = (M,) if diagonal else (M, M)
-    Cs, lag = np.empty((B, F, *shape)), np.zeros((B, max(F - 1, 0), *shape))
-    C_next = Cf[:, F - 1]  # the smoothed covariance of the frame after t (the recursion needs it whole)
-    Cs[:, F - 1] = np.einsum("bii->bi", C_next) if diagonal else C_next
+    cov, lag = np.empty((B, F, *shape)), np.zeros((B, max(F - 1, 0), *shape))
+    S = Ui[:, F - 1]
+    mean[:, F - 1] = np.einsum("bij,bj->bi", S, w[:, F - 1])
+    cov[:, F - 1] = np.einsum("bii->bi", S) if diagonal else S
     for t in range(F - 2, -1, -1):
-        G = np.swapaxes(np.linalg.solve(Cp[:, t + 1], rho[:, None, None] * Cf[:, t]), 1, 2)  # rho Cf Cp^-1
-        ms[:, t] = mf[:, t] + np.einsum("bij,bj->bi", G, ms[:, t + 1] - mp[:, t + 1])
-        C = Cf[:, t] + G @ (C_next - Cp[:, t + 1]) @ np.swapaxes(G, 1, 2)
-        C = 0.5 * (C + np.swapaxes(C, 1, 2))
-        if diagonal:  # diag(C_next G^T)
-            Cs[:, t], lag[:, t] = np.einsum("bii->bi", C), np.einsum("bij,bij->bi", C_next, G)
+        mean[:, t] = np.einsum("bij,bj->bi", Ui[:, t], w[:, t] - c[:, :, 0] * mean[:, t + 1])
+        P = S @ Ui[:, t]  # S_t+1 U_t^-1
+        S = Ui[:, t] + c * c * (Ui[:, t] @ P)
+        S = 0.5 * (S + np.swapaxes(S, 1, 2))
+        if diagonal:
+            cov[:, t], lag[:, t] = np.einsum("bii->bi", S), -c[:, :, 0] * np.einsum("bii->bi", P)
         else:
-            Cs[:, t], lag[:, t] = C, C_next @ np.swapaxes(G, 1, 2)
-        C_next = C
-    return _Smoothed(ms, Cs, lag)
+            cov[:, t], lag[:, t] = S, -c * P
+    return _Smoothed(mean, cov, lag)
 
 
 def _whitened(L, Y, gamma):
