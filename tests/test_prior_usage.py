@@ -188,6 +188,29 @@ def test_a_long_take_chooses_its_length_on_a_window_and_fits_gamma_on_every_fram
     assert np.all((ratio > 0.4) & (ratio < 2.5)), ratio
 
 
+def test_a_step_leaves_out_the_muscles_every_problem_holds_at_rest():
+    """MacKay's step sweeps only the muscles some problem of the batch uses: the held ones (gamma at
+    the floor in every problem) keep the floor and the others' new gamma is the full sweep's, with the
+    held activations at 0 and the data's information vector taken whole."""
+    from wface.tracking import usage
+
+    X, Y, info, gamma_true, s2 = _problem(seed=3, frames=60)
+    L = usage._factor_information(info / s2)
+    gamma = np.tile(np.maximum(gamma_true, usage._FLOOR), (3, 1)) * np.array([[1.0], [2.0], [0.5]])
+    gamma[:, 2] = usage._FLOOR  # muscle 2 held everywhere; 3 and 5 live in one problem only
+    gamma[0, 3], gamma[1, 5] = 0.03, 0.01
+    observed = np.ones((3, len(Y)), bool)
+    observed[1, ::4] = False
+    rho = np.array([0.8, 0.5, 0.0])
+    got, sm = usage._mackay_step(L, Y, observed, rho, gamma)
+    Lw, zs = usage._whitened(L, Y, gamma)
+    want, full = usage._mackay_live(Lw, zs, len(Y), observed, rho, gamma, whitened=True)
+    assert sm.mean.shape[2] == 5 and full.mean.shape[2] == 6  # the sweep left muscle 2 out
+    assert np.all(got[:, 2] == usage._FLOOR) and np.all(want[:, 2] <= usage._HELD)
+    live = [0, 1, 3, 4, 5]
+    np.testing.assert_allclose(got[:, live], want[:, live], rtol=1e-4, atol=usage._HELD)
+
+
 def test_the_accelerated_fixed_point_is_the_plain_one_in_fewer_steps(monkeypatch):
     """SQUAREM on MacKay's fixed point (``_fit_gamma_squarem``) ends where the plain iteration ends (every
     gamma within the tolerance) in a fraction of the steps; with the step length held at -1 it is the
@@ -209,8 +232,10 @@ def test_the_accelerated_fixed_point_is_the_plain_one_in_fewer_steps(monkeypatch
 
 def test_a_batch_problem_settles_where_it_would_alone_and_leaves_the_batch():
     """Each problem of a SQUAREM batch stops at its own settled step (``_fit_gamma_squarem`` drops it from
-    the batch's sweeps there): its gamma is the one it reaches fitted alone, to round-off, and the
-    batch takes as many steps as its slowest problem."""
+    the batch's sweeps there): its gamma is the one it reaches fitted alone, and the batch takes as many
+    steps as its slowest problem. Not to round-off: alone, a problem's sweeps leave out the muscles it
+    holds at rest, in a batch only those every problem holds (``_mackay_step``), which moves each step's
+    gamma by ~1e-6 of itself and where the iteration stops by less than its tolerance (1e-4)."""
     from wface.tracking import usage
 
     X, Y, info, gamma, s2 = _problem(seed=6, frames=50)
@@ -222,7 +247,7 @@ def test_a_batch_problem_settles_where_it_would_alone_and_leaves_the_batch():
     batch, _, n_batch = usage._fit_gamma(L, Y, observed, rhos, g0, 3000, 1e-4)
     alone = [usage._fit_gamma(L, Y, observed[b : b + 1], rhos[b : b + 1], g0[b : b + 1], 3000, 1e-4) for b in range(3)]
     for b, (g, _, _) in enumerate(alone):
-        np.testing.assert_allclose(batch[b], g[0], rtol=1e-9, atol=1e-12 * g.max())
+        np.testing.assert_allclose(batch[b], g[0], rtol=1e-4, atol=1e-12 * g.max())
     steps = [n for _, _, n in alone]
     assert n_batch == max(steps) and min(steps) < max(steps), steps
 

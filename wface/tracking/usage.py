@@ -45,6 +45,7 @@ __all__ = [
 LENGTHS_FRAMES = (0.0, 1.0, 2.0, 4.0, 8.0)  # AR(1) correlation lengths tried by cross-validation (frames)
 _FOLDS = 5
 _FLOOR = 1e-8  # smallest gamma (unit^2): a muscle held at rest
+_HELD = 10.0 * _FLOOR  # a gamma at most this is a muscle held at rest (``UsageFit.held``)
 _GAMMA_MAX = 1e3  # largest gamma an accelerated step may propose (unit^2; activations live in [0, 1])
 _SQUAREM_ALPHA = 16.0  # largest SQUAREM step length |alpha| (``_fit_gamma_squarem``)
 _FOLD_ITERATIONS = 30  # fixed-point steps of a fold's fit, started from the whole take's (4/5 of its data)
@@ -70,7 +71,7 @@ class UsageFit:
     @property
     def held(self) -> np.ndarray:
         """(M,) bool: muscles the fit holds at rest, their variance at its floor (``_FLOOR``, up to 10x)."""
-        return np.asarray(self.gamma) <= 10.0 * _FLOOR
+        return np.asarray(self.gamma) <= _HELD
 
 
 def ar1_coefficient(length_frames: float) -> float:
@@ -214,9 +215,27 @@ def _quadratic_b_inverse(x2: np.ndarray, xx: np.ndarray, rho: np.ndarray) -> np.
 
 def _mackay_step(L, Y, observed, rho, gamma, *, diagonal: bool = True):
     """One step of MacKay's fixed point, B problems at once: (gamma_new (B, M), the smoother's sweep at
-    ``gamma``): gamma_i <- mu_i^T B^-1 mu_i / (n - tr(B^-1 S_ii) / gamma_i) (``_fit_gamma``)."""
+    ``gamma``): gamma_i <- mu_i^T B^-1 mu_i / (n - tr(B^-1 S_ii) / gamma_i) (``_fit_gamma``).
+
+    ``diagonal`` (the steps that need only gamma): a muscle every problem of the batch holds at rest
+    (gamma <= ``_HELD``) is left out of the sweep, its activation fixed at 0 (the data's information
+    vector P_t y_t still taken whole), and its gamma set to the floor, where the step would clamp it
+    (its ratio mean_q / (F - cov_q) is ~gamma times the data's evidence, << 1); the sweep then covers
+    only the muscles in use (its cost is cubic in them), and its arrays only those."""
     F = Y.shape[0]
+    live = np.any(gamma > _HELD, axis=0) if diagonal else np.ones(gamma.shape[1], bool)
+    if not live.all():
+        new = np.full_like(gamma, _FLOOR)
+        new[:, live], sm = _mackay_live(L[:, live], np.einsum("tij,ti->tj", L, Y), F, observed, rho, gamma[:, live])
+        return new, sm
     Lw, zs = _whitened(L, Y, gamma)
+    return _mackay_live(Lw, zs, F, observed, rho, gamma, whitened=True, diagonal=diagonal)
+
+
+def _mackay_live(L, zs, F, observed, rho, gamma, *, whitened: bool = False, diagonal: bool = True):
+    """``_mackay_step`` on the muscles of ``gamma`` (B, m): L (F, m, M) their rows of the information's
+    factors (or, ``whitened``, already (B, F, m, M)), zs (F, M) the measurements z_t = L_t^T y_t."""
+    Lw = L if whitened else np.sqrt(gamma)[:, None, :, None] * L[None]
     sm = _smooth_white(Lw, zs, observed, rho, diagonal=diagonal)
     mu = sm.mean
     diag = sm.cov if diagonal else np.einsum("btii->bti", sm.cov)
