@@ -38,9 +38,10 @@ from wface.faces.fit import fit_template
 from wface.io.mocap import read_mocap
 from wface.takes.store import take_from_records, write_controls, write_report
 from wface.tracking.capture import prepare_capture
+from wface.tracking.cluster import dask_executor
 from wface.tracking.holdout import hide, holdout_report, select_holdout
 from wface.tracking.report import add_capture_units
-from wface.tracking.sequence import dask_executor, track_sequence
+from wface.tracking.sequence import track_sequence
 
 TAKES = ("Jaw", "Nose", "Cheeks", "Eyebrows")
 _PINNED = 0.999  # an activation this close to 1 sits at its upper bound

@@ -86,22 +86,30 @@ def test_resume_reuses_written_frames(scene, tmp_path):
 
 @pytest.mark.slow
 def test_dask_two_workers_match_serial(scene):
+    """Chunks on two Dask workers give the serial result, through Dask's own executor (arguments in the
+    task graph) and through ``ScatteringExecutor`` (``wface track --workers``: arguments scattered)."""
     distributed = pytest.importorskip("distributed")
+    from wface.tracking.cluster import ScatteringExecutor
+
     model, markers, perf = scene
     serial = track_sequence(model, perf.clean_markers_m, marker_names=model.marker_names, markers=markers, chunk_size=2)
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         with distributed.Client(cluster) as client:
-            par = track_sequence(
-                model,
-                perf.clean_markers_m,
-                marker_names=model.marker_names,
-                markers=markers,
-                chunk_size=2,
-                executor=client.get_executor(pure=False),
-            )
-    assert [r.frame for r in par] == [r.frame for r in serial]
-    for a, b in zip(serial, par, strict=True):
-        assert np.allclose(a.controls, b.controls, atol=1e-8)
+            runs = [
+                track_sequence(
+                    model,
+                    perf.clean_markers_m,
+                    marker_names=model.marker_names,
+                    markers=markers,
+                    chunk_size=2,
+                    executor=executor,
+                )
+                for executor in (client.get_executor(pure=False), ScatteringExecutor(client))
+            ]
+    for par in runs:
+        assert [r.frame for r in par] == [r.frame for r in serial]
+        for a, b in zip(serial, par, strict=True):
+            assert np.allclose(a.controls, b.controls, atol=1e-8)
 
 
 def test_identifiability_flags_invisible_muscles(scene):

@@ -91,7 +91,7 @@ def limit_seconds(rig: FaceRig, state: RigState, *, repeat: int = 3, precision: 
     sim = rig.sim
     a = np.clip(state.controls[: rig.n_muscles], 0.0, 1.0)
     pattern = sim.pattern("free")
-    exact = rig._linear.exact_tangents_ok  # the tangent the tracker factors (projected with cuDSS)
+    exact = rig.exact_tangents_ok  # the tangent the tracker factors (projected with cuDSS)
     values = sim.tangent(state.y_m, a, project=not exact).assemble_upper(pattern)
     B = np.random.default_rng(0).normal(size=(pattern.shape[0], rig.n_muscles + 12))
     factor_s, solve_s, cpu_s = [], [], []

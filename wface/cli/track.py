@@ -31,13 +31,14 @@ from wface.io.mocap import read_mocap
 from wface.model import load_model
 from wface.takes.store import claim_take_dir, resume_plan
 from wface.tracking.capture import check_capture, prepare_capture
+from wface.tracking.cluster import dask_executor
 from wface.tracking.estimator import TrackOptions
 from wface.tracking.holdout import add_holdout, hide, select_holdout
 from wface.tracking.identifiability import rig_identifiability_mm
 from wface.tracking.output import write_tracking_outputs
 from wface.tracking.report import CAPTURE_UNIT_KEYS, add_capture_units, build_report
 from wface.tracking.rig import FaceRig
-from wface.tracking.sequence import dask_executor, embed_model_markers, track_sequence, tracking_provenance
+from wface.tracking.sequence import embed_model_markers, track_sequence, tracking_provenance
 from wface.tracking.synthetic import synthesize_performance
 
 _DEMO_EPILOG = """\

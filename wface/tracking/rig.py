@@ -18,18 +18,18 @@ with respect to the triangle vertices included (the Newton solves drop them;
 ``wface.physics.frozen.exact_self_hessian``). Obstacles that follow the jaw (the lower teeth, the
 jaw bone) add d f_c / d b_jaw = Q dc/db_jaw + E'(g) dn/db_jaw to the jaw columns (c: the closest
 point on the obstacle, moving with the jaw affine; Q: the pair's Hessian block; n turns with a face
-feature); other obstacles are fixed in the cranium frame. The Jacobian is
-exact where no pair enters or leaves contact for small control changes (pairs at exactly zero
-penetration are a kink of the C1 penalty: ``Contact(smoothing_m=...)`` makes it C2).
+feature); other obstacles are fixed in the cranium frame. The Jacobian is exact where no pair enters
+or leaves contact for small control changes (pairs at exactly zero penetration are a kink of the C1
+penalty: ``Contact(smoothing_m=...)`` makes it C2).
 
 Factor reuse (docs/design.md, "Performance"): ``linearize`` keeps the factorisation of K_UU at the
 equilibrium together with dY/dc and the coupling block K_UC (``RigLinearization``); the next
 equilibria near it (the line-search trials of the next Gauss-Newton step, the next frame) take
 chord Newton steps with that factor (``equilibrium(..., chord=...)``) instead of factoring anew, so
-a tracked frame costs one factorisation at its new equilibrium plus one back-solve per column.
-With contact the kept factor is of K_UU plus the contact Hessian at the equilibrium, and the solves'
-chord steps use it the same way (where the contact set has changed, a chord step contracts poorly
-and the solve refactors at its iterate, contact included).
+a tracked frame costs one factorisation at its new equilibrium plus one back-solve per column. With
+contact the kept factor is of K_UU plus the contact Hessian at the equilibrium, and the solves' chord
+steps use it the same way (where the contact set has changed, a chord step contracts poorly and the
+solve refactors at its iterate, contact included).
 """
 
 from __future__ import annotations
@@ -89,8 +89,7 @@ class RigLinearization(_OwnsChord):
 
     ``chord`` (``solve(rhs)`` and ``coupling(dx_c)``, see ``wface.physics.newton``) is None when no
     factorisation exists (the CG engine); with contact it is the factor of K_UU plus the contact
-    Hessian. ``free()`` releases the factor.
-    """
+    Hessian. ``free()`` releases the factor."""
 
     state: RigState
     jy: np.ndarray  # (3n, M + 12) cranium-frame Jacobian of all nodes
@@ -236,6 +235,7 @@ class FaceRig:
         # the Jacobian solves (and the tracker's chord steps)
         self._linear = LinearSolver(self.sim.linear_solver, self.sim.device, factor_precision=factor_precision)
         self.factor_precision = factor_precision
+        self.exact_tangents_ok = self._linear.exact_tangents_ok  # False: it factors projected ones (cuDSS)
         self.tol = tol
         self.contact = contact
         self.max_iterations = int(max_iterations)
@@ -392,7 +392,7 @@ class FaceRig:
         a = self.model.clip_activations(self.split(c)[0])
         sim, pattern = self.sim, self.sim.pattern("free")
         t0 = time.perf_counter()
-        projected = not self._linear.exact_tangents_ok  # cuDSS: projected only (wface.solvers.solver)
+        projected = not self.exact_tangents_ok  # cuDSS: projected only (wface.solvers.solver)
         tan = sim.tangent(y, a, project=projected)
         k_uc = tan.assemble_free_and_coupling()  # (3|U|, 3|C|) of the tangent factored below
         t1 = time.perf_counter()

@@ -49,7 +49,6 @@ from wface.tracking.rig import FaceRig, RigState
 
 __all__ = [
     "DEFAULT_WARMUP_FRAMES",
-    "dask_executor",
     "embed_model_markers",
     "initial_controls",
     "min_usable_markers",
@@ -574,23 +573,3 @@ def _run_chunks(fn, args, executor, progress) -> list[FrameRecord]:
         futures = [executor.submit(fn, *a, False) for a in args]
         results = [fut.result() for fut in futures]
     return [rec for chunk in results for rec in chunk]
-
-
-def dask_executor(*, workers: int = 1, scheduler: str | None = None, n_frames: int, chunk_size: int | None = None):
-    """(executor, chunk_size, close) for ``track_sequence``: a Dask executor on a running scheduler
-    (``scheduler`` address) or on a local cluster of ``workers`` processes, or (None, chunk_size,
-    no-op) to run in-process. The default chunk size splits the take evenly over the workers."""
-    if not (scheduler or workers > 1):
-        return None, chunk_size, lambda: None
-    from distributed import Client, LocalCluster
-
-    if scheduler:
-        client = Client(scheduler)
-        workers = max(1, len(client.scheduler_info()["workers"]))
-        closers = [client.close]
-    else:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
-        client = Client(cluster)
-        closers = [client.close, cluster.close]
-    chunk = chunk_size or math.ceil(n_frames / workers)
-    return client.get_executor(pure=False), chunk, lambda: [c() for c in closers]
