@@ -152,9 +152,11 @@ def test_refinement_passes_reach_the_heavy_corruption_goal(heavy_take):
 def test_a_take_the_usage_prior_barely_moves_gets_one_usage_pass(tmp_path):
     """``wface demo --tets 3000 --frames 10 --seed 5``'s default corruption (0.5 mm noise): the first usage
     pass moves the activations by about 0.07 RMS, under ``prior_refit_change``, so the prior is not
-    refitted, and the take's frames on disk are that pass's (what a resumed or reloaded take reads)."""
+    refitted, and the take's frames on disk are that pass's (what a resumed or reloaded take reads):
+    hard links to the pass's own files, not a second copy, that a rewrite of one folder leaves alone in
+    the other; where no link can be made (no source file), a fresh write."""
     from wface.faces.builtin import build_face
-    from wface.takes.store import FRAMES_DIR, frame_path, read_frame
+    from wface.takes.store import FRAMES_DIR, frame_path, link_frame, read_frame, write_frame
     from wface.tracking.estimator import TrackOptions
     from wface.tracking.rig import FaceRig
     from wface.tracking.sequence import activation_change_rms, embed_model_markers, track_sequence
@@ -169,7 +171,16 @@ def test_a_take_the_usage_prior_barely_moves_gets_one_usage_pass(tmp_path):
     for rec in recs:
         on_disk = read_frame(frame_path(tmp_path, rec.frame, folder=FRAMES_DIR))
         np.testing.assert_array_equal(on_disk.controls, rec.controls)
+        final, passed = frame_path(tmp_path, rec.frame), frame_path(tmp_path, rec.frame, folder="refine2")
+        assert final.stat().st_ino == passed.stat().st_ino and final.stat().st_nlink == 2
     assert activation_change_rms(recs, recs, model.n_muscles) == 0.0
+    rec = recs[0]
+    write_frame(tmp_path, rec, folder="refine2")  # a rewrite (atomic: a new file) of the pass's file
+    assert frame_path(tmp_path, rec.frame).stat().st_nlink == 1 and read_frame(frame_path(tmp_path, rec.frame))
+    frame_path(tmp_path, rec.frame, folder="refine2").unlink()
+    frame_path(tmp_path, rec.frame).unlink()
+    link_frame(tmp_path, rec, source="refine2")  # the source is gone: written afresh
+    np.testing.assert_array_equal(read_frame(frame_path(tmp_path, rec.frame)).controls, rec.controls)
 
 
 def test_a_long_take_chooses_its_length_on_a_window_and_fits_gamma_on_every_frame():

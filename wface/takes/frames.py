@@ -11,13 +11,14 @@ owns the rest of the take directory and re-exports these names.
 from __future__ import annotations
 
 import json
+import os
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from wface.files import FileFormatError, is_temporary, load_npz, save_npz
+from wface.files import FileFormatError, atomic_path, is_temporary, load_npz, save_npz
 from wface.takes.provenance import explain_mismatch, frame_fingerprint
 
 __all__ = [
@@ -30,6 +31,7 @@ __all__ = [
     "frame_numbers_on_disk",
     "frame_path",
     "json_bytes",
+    "link_frame",
     "load_frame_records",
     "read_frame",
     "resume_plan",
@@ -86,6 +88,21 @@ def write_frame(out_dir: str | Path, rec: FrameRecord, *, folder: str = FRAMES_D
 
 
 _FRAME_KEYS = ("frame", "controls", "x_m", "y_m", "markers_m", "marker_error_m", "stats_json")
+
+
+def link_frame(out_dir: str | Path, rec: FrameRecord, *, source: str, folder: str = FRAMES_DIR) -> Path:
+    """Put ``rec``'s frame file, already written under the take's ``source`` folder, under ``folder`` as
+    well: a hard link, so the two folders share one file on disk (a later rewrite of either replaces
+    its own entry, atomically, and leaves the other's), or a fresh write of ``rec`` where the file
+    system has no hard links or the source is gone."""
+    src = frame_path(out_dir, rec.frame, folder=source)
+    dst = frame_path(out_dir, rec.frame, folder=folder)
+    try:
+        with atomic_path(dst) as tmp:
+            os.link(src, tmp)
+        return dst
+    except OSError:
+        return write_frame(out_dir, rec, folder=folder)
 
 
 def decode_json(d: dict, key: str, path: Path):

@@ -39,7 +39,15 @@ from wface.controls import params_from_affine
 from wface.mesh.align import embed_markers, umeyama
 from wface.model import model_sha256
 from wface.takes.provenance import array_sha256, frame_fingerprint, run_provenance
-from wface.takes.store import FRAMES_DIR, REFINE_DIR_PREFIX, SURVEY_DIR, FrameRecord, verified_frames, write_frame
+from wface.takes.store import (
+    FRAMES_DIR,
+    REFINE_DIR_PREFIX,
+    SURVEY_DIR,
+    FrameRecord,
+    link_frame,
+    verified_frames,
+    write_frame,
+)
 from wface.tracking.adaptive import is_adaptive, rebuild_linearization, restore_spare, spare_state
 from wface.tracking.estimator import FrameEstimator, TrackOptions
 from wface.tracking.markers import MarkerMap
@@ -538,12 +546,12 @@ def _usage_passes(
                     file=sys.stderr,
                     flush=True,
                 )
-            if out_dir is not None:  # the take's result: this pass's frames (kept where already written)
-                frames = [r.frame for r in records]
+            if out_dir is not None:  # the take's result: this pass's frames (kept where already written),
+                frames = [r.frame for r in records]  # linked to the pass's files, not a second copy on disk
                 kept = verified_frames(out_dir, frames, targets, run, extra=extra, folder=FRAMES_DIR)[0]
                 for rec in records:
                     if rec.frame not in kept:
-                        write_frame(out_dir, rec, folder=FRAMES_DIR)
+                        link_frame(out_dir, rec, source=where)
             break
     for rec in records:
         rec.stats["usage_prior"] = summaries[-1]
