@@ -213,10 +213,10 @@ def test_a_step_leaves_out_the_muscles_every_problem_holds_at_rest():
     observed = np.ones((3, len(Y)), bool)
     observed[1, ::4] = False
     rho = np.array([0.8, 0.5, 0.0])
-    got, sm = usage._mackay_step(L, Y, observed, rho, gamma)
+    got, sm, live = usage._mackay_step(L, Y, observed, rho, gamma)
     Lw, zs = usage._whitened(L, Y, gamma)
     want, full = usage._mackay_live(Lw, zs, len(Y), observed, rho, gamma, whitened=True)
-    assert sm.mean.shape[2] == 5 and full.mean.shape[2] == 6  # the sweep left muscle 2 out
+    assert sm.mean.shape[2] == 5 and full.mean.shape[2] == 6 and list(np.flatnonzero(~live)) == [2]
     assert np.all(got[:, 2] == usage._FLOOR) and np.all(want[:, 2] <= usage._HELD)
     live = [0, 1, 3, 4, 5]
     np.testing.assert_allclose(got[:, live], want[:, live], rtol=1e-4, atol=usage._HELD)

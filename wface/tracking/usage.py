@@ -217,19 +217,20 @@ def _mackay_step(L, Y, observed, rho, gamma, *, diagonal: bool = True):
     """One step of MacKay's fixed point, B problems at once: (gamma_new (B, M), the smoother's sweep at
     ``gamma``): gamma_i <- mu_i^T B^-1 mu_i / (n - tr(B^-1 S_ii) / gamma_i) (``_fit_gamma``).
 
-    ``diagonal`` (the steps that need only gamma): a muscle every problem of the batch holds at rest
-    (gamma <= ``_HELD``) is left out of the sweep, its activation fixed at 0 (the data's information
-    vector P_t y_t still taken whole), and its gamma set to the floor, where the step would clamp it
-    (its ratio mean_q / (F - cov_q) is ~gamma times the data's evidence, << 1); the sweep then covers
-    only the muscles in use (its cost is cubic in them), and its arrays only those."""
+    A muscle every problem of the batch holds at rest (gamma <= ``_HELD``) is left out of the sweep,
+    its activation fixed at 0 (the data's information vector P_t y_t still taken whole), and its gamma
+    set to the floor, where the step would clamp it (its ratio mean_q / (F - cov_q) is ~gamma times the
+    data's evidence, << 1); the sweep then covers only the muscles in use (its cost is cubic in them),
+    and its arrays only those: ``sm`` is over the muscles of ``live`` (M,) bool, also returned."""
     F = Y.shape[0]
-    live = np.any(gamma > _HELD, axis=0) if diagonal else np.ones(gamma.shape[1], bool)
+    live = np.any(gamma > _HELD, axis=0)
     if not live.all():
         new = np.full_like(gamma, _FLOOR)
-        new[:, live], sm = _mackay_live(L[:, live], np.einsum("tij,ti->tj", L, Y), F, observed, rho, gamma[:, live])
-        return new, sm
+        zs = np.einsum("tij,ti->tj", L, Y)
+        new[:, live], sm = _mackay_live(L[:, live], zs, F, observed, rho, gamma[:, live], diagonal=diagonal)
+        return new, sm, live
     Lw, zs = _whitened(L, Y, gamma)
-    return _mackay_live(Lw, zs, F, observed, rho, gamma, whitened=True, diagonal=diagonal)
+    return (*_mackay_live(Lw, zs, F, observed, rho, gamma, whitened=True, diagonal=diagonal), live)
 
 
 def _mackay_live(L, zs, F, observed, rho, gamma, *, whitened: bool = False, diagonal: bool = True):
@@ -274,9 +275,9 @@ def _fit_gamma(L, Y, observed, rho, gamma0, iterations, rtol, *, noise_var_m2=1.
         return gamma, s2, it
     it = 0
     for it in range(1, iterations + 1):  # noqa: B007
-        new, sm = _mackay_step(L, Y, observed, rho, gamma, diagonal=False)  # the noise step needs S_t whole
+        new, sm, live = _mackay_step(L, Y, observed, rho, gamma, diagonal=False)  # the noise step needs S_t whole
         done = _settled(gamma, new, rtol)
-        s2_new = _noise_update(noise, Y, sm, gamma[0], s2)
+        s2_new = _noise_update(noise, Y, sm, gamma[0], s2, live)
         done = done and abs(s2_new - s2) < rtol * s2
         L = L * np.sqrt(s2 / s2_new)  # the information in units of the new sigma^2
         s2 = s2_new
@@ -334,18 +335,21 @@ def _fit_gamma_squarem(L, Y, observed, rho, gamma, iterations, rtol) -> tuple[np
     return out, it
 
 
-def _noise_update(noise, Y, sm: _Smoothed, gamma, noise_var_m2: float) -> float:
+def _noise_update(noise, Y, sm: _Smoothed, gamma, noise_var_m2: float, live) -> float:
     """sigma^2's fixed-point step (MacKay 1992's form of the EM update, which converges in a few steps
     where EM creeps): the data term at the posterior mean over the degrees of freedom the activations
     leave, sum_t (phi_min,t + (mu_t - z_t)^T I_t (mu_t - z_t)) / (sum_t dof_t - sum_t tr(P_t S_t)),
     phi = phi_min + (a - z)^T I (a - z) the linearised weighted residual, P_t = I_t / sigma^2.
-    ``noise`` = (I (F, M, M), residual_m2 (F,), dof (F,)); ``sm`` the smoother's sweep (batch 0)."""
+    ``noise`` = (I (F, M, M), residual_m2 (F,), dof (F,)); ``sm`` the smoother's sweep (batch 0) over
+    the muscles of ``live`` (M,) bool, the others held at 0 (``_mackay_step``)."""
     I, residual_m2, dof = noise
-    g = np.sqrt(gamma)
-    d = sm.mean[0] * g - Y
+    g = np.sqrt(gamma[live])
+    mean = np.zeros_like(Y)
+    mean[:, live] = sm.mean[0] * g
+    d = mean - Y
     cov = sm.cov[0] * g[:, None] * g[None, :]
     fitted = float(np.sum(residual_m2)) + float(np.einsum("ti,tij,tj->", d, I, d))  # phi at the posterior mean
-    used = float(np.sum(I * cov)) / noise_var_m2  # tr(P_t S_t) summed: the activations the data determine
+    used = float(np.sum(I[:, live][:, :, live] * cov)) / noise_var_m2  # tr(P_t S_t): what the data determine
     return fitted / max(float(np.sum(dof)) - used, 1.0)
 
 
