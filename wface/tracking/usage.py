@@ -215,7 +215,7 @@ def _quadratic_b_inverse(x2: np.ndarray, xx: np.ndarray, rho: np.ndarray) -> np.
 
 def _mackay_step(L, Y, observed, rho, gamma, *, diagonal: bool = True):
     """One step of MacKay's fixed point, B problems at once: (gamma_new (B, M), the smoother's sweep at
-    ``gamma``): gamma_i <- mu_i^T B^-1 mu_i / (n - tr(B^-1 S_ii) / gamma_i) (``_fit_gamma``).
+    ``gamma``, live): gamma_i <- mu_i^T B^-1 mu_i / (n - tr(B^-1 S_ii) / gamma_i) (``_fit_gamma``).
 
     A muscle every problem of the batch holds at rest (gamma <= ``_HELD``) is left out of the sweep,
     its activation fixed at 0 (the data's information vector P_t y_t still taken whole), and its gamma
