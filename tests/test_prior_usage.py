@@ -190,8 +190,14 @@ def test_a_long_take_chooses_its_length_on_a_window_and_fits_gamma_on_every_fram
     every frame at once) and time on long takes."""
     X, Y, info, gamma, s2 = _problem(seed=4, frames=120)
     whole = fit_usage(Y, info, s2)
-    windowed = fit_usage(Y, info, s2, cv_frames=60)
+    said = []  # the stages a long fit reports (``wface track`` prints them)
+    windowed = fit_usage(Y, info, s2, cv_frames=60, progress=said.append)
     assert whole.length_frames in (2.0, 4.0, 8.0) and windowed.length_frames in (2.0, 4.0, 8.0), windowed.cv_score
+    assert said == [
+        "the usage variances on 120 frames (the frames independent)",
+        "the correlation length: 5 lengths x 5-fold cross-validation on 60 frames",
+        f"the usage variances on 120 frames (correlation length {windowed.length_frames:g} frames)",
+    ], said
     fixed = fit_usage(Y, info, s2, length_frames=windowed.length_frames)
     np.testing.assert_allclose(windowed.gamma, fixed.gamma, rtol=1e-12)
     used = gamma > 0

@@ -45,11 +45,12 @@ def pass_measurements(records) -> tuple[np.ndarray, np.ndarray]:
     return np.array(Z), np.array(info)
 
 
-def usage_priors(records, *, length_frames: float | None = None):
+def usage_priors(records, *, length_frames: float | None = None, progress=None):
     """(per-record GaussianPrior or None, the UsageFit, a JSON summary) for the next pass.
 
     ``records``: a pass's FrameRecords; carried frames and frames without information get no prior
-    (None) and do not enter the fit. None for everything when fewer than two frames can be fitted."""
+    (None) and do not enter the fit. None for everything when fewer than two frames can be fitted.
+    ``progress``: ``fit_usage``'s, told each stage of the fit."""
     rows = [j for j, r in enumerate(records) if not r.stats.get("carried") and "information" in r.state]
     if len(rows) < 2:
         return [None] * len(records), None, {"frames_fitted": len(rows)}
@@ -61,7 +62,9 @@ def usage_priors(records, *, length_frames: float | None = None):
     dy = Y - Z
     at_z = np.array([r.stats["weighted_rss_m2"] for r in fitted]) - np.einsum("ti,tij,tj->t", dy, info, dy)
     dof = np.array([max(r.stats["weighted_count"] - 9.0, 1.0) for r in fitted])
-    fit = fit_usage(Z, info, sigma2, length_frames=length_frames, residual_m2=np.maximum(at_z, 0.0), dof=dof)
+    fit = fit_usage(
+        Z, info, sigma2, length_frames=length_frames, residual_m2=np.maximum(at_z, 0.0), dof=dof, progress=progress
+    )
     sigma2 = fit.noise_var_m2
     means, precisions = frame_priors(Z, info, fit)
     priors: list[GaussianPrior | None] = [None] * len(records)

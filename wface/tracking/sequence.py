@@ -514,7 +514,8 @@ def _usage_passes(
         t = time.perf_counter()
         if progress:
             print(f"fitting the usage prior to pass {k + 1} ({len(records)} frames)", file=sys.stderr, flush=True)
-        priors, fit, summary = usage_priors(records, length_frames=length)
+        say = (lambda line: print(f"  {line}", file=sys.stderr, flush=True)) if progress else None
+        priors, fit, summary = usage_priors(records, length_frames=length, progress=say)
         summary["seconds"] = time.perf_counter() - t
         if progress and fit is not None:
             print(

@@ -365,6 +365,7 @@ def fit_usage(
     residual_m2=None,
     dof=None,
     cv_frames: int = CV_MAX_FRAMES,
+    progress=None,
 ) -> UsageFit:
     """The usage prior of a pass: gamma by evidence maximisation, (``length_frames`` None) the AR(1)
     length by 5-fold cross-validation over frames among ``lengths``, and (with ``residual_m2`` and
@@ -379,6 +380,7 @@ def fit_usage(
         cv_frames: a longer take chooses its length on its middle ``cv_frames`` frames (the correlation
             length is a property of the motion, not of the take's length) and fits gamma at that length
             on every frame: the cross-validation's time and memory stay bounded on long takes.
+        progress: None, or a callable given one line (str) as each stage of the fit starts.
     """
     Y = np.asarray(activations, dtype=np.float64)
     I = np.asarray(informations, dtype=np.float64)
@@ -389,6 +391,10 @@ def fit_usage(
     # fixed point has pruned (gamma at the floor) does not come back from a warm start
     noise = None if residual_m2 is None or dof is None else (I, np.asarray(residual_m2), np.asarray(dof))
     rho = 0.0 if length_frames is None else ar1_coefficient(length_frames)
+    say = progress or (lambda line: None)
+    what = "the marker noise and the usage variances" if noise is not None else "the usage variances"
+    at = "the frames independent" if length_frames is None else f"correlation length {length_frames:g} frames"
+    say(f"{what} on {F} frames ({at})")
     L = _factor_information(I / s2)
     gamma, s2, its = _fit_gamma(L, Y, every, [rho], gamma0, iterations, rtol, noise_var_m2=s2, noise=noise)
     scores = None
@@ -396,10 +402,13 @@ def fit_usage(
         L = _factor_information(I / s2)
         s0 = max(0, (F - int(cv_frames)) // 2)
         window = slice(s0, min(F, s0 + max(int(cv_frames), _FOLDS)))
+        n = window.stop - window.start
+        say(f"the correlation length: {len(lengths)} lengths x {min(_FOLDS, n)}-fold cross-validation on {n} frames")
         scores, fits = choose_length(L[window], Y[window], gamma0[0], lengths, iterations=iterations, rtol=rtol)
         length_frames = max(scores, key=lambda k: (scores[k], -k))
         gamma = fits[length_frames][None]
-        if window.stop - window.start < F:  # gamma of the chosen length on the whole take
+        if n < F:  # gamma of the chosen length on the whole take
+            say(f"the usage variances on {F} frames (correlation length {length_frames:g} frames)")
             rho = [ar1_coefficient(length_frames)]
             gamma, _, _ = _fit_gamma(L, Y, every, rho, gamma0, iterations, rtol)
     return UsageFit(gamma[0], float(length_frames), float(s2), scores, its)
