@@ -37,14 +37,15 @@ def _sphere(n=40):
 
 _SPHERE = _sphere()
 _QUERY = SurfaceQuery(*_SPHERE)
+_BVH_QUERY = SurfaceQuery(*_SPHERE, engine="bvh")
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.lists(st.floats(-1.5, 1.5), min_size=3, max_size=3))
-def test_closest_point_matches_brute_force(p):
+@given(st.lists(st.floats(-1.5, 1.5), min_size=3, max_size=3), st.sampled_from(["kdtree", "bvh"]))
+def test_closest_point_matches_brute_force(p, engine):
     v, t = _SPHERE
     p = np.asarray(p)[None]
-    hit = _QUERY.closest(p)
+    hit = {"kdtree": _QUERY, "bvh": _BVH_QUERY}[engine].closest(p)
     w = closest_point_on_triangles(np.repeat(p, len(t), 0), v[t[:, 0]], v[t[:, 1]], v[t[:, 2]])
     d = np.linalg.norm(np.einsum("kj,kjd->kd", w, v[t]) - p, axis=1)
     assert hit.distance_m[0] == pytest.approx(d.min(), abs=1e-12)
@@ -62,6 +63,42 @@ def test_closest_point_regions():
     for p, w in cases.items():
         got = closest_point_on_triangles(np.array([p], float), a, b, c)[0]
         assert np.allclose(got, w), (p, got)
+
+
+@pytest.mark.parametrize("offset_m", [0.0, 1000.0])
+def test_the_bvh_engine_finds_the_exact_closest_point(offset_m):
+    """The Warp engine's float32 BVH only lists candidates: its answer is the exact float64 one
+    (brute force over every triangle), for points on, near and far from a soup of small, thin and
+    degenerate triangles, also 1 km from the origin where float32 spacing is 61 um."""
+    rng = np.random.default_rng(7)
+    centres = rng.uniform(-0.05, 0.05, (300, 3))
+    v = (centres[:, None, :] + rng.normal(0.0, 0.004, (300, 3, 3))).reshape(-1, 3)
+    v[3:30:3] = v[4:31:3]  # repeated corners
+    t = np.arange(900).reshape(300, 3)
+    t[40:50, 2] = t[40:50, 1]  # segments
+    v = v + offset_m
+    on = np.einsum("kj,kjd->kd", rng.dirichlet(np.ones(3), 200), v[t[rng.integers(0, 300, 200)]])
+    p = np.concatenate([on, on + rng.normal(0.0, 1e-4, on.shape), offset_m + rng.uniform(-0.2, 0.2, (200, 3))])
+    p = np.concatenate([p, [[offset_m + 50.0, 0.0, 0.0]]])
+    hit = SurfaceQuery(v, t, engine="bvh").closest(p)
+    w = closest_point_on_triangles(np.repeat(p, len(t), 0), *(np.tile(v[t[:, j]], (len(p), 1)) for j in range(3)))
+    d = np.linalg.norm(np.einsum("kj,kjd->kd", w, np.tile(v[t], (len(p), 1, 1))) - np.repeat(p, len(t), 0), axis=1)
+    best = d.reshape(len(p), len(t)).min(axis=1)
+    assert np.allclose(hit.distance_m, best, rtol=1e-12, atol=1e-12 * (1 + offset_m))
+    assert np.allclose(np.linalg.norm(hit.point_m - p, axis=1), hit.distance_m, atol=1e-12 * (1 + offset_m))
+    assert np.allclose(hit.barycentric.sum(axis=1), 1.0) and hit.barycentric.min() >= -1e-12
+    kd = SurfaceQuery(v, t).closest(p)
+    assert np.allclose(hit.point_m, kd.point_m, rtol=0, atol=1e-12 * (1 + offset_m))
+
+
+def test_the_engines_refuse_what_they_cannot_do():
+    v, t = _SPHERE
+    with pytest.raises(ValueError, match="unknown engine 'octree'"):
+        SurfaceQuery(v, t, engine="octree")
+    empty = _BVH_QUERY.closest(np.zeros((0, 3)))
+    assert empty.triangle.shape == (0,) and empty.point_m.shape == (0, 3)
+    with pytest.raises(ValueError, match="NaN"):
+        _BVH_QUERY.closest(np.array([[0.0, np.inf, 0.0]]))
 
 
 def test_closest_rejects_nan():

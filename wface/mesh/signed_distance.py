@@ -105,7 +105,7 @@ class SignedSurface:
         if orient:
             t = oriented_outward(v, t)
         self.vertices_m, self.triangles = v, t
-        self.query = SurfaceQuery(v, t)
+        self.query = SurfaceQuery(v, t, engine="bvh")
         p = v[t]
         fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
         fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
