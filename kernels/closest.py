@@ -4,7 +4,8 @@ Broad phase in Warp's float32 BVH, exact answer in float64:
   1. ``mesh_query_point_no_sign`` gives a near-closest face f0; its exact distance d0 bounds the answer;
   2. every face whose float32 bounding box meets the box p +- (d0 + pad) is tested exactly. A face
      closer than d0 has a point inside the ball of radius d0, so inside that box; ``pad`` covers
-     the float32 rounding of the vertices and of the box (host code: ``wface.mesh.closest``).
+     the float32 rounding of the vertices (``pad_m``) and of the box (``pad_relative`` of the point's
+     coordinates; host code: ``wface.mesh.closest``).
 The point-triangle test is Ericson's region classification (Real-Time Collision Detection, 5.1.5),
 the same arithmetic as ``wface.mesh.closest.closest_point_on_triangles``. Ties go to the lower
 face index.
@@ -81,6 +82,7 @@ def closest_on_mesh(
     vertices: wp.array(dtype=wp.vec3d),
     triangles: wp.array2d(dtype=wp.int32),
     pad_m: wp.float64,
+    pad_relative: wp.float64,
     # Query:
     points: wp.array(dtype=wp.vec3d),
     # Out:
@@ -96,7 +98,7 @@ def closest_on_mesh(
         best = guess.face
     best_d = _face_distance(p, vertices, triangles, best)
     reach = wp.max(wp.abs(p[0]), wp.max(wp.abs(p[1]), wp.abs(p[2])))
-    r = best_d + pad_m + wp.float64(1e-6) * (reach + best_d)  # the box's own float32 rounding
+    r = best_d + pad_m + pad_relative * (reach + best_d)  # the box's own float32 rounding
     lo = wp.vec3(wp.float32(p[0] - r), wp.float32(p[1] - r), wp.float32(p[2] - r))
     hi = wp.vec3(wp.float32(p[0] + r), wp.float32(p[1] + r), wp.float32(p[2] + r))
     query = wp.mesh_query_aabb(mesh, lo, hi)

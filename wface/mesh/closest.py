@@ -120,7 +120,8 @@ class SurfaceQuery:
         if not np.all(np.isfinite(p)):
             raise ValueError("closest(): query points contain NaN or inf")
         if self.engine == "bvh":
-            return self._bvh.closest(p)
+            t, w, d = self._bvh.closest(p)
+            return ClosestHit(t, w, np.einsum("kj,kjd->kd", w, self.vertices_m[self.triangles[t]]), d)
         tri = self.triangles
         x = self.vertices_m
         _, cand = self._tree.query(p, k=self._k)
@@ -168,35 +169,31 @@ class _WarpSurface:
         self._triangles = wp.array(t32, dtype=wp.int32, device="cpu")
         self._points32 = wp.array(vertices_m.astype(np.float32), dtype=wp.vec3, device="cpu")
         self._mesh = wp.Mesh(points=self._points32, indices=wp.array(t32.ravel(), dtype=wp.int32, device="cpu"))
-        self._pad_m = _BVH_PAD * float(np.abs(vertices_m[np.unique(triangles)]).max(initial=0.0) + 1e-3)
-        self._x = vertices_m
-        self._tri = triangles
+        self._pad_m = _BVH_PAD * (float(np.abs(vertices_m).max()) + 1e-3)  # every vertex: a bound, no unique()
 
-    def closest(self, p: np.ndarray) -> ClosestHit:
+    def closest(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(face (k,) int64, barycentric weights (k, 3), distance (k,)) of each of (k, 3) points."""
         import warp as wp
 
         from wface.kernels.closest import closest_on_mesh
 
         k = len(p)
-        if k == 0:
-            return ClosestHit(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
-        face = wp.empty(k, dtype=wp.int32, device="cpu")
-        weights = wp.empty(k, dtype=wp.vec3d, device="cpu")
-        distance = wp.empty(k, dtype=wp.float64, device="cpu")
-        wp.launch(
-            closest_on_mesh,
-            dim=k,
-            inputs=[
-                self._mesh.id,
-                self._vertices,
-                self._triangles,
-                self._pad_m,
-                wp.array(p, dtype=wp.vec3d, device="cpu"),
-            ],
-            outputs=[face, weights, distance],
-            device="cpu",
-        )
-        t = face.numpy().astype(np.int64)
-        w = weights.numpy()
-        point = np.einsum("kj,kjd->kd", w, self._x[self._tri[t]])
-        return ClosestHit(t, w, point, distance.numpy())
+        face = wp.zeros(k, dtype=wp.int32, device="cpu")
+        weights = wp.zeros(k, dtype=wp.vec3d, device="cpu")
+        distance = wp.zeros(k, dtype=wp.float64, device="cpu")
+        if k:
+            wp.launch(
+                closest_on_mesh,
+                dim=k,
+                inputs=[
+                    self._mesh.id,
+                    self._vertices,
+                    self._triangles,
+                    self._pad_m,
+                    _BVH_PAD,
+                    wp.array(p, dtype=wp.vec3d, device="cpu"),
+                ],
+                outputs=[face, weights, distance],
+                device="cpu",
+            )
+        return face.numpy().astype(np.int64), weights.numpy().reshape(k, 3), distance.numpy()
