@@ -9,6 +9,7 @@ import pytest
 
 from tests.conftest import data_path
 from wface.cli import main
+from wface.physics.penalty import TRACKING_SMOOTHING_M
 
 REPORT_KEYS = (
     "frames markers tets nodes device solver marker_rms_mm marker_rms_mm_mean marker_max_mm seconds_per_frame "
@@ -44,6 +45,7 @@ def test_demo_with_lip_contact(tmp_path):
     assert main(args) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["contact"] == "lips" and report["frames"] == 2
+    assert report["contact_smoothing_mm"] == pytest.approx(1e3 * TRACKING_SMOOTHING_M)  # the default ramp
     assert report["truth_marker_rms_mm"] < 1.0 and report["inverted_elements"] == 0
     usage = report["usage_prior"]  # what the data chose, per muscle by name, and what the fits cost
     assert set(usage["activation_sd"]) == set(report["muscle_identifiability"]) and usage["noise_mm"] > 0

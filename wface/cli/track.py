@@ -29,6 +29,7 @@ from wface.faces.builtin import build_face
 from wface.files import file_sha256, save_npz
 from wface.io.mocap import read_mocap
 from wface.model import load_model
+from wface.physics.penalty import TRACKING_SMOOTHING_M
 from wface.takes.store import claim_take_dir, resume_plan
 from wface.tracking.capture import check_capture, prepare_capture
 from wface.tracking.cluster import dask_executor
@@ -131,7 +132,10 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
     add_contact_arguments(
-        p, smoothing_mm=0.05, obstacles=False, where="every equilibrium and Jacobian (for demo also the ground truth)"
+        p,
+        smoothing_mm=1e3 * TRACKING_SMOOTHING_M,
+        obstacles=False,
+        where="every equilibrium and Jacobian (for demo also the ground truth)",
     )
     p.add_argument(
         "--holdout",
@@ -142,7 +146,7 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def _contact(args, model):
-    """The ``Contact`` of the contact options (a 0.05 mm C2 ramp by default, for smooth Jacobians)."""
+    """The ``Contact`` of the contact options (by default the C2 ramp ``TRACKING_SMOOTHING_M``)."""
     return contact_from_args(args, model)
 
 
@@ -277,6 +281,7 @@ def _run(
         "wall_seconds": wall,
         "workers": args.workers if not args.scheduler else "scheduler",
         "contact": getattr(args, "contact", None) or None,
+        "contact_smoothing_mm": args.contact_smoothing_mm if getattr(args, "contact", None) else None,
         **(info or {}),
         "carried_frames": carried,
     }

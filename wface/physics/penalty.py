@@ -11,6 +11,7 @@ from wface.model import FaceModel
 
 __all__ = [
     "DEFAULT_STIFFNESS_FACTOR",
+    "TRACKING_SMOOTHING_M",
     "contact_points",
     "default_contact_stiffness",
     "median_edge_length",
@@ -18,6 +19,11 @@ __all__ = [
 ]
 
 DEFAULT_STIFFNESS_FACTOR = 100.0
+# The C2 ramp width d (m) that `wface track` / `demo` use: a frame's linear prediction sees no contact
+# stiffness in lips that only touch, and over a wide ramp the overshoot into the other lip costs
+# little force, so Newton starts close. 0.5 mm against 0.05 mm: NoseMoCap 0:60 at 5,280 tets (lips,
+# teeth) 877 -> 65 factorisations at the same marker RMS (docs/design.md, "Contact").
+TRACKING_SMOOTHING_M = 5e-4
 
 
 def median_edge_length(model: FaceModel) -> float:

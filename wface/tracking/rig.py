@@ -20,7 +20,8 @@ jaw bone) add d f_c / d b_jaw = Q dc/db_jaw + E'(g) dn/db_jaw to the jaw columns
 point on the obstacle, moving with the jaw affine; Q: the pair's Hessian block; n turns with a face
 feature); other obstacles are fixed in the cranium frame. The Jacobian is exact where no pair enters
 or leaves contact for small control changes (pairs at exactly zero penetration are a kink of the C1
-penalty: ``Contact(smoothing_m=...)`` makes it C2).
+penalty: ``Contact(smoothing_m=...)`` makes it C2; the tracking commands use
+``wface.physics.penalty.TRACKING_SMOOTHING_M``).
 
 Factor reuse (docs/design.md, "Performance"): ``linearize`` keeps the factorisation of K_UU at the
 equilibrium together with dY/dc and the coupling block K_UC (``RigLinearization``); the next
