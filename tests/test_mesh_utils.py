@@ -164,3 +164,42 @@ def test_count_inverted_counts_the_non_positive_signed_volumes():
     assert count_inverted(model, flat) == int(np.count_nonzero(signed_volumes(flat, t) <= 0.0)) >= 1
     assert count_inverted(model, x) == 0
     assert count_inverted(SimpleNamespace(tets=np.zeros((0, 4), int)), x) == 0
+
+
+def test_signed_surfaces_of_the_same_triangles_share_their_topology():
+    """``SignedSurface`` keeps what the triangles alone fix (edge ids, open boundary, vertices in use)
+    per distinct triangle array, since contact rebuilds the lips' surfaces at new positions on every
+    evaluation: a surface built with the cached topology equals one built from scratch, field by field
+    and query by query; different triangles of the same count get their own; the cache is bounded
+    and its arrays are read-only."""
+    from wface.mesh import signed_distance as sd
+    from wface.testing.models import box_model
+
+    box = box_model((3, 2, 2))
+    tri = boundary_faces(box.tets)
+    rng = np.random.default_rng(7)
+    x = box.rest_positions_m
+    y = x @ np.array([[1.1, 0.2, 0.0], [0.0, 0.9, 0.1], [0.05, 0.0, 1.2]]) + 0.003 * rng.standard_normal(x.shape)
+    q = np.concatenate(
+        [y[np.unique(tri)] + 1e-3 * rng.standard_normal((len(np.unique(tri)), 3)), rng.random((50, 3)) * 0.05]
+    )
+    for t in (tri, tri[1:], tri[:-1]):  # closed, and two open surfaces of the same size
+        sd._TOPOLOGY_CACHE.clear()
+        fresh = sd.SignedSurface(y, t, orient=False)
+        sd.SignedSurface(x, t, orient=False)  # the same triangles at other positions: a cache hit
+        cached = sd.SignedSurface(y, t, orient=False)
+        assert len(sd._TOPOLOGY_CACHE) == 1
+        for name in ("edge_normals", "boundary_edge", "boundary_vertex", "lower_m", "upper_m", "_edge_of"):
+            assert np.array_equal(getattr(cached, name), getattr(fresh, name)), name
+        assert cached.closed == fresh.closed == (len(t) == len(tri))
+        a, b = cached.signed(q), fresh.signed(q)
+        for name in ("phi_m", "normal", "triangle", "barycentric", "on_boundary", "feature", "edge_direction"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    sd._TOPOLOGY_CACHE.clear()
+    first, second = sd.SignedSurface(y, tri[1:], orient=False), sd.SignedSurface(y, tri[:-1], orient=False)
+    assert not np.array_equal(first.boundary_vertex, second.boundary_vertex)  # each its own hole
+    with pytest.raises(ValueError):
+        first._edge_of[0, 0] = 1  # shared: read-only
+    for k in range(sd._TOPOLOGY_CACHE_SIZE + 5):
+        sd.SignedSurface(y, np.roll(tri, k + 1, axis=0), orient=False)
+    assert len(sd._TOPOLOGY_CACHE) == sd._TOPOLOGY_CACHE_SIZE

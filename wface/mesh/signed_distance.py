@@ -88,6 +88,45 @@ def oriented_outward(vertices_m: np.ndarray, triangles: np.ndarray) -> np.ndarra
     return np.ascontiguousarray(t)
 
 
+@dataclass(frozen=True)
+class _Topology:
+    """What a surface's triangles alone fix: edge ids, open boundary, the vertices in use."""
+
+    edge_of: np.ndarray  # (t, 3) edge id of local edge j (corners j, j+1; opposite corner j+2)
+    boundary_edge: np.ndarray  # (e,) bool: the edge has one triangle
+    boundary_vertices: np.ndarray  # ids of the vertices on a boundary edge
+    vertices: np.ndarray  # sorted ids of the vertices the triangles use
+
+
+_TOPOLOGY_CACHE: dict[bytes, _Topology] = {}
+_TOPOLOGY_CACHE_SIZE = 64  # triangle sets kept (contact rebuilds the lips' surfaces at every evaluation)
+
+
+def _topology(t: np.ndarray) -> _Topology:
+    """The ``_Topology`` of (t, 3) int64 triangles, computed once per distinct triangle array: contact
+    rebuilds a ``SignedSurface`` of the same triangles at new positions on every evaluation."""
+    key = t.tobytes()
+    hit = _TOPOLOGY_CACHE.get(key)
+    if hit is not None:
+        return hit
+    pairs = np.sort(np.stack([t, np.roll(t, -1, axis=1)], axis=2), axis=2).reshape(-1, 2)
+    _, edge_id, counts = np.unique(pairs, axis=0, return_inverse=True, return_counts=True)
+    edge_id = edge_id.reshape(-1)
+    boundary = counts == 1
+    topo = _Topology(
+        edge_of=edge_id.reshape(-1, 3),
+        boundary_edge=boundary,
+        boundary_vertices=np.unique(pairs[boundary[edge_id]]),
+        vertices=np.unique(t),
+    )
+    for a in (topo.edge_of, topo.boundary_edge, topo.boundary_vertices, topo.vertices):
+        a.flags.writeable = False  # shared by every surface of these triangles
+    if len(_TOPOLOGY_CACHE) >= _TOPOLOGY_CACHE_SIZE:
+        _TOPOLOGY_CACHE.pop(next(iter(_TOPOLOGY_CACHE)))
+    _TOPOLOGY_CACHE[key] = topo
+    return topo
+
+
 class SignedSurface:
     """Signed distance queries on a triangle surface (positions fixed at construction).
 
@@ -120,20 +159,18 @@ class SignedSurface:
             )
             np.add.at(vn, t[:, j], np.arccos(np.clip(cos, -1.0, 1.0))[:, None] * fn)
         self.vertex_normals = vn
-        # Edges: local edge j of a triangle joins corners j and j+1 (opposite corner j+2).
-        pairs = np.sort(np.stack([t, np.roll(t, -1, axis=1)], axis=2), axis=2).reshape(-1, 2)
-        _, edge_id, counts = np.unique(pairs, axis=0, return_inverse=True, return_counts=True)
-        edge_id = edge_id.reshape(-1)
-        en = np.zeros((counts.size, 3))
-        np.add.at(en, edge_id, np.repeat(fn, 3, axis=0))
-        self._edge_of = edge_id.reshape(-1, 3)  # (t, 3) edge id of local edge j
+        topo = _topology(t)
+        en = np.zeros((topo.boundary_edge.size, 3))
+        np.add.at(en, topo.edge_of.reshape(-1), np.repeat(fn, 3, axis=0))
+        self._edge_of = topo.edge_of
         self.edge_normals = en
-        self.boundary_edge = counts == 1
+        self.boundary_edge = topo.boundary_edge
         self.boundary_vertex = np.zeros(len(v), dtype=bool)
-        self.boundary_vertex[pairs[self.boundary_edge[edge_id]].ravel()] = True
-        self.closed = not bool(self.boundary_edge.any())
-        self.lower_m = v[np.unique(t)].min(axis=0)
-        self.upper_m = v[np.unique(t)].max(axis=0)
+        self.boundary_vertex[topo.boundary_vertices] = True
+        self.closed = not bool(topo.boundary_edge.any())
+        used = v[topo.vertices]
+        self.lower_m = used.min(axis=0)
+        self.upper_m = used.max(axis=0)
 
     def near_box(self, points_m: np.ndarray, margin_m: float) -> np.ndarray:
         """(k,) bool: points inside the surface's bounding box grown by ``margin_m``."""

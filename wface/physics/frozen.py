@@ -244,6 +244,38 @@ def _features(pairs: ContactPairs, sel: np.ndarray, x: np.ndarray):
     return feature, corner, sign
 
 
+_STENCIL = ((1, 1), (1, -1), (-1, 1), (-1, -1))
+_ROWS_PER_BATCH = 200_000  # pair-distance rows per vectorised call (bounds the batch's memory, ~50 MB)
+
+
+def _second_differences(flat: np.ndarray, v, feature, corner, sign) -> np.ndarray:
+    """(P, 15, 15) d2 phi / dz2 of the pair distances at the coordinates ``flat`` (P, 15), by central
+    second differences with step ``_HESS_STEP_M``: (phi(+i+j) - phi(+i-j) - phi(-i+j) + phi(-i-j)) / 4h^2
+    for every i <= j. All 120 x 4 stencil points of all pairs go through ``_pair_distance`` in a few
+    vectorised calls (row-wise the same arithmetic as one call per stencil point)."""
+    P = len(flat)
+    h = _HESS_STEP_M
+    ii, jj = np.triu_indices(15)
+    k = np.arange(len(ii))
+    dz = np.zeros((len(ii), 4, 15))
+    for s, (a, b) in enumerate(_STENCIL):
+        dz[k, s, ii] += a * h
+        dz[k, s, jj] += b * h
+    val = np.empty((len(ii), P))
+    step = max(1, _ROWS_PER_BATCH // max(4 * P, 1))
+    for lo in range(0, len(ii), step):
+        part = dz[lo : lo + step]  # (C, 4, 15)
+        n = part.shape[0] * 4
+        z = (flat[None] + part.reshape(n, 1, 15)).reshape(n * P, 5, 3)
+        v_n, f_n, c_n, s_n = (np.tile(a, (n,) + (1,) * (a.ndim - 1)) for a in (v, feature, corner, sign))
+        phi = _pair_distance(z, v_n, f_n, c_n, s_n).reshape(-1, 4, P)
+        val[lo : lo + step] = (phi[:, 0] - phi[:, 1] - phi[:, 2] + phi[:, 3]) / (4 * h * h)
+    d2 = np.zeros((P, 15, 15))
+    d2[:, ii, jj] = val.T
+    d2[:, jj, ii] = val.T
+    return d2
+
+
 def _fixed_feature_hessian(pairs, sel, x, pattern, feature, corner, sign, project: bool) -> sp.csr_matrix:
     """k'' dg dg^T + E'(g) d2g of the selected pairs with their features fixed, over ``pattern``."""
     P = int(sel.sum())
@@ -253,24 +285,7 @@ def _fixed_feature_hessian(pairs, sel, x, pattern, feature, corner, sign, projec
     z0 = np.asarray(x, dtype=np.float64)[nodes]  # (P, 5, 3)
     if not np.allclose(_pair_distance(z0, v, feature, corner, sign), pairs.distance_m[sel], atol=1e-9):
         raise RuntimeError("contact: the pair distances do not match their features (stale pairs?)")
-    h = _HESS_STEP_M
-    d2 = np.zeros((P, 15, 15))
-    flat = z0.reshape(P, 15)
-
-    def phi(dz):
-        return _pair_distance((flat + dz).reshape(P, 5, 3), v, feature, corner, sign)
-
-    for i in range(15):
-        for j in range(i, 15):
-
-            def dz(a, b, i=i, j=j):
-                out = np.zeros(15)
-                out[i] += a * h
-                out[j] += b * h
-                return out
-
-            val = (phi(dz(1, 1)) - phi(dz(1, -1)) - phi(dz(-1, 1)) + phi(dz(-1, -1))) / (4 * h * h)
-            d2[:, i, j] = d2[:, j, i] = -val  # g = gap - phi
+    d2 = -_second_differences(z0.reshape(P, 15), v, feature, corner, sign)  # g = gap - phi
     coef = np.concatenate([v, -w], axis=1)  # (P, 5): dg/dx_k = -coef_k n
     dg = (-coef[:, :, None] * pairs.normal[sel][:, None, :]).reshape(P, 15)
     kn, fn = pairs.normal_stiffness[sel], pairs.force_magnitude[sel]
