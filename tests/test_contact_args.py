@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from wface.cli import build_parser
+from wface.physics.penalty import TRACKING_SMOOTHING_M
 
 FLAGS = ("--contact", "--contact-stiffness", "--contact-smoothing-mm", "--freeze-below", "--contact-inside-at-rest")
 
@@ -35,7 +36,10 @@ def test_defaults_and_the_contact_they_build():
     assert c_sim.smoothing_m == 0.0 and c_sim.freeze_below is None  # the plain penalty
     # speech: smooth lip surfaces by default (wface.physics.smooth_contact), which need no freezing
     assert c_speech.smoothing_m == pytest.approx(1e-4) and c_speech.freeze_below is None
-    assert c_track.smoothing_m == pytest.approx(5e-5) and c_track.freeze_below is None
+    # track / demo: the tracking ramp (0.5 mm, wface.physics.penalty.TRACKING_SMOOTHING_M)
+    assert c_track.smoothing_m == pytest.approx(TRACKING_SMOOTHING_M) == 5e-4 and c_track.freeze_below is None
+    demo = parser.parse_args(["demo", "--out", "o", "--contact", "lips"])
+    assert contact_from_args(demo, model).smoothing_m == pytest.approx(TRACKING_SMOOTHING_M)
     assert contact_from_args(parser.parse_args(["simulate", "--model", "m", "--out", "o"]), model) is None
     bad = parser.parse_args(["simulate", "--model", "m", "--out", "o", "--contact", "gums"])
     with pytest.raises(ValueError, match="gums"):
