@@ -1,4 +1,4 @@
-"""examples/fidelity_animface.py, examples/cheek_puff.py and examples/lip_sneer.py run headless with tiny options on the
+"""examples/fidelity_animface.py, cheek_puff.py, lip_sneer.py and upper_face.py run headless with tiny options on the
 real AnimFace capture (skipped without ../shared/data)."""
 
 from __future__ import annotations
@@ -7,6 +7,7 @@ import importlib.util
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tests.conftest import data_path
@@ -120,3 +121,43 @@ def test_jaw_closing_past_rest_on_cheeks(tmp_path, monkeypatch, capsys):
     assert closed["frames_on_the_closed_limit"] > 0.5 and closed["jaw_opening_min_deg"] > -1e-3
     assert closing["jaw_opening_min_deg"] < -0.5
     assert closing["used_mean_mm"] < closed["used_mean_mm"]
+
+
+def test_upper_face_analysis(tmp_path, monkeypatch):
+    monkeypatch.setenv("WFACE_DATA", str(data_path("animface").parent))
+    out = tmp_path / "upper"
+    assert _example("upper_face").main(["--out", str(out), "--tets", "2000", "--takes", "Eyebrows"]) == 0
+    res = json.loads((out / "upper_face.json").read_text())["analysis"][0]
+    assert (out / "upper_face.png").stat().st_size > 0
+    # the bone-fixed eye corners and nasion hold the head: their residual stays near the capture's noise
+    assert res["stable_residual_mm_median"] < 0.6
+    cap, reach = res["capture_max_mm"], res["model_reach"]
+    # in the brow raise the forehead's skin moves 3-4 mm out of the face and its middle 6 mm down,
+    # where every muscle that moves it that way, fully on, moves it less than 1 mm
+    for name in ("ForeHead_L", "ForeHead_M"):
+        assert cap[name]["out"] > reach[name]["out"]["all_movers_on_mm"] + 2.5
+    assert cap["ForeHead_M"]["down"] > 5.0 > 1.0 > reach["ForeHead_M"]["down"]["all_movers_on_mm"]
+    # the raised brow goes higher than the frontalis takes it
+    assert cap["Reyebrow_M"]["up"] > reach["Reyebrow_M"]["up"]["all_movers_on_mm"] + 1.0
+
+
+def test_upper_face_glide_faces():
+    upper = _example("upper_face")
+    base = upper.build_face(2000)
+    x = base.rest_positions_m
+    faces = {top: upper.glide_face(2000, from_mm=40.0, top=top) for top in ("held", "skin", "free")}
+    kept = {top: set(m.attached_nodes.tolist()) for top, m in faces.items()}
+    before = set(base.attached_nodes.tolist())
+    assert kept["free"] < kept["skin"] < kept["held"] < before
+    freed = np.array(sorted(before - kept["held"]))
+    theta = np.arctan2(x[freed, 0], x[freed, 2])
+    assert (x[freed, 1] >= 0.040).all() and (np.abs(theta) <= upper.TEMPORAL_LINE_RAD).all()
+    assert (x[freed, 1] < upper.TOP_EDGE_M).all()  # "held": the top edge stays whole
+    edge = np.array(sorted(kept["held"] - kept["free"]))
+    assert (x[edge, 1] > upper.TOP_EDGE_M).all()
+    skin = set(np.unique(base.skin_triangles).tolist())
+    assert all(i in skin for i in kept["skin"] - kept["free"])  # "skin": only the edge's skin nodes held
+    # the freed nodes' bones and the rest of the face are unchanged
+    m = faces["held"]
+    assert np.array_equal(m.attached_bone, base.attached_bone[np.isin(base.attached_nodes, m.attached_nodes)])
+    assert m.metadata["glide"] == {"from_mm": 40.0, "top_edge": "held", "freed_nodes": len(freed)}
