@@ -8,8 +8,9 @@ The capture (``$WFACE_DATA/animface/<Take>MoCap.c3d``) is aligned and embedded a
 nose-top marker (``remove_head_motion``): the canthal tendons tie the corners to the orbital rims and
 NoseTop sits on the nasion, where the forehead markers, which the other examples use, move with the
 brows in these takes. Each upper-face marker's displacement from neutral is split into its component
-along the model's outward skin normal (out of the face: positive), along the skin's upward tangent, and
-the rest. Against it, what the muscles can do: per marker and direction (out, in, up, down), the motion
+along the model's outward skin normal (out of the face: positive), along the skin's upward tangent and,
+off the midline, along its tangent toward the midline (medial). Against it, what the muscles can do: per
+marker and direction (out, in, up, down, medial), the motion
 when every muscle that moves the marker that way at rest (from the rig's Jacobian) is fully active at
 once, solved as one nonlinear equilibrium with the jaw closed.
 
@@ -53,7 +54,14 @@ UPPER = (
     "Reyebrow_M",
     "Reyebrow_Outside",
 )
-DIRECTIONS = ("out", "in", "up", "down")
+# (word, axis, sign): along the skin's outward normal, its upward tangent, and its tangent toward the midline
+DIRECTIONS = (
+    ("out", "out", 1.0),
+    ("in", "out", -1.0),
+    ("up", "up", 1.0),
+    ("down", "up", -1.0),
+    ("medial", "medial", 1.0),
+)
 TEMPORAL_LINE_RAD = 0.85  # |theta| of the temporal lines, the subgaleal plane's sides
 TOP_EDGE_M = 0.084  # nodes above this height form the patch's top edge (Y_TOP = 0.085 m)
 
@@ -73,6 +81,26 @@ def skin_frames(model, markers) -> tuple[np.ndarray, np.ndarray]:
     return normal, up / np.linalg.norm(up, axis=1, keepdims=True)
 
 
+def side_of(name: str) -> int:
+    """+1 for a marker on the subject's left (+x), -1 on the right, 0 on the midline (AnimFace names)."""
+    if name.endswith("_L") or name.startswith("L"):
+        return 1
+    if name.endswith("_R") or name.startswith("R"):
+        return -1
+    return 0
+
+
+def medial_tangents(names: list[str], normal: np.ndarray) -> np.ndarray:
+    """(k, 3) unit skin tangents toward the face's midplane (x = 0) at the markers; NaN on the midline."""
+    side = np.array([side_of(n) for n in names], dtype=float)
+    toward = -side[:, None] * np.array([1.0, 0.0, 0.0])
+    t = toward - np.sum(toward * normal, axis=1, keepdims=True) * normal
+    with np.errstate(invalid="ignore"):
+        t /= np.linalg.norm(t, axis=1, keepdims=True)
+    t[side == 0] = np.nan
+    return t
+
+
 def analyse(model, take, frames: int) -> dict:
     """The capture's out/in and up/down motion of the upper-face markers and the muscles' reach."""
     names = list(take.marker_names)
@@ -82,44 +110,34 @@ def analyse(model, take, frames: int) -> dict:
     fit_mm = np.linalg.norm(still[:, stable] - still[0, stable], axis=2) * 1e3
     upper = [names.index(n) for n in UPPER]
     normal, up = skin_frames(model, cap.markers)
-    d = still[:, upper] - still[0, upper]  # (F, k, 3), head motion removed
-    out_mm = np.einsum("fkd,kd->fk", d, normal[upper]) * 1e3
-    up_mm = np.einsum("fkd,kd->fk", d, up[upper]) * 1e3
     rig = FaceRig(model, tol=1e-6)
     c0 = rig.rest_controls()
     state = rig.equilibrium(c0)
+    rest_m = cap.markers.positions(state.x_m)
+    axes = {"out": normal, "up": up, "medial": medial_tangents(names, normal)}
+    d = still[:, upper] - still[0, upper]  # (F, k, 3), head motion removed
+    along_mm = {key: np.einsum("fkd,kd->fk", d, axis[upper]) * 1e3 for key, axis in axes.items()}
     J = cap.markers.jacobian(rig.jacobian(state, cap.markers.nodes)).reshape(len(names), 3, -1)
     M = model.n_muscles
     fibre = np.array([n not in model.pressure_actuators for n in model.muscle_names])
-    rest_m = cap.markers.positions(state.x_m)
     reach: dict = {}
+    capture: dict = {}
     for j, k in enumerate(upper):
-        entry = {}
-        for word, axis, sign in (
-            ("out", normal[k], 1.0),
-            ("in", normal[k], -1.0),
-            ("up", up[k], 1.0),
-            ("down", up[k], -1.0),
-        ):
+        reach[UPPER[j]], capture[UPPER[j]] = {}, {}
+        for word, key, sign in DIRECTIONS:
+            axis = axes[key][k]
+            if not np.all(np.isfinite(axis)):
+                continue  # a marker on the midline has no medial direction
+            capture[UPPER[j]][word] = float(np.nanmax(sign * along_mm[key][:, j]))
             per = sign * (axis @ J[k, :, :M]) * fibre  # m per unit activation
             movers = np.flatnonzero(per > 0)
             c = c0.copy()
             c[movers] = 1.0
             moved = cap.markers.positions(rig.equilibrium(c, state.y_m).x_m)[k] - rest_m[k]
-            entry[word] = {
+            reach[UPPER[j]][word] = {
                 "all_movers_on_mm": float(sign * moved @ axis * 1e3),
                 "strongest": [model.muscle_names[i] for i in movers[np.argsort(-per[movers])][:3]],
             }
-        reach[UPPER[j]] = entry
-    capture = {
-        n: {
-            "out": float(out_mm[:, j].max()),
-            "in": float(-out_mm[:, j].min()),
-            "up": float(up_mm[:, j].max()),
-            "down": float(-up_mm[:, j].min()),
-        }
-        for j, n in enumerate(UPPER)
-    }
     return {
         "take": take.name if hasattr(take, "name") else "",
         "frames": int(frames),
@@ -128,8 +146,8 @@ def analyse(model, take, frames: int) -> dict:
         "stable_residual_mm_max": float(np.nanmax(fit_mm)),
         "capture_max_mm": capture,
         "model_reach": reach,
-        "out_mm": out_mm.tolist(),
-        "up_mm": up_mm.tolist(),
+        "out_mm": along_mm["out"].tolist(),
+        "up_mm": along_mm["up"].tolist(),
         "fps": take.rate_hz,
     }
 
@@ -204,38 +222,36 @@ def track_variants(args, out: Path) -> list[dict]:
     return rows
 
 
+PANELS = (("out", "in", "normal"), ("up", "down", "upward tangent"), ("medial", None, "tangent toward the midline"))
+
+
 def plot(path: Path, results: list[dict]) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(len(results), 2, figsize=(12, 3.6 * len(results)), squeeze=False)
+    fig, axes = plt.subplots(len(results), len(PANELS), figsize=(16, 3.6 * len(results)), squeeze=False)
     x = np.arange(len(UPPER))
+    labels = [n.replace("eyebrow", "brow").replace("ForeHead", "Fh") for n in UPPER]
     for row, res in zip(axes, results, strict=True):
-        for ax, (pos, neg) in zip(row, (("out", "in"), ("up", "down")), strict=True):
-            cap = res["capture_max_mm"]
-            reach = res["model_reach"]
-            ax.bar(x - 0.2, [cap[n][pos] for n in UPPER], 0.4, color="tab:blue", label=f"capture, most {pos}")
-            ax.bar(x + 0.2, [-cap[n][neg] for n in UPPER], 0.4, color="tab:orange", label=f"capture, most {neg}")
-            ax.scatter(x - 0.2, [reach[n][pos]["all_movers_on_mm"] for n in UPPER], marker="_", s=300, c="k")
-            ax.scatter(
-                x + 0.2,
-                [-reach[n][neg]["all_movers_on_mm"] for n in UPPER],
-                marker="_",
-                s=300,
-                c="k",
-                label="muscles' reach",
-            )
+        cap, reach = res["capture_max_mm"], res["model_reach"]
+        for ax, (pos, neg, along) in zip(row, PANELS, strict=True):
+            for word, sign, dx, colour in ((pos, 1.0, -0.2, "tab:blue"), (neg, -1.0, 0.2, "tab:orange")):
+                if word is None:
+                    continue
+                got = [sign * cap[n].get(word, np.nan) for n in UPPER]
+                ax.bar(x + dx, got, 0.4, color=colour, label=f"capture, most {word}")
+                can = [sign * reach[n][word]["all_movers_on_mm"] if word in reach[n] else np.nan for n in UPPER]
+                ax.scatter(
+                    x + dx, can, marker="_", s=300, c="k", label="muscles' reach" if sign < 0 or not neg else None
+                )
             ax.axhline(0.0, color="0.5", lw=0.6)
-            ax.set_xticks(
-                x, [n.replace("eyebrow", "brow").replace("ForeHead", "Fh") for n in UPPER], fontsize=7, rotation=30
-            )
-            ax.set_ylabel(f"{pos} (+) / {neg} (-) from neutral (mm)", fontsize=8)
-            along = "normal" if pos == "out" else "upward tangent"
+            ax.set_xticks(x, labels, fontsize=7, rotation=30)
+            ax.set_ylabel(f"{pos} (+)" + (f" / {neg} (-)" if neg else "") + " from neutral (mm)", fontsize=8)
             ax.set_title(f"{res['take']}MoCap 0:{res['frames']}: along the skin's {along}", fontsize=9)
             ax.grid(alpha=0.3, axis="y")
-        row[0].legend(fontsize=7)
+            ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -283,8 +299,8 @@ def main(argv: list[str] | None = None) -> int:
         for n in UPPER:
             c, r = res["capture_max_mm"][n], res["model_reach"][n]
             print(
-                f"{name} {n}: capture out {c['out']:.1f} in {c['in']:.1f} up {c['up']:.1f} down {c['down']:.1f} mm; "
-                "muscles " + " ".join(f"{d} {r[d]['all_movers_on_mm']:.1f}" for d in DIRECTIONS)
+                f"{name} {n}: capture " + " ".join(f"{d} {c[d]:.1f}" for d in c) + " mm; "
+                "muscles " + " ".join(f"{d} {r[d]['all_movers_on_mm']:.1f}" for d in r)
             )
     summary = [{k: v for k, v in r.items() if k not in ("out_mm", "up_mm")} for r in results]
     plot(out / "upper_face.png", results)

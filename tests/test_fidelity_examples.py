@@ -137,8 +137,13 @@ def test_upper_face_analysis(tmp_path, monkeypatch):
     for name in ("ForeHead_L", "ForeHead_M"):
         assert cap[name]["out"] > reach[name]["out"]["all_movers_on_mm"] + 2.5
     assert cap["ForeHead_M"]["down"] > 5.0 > 1.0 > reach["ForeHead_M"]["down"]["all_movers_on_mm"]
-    # the raised brow goes higher than the frontalis takes it
+    # the raised brow goes higher than the frontalis takes it, and both brows are drawn to the midline
+    # three times as far as the corrugator draws them (the pinned frontalis and corrugator are the capture's)
     assert cap["Reyebrow_M"]["up"] > reach["Reyebrow_M"]["up"]["all_movers_on_mm"] + 1.0
+    for name in ("Leyebrow_M", "Reyebrow_M"):
+        assert cap[name]["medial"] > 2.0 * reach[name]["medial"]["all_movers_on_mm"] + 1.0
+        assert reach[name]["medial"]["strongest"][0].startswith("corrugator")
+    assert "medial" not in cap["ForeHead_M"] and "medial" not in reach["Eyebrow_Center"]  # the midline's markers
 
 
 def test_upper_face_glide_faces():
