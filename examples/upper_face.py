@@ -20,7 +20,9 @@ where the anatomy has glide planes (docs/design.md, "Built-in face attachments")
 over the frontal bone (the subgaleal plane, from ``--forehead-from-mm`` above the eyes' centre to the
 top of the patch, between the temporal lines at |theta| <= 0.85 rad), that with the brows' fat pads
 too (from ``--brows-from-mm``), each with the patch's top edge (the galea's anchor) held whole or held
-at the skin alone, or free. Writes ``upper_face.json``, ``upper_face.png`` and ``variants.md``.
+at the skin alone, or free; and the built-in face and the forehead glide with the edge held at the skin
+with both frontalis parts ``--frontalis-strength`` times as strong. Writes ``upper_face.json``,
+``upper_face.png`` and ``variants.md``.
 """
 
 from __future__ import annotations
@@ -192,13 +194,21 @@ def used_rms_without_upper(run: Path, report: dict, names: list[str]) -> float:
 
 def track_variants(args, out: Path) -> list[dict]:
     """Track every take on the built-in face and the glide-plane variants; one row per run."""
-    variants = [("built-in face", None, None)]
+    k = args.frontalis_strength
+    variants = [("built-in face", None, None, 1.0)]
     for from_mm, word in ((args.forehead_from_mm, "forehead"), (args.brows_from_mm, "forehead and brows")):
-        variants += [(f"{word} glide, top edge {top}", from_mm, top) for top in ("held", "skin", "free")]
+        variants += [(f"{word} glide, top edge {top}", from_mm, top, 1.0) for top in ("held", "skin", "free")]
+    if k != 1.0:
+        variants += [(f"built-in face, frontalis x{k:g}", None, None, k)]
+        variants += [(f"forehead glide, top edge skin, frontalis x{k:g}", args.forehead_from_mm, "skin", k)]
     rows = []
-    for label, from_mm, top in variants:
+    for label, from_mm, top, strength in variants:
         model = build_face(args.tets) if from_mm is None else glide_face(args.tets, from_mm=from_mm, top=top)
         tag = "builtin" if from_mm is None else f"glide{from_mm:g}_{top}"
+        if strength != 1.0:
+            frontalis = np.array([n.startswith("frontalis") for n in model.muscle_names])
+            model.muscle_strength = np.where(frontalis, strength, 1.0) * model.muscle_strength
+            tag += f"_frontalis{strength:g}"
         path = save_model(model, out / f"{tag}.npz")
         for take in args.takes:
             run = out / f"{take}_{tag}"
@@ -286,6 +296,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--holdout", type=int, default=5, help="hide every N-th marker by height (default 5)")
     p.add_argument("--forehead-from-mm", type=float, default=40.0, help="subgaleal glide from this height (40)")
     p.add_argument("--brows-from-mm", type=float, default=22.0, help="with the brows' fat pads, from this height (22)")
+    p.add_argument(
+        "--frontalis-strength", type=float, default=3.0, help="also both frontalis parts this much stronger (3; 1: not)"
+    )
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import data_path
+from wface.model import load_model
 
 _EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -166,3 +167,19 @@ def test_upper_face_glide_faces():
     m = faces["held"]
     assert np.array_equal(m.attached_bone, base.attached_bone[np.isin(base.attached_nodes, m.attached_nodes)])
     assert m.metadata["glide"] == {"from_mm": 40.0, "top_edge": "held", "freed_nodes": len(freed)}
+
+
+def test_upper_face_variants_run(tmp_path, monkeypatch):
+    """--variants tracks every glide-plane face and the stronger frontalis, and tabulates them."""
+    monkeypatch.setenv("WFACE_DATA", str(data_path("animface").parent))
+    out = tmp_path / "variants"
+    args = ["--out", str(out), "--tets", "2000", "--takes", "Jaw", "--frames", "2", "--variants"]
+    assert _example("upper_face").main([*args, "--frontalis-strength", "2"]) == 0
+    rows = json.loads((out / "upper_face.json").read_text())["variants"]
+    assert len(rows) == 9 and rows[0]["face"] == "built-in face"
+    assert len((out / "variants.md").read_text().splitlines()) == 2 + 9
+    for r in rows:
+        assert 0 < r["used_below_the_brows_mm"] < 10 and 0 < r["held_out_mm"] < 20
+    base, strong = load_model(out / "builtin.npz"), load_model(out / "builtin_frontalis2.npz")
+    frontalis = np.array([n.startswith("frontalis") for n in base.muscle_names])
+    assert np.array_equal(strong.muscle_strength, np.where(frontalis, 2.0, 1.0) * base.muscle_strength)
