@@ -7,12 +7,13 @@ The capture (``$WFACE_DATA/animface/<Take>MoCap.c3d``) is aligned and embedded a
 (``prepare_capture``). The head motion is removed frame by frame with the four eye corners and the
 nose-top marker (``remove_head_motion``): the canthal tendons tie the corners to the orbital rims and
 NoseTop sits on the nasion, where the forehead markers, which the other examples use, move with the
-brows in these takes. Each upper-face marker's displacement from neutral is split into its component
-along the model's outward skin normal (out of the face: positive), along the skin's upward tangent and,
-off the midline, along its tangent toward the midline (medial). Against it, what the muscles can do: per
-marker and direction (out, in, up, down, medial), the motion
-when every muscle that moves the marker that way at rest (from the rig's Jacobian) is fully active at
-once, solved as one nonlinear equilibrium with the jaw closed.
+brows in these takes (on CheeksMoCap the eye corners move with the cheeks, 2 mm median about their
+rigid fit, and the example warns that they do not hold the head there). Each upper-face marker's
+displacement from neutral is split into its component along the model's outward skin normal (out of
+the face: positive), along the skin's upward tangent and, off the midline, along its tangent toward
+the midline (medial). Against it, what the muscles can do: per marker and direction (out, in, up,
+down, medial), the motion when every muscle that moves the marker that way at rest (from the rig's
+Jacobian) is fully active at once, solved as one nonlinear equilibrium with the jaw closed.
 
 ``--variants`` then tracks each take (``--frames`` from 0, every ``--holdout``-th marker by height
 hidden, ``wface track`` with its defaults) on the built-in face and on faces whose bone side glides
@@ -30,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -64,6 +66,8 @@ DIRECTIONS = (
     ("down", "up", -1.0),
     ("medial", "medial", 1.0),
 )
+TAKES = ("Eyebrows", "Jaw", "Nose", "Cheeks")
+STABLE_RESIDUAL_LIMIT_MM = 1.0  # median motion of the stable markers about their rigid fit that still holds the head
 TEMPORAL_LINE_RAD = 0.85  # |theta| of the temporal lines, the subgaleal plane's sides
 TOP_EDGE_M = 0.084  # nodes above this height form the patch's top edge (Y_TOP = 0.085 m)
 
@@ -146,6 +150,7 @@ def analyse(model, take, frames: int) -> dict:
         "stable_markers": list(STABLE),
         "stable_residual_mm_median": float(np.nanmedian(fit_mm)),
         "stable_residual_mm_max": float(np.nanmax(fit_mm)),
+        "head_motion_removed_reliably": bool(np.nanmedian(fit_mm) <= STABLE_RESIDUAL_LIMIT_MM),
         "capture_max_mm": capture,
         "model_reach": reach,
         "out_mm": along_mm["out"].tolist(),
@@ -290,7 +295,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--model", help="face model (.npz) for the analysis; default the built-in face with --tets")
     p.add_argument("--tets", type=int, default=5000, help="size of the built-in face (default 5000)")
-    p.add_argument("--takes", nargs="+", default=["Eyebrows", "Jaw"], help="AnimFace takes (default Eyebrows Jaw)")
+    p.add_argument(
+        "--takes", nargs="+", default=["Eyebrows", "Jaw"], choices=TAKES, help="AnimFace takes (default Eyebrows Jaw)"
+    )
     p.add_argument("--frames", type=int, default=300, help="frames of each take from 0 (default 300)")
     p.add_argument("--variants", action="store_true", help="also track the takes on the glide-plane faces")
     p.add_argument("--holdout", type=int, default=5, help="hide every N-th marker by height (default 5)")
@@ -309,6 +316,13 @@ def main(argv: list[str] | None = None) -> int:
         res = analyse(model, take, min(args.frames, take.positions_m.shape[0]))
         res["take"] = name
         results.append(res)
+        if not res["head_motion_removed_reliably"]:
+            print(
+                f"warning: {name}: the eye corners and NoseTop move {res['stable_residual_mm_median']:.1f} mm (median) "
+                "about their rigid fit, so they do not hold the head in this take and the motions below are not "
+                "the skin's alone",
+                file=sys.stderr,
+            )
         for n in UPPER:
             c, r = res["capture_max_mm"][n], res["model_reach"][n]
             print(
