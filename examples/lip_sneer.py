@@ -2,8 +2,9 @@
 
     python examples/lip_sneer.py --out out/sneer                  # built-in face, 5,000 tets
     python examples/lip_sneer.py --out out/sneer --model actor.npz
+    python examples/lip_sneer.py --out out/jaw_lip --take Jaw     # the same measures on another take
 
-The capture (``$WFACE_DATA/animface/NoseMoCap.c3d``) is aligned and embedded at its neutral frame 0
+The capture (``$WFACE_DATA/animface/NoseMoCap.c3d``, or ``--take``'s) is aligned and embedded at its neutral frame 0
 (``prepare_capture``) and the head motion is removed frame by frame with the forehead and nose-top
 markers (``remove_head_motion``). Each upper-lip and nose marker's displacement from neutral is then
 written in the face's own axes, taken from the model's markers at rest: lateral (towards the
@@ -161,9 +162,9 @@ def plot(path: Path, res: dict) -> Path:
     axes[0].legend(fontsize=7)
     fit = res["peak_fit"]
     fig.suptitle(
-        "NoseMoCap: upper lip vs the muscles' reach, one axis at a time (dashed: every muscle moving the marker "
-        f"that way at 1).\nAll three at once, at the sneer's peaks: the best bounded fit of the lip markers alone "
-        f"leaves {fit['solved_rms_mm']:.1f} mm RMS of {fit['capture_rms_mm']:.1f} mm",
+        f"{res['take']}MoCap: upper lip vs the muscles' reach, one axis at a time (dashed: every muscle moving the "
+        f"marker that way at 1).\nAll three at once, at the sneer's peaks: the best bounded fit of the lip markers "
+        f"alone leaves {fit['solved_rms_mm']:.1f} mm RMS of {fit['capture_rms_mm']:.1f} mm",
         fontsize=9,
     )
     fig.tight_layout()
@@ -178,12 +179,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--model", help="face model (.npz); default the built-in face with --tets")
     p.add_argument("--tets", type=int, default=5000, help="size of the built-in face (default 5000)")
     p.add_argument("--frames", type=int, default=300, help="frames of the capture to analyse (default 300)")
+    p.add_argument("--take", default="Nose", choices=("Nose", "Jaw", "Cheeks", "Eyebrows"), help="AnimFace take (Nose)")
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     model = load_model(args.model) if args.model else build_face(args.tets)
-    take = read_mocap(data_dir() / "animface" / "NoseMoCap.c3d")
+    take = read_mocap(data_dir() / "animface" / f"{args.take}MoCap.c3d")
     res = analyse(model, take, args.frames)
+    res["take"] = args.take
     (out / "lip_sneer.json").write_text(json.dumps({k: v for k, v in res.items() if k != "displacement_mm"}, indent=2))
     plot(out / "lip_sneer.png", res)
     for name in res["markers"]:

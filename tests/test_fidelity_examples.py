@@ -185,3 +185,15 @@ def test_upper_face_variants_run(tmp_path, monkeypatch):
     base, strong = load_model(out / "builtin.npz"), load_model(out / "builtin_frontalis2.npz")
     frontalis = np.array([n.startswith("frontalis") for n in base.muscle_names])
     assert np.array_equal(strong.muscle_strength, np.where(frontalis, 2.0, 1.0) * base.muscle_strength)
+
+
+def test_lip_analysis_on_the_jaw_take(tmp_path, monkeypatch):
+    """lip_sneer.py --take Jaw: JawMoCap pouts the upper lip 5.1 mm forward where the muscles push it 3.6 mm
+    (5,280 tets; the coarse 2,000-tet face reaches 4.7)."""
+    monkeypatch.setenv("WFACE_DATA", str(data_path("animface").parent))
+    out = tmp_path / "jaw_lip"
+    assert _example("lip_sneer").main(["--out", str(out), "--tets", "5000", "--take", "Jaw"]) == 0  # 2,000: 4.7
+    res = json.loads((out / "lip_sneer.json").read_text())
+    assert res["take"] == "Jaw"
+    reach = res["model_reach"]["Mouth_Up"]["+forward"]["all_movers_on_mm"]
+    assert res["capture_max_mm"]["Mouth_Up"]["forward"] > reach + 1.0 > 2.0
