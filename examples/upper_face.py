@@ -145,7 +145,6 @@ def analyse(model, take, frames: int) -> dict:
                 "strongest": [model.muscle_names[i] for i in movers[np.argsort(-per[movers])][:3]],
             }
     return {
-        "take": take.name if hasattr(take, "name") else "",
         "frames": int(frames),
         "stable_markers": list(STABLE),
         "stable_residual_mm_median": float(np.nanmedian(fit_mm)),
@@ -184,10 +183,6 @@ def glide_face(tets: int, *, from_mm: float, top: str) -> object:
     return model
 
 
-def names_of(take: str) -> list[str]:
-    return list(read_mocap(data_dir() / "animface" / f"{take}MoCap.c3d").marker_names)
-
-
 def used_rms_without_upper(run: Path, report: dict, names: list[str]) -> float:
     """Mean over frames of the RMS error (face mm) of the markers used in the fit, brows and forehead left out."""
     held = set(report["holdout_markers"])
@@ -206,6 +201,7 @@ def track_variants(args, out: Path) -> list[dict]:
     if k != 1.0:
         variants += [(f"built-in face, frontalis x{k:g}", None, None, k)]
         variants += [(f"forehead glide, top edge skin, frontalis x{k:g}", args.forehead_from_mm, "skin", k)]
+    names = {take: list(read_mocap(data_dir() / "animface" / f"{take}MoCap.c3d").marker_names) for take in args.takes}
     rows = []
     for label, from_mm, top, strength in variants:
         model = build_face(args.tets) if from_mm is None else glide_face(args.tets, from_mm=from_mm, top=top)
@@ -230,7 +226,7 @@ def track_variants(args, out: Path) -> list[dict]:
                     "capture_to_model_scale": rep["capture_to_model_scale"],
                     "used_mm": rep["marker_rms_mm_mean"],
                     "held_out_mm": rep["holdout_rms_mm_mean"],
-                    "used_below_the_brows_mm": used_rms_without_upper(run, rep, names_of(take)),
+                    "used_below_the_brows_mm": used_rms_without_upper(run, rep, names[take]),
                     "upper_markers_mm": {n: per[n] for n in UPPER if per.get(n) is not None},
                 }
             )
