@@ -29,6 +29,7 @@ import numpy as np
 from wface.mesh.quality import dihedral_angles_deg
 
 __all__ = [
+    "hex_boundary_triangles",
     "hexes_to_tets",
     "read_ansys_elements",
     "read_ansys_nodes",
@@ -145,26 +146,48 @@ def _cell_triangles(cell: np.ndarray, split: dict[tuple[int, ...], int] | None =
     """
     tris: list[list[int]] = []
     for face in _HEX_FACES:
-        ring: list[int] = []
-        for i in (int(cell[k]) for k in face):  # drop repeated nodes (degenerate faces), cyclically
-            if not ring or ring[-1] != i:
-                ring.append(i)
-        while len(ring) > 1 and ring[0] == ring[-1]:
-            ring.pop()
-        if len(set(ring)) < 3:
-            continue
-        if len(ring) == 3:
-            tris.append(ring)
-            continue
-        key = tuple(sorted(ring))
-        if split is not None and key in split:
-            c = split[key]
-            tris += [[ring[j], ring[(j + 1) % 4], c] for j in range(4)]
-        else:
-            k = ring.index(min(ring))
-            a, b, c, d = ring[k:] + ring[:k]
-            tris += [[a, b, c], [a, c, d]]
+        tris += _face_triangles([int(cell[k]) for k in face], split)
     return tris
+
+
+def _face_triangles(corners: list[int], split: dict[tuple[int, ...], int] | None = None) -> list[list[int]]:
+    """Triangles of one brick face (its 4 corner node ids, cyclic; see ``_cell_triangles``)."""
+    ring: list[int] = []
+    for i in corners:  # drop repeated nodes (degenerate faces), cyclically
+        if not ring or ring[-1] != i:
+            ring.append(i)
+    while len(ring) > 1 and ring[0] == ring[-1]:
+        ring.pop()
+    if len(set(ring)) < 3:
+        return []
+    if len(ring) == 3:
+        return [ring]
+    key = tuple(sorted(ring))
+    if split is not None and key in split:
+        c = split[key]
+        return [[ring[j], ring[(j + 1) % 4], c] for j in range(4)]
+    k = ring.index(min(ring))
+    a, b, c, d = ring[k:] + ring[:k]
+    return [[a, b, c], [a, c, d]]
+
+
+def hex_boundary_triangles(hexes: np.ndarray) -> np.ndarray:
+    """(t, 3) outward triangles of the boundary of a brick mesh (hexes (h, 8), ANSYS order; wedges and
+    other degenerate bricks repeat nodes). A face is on the boundary when no other brick has the same
+    nodes; each boundary quad is cut by the diagonal through its smallest node id."""
+    cells = np.asarray(hexes, dtype=np.int64).reshape(-1, 8)
+    faces: dict[tuple[int, ...], list[list[int]]] = {}
+    count: dict[tuple[int, ...], int] = {}
+    for cell in cells:
+        for face in _HEX_FACES:
+            ring = [int(cell[k]) for k in face]
+            key = tuple(sorted(set(ring)))
+            if len(key) < 3:
+                continue
+            count[key] = count.get(key, 0) + 1
+            faces[key] = _face_triangles(ring)
+    out = [t for key, n in count.items() if n == 1 for t in faces[key]]
+    return np.asarray(out, dtype=np.int64).reshape(-1, 3)
 
 
 def _quads(cell: np.ndarray) -> list[tuple[int, ...]]:

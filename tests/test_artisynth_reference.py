@@ -1,0 +1,120 @@
+"""ArtiSynth's own lip-opening runs measured by wface: the brick-mesh boundary, the node-dump reader and
+examples/artisynth_lip_area.py on dumps made from the Badin face's rest shape (real data; skipped
+without ../shared/data)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import data_path
+from wface.faces.ansys import hex_boundary_triangles, hexes_to_tets, read_ansys_nodes
+from wface.faces.artisynth import MESH_PREFIX
+from wface.mesh.surface import boundary_faces
+from wface.speech.aperture import ARTISYNTH_VIEW_DIRECTION_BADIN
+
+_EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+REST_AREA_MM2 = 39.50  # the imported face's rest aperture (README, the lip-opening tables)
+SCALE = 1.05  # a uniform scaling of the face scales the orthographic aperture by SCALE^2
+
+
+def _example(name: str):
+    spec = importlib.util.spec_from_file_location(name, _EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _bricks():
+    """Two unit bricks side by side and a wedge (a brick with a collapsed edge) on top of the first."""
+    x = np.array(
+        [[i, j, k] for k in (0.0, 1.0) for j in (0.0, 1.0) for i in (0.0, 1.0, 2.0)]
+        + [[0.0, 0.0, 2.0], [0.0, 1.0, 2.0]],
+        dtype=np.float64,
+    )
+    node = {tuple(p): n for n, p in enumerate(x.tolist())}
+    corners = ((0, 0, 0), (0, 0, 1), (0, 1, 1), (0, 1, 0), (1, 0, 0), (1, 0, 1), (1, 1, 1), (1, 1, 0))  # (dz, dy, dx)
+
+    def brick(o):
+        return [node[(o[0] + dx, o[1] + dy, o[2] + dz)] for dz, dy, dx in corners]
+
+    b0, b1 = brick((0.0, 0.0, 0.0)), brick((1.0, 0.0, 0.0))
+    top0, top1 = node[(0.0, 0.0, 2.0)], node[(0.0, 1.0, 2.0)]
+    wedge = [b0[4], b0[5], b0[6], b0[7], top0, top0, top1, top1]  # ANSYS order, face 5-6 collapsed
+    return x, np.array([b0, b1, wedge])
+
+
+def _area(x, tris):
+    p = x[tris]
+    return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
+
+
+def test_hex_boundary_is_the_closed_outer_surface_of_bricks_and_wedges():
+    x, hexes = _bricks()
+    tris = hex_boundary_triangles(hexes)
+    edges = np.sort(np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]), axis=1)
+    _, count = np.unique(edges, axis=0, return_counts=True)
+    assert np.all(count == 2)  # closed, manifold: the shared faces are gone
+    # the same surface as the boundary of the tets the importer makes from these bricks
+    tets, _, new_points = hexes_to_tets(hexes, x)
+    xt = np.concatenate([x, new_points.reshape(-1, 3)])
+    assert _area(x, tris) == pytest.approx(_area(xt, boundary_faces(tets)), rel=1e-12)
+    # outward: the divergence theorem gives the volume, 2 bricks + a wedge of half a brick
+    p = x[tris]
+    volume = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0
+    assert volume == pytest.approx(2.5, rel=1e-12)
+
+
+@pytest.fixture(scope="module")
+def rest_dump(tmp_path_factory):
+    """A RunLipOpening-format dump of the Badin face: rest; rest moved 1 mm along the camera's view
+    direction; rest scaled by SCALE about the lips' centre; and a last frame cut short."""
+    data = data_path("artisynth-face")
+    _, xb = read_ansys_nodes(data / f"{MESH_PREFIX}.node")
+    d = np.asarray(ARTISYNTH_VIEW_DIRECTION_BADIN) / np.linalg.norm(ARTISYNTH_VIEW_DIRECTION_BADIN)
+    ex = _example("artisynth_lip_area")
+    centre = xb[ex.lip_node_ids(data, xb)].mean(axis=0)
+    scaled = centre + SCALE * (xb - centre)
+    path = tmp_path_factory.mktemp("dump") / "nodes.txt"
+    with open(path, "w") as fh:
+        for t, x in ((0.0, xb), (0.01, xb + 0.001 * d), (0.02, scaled)):
+            fh.write(f"T {t:.6f} 0.000000\n")
+            np.savetxt(fh, x, fmt="%.9g")
+        fh.write("T 0.030000 0.000000\n1.0 2.0 3.0\n")
+    return data, path, len(xb)
+
+
+def test_node_dump_reader_drops_a_cut_frame_and_names_a_wrong_mesh(rest_dump, tmp_path, capsys):
+    data, path, n = rest_dump
+    ex = _example("artisynth_lip_area")
+    times, oop, X = ex.read_node_dump(path, n)
+    assert times.tolist() == [0.0, 0.01, 0.02] and X.shape == (3, n, 3) and np.all(oop == 0)
+    assert "incomplete" in capsys.readouterr().out
+    with pytest.raises(ValueError, match="another mesh"):
+        ex.read_node_dump(path, n + 1)
+    empty = tmp_path / "empty.txt"
+    empty.write_text("no frames here\n")
+    with pytest.raises(ValueError, match="no frame"):
+        ex.read_node_dump(empty, n)
+
+
+def test_artisynth_lip_area_measures_the_rest_aperture_and_its_changes(rest_dump, tmp_path):
+    data, path, _ = rest_dump
+    report = _example("artisynth_lip_area").main([f"rest={path}", "--data", str(data), "--out", str(tmp_path)])
+    run = report["runs"]["rest"]
+    area = np.array(run["area_mm2"])
+    assert area[0] == pytest.approx(REST_AREA_MM2, abs=0.01)  # the hex boundary is the tets' boundary
+    assert area[1] == pytest.approx(area[0], abs=1e-6)  # a shift along the view direction changes nothing
+    assert area[2] == pytest.approx(SCALE**2 * area[0], abs=0.05)
+    assert max(run["error_mm2"]) < 0.05
+    assert run["rest_node_difference_m"] < 1e-8  # the dump prints 9 significant digits
+    orig = report["original"]
+    assert orig["below_20_from_s"] == pytest.approx(0.42) and orig["shut_from_s"] is None  # 19.85 mm^2 at 0.42 s
+    assert orig["mean_after_0.6s_mm2"] == pytest.approx(15.5, abs=0.1)
+    saved = json.loads((tmp_path / "artisynth_lip_area.json").read_text())
+    assert saved["runs"]["rest"]["area_mm2"] == run["area_mm2"]
+    assert (tmp_path / "artisynth_lip_area.png").stat().st_size > 10_000
