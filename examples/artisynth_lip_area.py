@@ -12,9 +12,9 @@ recorded output (``speech/approximant/lip_opening_area.txt``) and, optionally, w
     python examples/artisynth_lip_area.py demo=nodes_all.txt --wface "wface demo setup"=appr/lip_opening.csv \\
         --data ../shared/data/artisynth-face --out out/artisynth_runs
 
-Writes ``artisynth_lip_area.json`` (per run: area per frame, area at rest, before the excitation and
-over t >= 0.6 s, when it first falls below 20 and 0.5 mm^2, RMS from the original) and
-``artisynth_lip_area.png``.
+Writes ``artisynth_lip_area.json`` (per run and frame: area, its discretisation error, the aperture's
+width and height; per run: area at rest, before the excitation and over t >= 0.6 s, when it first falls
+below 20 and 0.5 mm^2, RMS from the original) and ``artisynth_lip_area.png``.
 """
 
 from __future__ import annotations
@@ -150,9 +150,10 @@ def plot(runs: dict, wface_curves: dict, reference: np.ndarray | None, path: Pat
 
 
 def _labelled(spec: str, what: str) -> tuple[str, Path]:
+    """(label, path) of LABEL=PATH, or of a bare PATH labelled by its file name."""
     label, sep, path = spec.rpartition("=")
     if not sep or not label:
-        raise SystemExit(f"{what} {spec!r}: expected LABEL=PATH")
+        label, path = Path(spec).stem, spec
     if not Path(path).is_file():
         raise SystemExit(f"{what} {spec!r}: no file {path}")
     return label, Path(path)
@@ -160,9 +161,9 @@ def _labelled(spec: str, what: str) -> tuple[str, Path]:
 
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("runs", nargs="+", help="LABEL=NODES.txt: RunLipOpening dumps")
+    ap.add_argument("runs", nargs="+", help="[LABEL=]NODES.txt: RunLipOpening dumps (label: the file name)")
     ap.add_argument("--data", type=Path, required=True, help="the ArtiSynth Badin face data folder")
-    ap.add_argument("--wface", action="append", default=[], help="LABEL=lip_opening.csv from wface speech")
+    ap.add_argument("--wface", action="append", default=[], help="[LABEL=]lip_opening.csv from wface speech")
     ap.add_argument("--resolution-mm", type=float, default=0.05, help="scanline spacing of the area measure")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)

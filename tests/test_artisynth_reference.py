@@ -104,7 +104,9 @@ def test_node_dump_reader_drops_a_cut_frame_and_names_a_wrong_mesh(rest_dump, tm
 
 def test_artisynth_lip_area_measures_the_rest_aperture_and_its_changes(rest_dump, tmp_path):
     data, path, _ = rest_dump
-    report = _example("artisynth_lip_area").main([f"rest={path}", "--data", str(data), "--out", str(tmp_path)])
+    args = [f"rest={path}", str(path), "--data", str(data), "--out", str(tmp_path)]
+    report = _example("artisynth_lip_area").main(args)
+    assert report["runs"]["nodes"]["area_mm2"] == report["runs"]["rest"]["area_mm2"]  # a bare path: its name
     run = report["runs"]["rest"]
     area = np.array(run["area_mm2"])
     assert area[0] == pytest.approx(REST_AREA_MM2, abs=0.01)  # the hex boundary is the tets' boundary

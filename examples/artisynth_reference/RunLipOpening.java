@@ -12,7 +12,8 @@
 //   javac -cp $CP RunLipOpening.java
 //   java -Djava.awt.headless=true -Djava.library.path=$NATIVE -cp .:$CP RunLipOpening NODES.txt 1.0 OOP.txt
 // Options (system properties):
-//   -Dlip.contact=all|lips|none   collisions as the demo sets them (all), lip-lip only, or none
+//   -Dlip.contact=all|lips|skull|none   collisions as the demo sets them (all), lip-lip only,
+//                                 face-bone only, or none
 //   -Dlip.pentol=METRES           MechModel penetration tolerance (default: ArtiSynth's)
 //   -Dlip.gravity=false           no gravity
 //   -Dlip.contacts=FILE           also write the lip-lip contacts at every dump: per frame a line
@@ -55,15 +56,15 @@ public class RunLipOpening {
       RigidBody maxilla = mech.rigidBodies ().get ("badinmaxilla");
 
       String contact = System.getProperty ("lip.contact", "all");
+      if (!java.util.Arrays.asList ("all", "lips", "skull", "none").contains (contact)) {
+         throw new IllegalArgumentException ("lip.contact must be all, lips, skull or none, got " + contact);
+      }
       if (contact.equals ("lips") || contact.equals ("none")) {
          mech.setCollisionBehavior (face, jaw, false);
          mech.setCollisionBehavior (face, maxilla, false);
       }
-      if (contact.equals ("none")) {
+      if (contact.equals ("skull") || contact.equals ("none")) {
          mech.setCollisionBehavior (face, face, false);
-      }
-      else if (!contact.equals ("all") && !contact.equals ("lips")) {
-         throw new IllegalArgumentException ("lip.contact must be all, lips or none, got " + contact);
       }
       String penTol = System.getProperty ("lip.pentol");
       if (penTol != null) {
