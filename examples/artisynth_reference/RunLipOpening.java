@@ -16,9 +16,9 @@
 //                                 face-bone only, or none
 //   -Dlip.pentol=METRES           MechModel penetration tolerance (default: ArtiSynth's)
 //   -Dlip.gravity=false           no gravity
-//   -Dlip.contacts=FILE           also write the lip-lip contacts at every dump: per frame a line
-//                                 "T <time s> <count>", then per contact "x0 y0 z0 x1 y1 z1 nx ny nz force_N"
-//                                 (the two contact points, the normal and the force, Badin frame)
+//   -Dlip.contacts=FILE           also write the contacts at every dump: per frame a line "T <time s> <count>",
+//                                 then per contact "x0 y0 z0 x1 y1 z1 nx ny nz force_N pair" (the two contact
+//                                 points, the normal and the force, Badin frame; pair: lips, jaw or maxilla)
 // Output: per frame a line "T <time s> <OOP excitation>" and then one line "x y z" (metres, Badin frame)
 // per face node, in the node file's order.
 import java.io.BufferedWriter;
@@ -82,7 +82,12 @@ public class RunLipOpening {
          + (lips == null ? "" : ", lip contact friction " + lips.getFriction () + " collider " + lips.getColliderType ()));
 
       String contactsFile = System.getProperty ("lip.contacts");
-      CollisionResponse response = contactsFile == null ? null : mech.setCollisionResponse (face, face);
+      java.util.LinkedHashMap<String, CollisionResponse> responses = new java.util.LinkedHashMap<> ();
+      if (contactsFile != null) {
+         responses.put ("lips", mech.setCollisionResponse (face, face));
+         responses.put ("jaw", mech.setCollisionResponse (face, jaw));
+         responses.put ("maxilla", mech.setCollisionResponse (face, maxilla));
+      }
       PrintWriter contacts = contactsFile == null ? null : new PrintWriter (new BufferedWriter (new FileWriter (contactsFile)));
       demo.addInputProbe (new NumericInputProbe (oop, "excitation", args[2]));
       demo.initialize (0);
@@ -100,7 +105,7 @@ public class RunLipOpening {
                dump (out, tb, oop, face);
                out.flush ();
                if (contacts != null) {
-                  dumpContacts (contacts, tb, response);
+                  dumpContacts (contacts, tb, responses);
                }
                System.out.printf (
                   "t=%.3f s OOP=%.4f wall %.1f s%n", tb, oop.getExcitation (), (System.nanoTime () - start) * 1e-9);
@@ -112,14 +117,19 @@ public class RunLipOpening {
       }
    }
 
-   static void dumpContacts (PrintWriter out, double t, CollisionResponse response) {
-      java.util.List<ContactData> data = response.getContactData ();
-      out.printf ("T %.6f %d%n", t, data.size ());
-      for (ContactData c : data) {
-         out.printf (
-            "%.9g %.9g %.9g %.9g %.9g %.9g %.6g %.6g %.6g %.6g%n", c.getPosition0 ().x, c.getPosition0 ().y,
-            c.getPosition0 ().z, c.getPosition1 ().x, c.getPosition1 ().y, c.getPosition1 ().z, c.getNormal ().x,
-            c.getNormal ().y, c.getNormal ().z, c.getContactForceScalar ());
+   static void dumpContacts (PrintWriter out, double t, java.util.Map<String, CollisionResponse> responses) {
+      int count = 0;
+      for (CollisionResponse r : responses.values ()) {
+         count += r.getContactData ().size ();
+      }
+      out.printf ("T %.6f %d%n", t, count);
+      for (java.util.Map.Entry<String, CollisionResponse> e : responses.entrySet ()) {
+         for (ContactData c : e.getValue ().getContactData ()) {
+            out.printf (
+               "%.9g %.9g %.9g %.9g %.9g %.9g %.6g %.6g %.6g %.6g %s%n", c.getPosition0 ().x, c.getPosition0 ().y,
+               c.getPosition0 ().z, c.getPosition1 ().x, c.getPosition1 ().y, c.getPosition1 ().z, c.getNormal ().x,
+               c.getNormal ().y, c.getNormal ().z, c.getContactForceScalar (), e.getKey ());
+         }
       }
       out.flush ();
    }
