@@ -176,7 +176,7 @@ def hex_boundary_triangles(hexes: np.ndarray) -> np.ndarray:
     other degenerate bricks repeat nodes). A face is on the boundary when no other brick has the same
     nodes; each boundary quad is cut by the diagonal through its smallest node id."""
     cells = np.asarray(hexes, dtype=np.int64).reshape(-1, 8)
-    faces: dict[tuple[int, ...], list[list[int]]] = {}
+    rings: dict[tuple[int, ...], list[int]] = {}
     count: dict[tuple[int, ...], int] = {}
     for cell in cells:
         for face in _HEX_FACES:
@@ -185,8 +185,8 @@ def hex_boundary_triangles(hexes: np.ndarray) -> np.ndarray:
             if len(key) < 3:
                 continue
             count[key] = count.get(key, 0) + 1
-            faces[key] = _face_triangles(ring)
-    out = [t for key, n in count.items() if n == 1 for t in faces[key]]
+            rings[key] = ring
+    out = [t for key, n in count.items() if n == 1 for t in _face_triangles(rings[key])]  # boundary faces only
     return np.asarray(out, dtype=np.int64).reshape(-1, 3)
 
 
