@@ -120,3 +120,81 @@ def test_artisynth_lip_area_measures_the_rest_aperture_and_its_changes(rest_dump
     saved = json.loads((tmp_path / "artisynth_lip_area.json").read_text())
     assert saved["runs"]["rest"]["area_mm2"] == run["area_mm2"]
     assert (tmp_path / "artisynth_lip_area.png").stat().st_size > 10_000
+
+
+def test_export_wface_tets_writes_the_import_back_in_the_badin_frame(tmp_path):
+    """examples/artisynth_reference/export_wface_tets.py: the file RunLipOpening -Dlip.mesh reads."""
+    from types import SimpleNamespace
+
+    from wface.faces.artisynth import badin_to_wface
+
+    path = _EXAMPLES / "artisynth_reference" / "export_wface_tets.py"
+    spec = importlib.util.spec_from_file_location("export_wface_tets", path)
+    export = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(export)
+    x_badin, hexes = _bricks()
+    tets, _, steiner, _ = hexes_to_tets(hexes, x_badin, return_sources=True)
+    x_badin = np.vstack([x_badin, steiner]) * 0.01
+    n_file = len(_bricks()[0])
+    model = SimpleNamespace(
+        rest_positions_m=badin_to_wface(x_badin), tets=tets, metadata={"added_nodes": {"first_id": n_file}}
+    )
+    path = tmp_path / "tets.txt"
+    assert export.write_tets(model, path) == (len(x_badin), n_file, len(tets))
+
+    lines = path.read_text().splitlines()
+    assert lines[0] == f"NODES {len(x_badin)} {n_file}"
+    back = np.loadtxt(lines[1 : 1 + len(x_badin)])
+    np.testing.assert_allclose(back, x_badin, atol=1e-14)  # Badin frame again, not wface's
+    assert lines[1 + len(x_badin)] == f"TETS {len(tets)}"
+    t = np.loadtxt(lines[2 + len(x_badin) :], dtype=np.int64)
+    np.testing.assert_array_equal(t, tets)
+    p = back[t]
+    volume = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0]) / 6
+    assert (volume > 0).all()  # the frame change is a rotation: orientation kept
+    assert volume.sum() == pytest.approx(2.5e-6)  # two 1 cm bricks and half a one
+
+    with pytest.raises(SystemExit, match="not a wface Badin import"):
+        export.write_tets(SimpleNamespace(rest_positions_m=x_badin, tets=tets, metadata={}), tmp_path / "no.txt")
+
+
+def test_export_wface_tets_refine_splits_each_tet_in_eight_conforming(tmp_path):
+    """--refine: 8 children per tet that fill it exactly, midpoints shared between neighbours."""
+    path = _EXAMPLES / "artisynth_reference" / "export_wface_tets.py"
+    spec = importlib.util.spec_from_file_location("export_wface_tets", path)
+    export = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(export)
+    x, hexes = _bricks()
+    tets, _, steiner = hexes_to_tets(hexes, x)
+    x = np.vstack([x, np.reshape(steiner, (-1, 3))])
+    x8, tets8, ends = export.refine_tets(x, tets)
+
+    n_edges = len(
+        np.unique(np.sort(tets[:, [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]]], axis=2).reshape(-1, 2), axis=0)
+    )
+    assert len(x8) == len(x) + n_edges and len(ends) == n_edges  # one node per edge, not per tet edge
+    np.testing.assert_allclose(x8[len(x) :], 0.5 * (x[ends[:, 0]] + x[ends[:, 1]]))
+    assert len(tets8) == 8 * len(tets)
+    v, v8 = export.signed_volumes(x, tets), export.signed_volumes(x8, tets8)
+    assert (v8 > 0).all()
+    np.testing.assert_allclose(v8.reshape(-1, 8).sum(axis=1), v, rtol=1e-12)  # the children fill each parent
+    # conforming: every inner face is shared by exactly two children, and the boundary is the parents'
+    # boundary cut in four (same area)
+    faces = np.sort(tets8[:, [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]].reshape(-1, 3), axis=1)
+    _, count = np.unique(faces, axis=0, return_counts=True)
+    assert set(count.tolist()) <= {1, 2}
+    assert _area(x8, boundary_faces(tets8)) == pytest.approx(_area(x, boundary_faces(tets)), rel=1e-12)
+    assert len(boundary_faces(tets8)) == 4 * len(boundary_faces(tets))
+    # written: the node file's nodes as "x y z", then each midpoint as "x y z a b" (its end nodes)
+    from types import SimpleNamespace
+
+    from wface.faces.artisynth import badin_to_wface
+
+    model = SimpleNamespace(rest_positions_m=badin_to_wface(x), tets=tets, metadata={"added_nodes": {"first_id": 14}})
+    file = tmp_path / "tets8.txt"
+    assert export.write_tets(model, file, refine=True) == (len(x8), 14, len(tets8))
+    lines = file.read_text().splitlines()
+    rows = [line.split() for line in lines[1 : 1 + len(x8)]]
+    assert [len(r) for r in rows] == [3] * len(x) + [5] * n_edges
+    np.testing.assert_array_equal(np.array([r[3:] for r in rows[len(x) :]], dtype=np.int64), ends)
+    np.testing.assert_array_equal(np.loadtxt(lines[2 + len(x8) :], dtype=np.int64), tets8)

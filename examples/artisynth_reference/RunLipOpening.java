@@ -16,19 +16,40 @@
 //                                 face-bone only, or none
 //   -Dlip.pentol=METRES           MechModel penetration tolerance (default: ArtiSynth's)
 //   -Dlip.gravity=false           no gravity
+//   -Dlip.tets=true               replace every hex with linear tets before the run, by ArtiSynth's own hex
+//                                 split (AnsysReader's TETRAHEDRALIZE_HEXES: HexElement.setParities, then
+//                                 Tetrahedralizer.subdivideHex); each muscle element descriptor becomes one per
+//                                 tet with its hex's fibre direction; the wedges stay wedges
+//   -Dlip.mesh=FILE               run on another tet mesh of the same face (export_wface_tets.py writes wface's):
+//                                 the node file's nodes keep their order (moved to the file's rest positions),
+//                                 the file's further nodes are added (free; a midpoint whose two end nodes are
+//                                 held by a bone is held too), every element is replaced by the file's tets,
+//                                 each tet takes the muscle descriptors (direction included) of the ArtiSynth
+//                                 element that holds its centroid, and the lip collision surfaces are embedded
+//                                 again
+//   -Dlip.compliance=M_PER_N      lip-lip contact compliance (ArtiSynth's default 0: rigid constraints) and
+//   -Dlip.damping=NS_PER_M        its damping
+//   -Dlip.softincomp=ELEMENT|NODAL|FULL  how the flesh's bulk term is integrated (the demo leaves ArtiSynth's
+//                                 AUTO: ELEMENT, one mean dilatation per element, on the hexes)
+//   -Dlip.step=SECONDS            the integrator's step (the demo's: 0.005)
 //   -Dlip.contacts=FILE           also write the contacts at every dump: per frame a line "T <time s> <count>",
 //                                 then per contact "x0 y0 z0 x1 y1 z1 nx ny nz force_N pair" (the two contact
 //                                 points, the normal and the force, Badin frame; pair: lips, jaw or maxilla)
 // Output: per frame a line "T <time s> <OOP excitation>" and then one line "x y z" (metres, Badin frame)
-// per face node, in the node file's order.
+// per node of the node file, in its order (nodes added by -Dlip.mesh are left out).
 import java.io.BufferedWriter;
 import java.io.FileWriter;
 import java.io.PrintWriter;
 
+import artisynth.core.femmodels.FemElement3d;
 import artisynth.core.femmodels.FemModel3d;
 import artisynth.core.femmodels.FemMuscleModel;
 import artisynth.core.femmodels.FemNode3d;
+import artisynth.core.femmodels.HexElement;
 import artisynth.core.femmodels.MuscleBundle;
+import artisynth.core.femmodels.MuscleElementDesc;
+import artisynth.core.femmodels.TetElement;
+import artisynth.core.femmodels.Tetrahedralizer;
 import artisynth.core.mechmodels.CollisionBehavior;
 import artisynth.core.mechmodels.CollisionResponse;
 import artisynth.core.mechmodels.ContactData;
@@ -40,6 +61,7 @@ import artisynth.models.face.BadinFaceDemoLipOpening;
 
 public class RunLipOpening {
    static final double DUMP_INTERVAL_S = 0.01;
+   static int dumpNodes; // the node file's nodes: the dump leaves out nodes added by -Dlip.mesh
 
    public static void main (String[] args) throws Exception {
       if (args.length != 3) {
@@ -55,6 +77,13 @@ public class RunLipOpening {
       RigidBody jaw = mech.rigidBodies ().get ("badinjaw");
       RigidBody maxilla = mech.rigidBodies ().get ("badinmaxilla");
 
+      dumpNodes = face.numNodes ();
+      if (Boolean.parseBoolean (System.getProperty ("lip.tets", "false"))) {
+         tetrahedralize (face);
+      }
+      if (System.getProperty ("lip.mesh") != null) {
+         replaceMesh (mech, face, System.getProperty ("lip.mesh"));
+      }
       String contact = System.getProperty ("lip.contact", "all");
       if (!java.util.Arrays.asList ("all", "lips", "skull", "none").contains (contact)) {
          throw new IllegalArgumentException ("lip.contact must be all, lips, skull or none, got " + contact);
@@ -66,6 +95,12 @@ public class RunLipOpening {
       if (contact.equals ("skull") || contact.equals ("none")) {
          mech.setCollisionBehavior (face, face, false);
       }
+      if (System.getProperty ("lip.softincomp") != null) {
+         face.setSoftIncompMethod (artisynth.core.femmodels.FemModel.IncompMethod.valueOf (System.getProperty ("lip.softincomp")));
+      }
+      if (System.getProperty ("lip.step") != null) {
+         mech.setMaxStepSize (Double.parseDouble (System.getProperty ("lip.step")));
+      }
       String penTol = System.getProperty ("lip.pentol");
       if (penTol != null) {
          mech.setPenetrationTol (Double.parseDouble (penTol));
@@ -74,12 +109,18 @@ public class RunLipOpening {
          mech.setGravity (0, 0, 0);
       }
       CollisionBehavior lips = mech.getCollisionBehavior (face, face);
+      if (lips != null && System.getProperty ("lip.compliance") != null) {
+         lips.setCompliance (Double.parseDouble (System.getProperty ("lip.compliance")));
+         lips.setDamping (Double.parseDouble (System.getProperty ("lip.damping", "0")));
+      }
       System.out.println (
          "nodes " + face.numNodes () + ", elements " + face.numElements () + ", OOP elements "
          + oop.getElements ().size () + ", step " + mech.getMaxStepSize () + " s, " + mech.getIntegrator ()
-         + ", gravity " + mech.getGravity () + ", contact " + contact + ", penetration tol "
+         + ", soft incompressibility " + face.getSoftIncompMethod () + ", gravity " + mech.getGravity () + ", contact " + contact + ", penetration tol "
          + mech.getPenetrationTol () + " m"
-         + (lips == null ? "" : ", lip contact friction " + lips.getFriction () + " collider " + lips.getColliderType ()));
+         + (lips == null ? "" : ", lip contact friction " + lips.getFriction () + " collider " + lips.getColliderType ()
+            + " compliance " + lips.getCompliance ()
+            + " m/N damping " + lips.getDamping () + " N s/m"));
 
       String contactsFile = System.getProperty ("lip.contacts");
       java.util.LinkedHashMap<String, CollisionResponse> responses = new java.util.LinkedHashMap<> ();
@@ -117,6 +158,204 @@ public class RunLipOpening {
       }
    }
 
+   /** Replaces every hex of the face by the tets of ArtiSynth's own split; the muscles keep their directions. */
+   static void tetrahedralize (FemMuscleModel face) {
+      java.util.ArrayList<HexElement> hexes = new java.util.ArrayList<> ();
+      for (FemElement3d e : face.getElements ()) {
+         if (e instanceof HexElement) {
+            hexes.add ((HexElement)e);
+         }
+      }
+
+      HexElement.setParities (hexes);
+      Tetrahedralizer tetrahedralizer = new Tetrahedralizer ();
+      java.util.HashMap<FemElement3d, TetElement[]> split = new java.util.HashMap<> ();
+      int dropped = 0;
+      double droppedVolume = 0, keptVolume = 0;
+      for (HexElement hex : hexes) {
+         FemNode3d[] n = hex.getNodes ();
+         java.util.ArrayList<TetElement> kept = new java.util.ArrayList<> ();
+         for (TetElement tet : tetrahedralizer.subdivideHex (n[0], n[1], n[2], n[3], n[4], n[5], n[6], n[7], hex.getParity () != 1)) {
+            FemNode3d[] q = tet.getNodes ();
+            double v = TetElement.computeVolume (q[0], q[1], q[2], q[3]);
+            if (v <= 0) { // the split of a twisted hex: the hex's other tets keep its volume's bulk
+               droppedVolume += v;
+               dropped++;
+               continue;
+            }
+            face.addElement (tet);
+            kept.add (tet);
+            keptVolume += v;
+         }
+         split.put (hex, kept.toArray (new TetElement[0]));
+      }
+      int descriptors = 0;
+      for (MuscleBundle bundle : face.getMuscleBundles ()) {
+         java.util.ArrayList<MuscleElementDesc> old = new java.util.ArrayList<> ();
+         for (MuscleElementDesc desc : bundle.getElements ()) {
+            old.add (desc);
+         }
+         for (MuscleElementDesc desc : old) {
+            TetElement[] tets = split.get (desc.getElement ());
+            if (tets == null) {
+               continue;
+            }
+            maspack.matrix.Vector3d direction = desc.getDirection ();
+            if (direction == null) {
+               throw new IllegalStateException ("muscle element of " + bundle.getName () + " has no single direction");
+            }
+            bundle.getElements ().remove (desc);
+            for (TetElement tet : tets) {
+               MuscleElementDesc d = new MuscleElementDesc ();
+               d.setElement (tet);
+               d.setDirection (new maspack.matrix.Vector3d (direction));
+               bundle.addElement (d);
+               descriptors++;
+            }
+         }
+      }
+      for (HexElement hex : hexes) {
+         face.removeElement (hex);
+      }
+      reembedLips (face);
+      System.out.println (
+         "tets: " + hexes.size () + " hexes -> " + face.numElements () + " elements, " + descriptors
+         + " muscle descriptors; " + dropped + " tets inverted at rest left out (" + droppedVolume + " m^3), the tets' volume " + keptVolume + " m^3");
+   }
+
+   /** Replaces the face's elements by the tets in FILE (see -Dlip.mesh); the muscles keep their directions. */
+   static void replaceMesh (MechModel mech, FemMuscleModel face, String file) throws java.io.IOException {
+      java.util.List<String> lines = java.nio.file.Files.readAllLines (java.nio.file.Paths.get (file));
+      String[] head = lines.get (0).trim ().split ("\\s+");
+      int nNodes = Integer.parseInt (head[1]), nFile = Integer.parseInt (head[2]);
+      if (!head[0].equals ("NODES") || nFile != face.numNodes ()) {
+         throw new IllegalArgumentException (file + ": expected 'NODES <count> " + face.numNodes () + "', got " + lines.get (0));
+      }
+      maspack.matrix.Point3d[] x = new maspack.matrix.Point3d[nNodes];
+      int[][] ends = new int[nNodes][]; // a midpoint node's two end nodes, which it follows onto a bone
+      for (int i = 0; i < nNodes; i++) {
+         String[] w = lines.get (1 + i).trim ().split ("\\s+");
+         x[i] = new maspack.matrix.Point3d (Double.parseDouble (w[0]), Double.parseDouble (w[1]), Double.parseDouble (w[2]));
+         if (w.length == 5) {
+            ends[i] = new int[] {Integer.parseInt (w[3]), Integer.parseInt (w[4])};
+         }
+      }
+      String[] th = lines.get (1 + nNodes).trim ().split ("\\s+");
+      int nTets = Integer.parseInt (th[1]);
+      int[][] tets = new int[nTets][4];
+      for (int k = 0; k < nTets; k++) {
+         String[] w = lines.get (2 + nNodes + k).trim ().split ("\\s+");
+         for (int j = 0; j < 4; j++) {
+            tets[k][j] = Integer.parseInt (w[j]);
+         }
+      }
+      // the ArtiSynth element holding each tet's centroid, found before anything moves
+      java.util.ArrayList<FemElement3d> old = new java.util.ArrayList<> ();
+      for (FemElement3d e : face.getElements ()) {
+         old.add (e);
+      }
+      FemElement3d[] host = new FemElement3d[nTets];
+      int outside = 0;
+      for (int k = 0; k < nTets; k++) {
+         maspack.matrix.Point3d c = new maspack.matrix.Point3d ();
+         for (int j = 0; j < 4; j++) {
+            c.scaledAdd (0.25, x[tets[k][j]]);
+         }
+         host[k] = face.findContainingElement (c);
+         if (host[k] == null) {
+            host[k] = (FemElement3d)face.findNearestElement (new maspack.matrix.Point3d (), c);
+            outside++;
+         }
+      }
+      int moved = 0, fixed = 0, attached = 0;
+      FemNode3d[] nodes = new FemNode3d[nNodes];
+      for (int i = 0; i < nNodes; i++) {
+         if (i < nFile) {
+            nodes[i] = face.getNodes ().get (i);
+            if (nodes[i].getRestPosition ().distance (x[i]) > 1e-9) {
+               nodes[i].setRestPosition (x[i]);
+               nodes[i].setPosition (x[i]);
+               moved++;
+            }
+         }
+         else {
+            nodes[i] = new FemNode3d (x[i]);
+            face.addNode (nodes[i]);
+            if (ends[i] != null) {
+               // held: fixed, or attached to a bone (the demo's bones do not move); a midpoint of two held
+               // nodes is held: attached to their bone when they share one, else fixed
+               FemNode3d a = nodes[ends[i][0]], b = nodes[ends[i][1]];
+               boolean heldA = !a.isDynamic () || a.getAttachment () != null, heldB = !b.isDynamic () || b.getAttachment () != null;
+               artisynth.core.mechmodels.Frame fa = bone (a), fb = bone (b);
+               if (fa != null && fa == fb) {
+                  mech.attachPoint (nodes[i], (RigidBody)fa);
+                  attached++;
+               }
+               else if (heldA && heldB) {
+                  nodes[i].setDynamic (false);
+                  fixed++;
+               }
+            }
+         }
+      }
+      java.util.HashMap<FemElement3d, java.util.ArrayList<TetElement>> children = new java.util.HashMap<> ();
+      for (int k = 0; k < nTets; k++) {
+         FemNode3d a = nodes[tets[k][0]], b = nodes[tets[k][1]], c = nodes[tets[k][2]], d = nodes[tets[k][3]];
+         TetElement tet = TetElement.computeVolume (a, b, c, d) >= 0 ? new TetElement (a, b, c, d) : new TetElement (a, c, b, d);
+         face.addElement (tet);
+         children.computeIfAbsent (host[k], e -> new java.util.ArrayList<> ()).add (tet);
+      }
+      int descriptors = 0;
+      for (MuscleBundle bundle : face.getMuscleBundles ()) {
+         java.util.ArrayList<MuscleElementDesc> descs = new java.util.ArrayList<> ();
+         for (MuscleElementDesc desc : bundle.getElements ()) {
+            descs.add (desc);
+         }
+         for (MuscleElementDesc desc : descs) {
+            bundle.getElements ().remove (desc);
+            maspack.matrix.Vector3d direction = desc.getDirection ();
+            if (direction == null) {
+               throw new IllegalStateException ("muscle element of " + bundle.getName () + " has no single direction");
+            }
+            for (TetElement tet : children.getOrDefault (desc.getElement (), new java.util.ArrayList<> ())) {
+               MuscleElementDesc dd = new MuscleElementDesc ();
+               dd.setElement (tet);
+               dd.setDirection (new maspack.matrix.Vector3d (direction));
+               bundle.addElement (dd);
+               descriptors++;
+            }
+         }
+      }
+      for (FemElement3d e : old) {
+         face.removeElement (e);
+      }
+      reembedLips (face);
+      System.out.println (
+         "mesh " + file + ": " + nNodes + " nodes (" + (nNodes - nFile) + " added, " + moved + " moved; of the added, " + fixed + " fixed and " + attached
+         + " attached to a bone with their end nodes), " + nTets
+         + " tets (" + outside + " centroids outside ArtiSynth's mesh, given the nearest element), " + descriptors
+         + " muscle descriptors");
+   }
+
+   static artisynth.core.mechmodels.Frame bone (FemNode3d n) {
+      if (n.getAttachment () instanceof artisynth.core.mechmodels.PointFrameAttachment) {
+         return ((artisynth.core.mechmodels.PointFrameAttachment)n.getAttachment ()).getFrame ();
+      }
+      return null;
+   }
+
+   /** The demo's lip collision surfaces are embedded in the elements: embed them again in the new ones. */
+   static void reembedLips (FemMuscleModel face) {
+      for (String name : new String[] {"lowerlip", "upperlip"}) {
+         artisynth.core.femmodels.FemMeshComp comp = face.getMeshComp (name);
+         if (comp != null) {
+            maspack.geometry.PolygonalMesh mesh = ((maspack.geometry.PolygonalMesh)comp.getMesh ()).copy ();
+            face.removeMeshComp (comp);
+            face.addMesh (name, mesh);
+         }
+      }
+   }
+
    static void dumpContacts (PrintWriter out, double t, java.util.Map<String, CollisionResponse> responses) {
       int count = 0;
       for (CollisionResponse r : responses.values ()) {
@@ -136,7 +375,8 @@ public class RunLipOpening {
 
    static void dump (PrintWriter out, double t, MuscleBundle oop, FemModel3d face) {
       out.printf ("T %.6f %.6f%n", t, oop.getExcitation ());
-      for (FemNode3d n : face.getNodes ()) {
+      for (int i = 0; i < dumpNodes; i++) {
+         FemNode3d n = face.getNodes ().get (i);
          out.printf ("%.9g %.9g %.9g%n", n.getPosition ().x, n.getPosition ().y, n.getPosition ().z);
       }
    }
