@@ -14,6 +14,7 @@ import pytest
 from tests.conftest import data_path
 from wface.faces.ansys import hex_boundary_triangles, hexes_to_tets, read_ansys_nodes
 from wface.faces.artisynth import MESH_PREFIX
+from wface.mesh.quality import signed_volumes
 from wface.mesh.surface import boundary_faces
 from wface.speech.aperture import ARTISYNTH_VIEW_DIRECTION_BADIN
 
@@ -23,7 +24,8 @@ SCALE = 1.05  # a uniform scaling of the face scales the orthographic aperture b
 
 
 def _example(name: str):
-    spec = importlib.util.spec_from_file_location(name, _EXAMPLES / f"{name}.py")
+    """The example at examples/NAME.py (NAME may name a subfolder: "artisynth_reference/export_wface_tets")."""
+    spec = importlib.util.spec_from_file_location(Path(name).name, _EXAMPLES / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -128,10 +130,7 @@ def test_export_wface_tets_writes_the_import_back_in_the_badin_frame(tmp_path):
 
     from wface.faces.artisynth import badin_to_wface
 
-    path = _EXAMPLES / "artisynth_reference" / "export_wface_tets.py"
-    spec = importlib.util.spec_from_file_location("export_wface_tets", path)
-    export = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(export)
+    export = _example("artisynth_reference/export_wface_tets")
     x_badin, hexes = _bricks()
     tets, _, steiner, _ = hexes_to_tets(hexes, x_badin, return_sources=True)
     x_badin = np.vstack([x_badin, steiner]) * 0.01
@@ -149,8 +148,7 @@ def test_export_wface_tets_writes_the_import_back_in_the_badin_frame(tmp_path):
     assert lines[1 + len(x_badin)] == f"TETS {len(tets)}"
     t = np.loadtxt(lines[2 + len(x_badin) :], dtype=np.int64)
     np.testing.assert_array_equal(t, tets)
-    p = back[t]
-    volume = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0]) / 6
+    volume = signed_volumes(back, t)
     assert (volume > 0).all()  # the frame change is a rotation: orientation kept
     assert volume.sum() == pytest.approx(2.5e-6)  # two 1 cm bricks and half a one
 
@@ -160,10 +158,7 @@ def test_export_wface_tets_writes_the_import_back_in_the_badin_frame(tmp_path):
 
 def test_export_wface_tets_refine_splits_each_tet_in_eight_conforming(tmp_path):
     """--refine: 8 children per tet that fill it exactly, midpoints shared between neighbours."""
-    path = _EXAMPLES / "artisynth_reference" / "export_wface_tets.py"
-    spec = importlib.util.spec_from_file_location("export_wface_tets", path)
-    export = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(export)
+    export = _example("artisynth_reference/export_wface_tets")
     x, hexes = _bricks()
     tets, _, steiner = hexes_to_tets(hexes, x)
     x = np.vstack([x, np.reshape(steiner, (-1, 3))])
@@ -175,7 +170,7 @@ def test_export_wface_tets_refine_splits_each_tet_in_eight_conforming(tmp_path):
     assert len(x8) == len(x) + n_edges and len(ends) == n_edges  # one node per edge, not per tet edge
     np.testing.assert_allclose(x8[len(x) :], 0.5 * (x[ends[:, 0]] + x[ends[:, 1]]))
     assert len(tets8) == 8 * len(tets)
-    v, v8 = export.signed_volumes(x, tets), export.signed_volumes(x8, tets8)
+    v, v8 = signed_volumes(x, tets), signed_volumes(x8, tets8)
     assert (v8 > 0).all()
     np.testing.assert_allclose(v8.reshape(-1, 8).sum(axis=1), v, rtol=1e-12)  # the children fill each parent
     # conforming: every inner face is shared by exactly two children, and the boundary is the parents'

@@ -169,7 +169,7 @@ public class RunLipOpening {
 
       HexElement.setParities (hexes);
       Tetrahedralizer tetrahedralizer = new Tetrahedralizer ();
-      java.util.HashMap<FemElement3d, TetElement[]> split = new java.util.HashMap<> ();
+      java.util.HashMap<FemElement3d, java.util.List<TetElement>> split = new java.util.HashMap<> ();
       int dropped = 0;
       double droppedVolume = 0, keptVolume = 0;
       for (HexElement hex : hexes) {
@@ -187,33 +187,9 @@ public class RunLipOpening {
             kept.add (tet);
             keptVolume += v;
          }
-         split.put (hex, kept.toArray (new TetElement[0]));
+         split.put (hex, kept);
       }
-      int descriptors = 0;
-      for (MuscleBundle bundle : face.getMuscleBundles ()) {
-         java.util.ArrayList<MuscleElementDesc> old = new java.util.ArrayList<> ();
-         for (MuscleElementDesc desc : bundle.getElements ()) {
-            old.add (desc);
-         }
-         for (MuscleElementDesc desc : old) {
-            TetElement[] tets = split.get (desc.getElement ());
-            if (tets == null) {
-               continue;
-            }
-            maspack.matrix.Vector3d direction = desc.getDirection ();
-            if (direction == null) {
-               throw new IllegalStateException ("muscle element of " + bundle.getName () + " has no single direction");
-            }
-            bundle.getElements ().remove (desc);
-            for (TetElement tet : tets) {
-               MuscleElementDesc d = new MuscleElementDesc ();
-               d.setElement (tet);
-               d.setDirection (new maspack.matrix.Vector3d (direction));
-               bundle.addElement (d);
-               descriptors++;
-            }
-         }
-      }
+      int descriptors = moveMuscles (face, split);
       for (HexElement hex : hexes) {
          face.removeElement (hex);
       }
@@ -298,34 +274,17 @@ public class RunLipOpening {
             }
          }
       }
-      java.util.HashMap<FemElement3d, java.util.ArrayList<TetElement>> children = new java.util.HashMap<> ();
+      java.util.HashMap<FemElement3d, java.util.List<TetElement>> children = new java.util.HashMap<> ();
+      for (FemElement3d e : old) {
+         children.put (e, new java.util.ArrayList<> ()); // every element goes: its muscles go with it
+      }
       for (int k = 0; k < nTets; k++) {
          FemNode3d a = nodes[tets[k][0]], b = nodes[tets[k][1]], c = nodes[tets[k][2]], d = nodes[tets[k][3]];
          TetElement tet = TetElement.computeVolume (a, b, c, d) >= 0 ? new TetElement (a, b, c, d) : new TetElement (a, c, b, d);
          face.addElement (tet);
-         children.computeIfAbsent (host[k], e -> new java.util.ArrayList<> ()).add (tet);
+         children.get (host[k]).add (tet);
       }
-      int descriptors = 0;
-      for (MuscleBundle bundle : face.getMuscleBundles ()) {
-         java.util.ArrayList<MuscleElementDesc> descs = new java.util.ArrayList<> ();
-         for (MuscleElementDesc desc : bundle.getElements ()) {
-            descs.add (desc);
-         }
-         for (MuscleElementDesc desc : descs) {
-            bundle.getElements ().remove (desc);
-            maspack.matrix.Vector3d direction = desc.getDirection ();
-            if (direction == null) {
-               throw new IllegalStateException ("muscle element of " + bundle.getName () + " has no single direction");
-            }
-            for (TetElement tet : children.getOrDefault (desc.getElement (), new java.util.ArrayList<> ())) {
-               MuscleElementDesc dd = new MuscleElementDesc ();
-               dd.setElement (tet);
-               dd.setDirection (new maspack.matrix.Vector3d (direction));
-               bundle.addElement (dd);
-               descriptors++;
-            }
-         }
-      }
+      int descriptors = moveMuscles (face, children);
       for (FemElement3d e : old) {
          face.removeElement (e);
       }
@@ -335,6 +294,40 @@ public class RunLipOpening {
          + " attached to a bone with their end nodes), " + nTets
          + " tets (" + outside + " centroids outside ArtiSynth's mesh, given the nearest element), " + descriptors
          + " muscle descriptors");
+   }
+
+   /**
+    * Moves every muscle element descriptor whose element is a key of {@code children} onto those tets, one
+    * descriptor per tet with the element's fibre direction; descriptors of other elements stay. Returns
+    * the number of descriptors made.
+    */
+   static int moveMuscles (FemMuscleModel face, java.util.Map<FemElement3d, java.util.List<TetElement>> children) {
+      int made = 0;
+      for (MuscleBundle bundle : face.getMuscleBundles ()) {
+         java.util.ArrayList<MuscleElementDesc> descs = new java.util.ArrayList<> ();
+         for (MuscleElementDesc desc : bundle.getElements ()) {
+            descs.add (desc);
+         }
+         for (MuscleElementDesc desc : descs) {
+            java.util.List<TetElement> tets = children.get (desc.getElement ());
+            if (tets == null) {
+               continue;
+            }
+            maspack.matrix.Vector3d direction = desc.getDirection ();
+            if (direction == null) {
+               throw new IllegalStateException ("muscle element of " + bundle.getName () + " has no single direction");
+            }
+            bundle.getElements ().remove (desc);
+            for (TetElement tet : tets) {
+               MuscleElementDesc d = new MuscleElementDesc ();
+               d.setElement (tet);
+               d.setDirection (new maspack.matrix.Vector3d (direction));
+               bundle.addElement (d);
+               made++;
+            }
+         }
+      }
+      return made;
    }
 
    static artisynth.core.mechmodels.Frame bone (FemNode3d n) {

@@ -22,6 +22,7 @@ import sys
 import numpy as np
 
 from wface.faces.artisynth import BADIN_TO_WFACE
+from wface.mesh.quality import signed_volumes
 from wface.model import load_model
 
 # the 8 children of tet (a, b, c, d) in its corners and edge midpoints: four corner tets, then the inner
@@ -37,11 +38,6 @@ _CHILDREN = (
     ("ab", "cd", "bc", "ac"),
 )
 _EDGES = (("a", "b"), ("a", "c"), ("a", "d"), ("b", "c"), ("b", "d"), ("c", "d"))
-
-
-def signed_volumes(x: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    p = x[tets]
-    return np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0]) / 6.0
 
 
 def refine_tets(x: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
