@@ -5,16 +5,22 @@ headless and writes the face's FEM nodes every 0.01 s. This script measures the 
 frame with wface's measure (``wface.speech.aperture``: ArtiSynth's orthographic camera and green plane,
 the occluders the boundary of ArtiSynth's own hex mesh) and sets each run's curve beside the original's
 recorded output (``speech/approximant/lip_opening_area.txt``) and, optionally, wface's own curves
-(``lip_opening.csv`` from ``wface speech --out DIR``). See README.md, "ArtiSynth itself, run headless".
+(``lip_opening.csv`` from ``wface speech --out DIR``). wface's own play on ArtiSynth's hexes
+(``states.npz`` from ``examples/badin_hexes_play.py``, ``--hexes``) is measured as ArtiSynth's runs are,
+on the same nodes and boundary; ``--lip-nodes`` gives the mean distance of the lip collision surfaces'
+nodes between every two runs at chosen times. See README.md, "ArtiSynth itself, run headless".
 
     python examples/artisynth_lip_area.py as_shipped=nodes_all.txt no_contact=nodes_none.txt \\
         --data ../shared/data/artisynth-face --out out/artisynth_runs
     python examples/artisynth_lip_area.py demo=nodes_all.txt --wface "wface demo setup"=appr/lip_opening.csv \\
         --data ../shared/data/artisynth-face --out out/artisynth_runs
+    python examples/artisynth_lip_area.py demo=nodes_all.txt --hexes "wface, hexes"=hexplay/states.npz \\
+        --lip-nodes 0.28 0.44 0.6 --data ../shared/data/artisynth-face --out out/hexes
 
 Writes ``artisynth_lip_area.json`` (per run and frame: area, its discretisation error, the aperture's
 width and height; per run: area at rest, before the excitation and over t >= 0.6 s, when it first falls
-below 20 and 0.5 mm^2, RMS from the original) and ``artisynth_lip_area.png``.
+below 20 and 0.5 mm^2, RMS from the original; with ``--lip-nodes``, the lip-node distances) and
+``artisynth_lip_area.png``.
 """
 
 from __future__ import annotations
@@ -31,7 +37,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wface.faces.ansys import hex_boundary_triangles, read_ansys_elements, read_ansys_nodes
-from wface.faces.artisynth import MESH_PREFIX, badin_to_wface
+from wface.faces.artisynth import BADIN_TO_WFACE, MESH_PREFIX, badin_to_wface
 from wface.speech.aperture import ApertureView, aperture_area
 from wface.speech.gestures import read_gesture
 from wface.speech.playback import compare_with_reference
@@ -67,6 +73,35 @@ def read_node_dump(path: str | Path, n_nodes: int) -> tuple[np.ndarray, np.ndarr
     if not frames:
         raise ValueError(f"{path}: no frame (a RunLipOpening dump starts with a line 'T <time> <excitation>')")
     return np.array(times), np.array(oop), np.stack(frames)
+
+
+def read_hex_states(path: str | Path, n_nodes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(times (F,) s, OOP (F,) NaN, node positions (F, n, 3) m, Badin frame) of wface's play on the hexes
+    (``examples/badin_hexes_play.py``'s states.npz: hex nodes in the node file's order, wface's frame)."""
+    with np.load(path) as s:
+        if "x_hex_m" not in s:
+            raise ValueError(f"{path}: no x_hex_m (a states.npz from examples/badin_hexes_play.py?)")
+        x, t = s["x_hex_m"], s["time_s"]
+    if x.shape[1] != n_nodes:
+        raise ValueError(f"{path}: {x.shape[1]} hex nodes, the mesh has {n_nodes}")
+    return np.asarray(t, dtype=np.float64), np.full(len(t), np.nan), x @ BADIN_TO_WFACE  # the inverse rotation
+
+
+def lip_node_distances(runs: dict, near: np.ndarray, times_s) -> dict:
+    """{"A / B": {time: mean distance (mm) of the lip nodes ``near``}} for every two runs (label: (times,
+    positions)) at each of ``times_s`` both have a frame at (within 1 ms)."""
+    out = {}
+    labels = list(runs)
+    for i, a in enumerate(labels):
+        for b in labels[i + 1 :]:
+            row = {}
+            for t in times_s:
+                (ta, xa), (tb, xb) = runs[a], runs[b]
+                fa, fb = int(np.argmin(np.abs(ta - t))), int(np.argmin(np.abs(tb - t)))
+                if abs(ta[fa] - t) < 1e-3 and abs(tb[fb] - t) < 1e-3:
+                    row[f"{t:g}"] = 1e3 * float(np.linalg.norm(xa[fa][near] - xb[fb][near], axis=1).mean())
+            out[f"{a} / {b}"] = row
+    return out
 
 
 def lip_node_ids(data_dir: Path, x_rest_badin: np.ndarray) -> np.ndarray:
@@ -136,7 +171,10 @@ def plot(runs: dict, wface_curves: dict, reference: np.ndarray | None, path: Pat
     if reference is not None:
         ax.plot(reference[:, 0], reference[:, 1], "k--", lw=1.6, label="original (ArtiSynth's recorded output)")
     for label, run in runs.items():
-        ax.plot(run["times_s"], run["area_mm2"], lw=1.6, label=f"ArtiSynth run here: {label}")
+        if run.get("source") == "wface on the hexes":
+            ax.plot(run["times_s"], run["area_mm2"], "-.", lw=1.8, label=f"wface on ArtiSynth's hex nodes: {label}")
+        else:
+            ax.plot(run["times_s"], run["area_mm2"], lw=1.6, label=f"ArtiSynth run here: {label}")
     for label, (t, a) in wface_curves.items():
         ax.plot(t, a, ":", lw=1.6, label=f"wface: {label}")
     ax.set_xlabel("time (s)")
@@ -164,10 +202,13 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("runs", nargs="+", help="[LABEL=]NODES.txt: RunLipOpening dumps (label: the file name)")
     ap.add_argument("--data", type=Path, required=True, help="the ArtiSynth Badin face data folder")
     ap.add_argument("--wface", action="append", default=[], help="[LABEL=]lip_opening.csv from wface speech")
+    ap.add_argument("--hexes", action="append", default=[], help="[LABEL=]states.npz from badin_hexes_play.py")
+    ap.add_argument("--lip-nodes", type=float, nargs="+", default=[], help="times (s) of lip-node distances")
     ap.add_argument("--resolution-mm", type=float, default=0.05, help="scanline spacing of the area measure")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
-    runs_in = [_labelled(s, "run") for s in args.runs]
+    runs_in = [(*_labelled(s, "run"), read_node_dump) for s in args.runs]
+    runs_in += [(*_labelled(s, "--hexes"), read_hex_states) for s in args.hexes]
     wface_curves = {label: read_wface_curve(p) for label, p in (_labelled(s, "--wface") for s in args.wface)}
     numbers, x_rest = read_ansys_nodes(args.data / f"{MESH_PREFIX}.node")
     index_of = np.full(int(numbers.max()) + 1, -1, dtype=np.int64)
@@ -179,15 +220,17 @@ def main(argv: list[str] | None = None) -> dict:
     reference = read_gesture(gesture_dir).reference_lip_area if gesture_dir.is_dir() else None
     args.out.mkdir(parents=True, exist_ok=True)
     report: dict = {"mesh": {"nodes": len(x_rest), "hexes": len(hexes), "boundary_triangles": len(triangles)}}
-    runs = {}
-    for label, path in runs_in:
-        times, oop, X = read_node_dump(path, len(x_rest))
+    runs, positions = {}, {}
+    for label, path, read in runs_in:
+        times, oop, X = read(path, len(x_rest))
+        positions[label] = (times, X)
         rest_err = float(np.abs(X[0] - x_rest).max()) if times[0] == 0 else None
         area = measure_run(X, triangles, near, args.resolution_mm * 1e-3)
         runs[label] = {
             "dump": str(path),
             "times_s": times.tolist(),
-            "oop": oop.tolist(),
+            "oop": None if np.isnan(oop).all() else oop.tolist(),
+            "source": "wface on the hexes" if read is read_hex_states else "ArtiSynth",
             "area_mm2": area[:, 0].tolist(),
             "error_mm2": area[:, 1].tolist(),
             "width_mm": area[:, 2].tolist(),
@@ -202,6 +245,10 @@ def main(argv: list[str] | None = None) -> dict:
             f"shut from {s['shut_from_s']} s, RMS from the original {s['rms_from_original_mm2']} mm^2"
         )
     report["runs"] = runs
+    if args.lip_nodes:
+        report["lip_node_distance_mm"] = lip_node_distances(positions, near, args.lip_nodes)
+        for pair, row in report["lip_node_distance_mm"].items():
+            print(f"lip nodes {pair}: " + ", ".join(f"{d:.3f} mm at {t} s" for t, d in row.items()))
     if reference is not None:
         report["original"] = summarise(reference[:, 0], reference[:, 1], None)
     (args.out / "artisynth_lip_area.json").write_text(json.dumps(report, indent=1))

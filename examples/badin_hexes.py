@@ -59,9 +59,9 @@ class HexFace:
         return x
 
     def solve(self, a, x0, max_iterations: int):
-        from wface.physics.hexes import solve_hexes
+        from wface.physics.hex_solve import HexBody
 
-        return solve_hexes(self.sim, self.quad, self.free, a, x0, max_iterations=max_iterations)
+        return HexBody(self.sim, self.quad, self.free).solve(a, x0, max_iterations=max_iterations)
 
 
 VARIANTS = (  # (key, label, elements, ring fibre directions)

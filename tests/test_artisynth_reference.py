@@ -124,6 +124,34 @@ def test_artisynth_lip_area_measures_the_rest_aperture_and_its_changes(rest_dump
     assert (tmp_path / "artisynth_lip_area.png").stat().st_size > 10_000
 
 
+def test_hex_states_are_measured_as_artisynth_runs_with_lip_node_distances(rest_dump, tmp_path):
+    """--hexes: wface's hex play (states.npz, wface's frame, the node file's order) is measured on the same
+    boundary as the dumps: the same frames give the same areas; --lip-nodes: the 1 mm shift is 1 mm."""
+    from wface.faces.artisynth import badin_to_wface
+
+    data, path, n = rest_dump
+    ex = _example("artisynth_lip_area")
+    times, _, X = ex.read_node_dump(path, n)
+    states = tmp_path / "states.npz"
+    np.savez(states, x_hex_m=np.stack([badin_to_wface(x) for x in X]), time_s=times)
+    with pytest.raises(ValueError, match="hex nodes"):
+        ex.read_hex_states(states, n + 1)
+    args = [f"dump={path}", "--hexes", f"hexes={states}", "--lip-nodes", "0", "0.01", "0.05"]
+    report = ex.main(args + ["--data", str(data), "--out", str(tmp_path)])
+    dump, hexes = report["runs"]["dump"], report["runs"]["hexes"]
+    np.testing.assert_allclose(hexes["area_mm2"], dump["area_mm2"], atol=1e-6)
+    assert hexes["source"] == "wface on the hexes" and hexes["oop"] is None
+    d = report["lip_node_distance_mm"]["dump / hexes"]
+    assert set(d) == {"0", "0.01"} and d["0"] < 1e-6 and d["0.01"] < 1e-6  # no frame at 0.05 s
+    shifted = tmp_path / "shifted.npz"
+    np.savez(shifted, x_hex_m=np.stack([badin_to_wface(X[0]), badin_to_wface(X[0])]), time_s=[0.0, 0.01])
+    report = ex.main(
+        [f"dump={path}", "--hexes", f"rest={shifted}", "--lip-nodes", "0.01"]
+        + ["--data", str(data), "--out", str(tmp_path / "b")]
+    )
+    assert report["lip_node_distance_mm"]["dump / rest"]["0.01"] == pytest.approx(1.0, abs=1e-6)
+
+
 def test_export_wface_tets_writes_the_import_back_in_the_badin_frame(tmp_path):
     """examples/artisynth_reference/export_wface_tets.py: the file RunLipOpening -Dlip.mesh reads."""
     from types import SimpleNamespace

@@ -7,12 +7,12 @@ import pytest
 
 from tests.conftest import data_path
 from wface.physics import Simulator
+from wface.physics.hex_solve import HexBody
 from wface.physics.hexes import (
     GAUSS_POINTS,
     hex_quadrature,
     quadrature_model,
     shape_functions,
-    solve_hexes,
     trilinear_points,
 )
 from wface.testing.models import box_model
@@ -116,7 +116,7 @@ def test_patch_equilibrium_is_affine():
     free = np.flatnonzero(np.all((X > 1e-9) & (X < np.array(SIZE_M) - 1e-9), axis=1))
     x0 = target.copy()
     x0[free] += 1e-3
-    r = solve_hexes(sim, quad, free, np.array([0.5]), x0, tol=1e-10)
+    r = HexBody(sim, quad, free).solve(np.array([0.5]), x0, tol=1e-10)
     assert r.converged and r.iterations <= 10
     np.testing.assert_allclose(r.x_m[free], target[free], atol=1e-10)
 

@@ -29,9 +29,8 @@ from scipy.spatial import cKDTree
 
 from wface.mesh.embed import containing_tets
 from wface.model import FaceModel
-from wface.solvers.linear import DirectFactor
 
-__all__ = ["HexQuadrature", "HexSolve", "hex_quadrature", "quadrature_model", "solve_hexes", "trilinear_points"]
+__all__ = ["HexQuadrature", "embedding_matrix", "hex_quadrature", "quadrature_model", "trilinear_points"]
 
 CORNERS = np.array(
     [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]],
@@ -179,6 +178,20 @@ def trilinear_points(quad: HexQuadrature, x_rest_m: np.ndarray, points_m: np.nda
     return owner, xi_out
 
 
+def embedding_matrix(quad: HexQuadrature, points_m: np.ndarray) -> sp.csr_matrix:
+    """(k, n_nodes) trilinear weights of rest points ``points_m`` (k, 3) in their hexes: the points' positions
+    are ``embedding_matrix(...) @ x`` for hex-node positions x (each row sums to 1; a point in no hex is an
+    error, ``trilinear_points``)."""
+    p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    owner, xi = trilinear_points(quad, quad.rest_m, p)
+    N, _ = shape_functions(xi)
+    W = sp.csr_matrix(
+        (N.reshape(-1), (np.repeat(np.arange(len(p)), 8), quad.hexes[owner].reshape(-1))), shape=(len(p), quad.n_nodes)
+    )
+    W.sum_duplicates()
+    return W
+
+
 def quadrature_model(model: FaceModel, quad: HexQuadrature) -> FaceModel:
     """The quadrature tets of ``quad`` as a ``FaceModel`` for ``wface.physics.Simulator``: ``model``'s
     material and muscles, each Gauss point carrying the fibre entries (muscle, fraction, direction) of
@@ -213,69 +226,3 @@ def quadrature_model(model: FaceModel, quad: HexQuadrature) -> FaceModel:
         marker_positions_m=np.zeros((0, 3)),
         metadata={**model.metadata, "hex_quadrature": {"hexes": int(len(quad.hexes))}},
     )
-
-
-@dataclass
-class HexSolve:
-    """A quasistatic equilibrium of the hex mesh."""
-
-    x_m: np.ndarray  # (n_nodes, 3)
-    iterations: int
-    residual_rel: float
-    converged: bool
-    energy_j: float
-
-
-def solve_hexes(
-    sim,
-    quad: HexQuadrature,
-    free: np.ndarray,
-    activations,
-    x0_m: np.ndarray,
-    *,
-    tol: float = 1e-6,
-    max_iterations: int = 60,
-    force_scale: float | None = None,
-) -> HexSolve:
-    """Newton on the hex nodes ``free`` (the rest held at ``x0_m``), projected tangent, backtracking
-    line search on the energy; converged when |f_free| <= tol * force_scale (default: the free forces
-    at rest under ``activations``, floored, as ``wface.physics.newton``'s relative residual).
-
-    Args:
-        sim: a ``Simulator`` of ``quadrature_model(model, quad)``.
-    """
-    x = np.array(x0_m, dtype=np.float64)
-    free = np.asarray(free, dtype=np.int64)
-    dofs = (3 * free[:, None] + np.arange(3)).reshape(-1)
-    T_free = quad.dof_map(dofs)  # once per solve: K_UU = T_U^T K_y T_U at every iteration
-
-    def energy_forces(xx):
-        e, fy = sim.energy_and_forces(quad.virtual_positions(xx), activations)
-        return e, quad.node_forces(fy)
-
-    if force_scale is None:
-        mat = sim.model.material
-        floor = 1e-3 * (mat.mu10_pa + mat.mu01_pa) * quad.volume_m3 ** (2.0 / 3.0)
-        force_scale = max(float(np.linalg.norm(energy_forces(quad.rest_m)[1][free])), floor)
-    e, f = energy_forces(x)
-    factor = None
-    for it in range(max_iterations + 1):
-        r = f[free].reshape(-1)
-        res = float(np.linalg.norm(r)) / force_scale
-        if res <= tol:
-            return HexSolve(x, it, res, True, e)
-        if it == max_iterations:
-            break
-        Ky = sim.tangent(quad.virtual_positions(x), activations).assemble()
-        K = quad.node_stiffness(Ky, T_free)
-        factor = DirectFactor(K, reuse=factor)
-        dx = np.zeros_like(x)
-        dx[free] = factor.solve(r).reshape(-1, 3)
-        step, slope = 1.0, -float(r @ dx[free].reshape(-1))
-        while True:
-            e_new, f_new = energy_forces(x + step * dx)
-            if e_new <= e + 1e-4 * step * slope or step < 1e-6:
-                break
-            step *= 0.5
-        x, e, f = x + step * dx, e_new, f_new
-    return HexSolve(x, max_iterations, res, False, e)
