@@ -172,7 +172,7 @@ def plot(runs: dict, wface_curves: dict, reference: np.ndarray | None, path: Pat
         ax.plot(reference[:, 0], reference[:, 1], "k--", lw=1.6, label="original (ArtiSynth's recorded output)")
     for label, run in runs.items():
         if run.get("source") == "wface on the hexes":
-            ax.plot(run["times_s"], run["area_mm2"], "-.", lw=1.8, label=f"wface on ArtiSynth's hex nodes: {label}")
+            ax.plot(run["times_s"], run["area_mm2"], "-.", lw=1.8, label=f"wface: {label}")
         else:
             ax.plot(run["times_s"], run["area_mm2"], lw=1.6, label=f"ArtiSynth run here: {label}")
     for label, (t, a) in wface_curves.items():

@@ -47,6 +47,7 @@ class HexDemo:
         contact_regions: str,
         *,
         ring_directions="nearest",
+        mass_lumping="equal",
         stiffness_n_per_m=None,
         smoothing_m=1e-4,
     ):
@@ -79,7 +80,12 @@ class HexDemo:
             )
         free = demo.free_nodes[demo.free_nodes < n]
         self.body = HexBody(
-            Simulator(quadrature_model(demo, quad)), quad, free, contact=self.contact, embedding=self.embedding
+            Simulator(quadrature_model(demo, quad)),
+            quad,
+            free,
+            contact=self.contact,
+            embedding=self.embedding,
+            mass_lumping=mass_lumping,
         )
 
     def model_positions(self, x_hex: np.ndarray) -> np.ndarray:
@@ -95,6 +101,7 @@ def play(
     end_s=None,
     tol: float = 1e-4,
     ring_directions: str = "nearest",
+    mass_lumping: str = "equal",
     progress=print,
 ) -> dict:
     """Per-frame times, areas, lip gaps, solver statistics and hex-node positions of the played approximant."""
@@ -104,7 +111,7 @@ def play(
     from wface.speech.gestures import map_gesture_to_model, read_gesture
     from wface.speech.playback import gesture_times, lip_area_points
 
-    face = HexDemo(base, data, contact, ring_directions=ring_directions)
+    face = HexDemo(base, data, contact, ring_directions=ring_directions, mass_lumping=mass_lumping)
     demo = face.demo
     gesture = read_gesture(data / "speech" / "approximant")
     mapping = map_gesture_to_model(gesture, demo)
@@ -218,6 +225,12 @@ def main(argv=None) -> int:
         default="nearest",
         help="the OOP ring's fibre directions: the 7M polyline's nearest segment or ArtiSynth's Delaunay blend",
     )
+    p.add_argument(
+        "--mass-lumping",
+        choices=("equal", "rows"),
+        default="equal",
+        help="node masses: equal shares of each element's (ArtiSynth's) or the consistent mass's row sums",
+    )
     p.add_argument("--tol", type=float, default=1e-4, help="relative residual of each solve (wface speech's default)")
     a = p.parse_args(argv)
     if not a.data.is_dir():
@@ -226,7 +239,16 @@ def main(argv=None) -> int:
     from wface.model import load_model
 
     base = load_model(a.model) if a.model else import_artisynth(a.data, progress=False)
-    run = play(base, a.data, contact=a.contact, fps=a.fps, end_s=a.end, tol=a.tol, ring_directions=a.ring_directions)
+    run = play(
+        base,
+        a.data,
+        contact=a.contact,
+        fps=a.fps,
+        end_s=a.end,
+        tol=a.tol,
+        ring_directions=a.ring_directions,
+        mass_lumping=a.mass_lumping,
+    )
     a.out.mkdir(parents=True, exist_ok=True)
     with open(a.out / "lip_opening.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(run["rows"][0]))
@@ -241,6 +263,7 @@ def main(argv=None) -> int:
     report = {
         "contact": a.contact,
         "ring_directions": a.ring_directions,
+        "mass_lumping": a.mass_lumping,
         "fps": a.fps,
         "tol": a.tol,
         "dynamics": DYNAMICS,

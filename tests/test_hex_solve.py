@@ -45,6 +45,14 @@ def test_masses_are_the_rows_of_the_consistent_mass():
     per_hex = 1000.0 * np.einsum("g,mg,ga->ma", w, detJ, N)
     reference = np.bincount(quad_d.hexes.reshape(-1), weights=per_hex.reshape(-1), minlength=quad_d.n_nodes)
     np.testing.assert_allclose(m_d, reference, rtol=1e-12)
+    # ArtiSynth's equal shares: the same on the regular grid; a collapsed hex (a wedge) gives each of
+    # its 6 distinct nodes a sixth
+    np.testing.assert_allclose(hex_masses(quad, 1000.0, "equal"), m, rtol=1e-12)
+    x = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1]], dtype=float)
+    wedge = hex_quadrature(x, [[0, 1, 2, 3, 4, 5, 5, 4]])
+    np.testing.assert_allclose(hex_masses(wedge, 600.0, "equal"), 600.0 * 0.5 / 6, rtol=1e-12)
+    with pytest.raises(ValueError, match="lumping"):
+        hex_masses(quad, 1000.0, "consistent")
 
 
 def test_embedding_reproduces_affine_fields():

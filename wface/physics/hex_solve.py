@@ -16,8 +16,9 @@ ConstrainedBackwardEuler):
 with d = y - x_n, Rayleigh damping C = alpha M + beta K_n (the projected stiffness at x_n) and the
 lumped mass M: the row sums of the consistent mass, m_a = rho sum_g w_g det J_g N_a(xi_g) (the
 Gauss points' masses shared by their shape functions; each of a box's nodes gets an eighth of its
-cell). Then x_{n+1} = y, v_{n+1} = (y - x_n) / h. The equilibrium (``HexBody.solve``) is the same
-minimisation without the inertia, damping and gravity terms.
+cell), or ArtiSynth's equal shares of each element's mass (``hex_masses``). Then x_{n+1} = y and
+v_{n+1} = (y - x_n) / h. The equilibrium (``HexBody.solve``) is the same minimisation without the
+inertia, damping and gravity terms.
 
 Newton with the projected tangent (each Gauss point's, Teran et al. 2005) plus the contact's
 Gauss-Newton Hessian and the step's constant (1/h^2 + alpha/h) M + (beta/h) K_n, all positive
@@ -38,11 +39,29 @@ import scipy.sparse as sp
 from wface.physics.hexes import GAUSS_POINTS, HexQuadrature, shape_functions
 from wface.solvers.linear import DirectFactor
 
-__all__ = ["HexBody", "HexSolve", "hex_masses"]
+__all__ = ["MASS_LUMPINGS", "HexBody", "HexSolve", "hex_masses"]
 
 
-def hex_masses(quad: HexQuadrature, density_kg_m3: float) -> np.ndarray:
-    """(n_nodes,) lumped masses, kg: row sums of the consistent mass (module docstring)."""
+MASS_LUMPINGS = ("rows", "equal")
+
+
+def hex_masses(quad: HexQuadrature, density_kg_m3: float, lumping: str = "rows") -> np.ndarray:
+    """(n_nodes,) lumped masses, kg.
+
+    Args:
+        lumping: "rows": the row sums of the consistent mass, m_a = rho sum_g w_g det J_g N_a(xi_g);
+            "equal": each element's mass shared equally by its distinct nodes (ArtiSynth's
+            ``HexElement``/``WedgeElement`` node mass weights, 1/8 and 1/6).
+    """
+    if lumping not in MASS_LUMPINGS:
+        raise ValueError(f"lumping must be one of {MASS_LUMPINGS}, got {lumping!r}")
+    if lumping == "equal":
+        mass = density_kg_m3 * np.bincount(quad.hex_of_point, weights=quad.gauss_volume_m3, minlength=len(quad.hexes))
+        srt = np.sort(quad.hexes, axis=1)
+        first = np.ones(srt.shape, bool)
+        first[:, 1:] = srt[:, 1:] != srt[:, :-1]  # each distinct node of a hex once
+        share = np.where(first, (mass / first.sum(axis=1))[:, None], 0.0)
+        return np.bincount(srt.reshape(-1), weights=share.reshape(-1), minlength=quad.n_nodes)
     N, _ = shape_functions(GAUSS_POINTS)  # (8 points, 8 nodes); Gauss weights 1
     g_local = np.tile(np.arange(8), len(quad.hexes))  # Gauss point of each quadrature point in its hex
     share = density_kg_m3 * quad.gauss_volume_m3[:, None] * N[g_local]  # (G, 8)
@@ -75,9 +94,12 @@ class HexBody:
         embedding: (n_z, n_nodes) sparse B, the contact model's node positions z = B x; default: the
             identity (the contact model's nodes are the hex nodes).
         density_kg_m3: mass density for the time steps; default: the material's.
+        mass_lumping: ``hex_masses``'s "rows" (default) or "equal" (ArtiSynth's).
     """
 
-    def __init__(self, sim, quad: HexQuadrature, free, *, contact=None, embedding=None, density_kg_m3=None):
+    def __init__(
+        self, sim, quad: HexQuadrature, free, *, contact=None, embedding=None, density_kg_m3=None, mass_lumping="rows"
+    ):
         self.sim, self.quad = sim, quad
         self.free = np.asarray(free, dtype=np.int64).reshape(-1)
         if self.free.size and (self.free.min() < 0 or self.free.max() >= quad.n_nodes):
@@ -100,7 +122,7 @@ class HexBody:
         rho = mat.density_kg_m3 if density_kg_m3 is None else float(density_kg_m3)
         if not (np.isfinite(rho) and rho > 0):
             raise ValueError(f"density must be finite and > 0 kg/m^3, got {rho}")
-        self.masses_kg = hex_masses(quad, rho)
+        self.masses_kg = hex_masses(quad, rho, mass_lumping)
         self._m_free3 = np.repeat(self.masses_kg[self.free], 3)
         self._floor = 1e-3 * (mat.mu10_pa + mat.mu01_pa) * quad.volume_m3 ** (2.0 / 3.0)
 
