@@ -102,11 +102,13 @@ def play(
     tol: float = 1e-4,
     ring_directions: str = "nearest",
     mass_lumping: str = "equal",
+    start_from: str = "pushed",
     progress=print,
 ) -> dict:
     """Per-frame times, areas, lip gaps, solver statistics and hex-node positions of the played approximant."""
     from wface.mesh.surface import boundary_faces
     from wface.physics.contact import Contact
+    from wface.physics.hex_solve import HexSolve
     from wface.speech.aperture import ApertureView, aperture_area
     from wface.speech.gestures import map_gesture_to_model, read_gesture
     from wface.speech.playback import gesture_times, lip_area_points
@@ -148,7 +150,10 @@ def play(
         )
 
     start = time.perf_counter()
-    eq = face.body.solve(acts(times[0]), face.quad.rest_m, tol=tol, max_iterations=80)
+    if start_from == "pushed":  # the contact equilibrium at the first frame, as wface speech starts
+        eq = face.body.solve(acts(times[0]), face.quad.rest_m, tol=tol, max_iterations=80)
+    else:  # the rest shape: the first steps push the flesh out of the bones, as ArtiSynth's contact does
+        eq = HexSolve(face.quad.rest_m.copy(), 0, 0.0, True, 0.0)
     record(times[0], eq.x_m, _stats([eq]), time.perf_counter() - start, 0)
     x, v = eq.x_m, np.zeros_like(eq.x_m)
     for f in range(1, len(times)):
@@ -231,6 +236,12 @@ def main(argv=None) -> int:
         default="equal",
         help="node masses: equal shares of each element's (ArtiSynth's) or the consistent mass's row sums",
     )
+    p.add_argument(
+        "--start",
+        choices=("pushed", "rest"),
+        default="pushed",
+        help="frame 0: the contact equilibrium (flesh pushed out of the bones, as wface speech) or the rest shape",
+    )
     p.add_argument("--tol", type=float, default=1e-4, help="relative residual of each solve (wface speech's default)")
     a = p.parse_args(argv)
     if not a.data.is_dir():
@@ -248,6 +259,7 @@ def main(argv=None) -> int:
         tol=a.tol,
         ring_directions=a.ring_directions,
         mass_lumping=a.mass_lumping,
+        start_from=a.start,
     )
     a.out.mkdir(parents=True, exist_ok=True)
     with open(a.out / "lip_opening.csv", "w", newline="") as fh:
@@ -264,6 +276,7 @@ def main(argv=None) -> int:
         "contact": a.contact,
         "ring_directions": a.ring_directions,
         "mass_lumping": a.mass_lumping,
+        "start": a.start,
         "fps": a.fps,
         "tol": a.tol,
         "dynamics": DYNAMICS,
