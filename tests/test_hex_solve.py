@@ -220,14 +220,11 @@ def test_badin_hexes_play_example(badin_model_path, tmp_path):
     """examples/badin_hexes_play.py for its first frames (the contact equilibrium at rest, pushed out of
     the bones, and 0.02 s of dynamics with lip and skull contact): converged, and the mouth opening as it
     settles under gravity (measured: 41.35 -> 44.71 mm^2)."""
-    import importlib.util
     import json
-    from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "examples" / "badin_hexes_play.py"
-    spec = importlib.util.spec_from_file_location("badin_hexes_play_example", path)
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
+    from tests.test_artisynth_reference import _example
+
+    example = _example("badin_hexes_play")
     data = data_path("artisynth-face")
     argv = ["--model", str(badin_model_path), "--data", str(data), "--end", "0.02", "--out", str(tmp_path)]
     assert example.main(argv) == 0

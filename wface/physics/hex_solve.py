@@ -156,8 +156,8 @@ class HexBody:
 
     # ------------------------------------------------------------------ the minimisation
     def _minimise(self, x0, activations, *, tol, max_iterations, scale, extra=None) -> HexSolve:
-        """Newton on the free nodes from ``x0``; ``extra`` = (phi(x), gradient over free dofs (3k,),
-        constant (3k, 3k) Hessian) adds the step's quadratic terms."""
+        """Newton on the free nodes from ``x0``; ``extra`` = (x -> (phi, gradient over free dofs (3k,)),
+        their constant (3k, 3k) Hessian) adds the step's terms."""
         x = np.array(x0, dtype=np.float64)
         self._set_pose(x)
 
@@ -166,7 +166,7 @@ class HexBody:
             g = -f[self.free].reshape(-1)
             phi = e
             if extra is not None:
-                p_extra, g_extra, _ = extra(xx)
+                p_extra, g_extra = extra[0](xx)
                 phi, g = phi + p_extra, g + g_extra
             return phi, g, e, pairs
 
@@ -180,7 +180,7 @@ class HexBody:
                 break
             H = self.stiffness(x, activations, pairs)
             if extra is not None:
-                H = H + extra(None)[2]
+                H = H + extra[1]
             factor = DirectFactor(H.tocsr(), reuse=factor)
             dx = np.zeros_like(x)
             dx[self.free] = factor.solve(-g).reshape(-1, 3)
@@ -257,9 +257,7 @@ class HexBody:
             hess = hess + (beta_s / h) * kn_free
         hess = hess.tocsr()
 
-        def extra(y):
-            if y is None:
-                return None, None, hess
+        def step_terms(y):
             yu = y[self.free].reshape(-1)
             r = yu - yhat
             du = yu - x_n[self.free].reshape(-1)
@@ -273,7 +271,9 @@ class HexBody:
             if g_force is not None:
                 phi -= float(g_force @ yu)
                 grad = grad - g_force
-            return phi, grad, hess
+            return phi, grad
 
-        r = self._minimise(y0, activations, tol=tol, max_iterations=max_iterations, scale=None, extra=extra)
+        r = self._minimise(
+            y0, activations, tol=tol, max_iterations=max_iterations, scale=None, extra=(step_terms, hess)
+        )
         return r.x_m, (r.x_m - x_n) / h, r
