@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "artisynth-face"
+BULKS = ("point", "element-quadratic", "element-log")
 DYNAMICS = {"max_step_s": 0.005, "alpha_per_s": 19.0, "beta_s": 0.055, "gravity_m_s2": (0.0, -9.8, 0.0)}
 
 
@@ -50,11 +51,15 @@ class HexDemo:
         mass_lumping="equal",
         stiffness_n_per_m=None,
         smoothing_m=1e-4,
+        bulk="point",
     ):
+        from dataclasses import replace
+
         import scipy.sparse as sp
 
         from wface.physics import Simulator
         from wface.physics.contact import Contact
+        from wface.physics.hex_dilatation import MeanDilatation
         from wface.physics.hex_solve import HexBody
         from wface.physics.hexes import embedding_matrix, hex_quadrature, quadrature_model
         from wface.speech.artisynth_demo import face_hexes, lip_opening_demo_model
@@ -79,13 +84,18 @@ class HexDemo:
                 ignore_inside_at_rest=False,
             )
         free = demo.free_nodes[demo.free_nodes < n]
+        flesh, dilatation = demo, None
+        if bulk != "point":  # one volume ratio per hex, the kernels' per-point bulk term off
+            dilatation = MeanDilatation(quad, demo.material.kappa_pa, bulk.split("-")[1])
+            flesh = replace(demo, material=replace(demo.material, kappa_pa=0.0))
         self.body = HexBody(
-            Simulator(quadrature_model(demo, quad)),
+            Simulator(quadrature_model(flesh, quad)),
             quad,
             free,
             contact=self.contact,
             embedding=self.embedding,
             mass_lumping=mass_lumping,
+            dilatation=dilatation,
         )
 
     def model_positions(self, x_hex: np.ndarray) -> np.ndarray:
@@ -103,6 +113,7 @@ def play(
     ring_directions: str = "nearest",
     mass_lumping: str = "equal",
     start_from: str = "pushed",
+    bulk: str = "point",
     progress=print,
 ) -> dict:
     """Per-frame times, areas, lip gaps, solver statistics and hex-node positions of the played approximant."""
@@ -113,7 +124,7 @@ def play(
     from wface.speech.gestures import map_gesture_to_model, read_gesture
     from wface.speech.playback import gesture_times, lip_area_points
 
-    face = HexDemo(base, data, contact, ring_directions=ring_directions, mass_lumping=mass_lumping)
+    face = HexDemo(base, data, contact, ring_directions=ring_directions, mass_lumping=mass_lumping, bulk=bulk)
     demo = face.demo
     gesture = read_gesture(data / "speech" / "approximant")
     mapping = map_gesture_to_model(gesture, demo)
@@ -242,6 +253,14 @@ def main(argv=None) -> int:
         default="pushed",
         help="frame 0: the contact equilibrium (flesh pushed out of the bones, as wface speech) or the rest shape",
     )
+    p.add_argument(
+        "--bulk",
+        choices=BULKS,
+        default="point",
+        help="the bulk term: at each Gauss point, kappa/2 (ln J)^2 (wface's flesh law), or one volume ratio per hex "
+        "(ArtiSynth's ELEMENT soft incompressibility) with ArtiSynth's quadratic potential kappa/2 (J - 1)^2 "
+        "or the log one",
+    )
     p.add_argument("--tol", type=float, default=1e-4, help="relative residual of each solve (wface speech's default)")
     a = p.parse_args(argv)
     if not a.data.is_dir():
@@ -260,6 +279,7 @@ def main(argv=None) -> int:
         ring_directions=a.ring_directions,
         mass_lumping=a.mass_lumping,
         start_from=a.start,
+        bulk=a.bulk,
     )
     a.out.mkdir(parents=True, exist_ok=True)
     with open(a.out / "lip_opening.csv", "w", newline="") as fh:
@@ -277,6 +297,7 @@ def main(argv=None) -> int:
         "ring_directions": a.ring_directions,
         "mass_lumping": a.mass_lumping,
         "start": a.start,
+        "bulk": a.bulk,
         "fps": a.fps,
         "tol": a.tol,
         "dynamics": DYNAMICS,

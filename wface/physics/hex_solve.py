@@ -95,12 +95,33 @@ class HexBody:
             identity (the contact model's nodes are the hex nodes).
         density_kg_m3: mass density for the time steps; default: the material's.
         mass_lumping: ``hex_masses``'s "rows" (default) or "equal" (ArtiSynth's).
+        dilatation: a ``wface.physics.hex_dilatation.MeanDilatation`` of ``quad``: the bulk term with one
+            volume ratio per hex (ArtiSynth's ``ELEMENT``), for a ``sim`` whose material has kappa = 0
+            (checked: the bulk term would otherwise count twice); default: the kernels' per-point term.
     """
 
     def __init__(
-        self, sim, quad: HexQuadrature, free, *, contact=None, embedding=None, density_kg_m3=None, mass_lumping="rows"
+        self,
+        sim,
+        quad: HexQuadrature,
+        free,
+        *,
+        contact=None,
+        embedding=None,
+        density_kg_m3=None,
+        mass_lumping="rows",
+        dilatation=None,
     ):
         self.sim, self.quad = sim, quad
+        if dilatation is not None:
+            if dilatation.quad is not quad:
+                raise ValueError("dilatation must be built on the same HexQuadrature as the body")
+            if sim.model.material.kappa_pa != 0:
+                raise ValueError(
+                    f"with a mean dilatation the simulator's material must have kappa_pa = 0 "
+                    f"(got {sim.model.material.kappa_pa}): its per-point bulk term would count twice"
+                )
+        self.dilatation = dilatation
         self.free = np.asarray(free, dtype=np.int64).reshape(-1)
         if self.free.size and (self.free.min() < 0 or self.free.max() >= quad.n_nodes):
             raise ValueError(f"free hex nodes must lie in [0, {quad.n_nodes})")
@@ -135,6 +156,9 @@ class HexBody:
         """(flesh + contact energy J, (n, 3) forces N, the contact pairs or None) at ``x_m``."""
         e, fy = self.sim.energy_and_forces(self.quad.virtual_positions(x_m), activations)
         f = self.quad.node_forces(fy)
+        if self.dilatation is not None:
+            e_vol, f_vol = self.dilatation.energy_and_forces(x_m)
+            e, f = e + e_vol, f + f_vol
         pairs = None
         if self.contact is not None:
             pairs = self.contact.evaluate(self.embed(x_m))
@@ -146,6 +170,8 @@ class HexBody:
         Hessian over the free dofs."""
         Ky = self.sim.tangent(self.quad.virtual_positions(x_m), activations, project=project).assemble()
         K = self.quad.node_stiffness(Ky, self._T_free)
+        if self.dilatation is not None:
+            K = K + self.dilatation.hessian(x_m, project=project)[self.dofs][:, self.dofs]
         if pairs is not None:
             K = K + self._B_free.T @ pairs.assemble(self._all_dofs) @ self._B_free
         return K.tocsr()
@@ -250,6 +276,8 @@ class HexBody:
             if self._T_all is None:
                 self._T_all = self.quad.dof_map()
             kn_rows = (self._T_free.T @ Ky @ self._T_all).tocsr()  # (3k, 3n): free rows, all columns
+            if self.dilatation is not None:
+                kn_rows = (kn_rows + self.dilatation.hessian(x_n)[self.dofs]).tocsr()
             kn_free = kn_rows[:, self.dofs].tocsr()
         yhat = (x_n + h * v_n)[self.free].reshape(-1)
         hess = sp.diags((1.0 / h**2 + alpha_per_s / h) * m3)
