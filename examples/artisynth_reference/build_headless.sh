@@ -75,7 +75,7 @@ echo "package org.python.jline.console; public class UserInterruptException exte
 
 # 2. the core's sources, less what needs the missing jars (apps, tests, DICOM via GDCM, movies via JMF)
 rm -rf "$OUT/src" && cp -r "$CORE/src" "$OUT/src" && cd "$OUT/src"
-rm -rf artisynth/demos maspack/apps
+rm -rf artisynth/demos maspack/apps artisynth/models/tgcs2025  # tgcs2025 (newer cores) imports the demos
 rm -f maspack/solvers/LemkeContactSolverTest.java \
   maspack/fileutil/FileManagerExamples.java maspack/image/dicom/DicomImageDecoderGDCM.java \
   maspack/geometry/DelaunayTriangulatorTest.java artisynth/core/moviemaker/MakeMovieFromData.java \
