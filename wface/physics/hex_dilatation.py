@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from wface.physics.hexes import GAUSS_POINTS, HexQuadrature, shape_functions
+from wface.physics.hexes import HexQuadrature
 
 __all__ = ["BULK_POTENTIALS", "MeanDilatation"]
 
@@ -59,9 +59,7 @@ class MeanDilatation:
         if not (np.isfinite(kappa) and kappa >= 0):
             raise ValueError(f"bulk_modulus_pa must be finite and >= 0, got {bulk_modulus_pa!r}")
         self.quad, self.kappa_pa, self.potential = quad, kappa, potential
-        _, dN = shape_functions(GAUSS_POINTS)  # (8 points, 8 nodes, 3)
-        J0 = np.einsum("mad,gae->mgde", quad.rest_m[quad.hexes], dN)
-        self._dNdX = np.einsum("gae,mged->mgad", dN, np.linalg.inv(J0))  # (m, g, 8, 3)
+        self._dNdX = quad.shape_gradients_per_m.reshape(-1, 8, 8, 3)  # (m, g, 8 nodes, 3)
         self._w = quad.gauss_volume_m3.reshape(-1, 8)  # (m, g) w_g det J0_g
         self.rest_volume_m3 = self._w.sum(axis=1)  # (m,)
         u = self._dNdX  # w_g (u_a x u_b) of each point and node pair, for the Hessian of det F

@@ -64,6 +64,7 @@ class HexQuadrature:
     gauss_points_m: np.ndarray  # (G, 3) rest positions of the Gauss points
     gauss_volume_m3: np.ndarray  # (G,) w_g det J_g
     hex_of_point: np.ndarray  # (G,) row of ``hexes``
+    shape_gradients_per_m: np.ndarray  # (G, 8, 3) dN_a/dX at each Gauss point, of its hex's 8 nodes
 
     @property
     def n_nodes(self) -> int:
@@ -144,6 +145,7 @@ def hex_quadrature(x_rest_m: np.ndarray, hexes: np.ndarray) -> HexQuadrature:
         gauss_points_m=y0,
         gauss_volume_m3=det.reshape(G),
         hex_of_point=np.repeat(np.arange(m), 8),
+        shape_gradients_per_m=dNdX.reshape(G, 8, 3),
     )
 
 
