@@ -52,6 +52,7 @@ class HexDemo:
         stiffness_n_per_m=None,
         smoothing_m=1e-4,
         bulk="point",
+        lip_surface="smooth",
     ):
         from dataclasses import replace
 
@@ -80,7 +81,7 @@ class HexDemo:
                 (),
                 stiffness_n_per_m=stiffness_n_per_m,
                 smoothing_m=smoothing_m,
-                surface="smooth",
+                surface=lip_surface,
                 ignore_inside_at_rest=False,
             )
         free = demo.free_nodes[demo.free_nodes < n]
@@ -114,6 +115,7 @@ def play(
     mass_lumping: str = "equal",
     start_from: str = "pushed",
     bulk: str = "point",
+    lip_surface: str = "smooth",
     progress=print,
 ) -> dict:
     """Per-frame times, areas, lip gaps, solver statistics and hex-node positions of the played approximant."""
@@ -124,7 +126,15 @@ def play(
     from wface.speech.gestures import map_gesture_to_model, read_gesture
     from wface.speech.playback import gesture_times, lip_area_points
 
-    face = HexDemo(base, data, contact, ring_directions=ring_directions, mass_lumping=mass_lumping, bulk=bulk)
+    face = HexDemo(
+        base,
+        data,
+        contact,
+        ring_directions=ring_directions,
+        mass_lumping=mass_lumping,
+        bulk=bulk,
+        lip_surface=lip_surface,
+    )
     demo = face.demo
     gesture = read_gesture(data / "speech" / "approximant")
     mapping = map_gesture_to_model(gesture, demo)
@@ -261,6 +271,14 @@ def main(argv=None) -> int:
         "(ArtiSynth's ELEMENT soft incompressibility) with ArtiSynth's quadratic potential kappa/2 (J - 1)^2 "
         "or the log one",
     )
+    p.add_argument(
+        "--lip-surface",
+        choices=("smooth", "smooth_through_nodes"),
+        default="smooth",
+        help="the lips' contact surfaces: the blend of their Loop refinement (wface speech's), which lies up to "
+        "0.5 mm inside the faceted lips' nodes, or that blend offset to pass through the nodes (ArtiSynth's lips "
+        "collide as faceted surfaces through the nodes)",
+    )
     p.add_argument("--tol", type=float, default=1e-4, help="relative residual of each solve (wface speech's default)")
     a = p.parse_args(argv)
     if not a.data.is_dir():
@@ -280,6 +298,7 @@ def main(argv=None) -> int:
         mass_lumping=a.mass_lumping,
         start_from=a.start,
         bulk=a.bulk,
+        lip_surface=a.lip_surface,
     )
     a.out.mkdir(parents=True, exist_ok=True)
     with open(a.out / "lip_opening.csv", "w", newline="") as fh:
@@ -298,6 +317,7 @@ def main(argv=None) -> int:
         "mass_lumping": a.mass_lumping,
         "start": a.start,
         "bulk": a.bulk,
+        "lip_surface": a.lip_surface,
         "fps": a.fps,
         "tol": a.tol,
         "dynamics": DYNAMICS,

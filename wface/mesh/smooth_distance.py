@@ -40,12 +40,14 @@ from wface.mesh.subdivision import loop_subdivision
 __all__ = ["SmoothHits", "SmoothSurface"]
 
 _FD_STEP_M = 1e-7  # central differences of the closed-form entry gradients
+_OFFSET_FIT_STEPS = 12  # Richardson steps of the through-the-nodes offsets
 
 
-def _entry_terms(q, y0, y1, y2, R, phi=None):
+def _entry_terms(q, y0, y1, y2, R, phi=None, offset=0.0):
     """Per entry (a query point q and a triangle (y0, y1, y2) of support radius R), all (E, 3) / (E,):
     (w, d, grad f (E, 4, 3) or None, grad w (E, 4, 3)); slot 0 of the gradients is q, 1-3 the
-    corners; f = w (d - phi) with ``phi`` (E,) held fixed (no grad f when phi is None)."""
+    corners; f = w (d - phi) with ``phi`` (E,) held fixed (no grad f when phi is None); d = n . (q - c)
+    - ``offset``, the distance to the triangle's plane moved out by a constant ``offset`` (E,) m."""
     e1, e2 = y1 - y0, y2 - y0
     N = np.cross(e1, e2)
     nN = np.linalg.norm(N, axis=1)
@@ -59,7 +61,8 @@ def _entry_terms(q, y0, y1, y2, R, phi=None):
     psi = om**4 * (4.0 * rho + 1.0)
     chi = -20.0 * om**3  # psi'(rho) / rho
     w = area * psi
-    d = np.einsum("ij,ij->i", n, r)
+    d_plane = np.einsum("ij,ij->i", n, r)
+    d = d_plane - offset
     dw_dq = (area * chi / R**2)[:, None] * r
     # through the triangle: dw = psi dA + A psi' drho, dA = n . dN / 2, drho = -r . dc / (R |r|)
     gN_w = 0.5 * psi[:, None] * n
@@ -77,7 +80,7 @@ def _entry_terms(q, y0, y1, y2, R, phi=None):
     # f = w s: df = s dw + w dd, dd = n . dq - n . dc + r . (I - n n^T) dN / |N|
     g_q = s[:, None] * dw_dq + w[:, None] * n
     g_c = -s[:, None] * dw_dq - w[:, None] * n
-    tang = r - d[:, None] * n
+    tang = r - d_plane[:, None] * n
     g_N = s[:, None] * gN_w + (w / np.maximum(nN, 1e-300))[:, None] * tang
     grad_f = np.concatenate([g_q[:, None], to_corners(g_c, g_N)], axis=1)
     return w, d, grad_f, grad_w
@@ -121,9 +124,9 @@ class SmoothHits:
         """(E, 12, 12) the share hess f_t / W of each entry (slots as ``grad_phi``; ``entries``: a
         subset); the global rank-2 part of hess phi is built by the caller from ``grad_phi`` and
         ``grad_weight``."""
-        q, y, R, phi_e, W_e = self._data
+        q, y, R, phi_e, W_e, off = self._data
         if entries is not None:
-            q, y, R, phi_e, W_e = q[entries], y[entries], R[entries], phi_e[entries], W_e[entries]
+            q, y, R, phi_e, W_e, off = q[entries], y[entries], R[entries], phi_e[entries], W_e[entries], off[entries]
         E = len(q)
         z = np.concatenate([q[:, None], y], axis=1).reshape(E, 12)
         H = np.zeros((E, 12, 12))
@@ -132,8 +135,8 @@ class SmoothHits:
             zp, zm = z.copy(), z.copy()
             zp[:, j] += h
             zm[:, j] -= h
-            gp = _entry_terms(*_split(zp), R, phi_e)[2].reshape(E, 12)
-            gm = _entry_terms(*_split(zm), R, phi_e)[2].reshape(E, 12)
+            gp = _entry_terms(*_split(zp), R, phi_e, off)[2].reshape(E, 12)
+            gm = _entry_terms(*_split(zm), R, phi_e, off)[2].reshape(E, 12)
             H[:, :, j] = (gp - gm) / (2 * h)
         H = 0.5 * (H + H.transpose(0, 2, 1))
         return H / W_e[:, None, None]
@@ -152,9 +155,18 @@ class SmoothSurface:
         rest_positions_m: (n, 3) rest positions (for the support radii).
         levels: Loop subdivision levels of the refinement.
         radius_factor: R_t = radius_factor x the longest rest edge of refined triangle t.
+        through_nodes: move each refined triangle's plane out along its normal by a constant offset,
+            fitted on the rest surface so that phi = 0 at the surface's own nodes (module docstring,
+            "Through the nodes"); False keeps the plain blend, which lies inside convex parts.
+
+    Attributes:
+        offset_m: (T,) each refined triangle's plane offset (zero without ``through_nodes``).
+        rest_node_phi_m: (n_s,) phi at the surface's own nodes on the rest surface (after the fit).
     """
 
-    def __init__(self, triangles, rest_positions_m, *, levels: int = 1, radius_factor: float = 1.5):
+    def __init__(
+        self, triangles, rest_positions_m, *, levels: int = 1, radius_factor: float = 1.5, through_nodes: bool = False
+    ):
         if not (np.isfinite(radius_factor) and radius_factor > 0):
             raise ValueError(f"radius_factor must be finite and > 0, got {radius_factor}")
         self.nodes, self.S, self.triangles = loop_subdivision(triangles, levels)
@@ -172,6 +184,28 @@ class SmoothSurface:
         rim = np.zeros(len(y), bool)
         rim[uniq[count == 1].ravel()] = True
         self.interior = (~rim[self.triangles].any(axis=1)).astype(np.float64)
+        self.offset_m = np.zeros(len(self.triangles))
+        self.through_nodes = bool(through_nodes)
+        self.rest_node_phi_m = self._node_phi(rest_positions_m)
+        if through_nodes:
+            self._fit_offsets(rest_positions_m)
+
+    def _node_phi(self, x_m: np.ndarray) -> np.ndarray:
+        """phi at the surface's own nodes (0 where unsupported)."""
+        x = np.asarray(x_m, dtype=np.float64)
+        return np.nan_to_num(self.evaluate(x[self.nodes], x).phi_m)
+
+    def _fit_offsets(self, rest_m: np.ndarray) -> None:
+        """Offsets b per node, carried to the refined vertices by S and to each refined triangle as the
+        mean of its corners, fitted by Richardson steps b <- b + phi(nodes): the blend of the offsets
+        is a local average of b, so each step removes most of the smooth part of the remaining phi."""
+        b = np.zeros(len(self.nodes))
+        phi = self.rest_node_phi_m
+        for _ in range(_OFFSET_FIT_STEPS):
+            b += phi
+            self.offset_m = (self.S @ b)[self.triangles].mean(axis=1)
+            phi = self._node_phi(rest_m)
+        self.rest_node_phi_m = phi
 
     def refined(self, x_m: np.ndarray) -> np.ndarray:
         """(V, 3) refined vertex positions y = S x[nodes]."""
@@ -189,9 +223,10 @@ class SmoothSurface:
         et = np.fromiter((i for a in near for i in a), dtype=np.int64, count=int(counts.sum()))
         corners = tri[et]
         R = self.radius_m[et]
-        w, d, _, _ = _entry_terms(q[ep], *(y[corners[:, j]] for j in range(3)), R)
+        off = self.offset_m[et]
+        w, d, _, _ = _entry_terms(q[ep], *(y[corners[:, j]] for j in range(3)), R, offset=off)
         keep = w > 0
-        ep, et, corners, R, w, d = ep[keep], et[keep], corners[keep], R[keep], w[keep], d[keep]
+        ep, et, corners, R, w, d, off = ep[keep], et[keep], corners[keep], R[keep], w[keep], d[keep], off[keep]
         W = np.bincount(ep, weights=w, minlength=len(q))
         num = np.bincount(ep, weights=w * d, minlength=len(q))
         safe = np.where(W > 0, W, 1.0)
@@ -199,8 +234,8 @@ class SmoothSurface:
         it = self.interior[et]
         iota = np.bincount(ep, weights=w * it, minlength=len(q)) / safe
         yc = np.stack([y[corners[:, j]] for j in range(3)], axis=1)
-        _, _, gf, gw = _entry_terms(q[ep], yc[:, 0], yc[:, 1], yc[:, 2], R, phi[ep])
+        _, _, gf, gw = _entry_terms(q[ep], yc[:, 0], yc[:, 1], yc[:, 2], R, phi[ep], off)
         gi = (it - iota[ep])[:, None, None] * gw / W[ep, None, None]
         hits = SmoothHits(phi, W, ep, et, gf / W[ep, None, None], gw, corners, iota, gi)
-        hits._data = (q[ep], yc, R, phi[ep], W[ep])
+        hits._data = (q[ep], yc, R, phi[ep], W[ep], off)
         return hits

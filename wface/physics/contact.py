@@ -99,6 +99,7 @@ __all__ = [
     "LIP_GROUPS",
     "REGIONS",
     "SKULL_MESHES",
+    "SURFACES",
     "Contact",
     "ContactPairs",
     "HalfSpace",
@@ -111,6 +112,7 @@ __all__ = [
 ]
 
 REGIONS = ("lips", "teeth", "bones", "skull")
+SURFACES = ("faceted", "smooth", "smooth_through_nodes")  # the self-contact surfaces (``Contact(surface=...)``)
 # The bone meshes of the "skull" region: ArtiSynth's lip-skull contact (BadinFaceDemo.enableLipSkullContact:
 # the face collides with the jaw and maxilla rigid bodies, not the teeth or cranium; docs/design.md, "Contact").
 SKULL_MESHES = ("jaw", "maxilla")
@@ -306,7 +308,9 @@ class Contact:
             equilibrium. ``ignored_at_rest`` counts them per mesh. User obstacles are never filtered.
         surface: self-contact against the "faceted" surfaces (default) or "smooth" ones
             (``wface.physics.smooth_contact``: C2 in the positions, exact Hessian, quadratic Newton;
-            not combined with ``freeze_below``).
+            not combined with ``freeze_below``); "smooth_through_nodes": smooth ones whose planes are
+            offset at rest to pass through the lip nodes, as the faceted surfaces do
+            (``SmoothSurface(through_nodes=True)``).
         smooth_levels, smooth_radius_factor: the smooth surfaces' Loop levels and support radii
             (``wface.mesh.smooth_distance.SmoothSurface``).
     """
@@ -405,15 +409,19 @@ class Contact:
         self.names = [n for n, _ in self.rigid] + [n for n, *_ in self.self_contact]
         if not self.names:
             raise ValueError("contact has nothing to do: give regions and/or obstacles")
-        if surface not in ("faceted", "smooth"):
-            raise ValueError(f"surface must be 'faceted' or 'smooth', got {surface!r}")
-        if surface == "smooth" and self.freeze_below is not None:
+        if surface not in SURFACES:
+            raise ValueError(f"surface must be one of {', '.join(SURFACES)}, got {surface!r}")
+        if surface != "faceted" and self.freeze_below is not None:
             raise ValueError("freeze_below freezes faceted features; smooth lip surfaces need no freezing")
         self.surface = surface
         self.smooth = None
-        if surface == "smooth" and self.self_contact:
+        if surface != "faceted" and self.self_contact:
             self.smooth = SmoothSelfContact(
-                model, self.self_contact, levels=smooth_levels, radius_factor=smooth_radius_factor
+                model,
+                self.self_contact,
+                levels=smooth_levels,
+                radius_factor=smooth_radius_factor,
+                through_nodes=surface == "smooth_through_nodes",
             )
 
     def _add_model_meshes(self, model: FaceModel, nodes: np.ndarray, ignore_inside_at_rest: bool) -> None:

@@ -80,10 +80,13 @@ class SmoothSelfContact:
         levels, radius_factor: the ``SmoothSurface`` refinement and support radii.
     """
 
-    def __init__(self, model, directions, *, levels: int = 2, radius_factor: float = 1.5):
+    def __init__(self, model, directions, *, levels: int = 2, radius_factor: float = 1.5, through_nodes: bool = False):
         x = model.rest_positions_m
         self.directions = directions
-        self.surfaces = [SmoothSurface(tri, x, levels=levels, radius_factor=radius_factor) for *_, tri in directions]
+        self.surfaces = [
+            SmoothSurface(tri, x, levels=levels, radius_factor=radius_factor, through_nodes=through_nodes)
+            for *_, tri in directions
+        ]
         self.ext = _Extension(model.n_nodes, self.surfaces)
         # W on the rest surface (at its refined vertices): full smooth weight above _BLEND_WEIGHT x its median
         self.weight_ref = []
