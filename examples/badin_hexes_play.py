@@ -53,6 +53,7 @@ class HexDemo:
         smoothing_m=1e-4,
         bulk="point",
         lip_surface="smooth",
+        lip_points="nodes_and_edges",
     ):
         from dataclasses import replace
 
@@ -84,6 +85,12 @@ class HexDemo:
                 surface=lip_surface,
                 ignore_inside_at_rest=False,
             )
+            if lip_points == "nodes":  # ArtiSynth's vertex penetrations: the lips' nodes only, no edge midpoints
+                from wface.physics.smooth_contact import SmoothSelfContact
+
+                c = self.contact
+                c.self_contact = [(nm, pn[pw[:, 1] == 0], pw[pw[:, 1] == 0], tri) for nm, pn, pw, tri in c.self_contact]
+                c.smooth = SmoothSelfContact(demo, c.self_contact, through_nodes=lip_surface == "smooth_through_nodes")
         free = demo.free_nodes[demo.free_nodes < n]
         flesh, dilatation = demo, None
         if bulk != "point":  # one volume ratio per hex, the kernels' per-point bulk term off
@@ -116,6 +123,7 @@ def play(
     start_from: str = "pushed",
     bulk: str = "point",
     lip_surface: str = "smooth",
+    lip_points: str = "nodes_and_edges",
     progress=print,
 ) -> dict:
     """Per-frame times, areas, lip gaps, solver statistics and hex-node positions of the played approximant."""
@@ -134,6 +142,7 @@ def play(
         mass_lumping=mass_lumping,
         bulk=bulk,
         lip_surface=lip_surface,
+        lip_points=lip_points,
     )
     demo = face.demo
     gesture = read_gesture(data / "speech" / "approximant")
@@ -279,6 +288,13 @@ def main(argv=None) -> int:
         "0.5 mm inside the faceted lips' nodes, or that blend offset to pass through the nodes (ArtiSynth's lips "
         "collide as faceted surfaces through the nodes)",
     )
+    p.add_argument(
+        "--lip-points",
+        choices=("nodes_and_edges", "nodes"),
+        default="nodes_and_edges",
+        help="the lips' contact points: their nodes and edge midpoints (wface's), or their nodes only (as "
+        "ArtiSynth's vertex penetrations)",
+    )
     p.add_argument("--tol", type=float, default=1e-4, help="relative residual of each solve (wface speech's default)")
     a = p.parse_args(argv)
     if not a.data.is_dir():
@@ -299,6 +315,7 @@ def main(argv=None) -> int:
         start_from=a.start,
         bulk=a.bulk,
         lip_surface=a.lip_surface,
+        lip_points=a.lip_points,
     )
     a.out.mkdir(parents=True, exist_ok=True)
     with open(a.out / "lip_opening.csv", "w", newline="") as fh:
@@ -318,6 +335,7 @@ def main(argv=None) -> int:
         "start": a.start,
         "bulk": a.bulk,
         "lip_surface": a.lip_surface,
+        "lip_points": a.lip_points,
         "fps": a.fps,
         "tol": a.tol,
         "dynamics": DYNAMICS,
