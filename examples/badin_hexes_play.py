@@ -84,13 +84,8 @@ class HexDemo:
                 smoothing_m=smoothing_m,
                 surface=lip_surface,
                 ignore_inside_at_rest=False,
+                edge_midpoints=lip_points == "nodes_and_edges",  # "nodes": as ArtiSynth's vertex penetrations
             )
-            if lip_points == "nodes":  # ArtiSynth's vertex penetrations: the lips' nodes only, no edge midpoints
-                from wface.physics.smooth_contact import SmoothSelfContact
-
-                c = self.contact
-                c.self_contact = [(nm, pn[pw[:, 1] == 0], pw[pw[:, 1] == 0], tri) for nm, pn, pw, tri in c.self_contact]
-                c.smooth = SmoothSelfContact(demo, c.self_contact, through_nodes=lip_surface == "smooth_through_nodes")
         free = demo.free_nodes[demo.free_nodes < n]
         flesh, dilatation = demo, None
         if bulk != "point":  # one volume ratio per hex, the kernels' per-point bulk term off

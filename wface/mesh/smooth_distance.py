@@ -185,7 +185,6 @@ class SmoothSurface:
         rim[uniq[count == 1].ravel()] = True
         self.interior = (~rim[self.triangles].any(axis=1)).astype(np.float64)
         self.offset_m = np.zeros(len(self.triangles))
-        self.through_nodes = bool(through_nodes)
         self.rest_node_phi_m = self._node_phi(rest_positions_m)
         if through_nodes:
             self._fit_offsets(rest_positions_m)

@@ -313,6 +313,8 @@ class Contact:
             (``SmoothSurface(through_nodes=True)``).
         smooth_levels, smooth_radius_factor: the smooth surfaces' Loop levels and support radii
             (``wface.mesh.smooth_distance.SmoothSurface``).
+        edge_midpoints: self-contact points at the surface edges' midpoints as well as the nodes (False:
+            nodes only, as ArtiSynth's vertex penetrations).
     """
 
     def __init__(
@@ -334,6 +336,7 @@ class Contact:
         surface: str = "faceted",
         smooth_levels: int = 2,
         smooth_radius_factor: float = 1.5,
+        edge_midpoints: bool = True,
     ):
         if isinstance(regions, str):
             regions = [r for r in (s.strip() for s in regions.split(",")) if r]
@@ -404,8 +407,8 @@ class Contact:
                     raise ValueError(f"unknown surface group {g!r}; the model has {list(model.surface_groups)}")
             ta, tb = model.surface_groups[a], model.surface_groups[b]
             # point-to-triangle both ways
-            self.self_contact.append((f"{a}/{b}", *contact_points(ta, tb), tb))
-            self.self_contact.append((f"{b}/{a}", *contact_points(tb, ta), ta))
+            self.self_contact.append((f"{a}/{b}", *contact_points(ta, tb, edge_midpoints), tb))
+            self.self_contact.append((f"{b}/{a}", *contact_points(tb, ta, edge_midpoints), ta))
         self.names = [n for n, _ in self.rigid] + [n for n, *_ in self.self_contact]
         if not self.names:
             raise ValueError("contact has nothing to do: give regions and/or obstacles")

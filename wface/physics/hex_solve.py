@@ -37,21 +37,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from wface.physics.hexes import GAUSS_POINTS, HexQuadrature, shape_functions
+from wface.physics.newton import decrease_from_slopes
 from wface.solvers.linear import DirectFactor
 
 __all__ = ["MASS_LUMPINGS", "HexBody", "HexSolve", "hex_masses"]
 
 
 MASS_LUMPINGS = ("rows", "equal")
-
-
-def _decrease_from_slopes(slope: float, g_trial: np.ndarray, dx_free: np.ndarray, potential: float) -> float:
-    """phi(x + dx) - phi(x) by the trapezoid rule on the slopes at both ends (exact on a quadratic), where
-    the step's decrease (~slope / 2) is below 1e-9 of the potential, a sum of terms too large to resolve
-    it (as ``wface.physics.newton``); +inf elsewhere."""
-    if not abs(slope) <= 1e-9 * abs(potential):
-        return np.inf
-    return 0.5 * (slope + float(g_trial @ dx_free.reshape(-1)))
 
 
 def hex_masses(quad: HexQuadrature, density_kg_m3: float, lumping: str = "rows") -> np.ndarray:
@@ -226,8 +218,10 @@ class HexBody:
                 trial = potential(x + step * dx)
                 if trial[0] <= phi + 1e-4 * step * slope or step < 1e-6:
                     break
-                if step == 1.0 and _decrease_from_slopes(slope, trial[1], dx[self.free], phi) <= 1e-4 * slope:
-                    break  # the potential's rounding hides the decrease; the slopes at both ends show it
+                if step == 1.0:  # the potential's rounding may hide the decrease; the slopes at both ends show it
+                    end_slope = float(trial[1] @ dx[self.free].reshape(-1))
+                    if decrease_from_slopes(slope, end_slope, abs(phi)) <= 1e-4 * slope:
+                        break
                 step *= 0.5
             x = x + step * dx
             phi, g, e, pairs = trial

@@ -51,7 +51,17 @@ from wface.physics.contact_tangent import ContactTangent
 from wface.physics.frozen import FrozenContact
 from wface.solvers import LinearSolver, NotPositiveDefiniteError
 
-__all__ = ["Equilibrium", "newton_quasistatic"]
+__all__ = ["Equilibrium", "decrease_from_slopes", "newton_quasistatic"]
+
+
+def decrease_from_slopes(start_slope: float, end_slope: float, size: float) -> float:
+    """E(x + dx) - E(x) by the trapezoid rule on dE/dt at both ends of the step (exact on a quadratic),
+    where the decrease (~start_slope / 2) is below 1e-9 of ``size``, the energy's magnitude, whose sum
+    of per-element terms cannot resolve it (``_NewtonRun._decrease_from_forces``); +inf elsewhere."""
+    if not -start_slope <= 1e-9 * size:
+        return np.inf
+    return 0.5 * (start_slope + end_slope)
+
 
 CHORD_STEPS_AHEAD = 3  # adaptive refactorisation: refactor when more chord steps than this remain at the rate
 MAX_STEPS_ON_FACTOR = 8  # ... or after this many chord steps on one factor
@@ -486,7 +496,7 @@ class _NewtonRun:
         if not slope <= 1e-9 * size:
             return np.inf
         end_slope = float(self.pattern.gather(f_trial) @ dx.reshape(-1))  # -dE/dt at t = 1
-        return -0.5 * (slope + end_slope)
+        return decrease_from_slopes(-slope, -end_slope, size)
 
     def result(self, tol: float, engine: str) -> Equilibrium:
         """The ``Equilibrium`` at the iterate."""

@@ -39,17 +39,17 @@ def default_contact_stiffness(model: FaceModel, factor: float = DEFAULT_STIFFNES
     return float(factor * 6.0 * (model.material.mu10_pa + model.material.mu01_pa) * h)
 
 
-def contact_points(tri_a: np.ndarray, tri_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Contact points of surface a against surface b: its nodes and the midpoints of its edges, as
-    (S, 2) node ids and (S, 2) weights. Points on a node shared with b (where the two surfaces are
-    joined, e.g. the mouth corners) are left out: they never separate."""
+def contact_points(tri_a: np.ndarray, tri_b: np.ndarray, edge_midpoints: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Contact points of surface a against surface b: its nodes and (``edge_midpoints``) the midpoints of
+    its edges, as (S, 2) node ids and (S, 2) weights. Points on a node shared with b (where the two
+    surfaces are joined, e.g. the mouth corners) are left out: they never separate."""
     tri_a = np.asarray(tri_a, dtype=np.int64).reshape(-1, 3)
     shared = np.zeros(int(max(tri_a.max(initial=0), np.max(tri_b, initial=0))) + 1, dtype=bool)
     shared[np.asarray(tri_b).ravel()] = True
     nodes = np.unique(tri_a)
     nodes = nodes[~shared[nodes]]
     edges = np.unique(np.sort(np.concatenate([tri_a[:, [0, 1]], tri_a[:, [1, 2]], tri_a[:, [2, 0]]]), axis=1), axis=0)
-    edges = edges[~shared[edges].any(axis=1)]
+    edges = edges[~shared[edges].any(axis=1)] if edge_midpoints else np.zeros((0, 2), dtype=np.int64)
     pn = np.concatenate([np.repeat(nodes[:, None], 2, axis=1), edges])
     pw = np.concatenate([np.tile([1.0, 0.0], (len(nodes), 1)), np.full((len(edges), 2), 0.5)])
     return pn, pw
