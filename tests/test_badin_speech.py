@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import data_path
+from wface.model import load_model
 from wface.speech.gestures import (
     held_gesture,
     interpolate,
@@ -170,6 +171,14 @@ def test_closure_closes_the_lips_cli(tmp_path, badin_model_path):
     # measured: 17.19 -> 7.70 (t = 0.5) -> 5.72 mm; the lips close steadily as OOM, MENT and RIS rise
     assert lo[1] < lo[0] - 5.0 and lo[2] < lo[1] - 1.0 and lo[2] < lo[0] - 8.0
     assert (out / "lip_opening.png").stat().st_size > 1000 and (out / "animation.usdc").stat().st_size > 1000
+    # every frame's state, for measures of one's own: the CSV's curves come back from it
+    st = np.load(out / "states.npz")
+    model = load_model(face)
+    assert st["node_positions_m"].shape == (3, model.n_nodes, 3) and np.allclose(st["times_s"], t)
+    assert list(st["muscle_names"]) == model.muscle_names and st["activations"].shape == (3, model.n_muscles)
+    assert np.allclose(lip_opening_mm(st["markers_m"], list(st["marker_names"])), lo, atol=1e-5)
+    assert np.allclose(st["lip_opening_area_mm2"], area, atol=1e-5) and st["converged"].all()
+    assert "kinetic_energy_j" not in st.files  # quasistatic
     # without contact the closing lips pass through each other (measured: 6 mm at t = 1 s)
     assert rep["contact"] is None and rep["lip_gap_mm"][0] > 0 and rep["lip_gap_mm_min"] < -3.0
 

@@ -25,7 +25,7 @@ from wface.speech.aperture import ApertureView
 from wface.speech.artisynth_demo import lip_opening_demo_model
 from wface.speech.dynamic import GestureDynamics
 from wface.speech.gestures import map_gesture_to_model, read_gesture
-from wface.speech.output import write_aperture_picture, write_gesture_usd, write_lip_opening
+from wface.speech.output import write_aperture_picture, write_gesture_usd, write_lip_opening, write_states
 from wface.speech.playback import compare_with_reference, lip_area_points, simulate_gesture, summarize
 
 _EPILOG = """\
@@ -302,7 +302,7 @@ def run_speech(args: argparse.Namespace) -> int:
         area_resolution_m=args.area_resolution_mm * 1e-3,
     )
     csv, png = write_lip_opening(out, result, model, reference=gesture.reference_lip_area)
-    files = [csv.name, png.name]
+    files = [csv.name, png.name, write_states(out / "states.npz", result, model).name]
     files += _write_pictures_and_usd(args, out, model, result, view, gesture)
     report = summarize(result)
     report.update(

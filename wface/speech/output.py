@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.files import save_npz
 from wface.model import FaceModel
 from wface.speech.aperture import ApertureResult, ApertureView, aperture_area
 from wface.speech.playback import GestureResult
@@ -14,7 +15,7 @@ from wface.takes.take import Take
 from wface.takes.usd import write_take_usd
 from wface.viz.plots import _plt
 
-__all__ = ["write_aperture_picture", "write_gesture_usd", "write_lip_opening"]
+__all__ = ["write_aperture_picture", "write_gesture_usd", "write_lip_opening", "write_states"]
 
 
 def write_lip_opening(
@@ -79,6 +80,31 @@ def write_lip_opening(
     fig.savefig(png, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return csv, png
+
+
+def write_states(path: Path, result: GestureResult, model: FaceModel) -> Path:
+    """states.npz of a played gesture, every frame's state for measures of one's own (lip protrusion,
+    a different aperture): ``times_s`` (F,), ``node_positions_m`` (F, n, 3) of every FEM node in the
+    model's frame and order, ``markers_m`` (F, k, 3) with ``marker_names``, ``activations`` (F, M) with
+    ``muscle_names``, ``lip_opening_area_mm2`` (F,; NaN where not measured), ``converged`` (F,) and, for a
+    dynamic playback, ``kinetic_energy_j`` (F,). Compressed; ``np.load(path)`` reads it back."""
+    F = len(result.times_s)
+    arrays = {
+        "times_s": np.asarray(result.times_s, dtype=np.float64),
+        "node_positions_m": np.asarray(result.node_positions_m, dtype=np.float64),
+        "markers_m": np.asarray(result.markers_m, dtype=np.float64),
+        "marker_names": np.array(result.marker_names, dtype=str),
+        "activations": np.asarray(result.activations, dtype=np.float64),
+        "muscle_names": np.array(model.muscle_names, dtype=str),
+        "lip_opening_area_mm2": _or_nan(result.lip_opening_area_mm2, F),
+        "converged": np.asarray(result.converged, dtype=bool),
+    }
+    if result.kinetic_energy_j is not None:
+        arrays["kinetic_energy_j"] = np.asarray(result.kinetic_energy_j, dtype=np.float64)
+    if arrays["node_positions_m"].shape != (F, model.n_nodes, 3):
+        shape = arrays["node_positions_m"].shape
+        raise ValueError(f"node positions {shape} do not match {F} frames of {model.n_nodes} nodes")
+    return save_npz(path, compressed=True, **arrays)
 
 
 def _or_nan(a, n: int) -> np.ndarray:

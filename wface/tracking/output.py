@@ -36,6 +36,7 @@ OUTPUT_TOOLS = {
     "report.html": ("this report, pictures embedded", "a web browser"),
     "truth.npz": ("the synthetic take's ground truth", "numpy"),
     "resim.npz": ("the dynamic replay: positions and per-frame stats", "numpy; wface.takes.store"),
+    "states.npz": ("every node, marker and activation per frame (wface speech)", "numpy (np.load)"),
     "animation_render_mesh.usdc": (
         "your render mesh moving with the take, in its own units (referenced by animation.usdc)",
         "Blender (File > Import > USD: import animation.usdc), Maya, Houdini, usdview",
