@@ -73,7 +73,8 @@ def stages(tmp_path_factory, blender):
     tris = face.skin_triangles[:200]
     used, local = np.unique(tris, return_inverse=True)
     lines = [f"v {a:.9f} {b:.9f} {c:.9f}" for a, b, c in face.rest_positions_m[used] * 100.0]
-    lines += [f"f {i + 1} {j + 1} {k + 1}" for i, j, k in local.reshape(-1, 3)]
+    faces = [f"f {i + 1} {j + 1} {k + 1}" for i, j, k in local.reshape(-1, 3)]
+    lines += ["usemtl Lip", *faces[:100], "usemtl Cheek", *faces[100:]]  # two material groups
     (root / "patch.obj").write_text("\n".join(lines) + "\n")
     render = ["--render-mesh", str(root / "patch.obj"), "--render-mesh-units", "cm"]
     assert main(["demo", "--out", str(root / "demo"), *small, "--frames", "4", "--no-pictures", *render]) == 0
@@ -216,6 +217,7 @@ def test_the_render_mesh_in_the_rig_animates_in_blender(stages):
     assert mesh["parent"] == "Rig" and mesh["moved_m"] > _MOVED_M
     cached = probe["objects"]["RenderMeshCache"]  # the point cache beside it, under a name a TD can read
     assert cached["parent"] == "Face" and cached["vertices"] == mesh["vertices"] and cached["moved_m"] > _MOVED_M
+    assert sorted(mesh["materials"]) == sorted(cached["materials"]) == ["Cheek", "Lip"]  # one look on both
     assert mesh["shape_keys"] and len(mesh["shape_keys"]) == len(rig["shape_keys"])
     for keys, skin_keys in zip(mesh["shape_keys"], rig["shape_keys"], strict=True):
         assert keys == pytest.approx(skin_keys, abs=_KEY_TOL)

@@ -208,7 +208,7 @@ def test_the_render_mesh_joins_the_rig_in_its_own_units(tmp_path, face, rig):
     own shapes (its binding on each muscle's whole equilibrium) in the file's centimetres and frame,
     placed by geomBindTransform; UsdSkel skins it as ``rig_points``, exactly like the point cache
     beside it where the rig is exact (a muscle alone at 1, the jaw at its largest opening)."""
-    from pxr import Usd, UsdGeom, UsdSkel, Vt
+    from pxr import Usd, UsdGeom, UsdShade, UsdSkel, Vt
 
     from wface.io.usd import assert_stage_valid
     from wface.takes.shapes import render_mesh_rig
@@ -239,6 +239,13 @@ def test_the_render_mesh_joins_the_rig_in_its_own_units(tmp_path, face, rig):
     bind = np.asarray(UsdSkel.BindingAPI(prim).GetGeomBindTransformAttr().Get())
     np.testing.assert_allclose(bind.T, rm.source_to_model, atol=1e-15)
     assert list(UsdSkel.BindingAPI(prim).GetBlendShapesAttr().Get()) == rig.names
+    # its material groups, bound to the render mesh layer's own materials (a DCC gives both one look)
+    cache_prim = stage.GetPrimAtPath("/Face/RenderMesh/RenderMeshCache")
+    for mesh_prim in (prim, cache_prim):
+        subsets = UsdShade.MaterialBindingAPI(mesh_prim).GetMaterialBindSubsets()
+        assert [list(sub.GetIndicesAttr().Get()) for sub in subsets] == [rm.mesh.face_groups["Face"].tolist()]
+        bound = UsdShade.MaterialBindingAPI(subsets[0].GetPrim()).ComputeBoundMaterial()[0]
+        assert bound and bound.GetPath() == "/Face/RenderMesh/Materials/Face"
 
     cache = UsdSkel.Cache()
     cache.Populate(UsdSkel.Root(stage.GetPrimAtPath("/Face/Rig")), Usd.PrimDefaultPredicate)

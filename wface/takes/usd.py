@@ -24,7 +24,12 @@ import numpy as np
 from wface.controls import IDENTITY_AFFINE, bone_affines, jaw_to_intuitive, params_from_affine
 from wface.files import save_layer
 from wface.io.usd import rig_points, write_mesh_animation, write_take
-from wface.io.usd.render_mesh import add_render_mesh_reference, reference_render_mesh, write_render_mesh_layer
+from wface.io.usd.render_mesh import (
+    add_render_mesh_reference,
+    reference_render_mesh,
+    render_mesh_materials_path,
+    write_render_mesh_layer,
+)
 from wface.mesh.surface import boundary_faces
 from wface.model import FaceModel
 from wface.takes.shapes import JAW_SHAPE, render_mesh_rig, shape_weights, skin_rig
@@ -139,7 +144,9 @@ def write_take_usd(
     try:
         skel, rig_weights = _rig(model, take, activations, jaw, rig, simulator, progress)
         if skel is not None and render_mesh is not None:
-            rig_meshes, errors = _render_mesh_in_rig(model, render_mesh, skel, rig_weights, positions_m, cranium, jaw)
+            rig_meshes, errors = _render_mesh_in_rig(
+                model, render_mesh, skel, rig_weights, positions_m, cranium, jaw, name=name
+            )
             meta.update(errors)
     except RuntimeError as exc:  # a muscle's shape inverts tets: the exact cache still goes out, without a rig
         warnings.warn(f"{path}: written without the UsdSkel rig ({exc})", RuntimeWarning, stacklevel=2)
@@ -206,15 +213,19 @@ def _rig(model: FaceModel, take: Take, activations: np.ndarray, jaw: np.ndarray,
     return skel, np.concatenate(columns, axis=1)
 
 
-def _render_mesh_in_rig(model, render_mesh, skel, weights, positions_m, cranium, jaw) -> tuple[dict, dict]:
+def _render_mesh_in_rig(
+    model, render_mesh, skel, weights, positions_m, cranium, jaw, *, name: str = "Face"
+) -> tuple[dict, dict]:
     """({"RenderMesh": the render mesh's rig entry for ``write_take``}, its error against the exact
-    point cache, mm): shapes from ``render_mesh_rig``, in the file's units, placed by its transform."""
+    point cache, mm): shapes from ``render_mesh_rig``, in the file's units, placed by its transform,
+    its material groups bound to the render mesh layer's materials (``/<name>/RenderMesh/Materials``)."""
     muscles = [n for n in skel.names if n != JAW_SHAPE]
     rm_rig = render_mesh_rig(model, render_mesh, muscles=muscles, jaw=JAW_SHAPE in skel.names)
     mesh = render_mesh.mesh
     exact = np.stack([render_mesh.model_points(x) for x in positions_m])
     err_mm = np.linalg.norm(rig_points(rm_rig, weights, cranium, jaw) - exact, axis=2) * 1e3
-    entry = (rm_rig, mesh.face_vertex_counts, mesh.face_vertex_indices, mesh.uv, mesh.uv_indices)
+    materials = (mesh.face_groups, render_mesh_materials_path(name)) if mesh.face_groups else None
+    entry = (rm_rig, mesh.face_vertex_counts, mesh.face_vertex_indices, mesh.uv, mesh.uv_indices, materials)
     errors = {
         "render_mesh_rig_rms_error_mm": float(np.sqrt(np.mean(err_mm**2))),
         "render_mesh_rig_max_error_mm": float(err_mm.max()),

@@ -150,24 +150,45 @@ def _write_face_varying(mesh, primvar: str, values, corner_indices, n_corners: i
 
 def _write_materials(stage, root: str, mesh, material_faces: dict, colors: dict, n_faces: int) -> None:
     """One GeomSubset per material, bound to a UsdPreviewSurface material of the same name."""
-    from pxr import Gf, Sdf, UsdGeom, UsdShade, Vt
+    from pxr import Gf, Sdf, UsdShade
 
-    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
-    taken: set[str] = set()
-    for name, faces in material_faces.items():
-        ident = _identifier(name, taken)
-        f = np.asarray(faces, dtype=np.int32).reshape(-1)
-        if f.size and (f.min() < 0 or f.max() >= n_faces):
-            raise UsdWriteError(f"material {name!r}: face indices outside [0, {n_faces})")
-        subset = UsdGeom.Subset.Define(stage, mesh.GetPath().AppendChild(ident))
-        subset.CreateElementTypeAttr(UsdGeom.Tokens.face)
-        subset.CreateFamilyNameAttr(UsdShade.Tokens.materialBind)
-        subset.CreateIndicesAttr(Vt.IntArray.FromNumpy(f))
+    idents = _bind_material_subsets(mesh, material_faces, f"{root}/Materials", n_faces)
+    for name, ident in idents.items():
         material = UsdShade.Material.Define(stage, f"{root}/Materials/{ident}")
         shader = UsdShade.Shader.Define(stage, f"{root}/Materials/{ident}/PreviewSurface")
         shader.CreateIdAttr("UsdPreviewSurface")
         rgb = colors.get(name, (0.7, 0.7, 0.7))
         shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*map(float, rgb)))
         material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
-        UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(material)
+
+
+def _bind_material_subsets(mesh, material_faces: dict, materials_root: str, n_faces: int) -> dict[str, str]:
+    """One GeomSubset (family "materialBind") per material of ``mesh``, bound by path to the material
+    ``materials_root/<identifier of its name>``, which may be authored later or in another layer (the
+    rig's copy of a render mesh binds to the render mesh layer's materials). A subset whose name is
+    taken by a child of ``mesh`` (a blend shape) gets a suffix; its binding does not change. Returns
+    {material name: its identifier under ``materials_root``}."""
+    from pxr import Sdf, UsdGeom, UsdShade, Vt
+
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
+    taken: set[str] = set()
+    children = {c.GetName() for c in mesh.GetPrim().GetChildren()}
+    idents = {}
+    for name, faces in material_faces.items():
+        ident = _identifier(name, taken)
+        f = np.asarray(faces, dtype=np.int32).reshape(-1)
+        if f.size and (f.min() < 0 or f.max() >= n_faces):
+            raise UsdWriteError(f"material {name!r}: face indices outside [0, {n_faces})")
+        subset = UsdGeom.Subset.Define(
+            mesh.GetPrim().GetStage(), mesh.GetPath().AppendChild(_identifier(ident, children))
+        )
+        subset.CreateElementTypeAttr(UsdGeom.Tokens.face)
+        subset.CreateFamilyNameAttr(UsdShade.Tokens.materialBind)
+        subset.CreateIndicesAttr(Vt.IntArray.FromNumpy(f))
+        UsdShade.MaterialBindingAPI.Apply(subset.GetPrim())
+        subset.GetPrim().CreateRelationship("material:binding", False).SetTargets(
+            [Sdf.Path(f"{materials_root}/{ident}")]
+        )
+        idents[name] = ident
     UsdGeom.Subset.SetFamilyType(mesh, UsdShade.Tokens.materialBind, UsdGeom.Tokens.nonOverlapping)
+    return idents

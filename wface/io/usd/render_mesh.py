@@ -131,6 +131,12 @@ def reference_render_mesh(
     save_layer(stage.GetRootLayer(), stage_path)
 
 
+def render_mesh_materials_path(root: str = "Face") -> str:
+    """Where a take's stage sees the render mesh's materials once ``add_render_mesh_reference`` has
+    referenced its layer as ``/<root>/RenderMesh`` (the layer keeps them under its root's Materials)."""
+    return f"/{root}/RenderMesh/Materials"
+
+
 def add_render_mesh_reference(
     stage, stage_path: str | Path, layer_path: str | Path, *, source_to_model: np.ndarray, root: str = "Face"
 ) -> None:

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wface.io.usd._common import UsdWriteError, _extent, _identifier, _vt_float, _vt_int, _vt_vec3f, _write_mesh
-from wface.io.usd.mesh import _write_face_varying
+from wface.io.usd.mesh import _bind_material_subsets, _write_face_varying
 
 __all__ = ["JOINTS", "SkinRig", "rig_points", "write_skin_rig"]
 
@@ -179,11 +179,14 @@ def write_skin_rig(
         visible: author the rig's mesh visible (the default: Blender's importer leaves invisible prims
             out); it lies on the exact point cache within the rig's error, so a DCC user hides one.
         st: (s, 2) texture coordinates of the skin vertices (``primvars:st``), or None.
-        extra_meshes: {prim name: (SkinRig, counts, indices) or (SkinRig, counts, indices, uv,
-            uv_indices)}: more meshes bound to the same joints and weights, e.g. a render mesh
+        extra_meshes: {prim name: (SkinRig, counts, indices), (SkinRig, counts, indices, uv,
+            uv_indices) or (SkinRig, counts, indices, uv, uv_indices, (material_faces, materials_path))}:
+            more meshes bound to the same joints and weights, e.g. a render mesh
             (``wface.takes.shapes.render_mesh_rig``, or one carried by linear weights on the skin,
-            ``SkinRig.carried``), with face-varying texture coordinates; their shape names must be
-            the skin rig's.
+            ``SkinRig.carried``), with face-varying texture coordinates and one material subset per
+            {material name: face indices}, bound to ``materials_path/<name>`` (the render mesh
+            layer's materials, ``render_mesh_materials_path``); their shape names must be the skin
+            rig's.
     """
     from pxr import Gf, Usd, UsdGeom, UsdSkel, Vt
 
@@ -198,16 +201,19 @@ def write_skin_rig(
     for t, mats in zip(times, _joint_matrices(cranium_affines, jaw_affines), strict=True):
         anim.SetTransforms(Vt.Matrix4dArray(mats), Usd.TimeCode(float(t)))
 
-    meshes = {"SkinRig": (rig, counts, indices, st, None)}
-    meshes.update({k: (*v, None, None)[:5] for k, v in (extra_meshes or {}).items()})
+    meshes = {"SkinRig": (rig, counts, indices, st, None, None)}
+    meshes.update({k: (*v, None, None, None)[:6] for k, v in (extra_meshes or {}).items()})
     boxes = []
     tokens = None
-    for name, (mesh_rig, c, i, uv, uv_idx) in meshes.items():
+    for name, (mesh_rig, c, i, uv, uv_idx, materials) in meshes.items():
         if mesh_rig.names != rig.names:
             raise UsdWriteError(f"rig mesh {name}: shapes {mesh_rig.names[:3]}... are not the skin rig's")
         tokens = _bind_mesh(stage, f"{prim_path}/{name}", skel, mesh_rig, c, i, visible=visible, st=uv)
+        usd_mesh = UsdGeom.Mesh(stage.GetPrimAtPath(f"{prim_path}/{name}"))
         if uv_idx is not None:
-            _write_face_varying(UsdGeom.Mesh(stage.GetPrimAtPath(f"{prim_path}/{name}")), "st", uv, uv_idx, len(i), 2)
+            _write_face_varying(usd_mesh, "st", uv, uv_idx, len(i), 2)
+        if materials is not None and materials[0]:
+            _bind_material_subsets(usd_mesh, materials[0], materials[1], len(c))
         pts = rig_points(mesh_rig, weights, cranium_affines, jaw_affines)
         shapes_only = mesh_rig.rest_m[None] + np.tensordot(weights, mesh_rig.deltas_m, axes=(1, 0))  # as validators
         shapes_only = mesh_rig.bound(np.concatenate([shapes_only.reshape(-1, 3), mesh_rig.rest_m]))
