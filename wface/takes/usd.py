@@ -131,21 +131,18 @@ def write_take_usd(
             run(saved)
             save_layer(saved.GetRootLayer(), written)
         return Path(written)
-    T = take.n_frames
     if take.bones is not None:
         cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(b) for b in take.bones), strict=True))
     else:
-        cranium = jaw = np.tile(IDENTITY_AFFINE, (T, 1, 1))
-    meta = {"source": take.source, **(metadata or {})}
-    if take.force_length_scale is not None:
-        meta["force_length_scale"] = take.force_length_scale.max(axis=0).tolist()
+        cranium = jaw = np.tile(IDENTITY_AFFINE, (take.n_frames, 1, 1))
+    meta = _take_metadata(take, metadata)
     activations = np.clip(take.drives, -1.0, 1.0)  # a pressure actuator may be negative (suction)
     rig_meshes = None
     try:
         skel, rig_weights = _rig(model, take, activations, jaw, rig, simulator, progress)
         if skel is not None and render_mesh is not None:
             rig_meshes, errors = _render_mesh_in_rig(
-                model, render_mesh, skel, rig_weights, positions_m, cranium, jaw, name=name
+                model, render_mesh, skel, rig_weights, positions_m, (cranium, jaw), name
             )
             meta.update(errors)
     except RuntimeError as exc:  # a muscle's shape inverts tets: the exact cache still goes out, without a rig
@@ -213,17 +210,25 @@ def _rig(model: FaceModel, take: Take, activations: np.ndarray, jaw: np.ndarray,
     return skel, np.concatenate(columns, axis=1)
 
 
-def _render_mesh_in_rig(
-    model, render_mesh, skel, weights, positions_m, cranium, jaw, *, name: str = "Face"
-) -> tuple[dict, dict]:
+def _take_metadata(take: Take, metadata: dict | None) -> dict:
+    """The stage's layer metadata: the take's source, ``metadata``, and the muscles' largest force-length
+    scale when the take has one."""
+    meta = {"source": take.source, **(metadata or {})}
+    if take.force_length_scale is not None:
+        meta["force_length_scale"] = take.force_length_scale.max(axis=0).tolist()
+    return meta
+
+
+def _render_mesh_in_rig(model, render_mesh, skel, weights, positions_m, bones, name: str) -> tuple[dict, dict]:
     """({"RenderMesh": the render mesh's rig entry for ``write_take``}, its error against the exact
-    point cache, mm): shapes from ``render_mesh_rig``, in the file's units, placed by its transform,
+    point cache, mm): shapes from ``render_mesh_rig``, in the file's units, placed by its transform
+    (``bones``: the (F, 3, 4) cranium and jaw affines),
     its material groups bound to the render mesh layer's materials (``/<name>/RenderMesh/Materials``)."""
     muscles = [n for n in skel.names if n != JAW_SHAPE]
     rm_rig = render_mesh_rig(model, render_mesh, muscles=muscles, jaw=JAW_SHAPE in skel.names)
     mesh = render_mesh.mesh
     exact = np.stack([render_mesh.model_points(x) for x in positions_m])
-    err_mm = np.linalg.norm(rig_points(rm_rig, weights, cranium, jaw) - exact, axis=2) * 1e3
+    err_mm = np.linalg.norm(rig_points(rm_rig, weights, *bones) - exact, axis=2) * 1e3
     materials = (mesh.face_groups, render_mesh_materials_path(name)) if mesh.face_groups else None
     entry = (rm_rig, mesh.face_vertex_counts, mesh.face_vertex_indices, mesh.uv, mesh.uv_indices, materials)
     errors = {
