@@ -557,6 +557,30 @@ def test_a_directory_that_holds_no_take_is_named_before_any_face_is_built(tmp_pa
     assert not (tmp_path / "o").exists()
 
 
+def test_broken_meshes_are_named_before_any_face_is_built(tmp_path, capsys, monkeypatch):
+    """A render mesh or fit target that cannot be read stops the command at once, naming the file and
+    why (meshio's PLY reader exits the process on a bad header: it must not), with nothing written."""
+    import wface.cli.model as model_cli
+    import wface.cli.track as track_cli
+
+    def no_face(*_args, **_kwargs):
+        raise AssertionError("a face was built before the mesh was read")
+
+    for mod in (track_cli, model_cli):
+        monkeypatch.setattr(mod, "build_face", no_face)
+    (tmp_path / "bad.ply").write_text("not a mesh\n")
+    (tmp_path / "empty.stl").write_text("solid x\nendsolid x\n")
+    (tmp_path / "points.obj").write_text("v 0 0 0\nv 1 0 0\n")
+    cases = {"bad.ply": "not a readable surface mesh", "empty.stl": "no triangles", "points.obj": "no faces"}
+    for name, why in cases.items():
+        mesh = tmp_path / name
+        code, text = _cli(["demo", "--render-mesh", mesh, "--out", tmp_path / "o"], capsys)
+        assert code == 2 and f"--render-mesh: {mesh}" in text and why in text, text
+        code, text = _cli(["model", "fit", "--surface", mesh, "--out", tmp_path / "f.npz"], capsys)
+        assert code == 1 and str(mesh) in text and why in text, text
+    assert not (tmp_path / "o").exists() and not (tmp_path / "f.npz").exists()
+
+
 # ---------------------------------------------------------------------- the top-level handler
 def test_out_that_is_a_file_or_unwritable(model_path, tmp_path, capsys):
     a_file = tmp_path / "a_file"

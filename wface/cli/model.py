@@ -201,8 +201,7 @@ def _fit(args: argparse.Namespace) -> int:
     say = print if not args.json else (lambda msg: print(msg, file=sys.stderr))  # --json: stdout is the JSON
     if not (args.surface or args.markers):
         raise ValueError("give --surface HEAD.obj|ply|stl, --markers TAKE.c3d, or both")
-    template = build_face(args.tets, progress=True) if args.template == "builtin" else load_model(args.template)
-    mesh = faces = landmarks = markers = names = None
+    mesh = faces = landmarks = markers = names = None  # the targets first: a bad file fails before a face is built
     if args.surface:
         mesh = read_surface_mesh(args.surface, units=args.units)
         groups = [g.strip() for g in args.surface_groups.split(",")] if args.surface_groups else None
@@ -218,6 +217,7 @@ def _fit(args: argparse.Namespace) -> int:
         if not 0 <= args.neutral_frame < take.n_frames:
             raise ValueError(f"--neutral-frame {args.neutral_frame} is outside {args.markers}'s {take.n_frames} frames")
         markers, names = take.positions_m[args.neutral_frame], take.marker_names
+    template = build_face(args.tets, progress=True) if args.template == "builtin" else load_model(args.template)
     res = fit_template(
         template,
         surface=mesh,

@@ -9,8 +9,19 @@ import sys
 import numpy as np
 
 from wface.faces.render_mesh import bind_render_mesh
+from wface.mesh.meshfile import read_surface_mesh
 
 __all__ = ["add_render_mesh_arguments", "render_mesh_from_args"]
+
+
+def _readable_mesh(path: str) -> str:
+    """``--render-mesh``'s type: the file is read once when the options are parsed, so a missing or
+    broken mesh stops the command before a face is built or a frame tracked (it is read again to bind)."""
+    try:
+        read_surface_mesh(path)
+    except (OSError, ValueError) as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return path
 
 
 def add_render_mesh_arguments(p: argparse.ArgumentParser) -> None:
@@ -18,6 +29,7 @@ def add_render_mesh_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--render-mesh",
         metavar="MESH",
+        type=_readable_mesh,
         help="a triangle/quad mesh (.obj with UVs and materials, .ply, .stl, ...) bound to the face and written "
         "to USD beside the FEM skin (its own layer, in its own units); best on a face fitted to it "
         "(wface model fit --surface MESH)",

@@ -28,6 +28,8 @@ of its own shape (area-weighted per vertex) when the source had normals.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -269,9 +271,12 @@ def _read_obj(path: Path) -> dict:
 
 def _read_meshio(path: Path) -> dict:
     try:
-        mesh = meshio.read(path)
-    except Exception as exc:  # noqa: BLE001 - report any reader failure the same way
-        raise ValueError(f"{path}: not a readable surface mesh ({exc})") from exc
+        said = io.StringIO()  # meshio prints its complaints
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            mesh = meshio.read(path)
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - any reader failure; meshio's ply reader calls exit(1)
+        why = " ".join(said.getvalue().split()) or str(exc)
+        raise ValueError(f"{path}: not a readable surface mesh ({why})") from None
     counts, idx = [], []
     for block in mesh.cells:
         if block.type in ("triangle", "quad"):
