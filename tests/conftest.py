@@ -16,6 +16,15 @@ settings.register_profile("ci", derandomize=True)
 settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
+# `pytest -n auto` (the README's test command) runs one worker per core, at most four: each worker
+# builds its own session fixtures (the Badin import, ~1 GB), so more would cost memory, not time.
+MAX_AUTO_WORKERS = 4
+
+
+def pytest_xdist_auto_num_workers(config) -> int:
+    return max(1, min(MAX_AUTO_WORKERS, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1))
+
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DATA_DIR = Path(os.environ.get("WFACE_DATA", REPO_ROOT.parent / "shared" / "data"))
 
