@@ -27,6 +27,8 @@
 //                                 each tet takes the muscle descriptors (direction included) of the ArtiSynth
 //                                 element that holds its centroid, and the lip collision surfaces are embedded
 //                                 again
+//   -Dlip.bilateral=false         lip-lip vertex contacts as unilateral constraints (ArtiSynth's default, true:
+//                                 bilateral constraints, dropped once they separate, so a contact can pull for a step)
 //   -Dlip.compliance=M_PER_N      lip-lip contact compliance (ArtiSynth's default 0: rigid constraints) and
 //   -Dlip.damping=NS_PER_M        its damping
 //   -Dlip.softincomp=ELEMENT|NODAL|FULL  how the flesh's bulk term is integrated (the demo leaves ArtiSynth's
@@ -109,6 +111,9 @@ public class RunLipOpening {
          mech.setGravity (0, 0, 0);
       }
       CollisionBehavior lips = mech.getCollisionBehavior (face, face);
+      if (lips != null && System.getProperty ("lip.bilateral") != null) {
+         lips.setBilateralVertexContact (Boolean.parseBoolean (System.getProperty ("lip.bilateral")));
+      }
       if (lips != null && System.getProperty ("lip.compliance") != null) {
          lips.setCompliance (Double.parseDouble (System.getProperty ("lip.compliance")));
          lips.setDamping (Double.parseDouble (System.getProperty ("lip.damping", "0")));
@@ -119,7 +124,7 @@ public class RunLipOpening {
          + ", soft incompressibility " + face.getSoftIncompMethod () + ", gravity " + mech.getGravity () + ", contact " + contact + ", penetration tol "
          + mech.getPenetrationTol () + " m"
          + (lips == null ? "" : ", lip contact friction " + lips.getFriction () + " collider " + lips.getColliderType ()
-            + " compliance " + lips.getCompliance ()
+            + " compliance " + lips.getCompliance () + " bilateral " + lips.getBilateralVertexContact ()
             + " m/N damping " + lips.getDamping () + " N s/m"));
 
       String contactsFile = System.getProperty ("lip.contacts");
