@@ -277,11 +277,11 @@ def main(argv=None) -> int:
     )
     p.add_argument(
         "--lip-surface",
-        choices=("smooth", "smooth_through_nodes"),
+        choices=("smooth", "smooth_through_nodes", "faceted"),
         default="smooth",
         help="the lips' contact surfaces: the blend of their Loop refinement (wface speech's), which lies up to "
-        "0.5 mm inside the faceted lips' nodes, or that blend offset to pass through the nodes (ArtiSynth's lips "
-        "collide as faceted surfaces through the nodes)",
+        "0.5 mm inside the faceted lips' nodes, that blend offset to pass through the nodes, or the faceted "
+        "surfaces themselves (as ArtiSynth's lips collide; Newton converges worse on them)",
     )
     p.add_argument(
         "--lip-points",
