@@ -14,7 +14,7 @@ the plane's normal n the deep surface's own normal turned back about the left-ri
 ``--tilt-deg`` (positive: moving up means moving back, a proclined incisor and gum; 0 the face's own
 near-upright bone; negative the opposite slope, a control).
 
-The penalty is a study, not part of the model: it is added to ``Simulator.energy_and_forces`` and to
+The penalty is a study, not part of the model: it is added to ``Simulator.energy`` and ``energy_and_forces`` and to
 the stiffness (``Tangent.matvec``, ``diagonal``, ``assemble_blocks``: a constant k n n^T block on each
 held node) for the duration of one ``wface track`` run, in-process and on the CPU. It does not
 depend on the activations or the jaw, so the tracker's Jacobians stay exact. Each variant runs
@@ -75,16 +75,25 @@ def sliding_upper_lip(stiffness_factor: float, theta_max: float, tilt_deg: float
 
     Sim, Tan = simulator_module.Simulator, stiffness_module.Tangent
     saved = {name: getattr(Tan, name) for name in ("matvec", "diagonal", "assemble_blocks")}
-    saved_eaf = Sim.energy_and_forces
+    saved_eaf, saved_energy = Sim.energy_and_forces, Sim.energy
+
+    def offsets(sim):
+        """(held nodes, normals, k, d): d = n . (y - Y) at the state the last call set."""
+        nodes, n, _, k = spring(sim.model)
+        y = sim._x.numpy().astype(np.float64)[nodes]
+        return nodes, n, k, np.einsum("ij,ij->i", n, y - sim.model.rest_positions_m[nodes])
 
     def energy_and_forces(self, x=None, activations=None):
         e, f = saved_eaf(self, x, activations)
-        nodes, n, _, k = spring(self.model)
-        y = self._x.numpy().astype(np.float64)[nodes]  # the state the call just set
-        d = np.einsum("ij,ij->i", n, y - self.model.rest_positions_m[nodes])
+        nodes, n, k, d = offsets(self)
         f = np.array(f, dtype=np.float64)
         f[nodes] -= k * d[:, None] * n
         return e + 0.5 * k * float(d @ d), f
+
+    def energy(self, x=None, activations=None):  # the line searches' energy
+        e = saved_energy(self, x, activations)
+        _, _, k, d = offsets(self)
+        return e + 0.5 * k * float(d @ d)
 
     def matvec(self, v):
         out = saved["matvec"](self, v)
@@ -114,18 +123,18 @@ def sliding_upper_lip(stiffness_factor: float, theta_max: float, tilt_deg: float
         values.assign(host)
         return values
 
-    Sim.energy_and_forces = energy_and_forces
+    Sim.energy_and_forces, Sim.energy = energy_and_forces, energy
     for name, fn in (("matvec", matvec), ("diagonal", diagonal), ("assemble_blocks", assemble_blocks)):
         setattr(Tan, name, fn)
     try:
         yield
     finally:
-        Sim.energy_and_forces = saved_eaf
+        Sim.energy_and_forces, Sim.energy = saved_eaf, saved_energy
         for name, fn in saved.items():
             setattr(Tan, name, fn)
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", required=True)
     p.add_argument("--take", default="Nose", help="AnimFace take (default Nose)")
@@ -134,7 +143,7 @@ def main() -> int:
     p.add_argument("--tilt-deg", type=float, nargs="+", default=[0.0, 25.0, -25.0])
     p.add_argument("--theta-max", type=float, default=0.5, help="half-width of the held band (radians, default 0.5)")
     p.add_argument("--stiffness-factor", type=float, default=1.0)
-    args = p.parse_args()
+    args = p.parse_args(argv)
     data = Path(os.environ.get("WFACE_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
     mocap = data / "animface" / f"{args.take}MoCap.c3d"
     if not mocap.exists():

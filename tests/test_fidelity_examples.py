@@ -1,5 +1,5 @@
 """examples/fidelity_animface.py, cheek_puff.py, lip_sneer.py and upper_face.py run headless with tiny options on the
-real AnimFace capture (skipped without ../shared/data)."""
+real AnimFace capture (skipped without ../shared/data); lip_slide.py's penalty is checked against finite differences."""
 
 from __future__ import annotations
 
@@ -197,3 +197,51 @@ def test_lip_analysis_on_the_jaw_take(tmp_path, monkeypatch):
     assert res["take"] == "Jaw"
     reach = res["model_reach"]["Mouth_Up"]["+forward"]["all_movers_on_mm"]
     assert res["capture_max_mm"]["Mouth_Up"]["forward"] > reach + 1.0 > 2.0
+
+
+def test_lip_slide_penalty_is_a_consistent_energy():
+    """examples/lip_slide.py's sliding-plane penalty, patched into the Simulator and its stiffness: its forces are
+    minus the energy's gradient (central differences, float64), its K v the forces' derivative, the assembled and
+    matrix-free stiffness agree, a displacement within the planes costs nothing, and leaving the block restores
+    the Simulator."""
+    from wface.faces.builtin import build_face
+    from wface.physics.penalty import default_contact_stiffness
+    from wface.physics.simulator import Simulator
+
+    slide = _example("lip_slide")
+    face = build_face(1500)
+    sim = Simulator(face, precision="float64")
+    rng = np.random.default_rng(3)
+    x = face.rest_positions_m + 2e-4 * rng.standard_normal(face.rest_positions_m.shape)
+    x[face.attached_nodes] = face.rest_positions_m[face.attached_nodes]
+    a = np.zeros(face.n_muscles)
+    v = rng.standard_normal(x.shape)
+    v[face.attached_nodes] = 0.0
+    e_plain, f_plain = sim.energy_and_forces(x, a)
+    diag_plain = sim.tangent(x, a, project=False).diagonal()
+    with slide.sliding_upper_lip(1.0, 0.5, 25.0):
+        nodes, n = slide.held_nodes(face, 0.5, np.radians(25.0))
+        assert nodes.size > 3 and np.allclose(np.linalg.norm(n, axis=1), 1.0)
+        e, f = sim.energy_and_forces(x, a)
+        h = 1e-7
+        slope = (sim.energy(x + h * v, a) - sim.energy(x - h * v, a)) / (2 * h)
+        assert slope == pytest.approx(-np.sum(f * v), rel=1e-6)
+        spring = f - f_plain  # the penalty's own forces: on the held nodes only, along their normals
+        assert e > e_plain and np.abs(np.delete(spring, nodes, axis=0)).max() == 0.0
+        assert np.allclose(np.cross(spring[nodes], n), 0.0, atol=1e-12)
+        tangent = sim.tangent(x, a, project=False)
+        kv = tangent.matvec(v)
+        df = (sim.forces(x + h * v, a) - sim.forces(x - h * v, a)) / (2 * h)
+        np.testing.assert_allclose(kv, -df, atol=1e-6 * np.abs(kv).max())
+        free = sim.pattern("free")
+        assembled = free.scatter(tangent.assemble(free) @ free.gather(v))
+        u = face.free_nodes  # K_UU v_U: the rows of the unknowns (v is zero on the attached nodes)
+        np.testing.assert_allclose(assembled[u], kv[u], atol=1e-9 * np.abs(kv).max())
+        k = default_contact_stiffness(face)  # stiffness factor 1
+        np.testing.assert_allclose(tangent.diagonal()[nodes] - diag_plain[nodes], k * n**2, rtol=1e-9)
+        along = face.rest_positions_m.copy()  # 1 mm along each held node's plane: no penalty energy
+        t = np.cross(n, [1.0, 0.0, 0.0])
+        along[nodes] += 1e-3 * t / np.linalg.norm(t, axis=1, keepdims=True)
+        e_along = sim.energy(along, a)
+    assert e_along == pytest.approx(sim.energy(along, a), rel=1e-12)  # the flesh's own energy there, unpatched
+    assert sim.energy(x, a) == pytest.approx(e_plain, rel=1e-12)  # leaving the block restored the Simulator
