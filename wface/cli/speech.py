@@ -38,7 +38,9 @@ beta = 0.055 s, gravity). The lip opening area is the mouth aperture in mm^2 see
 orthographic camera against its green plane at Badin x = 0.1 m (--area-view frontal: straight from
 the front); the Mouth_Up - Mouth_Down distance is reported too. --setup artisynth sets the face up
 as ArtiSynth's BadinFaceDemoLipOpening (its ten OOP rings, muscle stress 1e5 Pa, inner surface fixed,
-its flesh law and deviatoric fibre stress).
+its flesh law and deviatoric fibre stress). Writes report.json, lip_opening.csv and .png, the
+aperture pictures of the first and last frames, states.npz (every frame's node positions, markers
+and activations: np.load) and animation.usdc.
 
 examples:
   wface speech --model ../shared/data/artisynth-face --gesture closure --out closure_out
