@@ -22,7 +22,8 @@ MAX_AUTO_WORKERS = 4
 
 
 def pytest_xdist_auto_num_workers(config) -> int:
-    return max(1, min(MAX_AUTO_WORKERS, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1))
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(MAX_AUTO_WORKERS, cores))
 
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

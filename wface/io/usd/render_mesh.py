@@ -131,10 +131,15 @@ def reference_render_mesh(
     save_layer(stage.GetRootLayer(), stage_path)
 
 
+def _render_mesh_prim(root: str) -> str:
+    """The prim a take's stage references the render-mesh layer at: ``/<root>/RenderMesh``."""
+    return f"/{root}/RenderMesh"
+
+
 def render_mesh_materials_path(root: str = "Face") -> str:
     """Where a take's stage sees the render mesh's materials once ``add_render_mesh_reference`` has
-    referenced its layer as ``/<root>/RenderMesh`` (the layer keeps them under its root's Materials)."""
-    return f"/{root}/RenderMesh/Materials"
+    referenced its layer (the layer keeps them under its root's Materials)."""
+    return f"{_render_mesh_prim(root)}/Materials"
 
 
 def add_render_mesh_reference(
@@ -144,7 +149,7 @@ def add_render_mesh_reference(
     reference is relative to it), without saving it."""
     from pxr import Gf, UsdGeom
 
-    xf = UsdGeom.Xform.Define(stage, f"/{root}/RenderMesh")
+    xf = UsdGeom.Xform.Define(stage, _render_mesh_prim(root))
     rel = os.path.relpath(Path(layer_path).resolve(), Path(stage_path).resolve().parent)
     xf.GetPrim().GetReferences().AddReference(Path(rel).as_posix())
     m = np.asarray(source_to_model, dtype=np.float64)
