@@ -9,7 +9,8 @@ directory that holds another take, a missing optional package) becomes one line 
 ``wface CMD: error: ...``, with these exit codes:
 
     0    success          2    usage error (argparse: unknown option, bad value)
-    1    failure          3    a solve did not converge (``wface simulate``)
+    1    failure          3    a solve did not converge (``wface simulate``) or diverged (NaN,
+                              a dynamic step that ran away: ``FloatingPointError``)
     130  interrupted (Ctrl-C)        141  stdout closed early (``wface ... | head``): quiet
 
 ``--debug`` (anywhere on the command line) shows the traceback instead; warnings print as
@@ -26,10 +27,19 @@ import warnings
 
 from wface import __version__
 
-__all__ = ["EXIT_FAILURE", "EXIT_INTERRUPT", "EXIT_PIPE", "EXIT_USAGE", "build_parser", "main"]
+__all__ = [
+    "EXIT_FAILURE",
+    "EXIT_INTERRUPT",
+    "EXIT_NOT_CONVERGED",
+    "EXIT_PIPE",
+    "EXIT_USAGE",
+    "build_parser",
+    "main",
+]
 
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
+EXIT_NOT_CONVERGED = 3
 EXIT_INTERRUPT = 130
 EXIT_PIPE = 141
 
@@ -157,6 +167,11 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INTERRUPT
     except BrokenPipeError:
         return _quiet_pipe()
+    except FloatingPointError as exc:  # a solve that broke down (NaN, a diverged time step): not converged
+        if debug:
+            raise
+        print(f"wface {command}: error: {_message(exc)}", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
     except USER_ERRORS as exc:
         if debug:
             raise

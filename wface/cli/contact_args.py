@@ -1,5 +1,6 @@
 """The contact options every command shares (``--contact``, ``--obstacle``, ``--contact-stiffness``,
-``--contact-smoothing-mm``, ``--freeze-below``) and the ``Contact`` they describe.
+``--contact-smoothing-mm``, ``--contact-inside-at-rest``, ``--freeze-below``, ``--lip-surface``) and the
+``Contact`` they describe.
 
 The flags mean the same in every command; each command keeps the smoothing and freezing defaults
 its tests measured (and says them in its ``--help``).
@@ -10,7 +11,7 @@ from __future__ import annotations
 import argparse
 
 from wface.cli.validate import finite_float, non_negative_float, positive_float
-from wface.physics.contact import Contact
+from wface.physics.contact import SURFACES, Contact
 
 __all__ = ["add_contact_arguments", "contact_from_args"]
 
@@ -22,6 +23,7 @@ def add_contact_arguments(
     freeze_below: float | None = None,
     obstacles: bool = True,
     where: str = "every solve",
+    lip_surface: str = "faceted",
 ) -> None:
     """Add the contact options to a sub-command parser.
 
@@ -32,6 +34,7 @@ def add_contact_arguments(
             features (``wface.physics.frozen``); None: never.
         obstacles: also offer ``--obstacle``.
         where: what the contact applies to, for the help text.
+        lip_surface: default surface of the lip self-contact (one of ``wface.physics.contact.SURFACES``).
     """
     p.add_argument(
         "--contact",
@@ -81,6 +84,15 @@ def add_contact_arguments(
         f"(default {'never' if freeze_below is None else f'{freeze_below:g}'}; 1: always; negative: never; "
         "see wface.physics.frozen)",
     )
+    p.add_argument(
+        "--lip-surface",
+        choices=list(SURFACES),
+        default=lip_surface,
+        help=f"surface of the lip contact (default {lip_surface}): smooth (C2 blend of the lips' Loop refinement; "
+        "Newton converges quadratically near contact; the lips round up to 0.5 mm inside their nodes on Badin), "
+        "smooth_through_nodes (the same, offset at rest to pass through the lip nodes) or faceted (the collision "
+        "triangles as they are; --freeze-below works only there). docs/design.md, 'Smooth lip surfaces'",
+    )
 
 
 def contact_from_args(args: argparse.Namespace, model):
@@ -91,7 +103,12 @@ def contact_from_args(args: argparse.Namespace, model):
     specs = getattr(args, "obstacle", []) or []
     if not regions and not specs:
         return None
-
+    surface = getattr(args, "lip_surface", "faceted")
+    if surface != "faceted" and args.freeze_below >= 0:
+        raise ValueError(
+            f"--freeze-below freezes faceted lip features; the lip surface is {surface}: "
+            "use --freeze-below with --lip-surface faceted, or leave it out"
+        )
     return Contact.from_spec(
         model,
         regions,
@@ -100,4 +117,5 @@ def contact_from_args(args: argparse.Namespace, model):
         smoothing_m=args.contact_smoothing_mm * 1e-3,
         freeze_below=None if args.freeze_below < 0 else args.freeze_below,
         ignore_inside_at_rest=getattr(args, "contact_inside_at_rest", "ignore") == "ignore",
+        surface=surface,
     )

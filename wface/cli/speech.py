@@ -20,7 +20,6 @@ from wface.faces.artisynth import import_artisynth
 from wface.files import write_json
 from wface.mesh.surface import boundary_faces
 from wface.model import load_model
-from wface.physics.contact import Contact
 from wface.speech.aperture import ApertureView
 from wface.speech.artisynth_demo import lip_opening_demo_model
 from wface.speech.dynamic import GestureDynamics
@@ -89,15 +88,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="whole",
         help="what the OOMl exciter drives: the whole OOM (default, approximation) or nothing",
     )
-    add_contact_arguments(p, smoothing_mm=0.1, freeze_below=None, obstacles=False, where="every frame's solve")
-    p.add_argument(
-        "--lip-surface",
-        choices=["smooth", "smooth_through_nodes", "faceted"],
-        default="smooth",
-        help="lip contact against smooth lip surfaces (default: C2, Newton converges quadratically; they round "
-        "the lips up to 0.5 mm inside their nodes on Badin), the same offset to pass through the lip nodes "
-        "(where the faceted surfaces are, still C2), or the faceted collision surfaces (then --freeze-below 1 "
-        "converges best)",
+    add_contact_arguments(
+        p, smoothing_mm=0.1, freeze_below=None, obstacles=False, where="every frame's solve", lip_surface="smooth"
     )
     p.add_argument(
         "--setup",
@@ -191,24 +183,6 @@ def _data_dir(args) -> Path:
     )
 
 
-def _speech_contact(args, model):
-    """The lip contact of the options: ``contact_from_args``, on the surface ``--lip-surface`` chose."""
-    contact = contact_from_args(args, model)
-    if contact is None or args.lip_surface == "faceted":
-        return contact
-    if args.freeze_below >= 0:
-        raise ValueError("--freeze-below freezes faceted lip features: use it with --lip-surface faceted")
-    return Contact.from_spec(
-        model,
-        args.contact,
-        (),
-        stiffness_n_per_m=args.contact_stiffness,
-        smoothing_m=args.contact_smoothing_mm * 1e-3,
-        surface=args.lip_surface,
-        ignore_inside_at_rest=args.contact_inside_at_rest == "ignore",
-    )
-
-
 def _check_model(args, model, gesture, mapping) -> None:
     """Refuse a model the gesture cannot be played on, naming what it lacks."""
     if not any(mapping.muscles.values()):
@@ -286,7 +260,7 @@ def run_speech(args: argparse.Namespace) -> int:
     _check_model(args, model, gesture, mapping)
     out.mkdir(parents=True, exist_ok=True)
     t_load = time.perf_counter() - t_start
-    contact = _speech_contact(args, model)
+    contact = contact_from_args(args, model)
     dynamics = _dynamics(args)
     view = ApertureView.for_model(model, frontal=args.area_view == "frontal")
     result = simulate_gesture(
