@@ -102,3 +102,19 @@ def test_lip_contact_defaults_to_smooth_lips_and_converges(model_path, tmp_path,
     assert runs["faceted"][0]["residual_rel"] < 1e-3
     # the smooth blend rounds the faceted lips by a fraction of a millimetre: the lips end up that close
     assert np.abs(runs["smooth"][1] - runs["faceted"][1]).max() * 1e3 < 0.5
+
+
+def test_the_help_examples_obstacle_presses_the_cheek(model_path, tmp_path):
+    """The --help example's ball reaches the built-in face (it once sat 5 mm in front of the cheek)."""
+    import re
+
+    from wface.cli.simulate import _EPILOG
+
+    spec = re.search(r"--obstacle (sphere:\S+)", _EPILOG).group(1)
+    out = tmp_path / "poke"
+    assert (
+        main(["simulate", "--model", str(model_path), "--obstacle", spec, "--contact", "teeth", "--out", str(out)]) == 0
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["contact_active_nodes"] > 0 and summary["contact_force_n"] > 1.0
+    assert 1.0 < summary["max_displacement_mm"] < 8.0  # a press of about 3 mm

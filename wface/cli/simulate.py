@@ -38,7 +38,7 @@ examples:
   wface simulate --model face.npz --jaw-open 12 --activation orbicularis_oris_lower=0.3 --out open --json
   wface simulate --model face.npz --activation orbicularis_oris_upper=1 --activation mentalis_l=1 \
       --activation mentalis_r=1 --contact lips,teeth --out pressed
-  wface simulate --model face.npz --obstacle sphere:0.04,-0.04,0.105,0.015 --contact teeth --out poke
+  wface simulate --model face.npz --obstacle sphere:0.043,-0.044,0.097,0.015 --contact teeth --out poke  # cheek, 3 mm
 """
 
 
