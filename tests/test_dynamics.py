@@ -507,3 +507,19 @@ def test_a_diverged_run_exits_3_with_one_line(tmp_path, capsys, monkeypatch):
         err[-1] == "wface resim: error: the midpoint step from t = 0.05 s (dt_s = 0.002) diverged: node 7 moved 300 mm"
     )
     assert not (tmp_path / "o" / "report.json").exists()
+
+
+def test_a_take_of_every_third_frame_is_simulated_over_its_true_intervals(jaw_box):
+    """A take that kept capture frames 0, 3, 6, ... at 30 fps is the same motion as the consecutive take
+    at 10 fps: resimulate steps 3 / 30 s between its frames, so the two replays agree to round-off."""
+    from dataclasses import replace
+
+    from wface.takes.dynamic import resimulate
+
+    sim = Simulator(jaw_box)
+    consecutive = _ramp_take(jaw_box, frames=4, fps=10.0)
+    strided = replace(consecutive, fps=30.0, frames=np.arange(4) * 3)
+    np.testing.assert_allclose(strided.frame_intervals_s, 0.1)
+    runs = [resimulate(jaw_box, t, scheme="be", substeps=2, sim=sim) for t in (consecutive, strided)]
+    assert runs[0].dt_s == pytest.approx(runs[1].dt_s) == pytest.approx(0.05)
+    np.testing.assert_allclose(runs[1].positions_m, runs[0].positions_m, rtol=0, atol=1e-12)

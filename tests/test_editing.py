@@ -328,3 +328,22 @@ def test_unedited_take_resimulates_to_the_rig_equilibria(model, smile, surprise,
     ref = np.stack([np.load(tmp_path / "frames" / f"frame_{f:06d}.npz")["x_m"] for f in range(3)])
     # 1 um: both are 1e-6-residual solves, one warm- and one cold-started (measured 6e-8 m)
     np.testing.assert_allclose(res.x_m, ref, rtol=0, atol=1e-6)
+
+
+def test_retime_of_a_strided_take_keeps_its_true_timing(model, smile, surprise):
+    """A take of every 2nd capture frame at 30 fps (frames 10, 12, ...) is the same motion as its poses
+    at 15 fps: retimed to 30 fps it gains one interpolated frame between each two, and at 15 fps it is
+    the poses themselves. An edit in place (layer) keeps its frame numbers."""
+    take = _take(model, smile, surprise, n=6)
+    strided = Take.from_poses(
+        take.poses, 30.0, list(model.muscle_names), model.jaw_joint, source="test", frames=10 + 2 * np.arange(6)
+    )
+    at_15 = retime(strided, fps_out=15.0)
+    assert len(at_15) == 6 and all(p is q for p, q in zip(at_15.poses, take.poses, strict=True))
+    at_30 = retime(strided)
+    assert len(at_30) == 11 and at_30.fps == 30.0
+    mid = interpolate(take.poses[2], take.poses[3], 0.5, joint=model.jaw_joint)
+    np.testing.assert_allclose(at_30.poses[5].controls(model), mid.controls(model), atol=_ROUND_OFF)
+    assert layer(strided, smile, 0.5, joint=model.jaw_joint).frames.tolist() == strided.frames.tolist()
+    with pytest.raises(ValueError, match="frame numbers must increase"):
+        Take(activations=take.activations, fps=30.0, frames=np.array([0, 2, 2, 3, 4, 5]))

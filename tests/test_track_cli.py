@@ -160,3 +160,58 @@ def test_per_marker_rms_skips_missing_samples_and_never_seen_markers():
         rms = _per_marker_rms_mm(err, ["a", "b", "c"])
     assert rms == {"a": pytest.approx(np.sqrt(5.0)), "b": None, "c": pytest.approx(2.0)}
     json.dumps(rms, allow_nan=False)
+
+
+def test_every_sth_frame_keeps_the_capture_numbers_and_rate(tmp_path, capsys):
+    """`--frames 1:7:3` tracks capture frames 1 and 4 (a Python slice):
+    controls.npz, the frame files and the USD time codes carry the capture's numbers at its rate, so the
+    take plays at its true speed; the same frames tracked one by one give the same activations."""
+    from pxr import Usd
+
+    from wface.faces.builtin import build_face
+    from wface.io.mocap import MocapTake, write_mocap
+    from wface.tracking.rig import FaceRig
+    from wface.tracking.sequence import embed_model_markers
+    from wface.tracking.synthetic import synthesize_performance
+
+    model = build_face(2000)
+    perf = synthesize_performance(FaceRig(model), embed_model_markers(model), frames=6, seed=6)
+    rest = embed_model_markers(model).positions(model.rest_positions_m)[None]
+    markers = np.concatenate([rest, perf.clean_markers_m])  # 7 frames, frame 0 neutral
+    write_mocap(MocapTake(markers, list(model.marker_names), 60.0), tmp_path / "t.csv")
+    base = ["track", "--mocap", str(tmp_path / "t.csv"), "--tets", "2000", "--neutral-frame", "0", "--no-movie"]
+    out = tmp_path / "strided"
+    assert main([*base, "--out", str(out), "--frames", "1:7:3"]) == 0
+    with np.load(out / "controls.npz") as c:
+        assert c["frames"].tolist() == [1, 4] and float(c["fps"]) == 60.0
+        strided = c["activations"]
+    assert sorted(p.name for p in (out / "frames").glob("*.npz")) == ["frame_000001.npz", "frame_000004.npz"]
+    stage = Usd.Stage.Open(str(out / "animation.usdc"))
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode(), stage.GetTimeCodesPerSecond()) == (1.0, 4.0, 60.0)
+    report = json.loads((out / "report.json").read_text())
+    assert report["frames"] == 2
+    assert json.loads((out / "provenance.json").read_text())["source"]["frames"] == "1:7:3"
+    # the same capture frames, consecutive in their own file: the same fit
+    write_mocap(MocapTake(markers[[0, 1, 4]], list(model.marker_names), 20.0), tmp_path / "picked.csv")
+    picked = tmp_path / "picked"
+    args = ["track", "--mocap", str(tmp_path / "picked.csv"), "--tets", "2000", "--neutral-frame", "0"]
+    assert main([*args, "--no-pictures", "--out", str(picked), "--frames", "1:3"]) == 0
+    np.testing.assert_allclose(strided, np.load(picked / "controls.npz")["activations"], atol=1e-6)
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize("text, parsed", [("0:300", (0, 300, 1)), ("0:300:5", (0, 300, 5)), ("100::2", (100, None, 2))])
+def test_frame_ranges_take_a_step(text, parsed):
+    from wface.cli.validate import frame_range
+
+    assert frame_range(text) == parsed
+
+
+@pytest.mark.parametrize("text", ["0:300:0", "0:300:-2", "0:300:x", "1:2:3:4", "5:3"])
+def test_bad_frame_ranges_are_usage_errors(text):
+    import argparse
+
+    from wface.cli.validate import frame_range
+
+    with pytest.raises(argparse.ArgumentTypeError):
+        frame_range(text)

@@ -67,6 +67,7 @@ directory holding another take is refused unless --overwrite.
 examples:
   wface track --mocap take.c3d --out run1                      # on the built-in face (5000 tets)
   wface track --model face.npz --mocap take.c3d --out run1 --frames 0:300
+  wface track --mocap take.c3d --out preview --frames 0:3000:10   # every 10th frame, at its true time
   wface track --mocap take.trc --out run1 --workers 4 --resume
   wface track --mocap nexus_export.csv --out run1 --frames 100:400 --neutral-frame 0   # Vicon / Motive CSV
   wface track --mocap take.c3d --out run1 --no-pictures          # numbers and animation.usdc only
@@ -183,7 +184,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--tets", type=positive_int, default=5000, help="size of the built-in face when --model is not given"
     )
     t.add_argument("--mocap", required=True, help="marker file: .c3d, .trc or .csv")
-    t.add_argument("--frames", type=frame_range, help="frame range A:B (Python slice of the file's frames)")
+    t.add_argument(
+        "--frames",
+        type=frame_range,
+        help="frame range A:B, or A:B:S for every S-th frame (a Python slice of the file's frames; the outputs keep "
+        "the capture's frame numbers and rate, so a strided take plays at its true speed)",
+    )
     t.add_argument(
         "--neutral-frame",
         type=non_negative_int,
@@ -211,7 +217,7 @@ def _rig_kwargs(args, model) -> dict:
     return rig_kwargs
 
 
-def _claim(args, model, markers, targets, source: dict, rig_kwargs: dict, first_frame: int = 0) -> dict:
+def _claim(args, model, markers, targets, source: dict, rig_kwargs: dict, frames: range | None = None) -> dict:
     """Provenance of this run; claims --out (refusing another take's directory) and says what --resume reuses."""
     source = {**source, "holdout": getattr(args, "holdout", None)}  # hidden markers change the fit
     run = tracking_provenance(
@@ -222,7 +228,7 @@ def _claim(args, model, markers, targets, source: dict, rig_kwargs: dict, first_
         print(note)
     if args.resume:
         two_pass = args.prior == "auto" and len(targets) >= 2  # as wface.tracking.sequence.track_sequence
-        frames = range(first_frame, first_frame + len(targets))
+        frames = frames if frames is not None else range(len(targets))
         print(resume_plan(args.out, frames, targets, run, two_pass=two_pass).summary())
     return run
 
@@ -236,7 +242,7 @@ def _run(
     fps,
     rig_kwargs,
     truth=None,
-    first_frame=0,
+    frames: range | None = None,
     run=None,
     info=None,
     capture_scale=None,
@@ -267,7 +273,8 @@ def _run(
             out_dir=out,
             resume=args.resume,
             progress=True,
-            first_frame=first_frame,
+            first_frame=frames.start if frames is not None else 0,
+            frame_step=frames.step if frames is not None else 1,
             provenance=run,
         )
         wall = time.perf_counter() - t0
@@ -406,18 +413,19 @@ def run_track(args: argparse.Namespace) -> int:
     if neutral is not None and not 0 <= neutral < take.n_frames:
         raise ValueError(f"--neutral-frame {neutral} is outside {args.mocap}'s {take.n_frames} frames")
     full = take
-    a, b = args.frames or (None, None)
-    first = range(take.n_frames)[slice(a, b)].start if take.n_frames else 0
-    if args.frames:
-        take = take.frames(a, b)
-    if take.n_frames == 0:
+    a, b, step = args.frames or (None, None, 1)
+    kept = range(take.n_frames)[slice(a, b, step)]  # the capture's frame indices tracked
+    if len(kept) == 0:
         raise ValueError(f"{args.mocap}: no frames in the range {args.frames}")
+    first = kept.start
+    if args.frames:
+        take = take.frames(a, b, step)
     neutral_frame = first if neutral is None else neutral
     ref = full.positions_m[neutral_frame]
     check = check_capture(full.positions_m, full.marker_names, rate_hz=full.rate_hz, reference_positions_m=ref)
     if check.removed:
         warnings.warn(check.summary(), stacklevel=1)
-    clean = check.positions_m[first : first + take.n_frames]
+    clean = check.positions_m[first : kept.stop : step]
     reference = check.positions_m[neutral] if neutral is not None else None
     cap = prepare_capture(model, clean, take.marker_names, reference_positions_m=reference)
     print(
@@ -427,11 +435,11 @@ def run_track(args: argparse.Namespace) -> int:
     source = {
         "file": Path(args.mocap).name,
         "sha256": file_sha256(args.mocap),
-        "frames": f"{first}:{first + take.n_frames}",
+        "frames": f"{first}:{kept.stop}" + (f":{step}" if step > 1 else ""),
         "neutral_frame": neutral_frame,
     }
     rig_kwargs = _rig_kwargs(args, model)  # one Contact for the provenance and the tracking
-    run = _claim(args, model, cap.markers, cap.targets_m, source, rig_kwargs, first_frame=first)
+    run = _claim(args, model, cap.markers, cap.targets_m, source, rig_kwargs, frames=kept)
     info = {"capture_check": check.report()}
     return _run(
         args,
@@ -439,9 +447,9 @@ def run_track(args: argparse.Namespace) -> int:
         cap.targets_m,
         take.marker_names,
         cap.markers,
-        take.rate_hz,
+        full.rate_hz,
         rig_kwargs,
-        first_frame=first,
+        frames=kept,
         run=run,
         info=info,
         capture_scale=cap.scale,

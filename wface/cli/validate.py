@@ -101,18 +101,24 @@ def non_negative_int(text: str) -> int:
     return v
 
 
-def frame_range(text: str) -> tuple[int | None, int | None]:
-    """``A:B`` (either side may be empty; Python slice of the file's frames, A < B when both given)."""
+def frame_range(text: str) -> tuple[int | None, int | None, int]:
+    """``A:B`` or ``A:B:S`` (either end may be empty; a Python slice of the file's frames, A < B when both
+    given; S >= 1 keeps every S-th frame)."""
     parts = str(text).split(":")
-    if len(parts) != 2:
-        raise argparse.ArgumentTypeError(f"expected a frame range A:B (e.g. 0:300 or 100:), got {text!r}")
+    if len(parts) not in (2, 3):
+        raise argparse.ArgumentTypeError(
+            f"expected a frame range A:B or A:B:S (e.g. 0:300, 100: or 0:300:5), got {text!r}"
+        )
     try:
-        a, b = (int(p) if p.strip() else None for p in parts)
+        a, b = (int(p) if p.strip() else None for p in parts[:2])
+        step = int(parts[2]) if len(parts) == 3 and parts[2].strip() else 1
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a frame range A:B of whole numbers, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected a frame range A:B[:S] of whole numbers, got {text!r}") from None
     if a is not None and b is not None and (a >= 0) == (b >= 0) and a >= b:
         raise argparse.ArgumentTypeError(f"frame range {text!r} is empty (A must be below B)")
-    return a, b
+    if step < 1:
+        raise argparse.ArgumentTypeError(f"frame range {text!r}: the step S must be >= 1")
+    return a, b, step
 
 
 def angle_deg(lo: float, hi: float):

@@ -58,6 +58,8 @@ class ResimResult:
     Attributes:
         positions_m: (T, n, 3) world node positions.
         fps, scheme, substeps, damping, frame: the settings.
+        frame_interval_s: seconds between stored frames (S / fps for a take of every S-th capture
+            frame; None: 1 / fps).
         kinetic_energy_j: (T,) kinetic energy of the free nodes (simulation frame).
         elastic_energy_j: (T,) elastic energy.
         newton_iterations: (T,) Newton iterations over the frame's substeps (frame 0: the
@@ -84,10 +86,13 @@ class ResimResult:
     seconds: np.ndarray
     steps: int = 0
     info: dict = field(default_factory=dict)
+    frame_interval_s: float | None = None
 
     @property
     def dt_s(self) -> float:
-        return 1.0 / (self.fps * self.substeps)
+        """The time step: the (shortest) interval between stored frames over the substeps."""
+        interval = self.frame_interval_s if self.frame_interval_s is not None else 1.0 / self.fps
+        return interval / self.substeps
 
     def summary(self) -> dict:
         """JSON-ready per-frame and aggregate statistics."""
@@ -262,8 +267,9 @@ def _later_frames(model, take, dyn, state, acts, xc, substeps, frame, on_step, p
                 def path(s, b0=b0, b1=b1):
                     return attached_positions(model, interpolate_bones(b0, b1, s), frame=frame)
 
+            duration = float(take.frame_intervals_s[k - 1])  # 1 / fps, or S / fps for every S-th capture frame
             state, st = dyn.advance(
-                state, 1.0 / take.fps, substeps, acts[k], path, activation_ramp=take.activation_ramp, on_step=on_step
+                state, duration, substeps, acts[k], path, activation_ramp=take.activation_ramp, on_step=on_step
             )
             if not np.all(np.isfinite(state.x_m)):
                 raise FloatingPointError(f"the dynamic solve produced NaN/inf at frame {k}")
@@ -292,6 +298,7 @@ def _resim_result(take, positions, stats, dyn, sim, *, substeps, frame, stiffnes
         inverted_elements=np.array([s.inverted_elements for s in stats]),
         seconds=np.array([s.seconds for s in stats]),
         steps=int(sum(s.steps for s in stats)),
+        frame_interval_s=float(take.frame_intervals_s.min()) if take.n_frames > 1 else None,
         info={
             "solver": dyn.engine,
             "device": sim.device,

@@ -207,8 +207,9 @@ def layer(
 def retime(take: Take, *, speed: float = 1.0, fps_out: float | None = None, joint: JawJoint | None = None) -> Take:
     """Resample a take in time: play it ``speed`` times faster, sampled at ``fps_out`` (default: its fps).
 
-    Output frame k shows source time k * speed / fps_out, i.e. source frame index
-    s_k = k * speed * fps / fps_out, for every s_k within the take (s_k <= F - 1); between frames
+    Output frame k shows source time k * speed / fps_out after the first frame (source frame i lies at
+    (frames[i] - frames[0]) / fps: a take of every S-th capture frame keeps its true timing), i.e. source
+    frame index s_k = k * speed * fps / fps_out for consecutive frames, for every s_k within the take; between frames
     the poses are interpolated with ``interpolate`` (same rules as every edit). Speed 1 at the same
     rate returns the frames themselves; speed 2 keeps every other frame (ceil(F / 2) frames).
     """
@@ -219,11 +220,12 @@ def retime(take: Take, *, speed: float = 1.0, fps_out: float | None = None, join
     if fps_out <= 0:
         raise ValueError(f"fps_out must be > 0, got {fps_out}")
     n_in = len(take.poses)
-    ratio = speed * take.fps / fps_out  # source frames per output frame
-    n_out = int(math.floor((n_in - 1) / ratio + _FRAME_TOL)) + 1
+    times = (take.frames - take.frames[0]) / take.fps  # source frame i's time (strided takes: gaps of S / fps)
+    index = np.arange(n_in, dtype=np.float64)
+    n_out = int(math.floor(times[-1] * fps_out / speed + _FRAME_TOL)) + 1
     poses = []
     for k in range(n_out):
-        s = min(k * ratio, n_in - 1.0)
+        s = min(float(np.interp(k * speed / fps_out, times, index)), n_in - 1.0)
         i = int(math.floor(s + _FRAME_TOL))
         frac = s - i
         if abs(frac) <= _FRAME_TOL or i >= n_in - 1:

@@ -112,6 +112,7 @@ def simulate_poses(
         joint,
         source=take.source,
         info=take.info,
+        frames=take.frames,
     )
     return EditResult(out_take, np.stack(ys), np.stack(xs), stats)
 

@@ -34,7 +34,7 @@ from wface.controls import IDENTITY_BONES
 from wface.model import JawJoint
 from wface.takes.pose import Pose, pose_from_bones
 
-__all__ = ["ACTIVATION_RAMPS", "Take"]
+__all__ = ["ACTIVATION_RAMPS", "Take", "frame_step"]
 
 ACTIVATION_RAMPS = ("linear", "step")
 
@@ -106,6 +106,8 @@ class Take:
         self.frames = np.arange(T) if self.frames is None else np.asarray(self.frames, dtype=np.int64)
         if self.frames.shape != (T,):
             raise ValueError(f"frames must have shape ({T},), got {self.frames.shape}")
+        if np.any(np.diff(self.frames) <= 0):
+            raise ValueError(f"frame numbers must increase, got {self.frames[:8].tolist()}...")
         if self.muscle_names is not None:
             self.muscle_names = [str(n) for n in self.muscle_names]
             if len(self.muscle_names) != M:
@@ -123,6 +125,12 @@ class Take:
                 raise ValueError(f"take {name} contain NaN or inf")
         if self._poses is not None and len(self._poses) != T:
             raise ValueError(f"{len(self._poses)} poses for {T} frames")
+
+    @property
+    def frame_intervals_s(self) -> np.ndarray:
+        """(T - 1,) seconds from each frame to the next: the frame numbers' gaps over fps (1 / fps for
+        consecutive frames, S / fps for a take that kept every S-th capture frame)."""
+        return np.diff(self.frames) / self.fps
 
     # ------------------------------------------------------------------ construction from poses
     @classmethod
@@ -164,8 +172,9 @@ class Take:
     def with_poses(
         self, poses: list[Pose], *, fps: float | None = None, source: str | None = None, info: dict | None = None
     ) -> Take:
-        """A take of other poses with this take's muscles, joint and notes (``info`` replaces them);
-        frames are renumbered from 0."""
+        """A take of other poses with this take's muscles, joint and notes (``info`` replaces them). As
+        many poses at the same rate keep this take's frame numbers (an edit in place: the capture's time
+        codes stay); otherwise frames are renumbered from 0."""
         if self.joint is None or self.muscle_names is None:
             raise ValueError("with_poses needs a take with muscle_names and joint (e.g. from Take.from_poses)")
         return Take.from_poses(
@@ -175,6 +184,7 @@ class Take:
             self.joint,
             source=source or self.source,
             info=self.info if info is None else info,
+            frames=self.frames if fps is None and len(poses) == self.n_frames else None,
         )
 
     # ------------------------------------------------------------------ views
@@ -238,3 +248,10 @@ class Take:
             joint=self.joint,
             _poses=None if self._poses is None else [self._poses[i] for i in rows],
         )
+
+
+def frame_step(frames) -> int:
+    """Capture frames from one stored frame to the next: 1 for consecutive frames (or one frame), S for a
+    take that kept every S-th frame (``wface track --frames A:B:S``); the smallest gap where gaps differ."""
+    gaps = np.diff(np.asarray(frames, dtype=np.int64))
+    return int(gaps.min()) if gaps.size else 1

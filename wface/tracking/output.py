@@ -16,6 +16,7 @@ from tqdm.auto import tqdm
 from wface.controls import bone_affines
 from wface.model import FaceModel
 from wface.takes.store import USD, take_from_records, write_controls, write_report
+from wface.takes.take import frame_step
 from wface.takes.usd import render_mesh_layer_path, write_take_usd
 from wface.tracking.holdout import plot_holdout
 from wface.viz.figures import write_take_figures
@@ -131,7 +132,9 @@ def write_tracking_outputs(
         if pictures:
             images = _figures(out, model, records, X, simulated, targets_m, fps, truth, movie, bar)
             if report.get("holdout_rms_mm"):
-                images["held-out markers"] = plot_holdout(out / "holdout.png", report, fps=fps)
+                images["held-out markers"] = plot_holdout(
+                    out / "holdout.png", report, fps=fps / frame_step([r.frame for r in records])
+                )
             written.extend(Path(p) for p in images.values())
         bar.set_postfix_str("report.html")
         files = describe_outputs([*written, out / "report.html"])
@@ -146,11 +149,12 @@ def _figures(out, model, records, X, simulated, targets_m, fps, truth, movie: bo
     """Pictures and plots, then the movie (``wface.viz.figures``), one progress step each."""
     M = model.n_muscles
     C = np.array([r.controls for r in records])
+    step = frame_step([r.frame for r in records])
     cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(c[M:]) for c in C), strict=True))
     common = dict(
         model=model,
         node_positions_m=X,
-        fps=fps,
+        fps=fps / step,  # rows per second
         activations=C[:, :M],
         captured_markers_m=targets_m,
         simulated_markers_m=simulated,
@@ -159,6 +163,7 @@ def _figures(out, model, records, X, simulated, targets_m, fps, truth, movie: bo
         truth_activations=None if truth is None else truth.activations,
         truth_jaw_angle_deg=None if truth is None else truth.jaw_opening_deg,
         first_frame=int(records[0].frame) if records else 0,
+        frame_step=step,
     )
     bar.set_postfix_str("pictures and plots")
     images = write_take_figures(out, **common, movie=False)

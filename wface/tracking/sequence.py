@@ -303,8 +303,9 @@ def _track_chunk(
     if out_dir is not None and reuse:
         done = verified_frames(out_dir, frames, targets[n_warm:], run, folder=folder)[0]
     if n_warm and int(frames[0]) not in done:
+        step = int(frames[1]) - int(frames[0]) if len(frames) > 1 else 1
         for j in range(n_warm):
-            tracker.step(int(frames[0]) - n_warm + j, targets[j])
+            tracker.step(int(frames[0]) - (n_warm - j) * step, targets[j])
     out = []
     desc = "tracking" if folder == FRAMES_DIR else f"tracking (pass 1 of up to {1 + max(1, int(options.prior_passes))})"
     for j, f in enumerate(tqdm(frames, desc=desc, disable=not progress, unit="frame")):
@@ -425,6 +426,7 @@ def track_sequence(
     resume: bool = False,
     progress: bool = False,
     first_frame: int = 0,
+    frame_step: int = 1,
     provenance: dict | None = None,
     warmup_frames: int = DEFAULT_WARMUP_FRAMES,
     min_markers: int | None = None,
@@ -443,6 +445,8 @@ def track_sequence(
         out_dir: write each frame under ``out_dir/frames`` as soon as it is done.
         resume: reuse the frames already written under ``out_dir`` whose fingerprints match.
         first_frame: number of the first frame (frame files are named by it).
+        frame_step: the capture frames between two of ``targets_m`` (``wface track --frames A:B:S``): frame
+            k is numbered ``first_frame + k * frame_step``.
         provenance: the run's provenance (``tracking_provenance``; default: one made here, with the
             marker data's hash as its source).
         warmup_frames: frames each chunk after the first tracks before its own and discards.
@@ -463,6 +467,8 @@ def track_sequence(
     run = provenance
     if out_dir is not None and run is None:
         src = {"targets_sha256": array_sha256(targets)[:16], "first_frame": int(first_frame)}
+        if int(frame_step) != 1:
+            src["frame_step"] = int(frame_step)
         run = tracking_provenance(model, markers, options=options, rig_kwargs=rig_kwargs, source=src)
     min_markers = min_usable_markers(targets.shape[1]) if min_markers is None else int(min_markers)
     usable = np.isfinite(targets).all(axis=2).sum(axis=1)
@@ -472,7 +478,9 @@ def track_sequence(
             f"of {targets.shape[1]} markers present): check the capture's marker names and units"
         )
     F = targets.shape[0]
-    frames = np.arange(first_frame, first_frame + F)
+    if int(frame_step) < 1:
+        raise ValueError(f"frame_step must be >= 1, got {frame_step}")
+    frames = first_frame + int(frame_step) * np.arange(F)
     size = F if not chunk_size else max(1, int(chunk_size))
     chunks = [(s, min(F, s + size)) for s in range(0, F, size)]
     two_pass = options.prior == "auto" and F >= 2

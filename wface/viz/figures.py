@@ -55,6 +55,7 @@ def write_take_figures(
     panel_size: tuple[int, int] = (720, 800),
     stills: bool = True,
     first_frame: int = 0,
+    frame_step: int = 1,
     progress: bool = False,
 ) -> dict[str, Path]:
     """Write stills, plots and a movie of a take into ``out_dir``.
@@ -63,7 +64,7 @@ def write_take_figures(
         out_dir: directory (created).
         model: the ``FaceModel``.
         node_positions_m: (F, n, 3) node positions per frame.
-        fps: frames per second.
+        fps: rows per second (a take keeping every S-th capture frame: the capture rate / S).
         activations: (F, M) activations (muscle colours, activation plot).
         captured_markers_m / simulated_markers_m: (F, k, 3) markers (red / green; error plot).
         cranium_affines / jaw_affines: (F, 3, 4) bone motion (jaw opening plot, bones in pictures).
@@ -77,6 +78,8 @@ def write_take_figures(
         stills: write the pictures and plots (False with ``movie``: the movie alone).
         first_frame: the number of the first frame (captions and the movie's frame counter show
             the capture's frame numbers).
+        frame_step: capture frames from one row to the next (row f is capture frame
+            ``first_frame + f * frame_step``).
         progress: show a progress bar over the movie's frames.
 
     Returns:
@@ -102,10 +105,11 @@ def write_take_figures(
     )
     jaw_rel = _jaw_relative(jaw_affines, cranium_affines, jaw_frame)
     markers = (captured_markers_m, simulated_markers_m)
+    numbers = int(first_frame) + int(frame_step) * np.arange(F)  # the capture's frame number of each row
     images: dict[str, Path] = {}
     if stills:
         images.update(
-            _write_pictures(out, model, x, fps, activations, markers, cranium_affines, jaw_rel, panel_size, first_frame)
+            _write_pictures(out, model, x, fps, activations, markers, cranium_affines, jaw_rel, panel_size, numbers)
         )
     images.update(
         {}
@@ -137,7 +141,7 @@ def write_take_figures(
             jaw_frame,
             movie_max_frames,
             panel_size,
-            first_frame,
+            numbers,
             progress,
         )
     return images
@@ -165,7 +169,7 @@ def _at(arr, f):
     return None if arr is None else np.asarray(arr)[f]
 
 
-def _write_pictures(out: Path, model, x, fps, activations, markers, cranium_affines, jaw_rel, panel_size, first_frame):
+def _write_pictures(out: Path, model, x, fps, activations, markers, cranium_affines, jaw_rel, panel_size, numbers):
     """Stills of the most expressive frame (expression, muscles) and of the first frame beside it."""
     captured_markers_m, simulated_markers_m = markers
 
@@ -183,7 +187,7 @@ def _write_pictures(out: Path, model, x, fps, activations, markers, cranium_affi
     images: dict[str, Path] = {}
     f = peak_frame(x, model.rest_positions_m, activations)
     t = f / fps
-    n = first_frame + f  # the capture's frame number
+    n = int(numbers[f])  # the capture's frame number
     images[f"Expression at frame {n} ({t:.2f} s into the take): captured markers red, tracked green"] = (
         render.render_expression(
             model,
@@ -203,8 +207,8 @@ def _write_pictures(out: Path, model, x, fps, activations, markers, cranium_affi
     caption = "First frame and most expressive frame" if g == f else "First frame (the most expressive) and last frame"
     images[caption] = render.render_before_after(
         model,
-        panel(0, f"frame {first_frame}"),
-        panel(g, f"frame {first_frame + g}"),
+        panel(0, f"frame {int(numbers[0])}"),
+        panel(g, f"frame {int(numbers[g])}"),
         out / "before_after.png",
         panel_size=panel_size,
     )
@@ -260,7 +264,7 @@ def _write_movie(
     jaw_frame,
     movie_max_frames,
     panel_size,
-    first_frame: int = 0,
+    numbers: np.ndarray,
     progress: bool = False,
 ) -> Path:
     """``take.mp4``: every frame up to ``movie_max_frames``, else evenly subsampled at a reduced rate."""
@@ -284,6 +288,6 @@ def _write_movie(
         jaw_affines=sub(jaw_affines),
         jaw_frame=jaw_frame,
         window_size=panel_size,
-        frame_numbers=first_frame + sel,
+        frame_numbers=numbers[sel],
         progress=progress,
     )
