@@ -280,7 +280,9 @@ def test_cli_blend_then_chained_edits_write_valid_usd(model_path, tmp_path, caps
     with np.load(blend_dir / "controls.npz") as d:
         np.testing.assert_allclose(usd["activations"], d["activations"], atol=1e-7)  # USD floats
     rep = json.loads((blend_dir / "report.json").read_text())
-    assert rep["frames"] == 4 and rep["converged"] and rep["activation_max"] <= 1.0
+    assert rep["frames"] == 4 and rep["converged"] and 0.0 <= rep["activation_min"] <= rep["activation_max"] <= 1.0
+    lo, hi = rep["intraoral_pressure_range"]  # the signed pressure apart from the muscles' [0, 1]
+    assert -1.0 <= lo <= hi <= 1.0
     x_dir = tmp_path / "x"
     argv = ["edit", "exaggerate", "--take", str(blend_dir), "--factor", "2", "--mesh-only", "--out", str(x_dir)]
     assert main([*argv, *base]) == 0

@@ -225,7 +225,8 @@ def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> i
     state = "converged" if report["converged"] else "NOT all converged"
     print(
         f"{report['frames']} frames {state}, max skin displacement {max(report['skin_displacement_max_mm']):.2f} mm, "
-        f"activations in [{report['activation_min']:.3g}, {report['activation_max']:.3g}], force-length scale "
+        f"activations in [{report['activation_min']:.3g}, {report['activation_max']:.3g}]{_pressures(model, report)}, "
+        "force-length scale "
         f"<= {report['force_length_scale_max']:.3g}, {report['seconds_per_frame_median']:.2f} s/frame"
     )
     print_outputs(args.out, since=started)
@@ -333,3 +334,9 @@ def run_retime(args: argparse.Namespace) -> int:
     out = retime(take, speed=args.speed, fps_out=args.fps_out, joint=model.jaw_joint)
     info = {"edit": "retime", "speed": args.speed, "fps_in": take.fps, "frames_in": len(take)}
     return _finish(args, model, out, info)
+
+
+def _pressures(model, report: dict) -> str:
+    """ " (intraoral_pressure in [lo, hi])" for each pressure actuator (signed: -1 suction to 1 puff)."""
+    parts = [f"{n} in [{report[n + '_range'][0]:.3g}, {report[n + '_range'][1]:.3g}]" for n in model.pressure_actuators]
+    return f" ({', '.join(parts)})" if parts else ""

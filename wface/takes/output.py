@@ -64,8 +64,7 @@ def write_edit(
         "inverted_elements": int(max(s["inverted_elements"] for s in result.stats)),
         "seconds_per_frame": secs.tolist(),
         "seconds_per_frame_median": float(np.median(secs)),
-        "activation_min": float(take.activations.min()),
-        "activation_max": float(take.activations.max()),
+        **_channel_ranges(model, take.activations),
         "force_length_scale_max": float(scales.max()),
         "scaled_muscles": [n for n, s in zip(model.muscle_names, scales.max(axis=0), strict=True) if s > 1.0],
         "jaw_opening_deg": [p.jaw_opening_deg for p in take.poses],
@@ -91,3 +90,14 @@ def write_contact_sheet(
         print(f"contact sheet skipped: {exc}")
         return None
     return path.name
+
+
+def _channel_ranges(model, activations: np.ndarray) -> dict:
+    """The muscles' activation range ([0, 1]) and, apart, each pressure actuator's ([-1, 1]: signed)."""
+    signed = np.isin(model.muscle_names, list(model.pressure_actuators))
+    muscles = activations[:, ~signed] if (~signed).any() else np.zeros((1, 1))
+    out = {"activation_min": float(muscles.min()), "activation_max": float(muscles.max())}
+    for name in model.pressure_actuators:
+        column = activations[:, model.muscle_names.index(name)]
+        out[f"{name}_range"] = [float(column.min()), float(column.max())]
+    return out
