@@ -87,3 +87,5 @@ def test_freezing_asks_for_the_faceted_lips():
         contact_from_args(parser.parse_args(base), model)
     frozen = contact_from_args(parser.parse_args([*base, "--lip-surface", "faceted"]), model)
     assert frozen.surface == "faceted" and frozen.freeze_below == pytest.approx(0.01)
+    teeth = [a if a != "lips" else "teeth" for a in base]  # no lip contact: nothing for the surface to do
+    assert contact_from_args(parser.parse_args(teeth), model).freeze_below == pytest.approx(0.01)

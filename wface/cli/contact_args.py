@@ -103,7 +103,8 @@ def contact_from_args(args: argparse.Namespace, model):
     specs = getattr(args, "obstacle", []) or []
     if not regions and not specs:
         return None
-    surface = getattr(args, "lip_surface", "faceted")
+    lips = "lips" in [r.strip() for r in regions.split(",")]
+    surface = getattr(args, "lip_surface", "faceted") if lips else "faceted"  # the lip contact's only
     if surface != "faceted" and args.freeze_below >= 0:
         raise ValueError(
             f"--freeze-below freezes faceted lip features; the lip surface is {surface}: "
