@@ -652,3 +652,14 @@ def test_chunks_of_a_one_pass_take_say_they_may_differ_from_a_serial_run(tmp_pat
     assert code == 0 and "note: with --prior temporal each chunk" in text
     code, text = _cli([*DEMO, "--no-usd", "--chunk-size", "2", "--out", tmp_path / "a"], capsys)
     assert code == 0 and "--prior temporal each chunk" not in text  # the default refits over the take
+
+
+def test_resume_plan_counts_the_frames_of_a_take_with_hidden_markers(tmp_path, capsys):
+    """With --holdout the frame files' fingerprints hold the markers the fit saw (the hidden ones
+    missing); the resume plan used to compare them with every marker and announce every frame redone."""
+    out = tmp_path / "held"
+    code, text = _cli([*DEMO, "--holdout", "5", "--no-usd", "--out", out], capsys)
+    assert code == 0, text
+    code, text = _cli([*DEMO, "--holdout", "5", "--no-usd", "--out", out, "--resume"], capsys)
+    assert code == 0, text
+    assert f"reusing {FRAMES} of {FRAMES} frames" in text

@@ -217,7 +217,15 @@ def _rig_kwargs(args, model) -> dict:
     return rig_kwargs
 
 
-def _claim(args, model, markers, targets, source: dict, rig_kwargs: dict, frames: range | None = None) -> dict:
+def _hidden(args, marker_names, targets):
+    """(hidden marker ids or None, the targets the fit sees: the hidden markers missing)."""
+    hidden = select_holdout(args.holdout, marker_names, targets[0]) if getattr(args, "holdout", None) else None
+    return hidden, (targets if hidden is None else hide(targets, hidden))
+
+
+def _claim(
+    args, model, markers, marker_names, targets, source: dict, rig_kwargs: dict, frames: range | None = None
+) -> dict:
     """Provenance of this run; claims --out (refusing another take's directory) and says what --resume reuses."""
     source = {**source, "holdout": getattr(args, "holdout", None)}  # hidden markers change the fit
     run = tracking_provenance(
@@ -229,7 +237,8 @@ def _claim(args, model, markers, targets, source: dict, rig_kwargs: dict, frames
     if args.resume:
         two_pass = args.prior == "auto" and len(targets) >= 2  # as wface.tracking.sequence.track_sequence
         frames = frames if frames is not None else range(len(targets))
-        print(resume_plan(args.out, frames, targets, run, two_pass=two_pass).summary())
+        fit_targets = _hidden(args, marker_names, targets)[1]  # as the frame files' fingerprints saw them
+        print(resume_plan(args.out, frames, fit_targets, run, two_pass=two_pass).summary())
     return run
 
 
@@ -248,7 +257,7 @@ def _run(
     capture_scale=None,
 ):
     out = Path(args.out)
-    hidden = select_holdout(args.holdout, marker_names, targets[0]) if args.holdout else None
+    hidden, fit_targets = _hidden(args, marker_names, targets)
     render_mesh = render_mesh_from_args(args, model)
     executor, chunk, close = dask_executor(
         workers=args.workers, scheduler=args.scheduler, n_frames=len(targets), chunk_size=args.chunk_size
@@ -263,7 +272,7 @@ def _run(
         t0 = time.perf_counter()
         records = track_sequence(
             model,
-            targets if hidden is None else hide(targets, hidden),
+            fit_targets,
             marker_names=marker_names,
             markers=markers,
             options=_options(args),
@@ -392,7 +401,7 @@ def run_demo(args: argparse.Namespace) -> int:
         progress=True,
     )
     rig_kwargs = _rig_kwargs(args, model)  # one Contact for the provenance and the tracking
-    run = _claim(args, model, markers, perf.markers_m, source, rig_kwargs)
+    run = _claim(args, model, markers, model.marker_names, perf.markers_m, source, rig_kwargs)
     save_npz(
         Path(args.out) / "truth.npz",
         activations=perf.activations,
@@ -439,7 +448,7 @@ def run_track(args: argparse.Namespace) -> int:
         "neutral_frame": neutral_frame,
     }
     rig_kwargs = _rig_kwargs(args, model)  # one Contact for the provenance and the tracking
-    run = _claim(args, model, cap.markers, cap.targets_m, source, rig_kwargs, frames=kept)
+    run = _claim(args, model, cap.markers, take.marker_names, cap.targets_m, source, rig_kwargs, frames=kept)
     info = {"capture_check": check.report()}
     return _run(
         args,
