@@ -114,7 +114,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="simulate in the world (head motion shakes the flesh; default) or in the cranium's frame",
     )
     p.add_argument("--fps", type=positive_float, help="frame rate (take: default from its animation.usdc, else 30)")
-    p.add_argument("--frames", help="take: range A:B; synthetic: number of frames (default 30)")
+    p.add_argument(
+        "--frames",
+        help="take: range A:B of its stored frames, by position (a take of every 10th capture frame: 0:6 is capture "
+        "frames 0-50); synthetic: number of frames (default 30)",
+    )
     p.add_argument(
         "--activation",
         action="append",
