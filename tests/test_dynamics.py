@@ -511,7 +511,8 @@ def test_a_diverged_run_exits_3_with_one_line(tmp_path, capsys, monkeypatch):
 
 def test_a_take_of_every_third_frame_is_simulated_over_its_true_intervals(jaw_box):
     """A take that kept capture frames 0, 3, 6, ... at 30 fps is the same motion as the consecutive take
-    at 10 fps: resimulate steps 3 / 30 s between its frames, so the two replays agree to round-off."""
+    at 10 fps: resimulate steps 3 / 30 s between its frames in 3 x substeps steps (the time step of a
+    capture frame), so it replays as the consecutive take with three times the substeps, to round-off."""
     from dataclasses import replace
 
     from wface.takes.dynamic import resimulate
@@ -520,6 +521,7 @@ def test_a_take_of_every_third_frame_is_simulated_over_its_true_intervals(jaw_bo
     consecutive = _ramp_take(jaw_box, frames=4, fps=10.0)
     strided = replace(consecutive, fps=30.0, frames=np.arange(4) * 3)
     np.testing.assert_allclose(strided.frame_intervals_s, 0.1)
-    runs = [resimulate(jaw_box, t, scheme="be", substeps=2, sim=sim) for t in (consecutive, strided)]
-    assert runs[0].dt_s == pytest.approx(runs[1].dt_s) == pytest.approx(0.05)
+    runs = [resimulate(jaw_box, t, scheme="be", substeps=n, sim=sim) for t, n in ((consecutive, 6), (strided, 2))]
+    assert runs[0].dt_s == pytest.approx(runs[1].dt_s) == pytest.approx(1 / 60)
+    assert runs[0].steps == runs[1].steps == 18
     np.testing.assert_allclose(runs[1].positions_m, runs[0].positions_m, rtol=0, atol=1e-12)

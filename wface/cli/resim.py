@@ -105,7 +105,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=["auto", "midpoint", "be"],
         help="time integrator (see below; default auto: midpoint, be with contact)",
     )
-    p.add_argument("--substeps", type=positive_int, default=16, help="implicit time steps per frame (default 16)")
+    p.add_argument(
+        "--substeps",
+        type=positive_int,
+        default=16,
+        help="implicit time steps per capture frame (default 16; a take of every S-th frame takes S x that between "
+        "its stored frames, the same time step)",
+    )
     p.add_argument("--damping", default="0,2e-4", metavar="ALPHA,BETA", help="Rayleigh alpha (1/s), beta (s), or none")
     p.add_argument(
         "--frame",

@@ -58,8 +58,6 @@ class ResimResult:
     Attributes:
         positions_m: (T, n, 3) world node positions.
         fps, scheme, substeps, damping, frame: the settings.
-        frame_interval_s: seconds between stored frames (S / fps for a take of every S-th capture
-            frame; None: 1 / fps).
         kinetic_energy_j: (T,) kinetic energy of the free nodes (simulation frame).
         elastic_energy_j: (T,) elastic energy.
         newton_iterations: (T,) Newton iterations over the frame's substeps (frame 0: the
@@ -86,13 +84,12 @@ class ResimResult:
     seconds: np.ndarray
     steps: int = 0
     info: dict = field(default_factory=dict)
-    frame_interval_s: float | None = None
 
     @property
     def dt_s(self) -> float:
-        """The time step: the (shortest) interval between stored frames over the substeps."""
-        interval = self.frame_interval_s if self.frame_interval_s is not None else 1.0 / self.fps
-        return interval / self.substeps
+        """The time step: a capture frame's interval over the substeps (a take of every S-th capture frame
+        takes S x substeps steps from one stored frame to the next)."""
+        return 1.0 / (self.fps * self.substeps)
 
     def summary(self) -> dict:
         """JSON-ready per-frame and aggregate statistics."""
@@ -115,7 +112,7 @@ class ResimResult:
             "inverted_elements_max": int(self.inverted_elements.max()),
             "seconds_per_frame": self.seconds.tolist(),
             "seconds_per_frame_median": float(np.median(self.seconds[1:])) if len(self.seconds) > 1 else 0.0,
-            "seconds_per_step_median": float(np.median(self.seconds[1:]) / self.substeps)
+            "seconds_per_step_median": float(np.median(self.seconds[1:]) / (self.steps / (len(self.seconds) - 1)))
             if len(self.seconds) > 1
             else 0.0,
             **self.info,
@@ -176,7 +173,8 @@ def resimulate(
         take: activations and bone motion per frame (``Take``, e.g. ``wface.takes.store.load_take``).
         frame: "world" (default, head motion drives inertia) or "cranium" (see module docstring).
         scheme: "midpoint" (second order, default) or "be" (backward Euler).
-        substeps: time steps per frame interval (dt = 1 / (fps substeps)).
+        substeps: time steps per capture frame interval (dt = 1 / (fps substeps)); a take that kept every
+            S-th capture frame (``take.frames``) takes S x substeps steps between its stored frames.
         damping: Rayleigh damping (default ``Damping()``).
         sim: a ``Simulator`` of ``model`` to reuse (default: a new float64 CPU one).
         tol, solver, stiffness, gravity_m_s2: see ``DynamicSimulator``.
@@ -267,9 +265,15 @@ def _later_frames(model, take, dyn, state, acts, xc, substeps, frame, on_step, p
                 def path(s, b0=b0, b1=b1):
                     return attached_positions(model, interpolate_bones(b0, b1, s), frame=frame)
 
-            duration = float(take.frame_intervals_s[k - 1])  # 1 / fps, or S / fps for every S-th capture frame
+            gap = int(take.frames[k] - take.frames[k - 1])  # capture frames since the last: 1, or S for every S-th
             state, st = dyn.advance(
-                state, duration, substeps, acts[k], path, activation_ramp=take.activation_ramp, on_step=on_step
+                state,
+                gap / take.fps,
+                gap * substeps,
+                acts[k],
+                path,
+                activation_ramp=take.activation_ramp,
+                on_step=on_step,
             )
             if not np.all(np.isfinite(state.x_m)):
                 raise FloatingPointError(f"the dynamic solve produced NaN/inf at frame {k}")
@@ -298,7 +302,6 @@ def _resim_result(take, positions, stats, dyn, sim, *, substeps, frame, stiffnes
         inverted_elements=np.array([s.inverted_elements for s in stats]),
         seconds=np.array([s.seconds for s in stats]),
         steps=int(sum(s.steps for s in stats)),
-        frame_interval_s=float(take.frame_intervals_s.min()) if take.n_frames > 1 else None,
         info={
             "solver": dyn.engine,
             "device": sim.device,
