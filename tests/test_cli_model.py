@@ -69,3 +69,20 @@ def test_builtin_face_example_renders(tmp_path):
     png = tmp_path / "face.png"
     assert builtin_face.main(["--tets", "2000", "--out", str(png), "--width", "400"]) == 0
     assert png.stat().st_size > 10_000
+
+
+def test_help_examples_break_lines_where_they_are_written():
+    """A long example continued with a backslash prints the backslash and the line break (a bare one in
+    the source joined the lines into one with a gap: 'mentalis_l=1       --activation ...')."""
+    import re
+
+    from wface.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    joined = [
+        f"{name}: {line.strip()}"
+        for name, parser in sub.choices.items()
+        for line in parser.format_help().splitlines()
+        if re.search(r"\S {4,}--\w", line)
+    ]
+    assert not joined

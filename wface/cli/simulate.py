@@ -36,7 +36,7 @@ converges to 1e-6 in 78 iterations, where the faceted surfaces stall at a residu
 examples:
   wface simulate --model face.npz --activation zygomaticus_major_l=0.8 --out smile
   wface simulate --model face.npz --jaw-open 12 --activation orbicularis_oris_lower=0.3 --out open --json
-  wface simulate --model face.npz --activation orbicularis_oris_upper=1 --activation mentalis_l=1 \
+  wface simulate --model face.npz --activation orbicularis_oris_upper=1 --activation mentalis_l=1 \\
       --activation mentalis_r=1 --contact lips,teeth --out pressed
   wface simulate --model face.npz --obstacle sphere:0.043,-0.044,0.097,0.015 --contact teeth --out poke  # cheek, 3 mm
 """

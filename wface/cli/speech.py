@@ -47,7 +47,7 @@ examples:
   wface speech --model badin.npz --gesture approximant --max-frames 5 --out quick
   wface speech --model badin.npz --gesture closure --contact lips --max-frames 6 --out closure_contact
   wface speech --model badin.npz --gesture approximant --setup artisynth --dynamic --contact lips --out dyn
-  wface speech --model badin.npz --gesture approximant --setup artisynth --contact lips,skull \
+  wface speech --model badin.npz --gesture approximant --setup artisynth --contact lips,skull \\
       --contact-inside-at-rest push --out skull   # ArtiSynth's lip-skull contact (jaw and maxilla)
 """
 
