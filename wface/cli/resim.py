@@ -252,8 +252,7 @@ def _run(args: argparse.Namespace) -> int:
     synthetic = take.source == "synthetic"
     step_response = synthetic and not args.head_shake  # overshoot of a held step (meaningless for a shaking head)
     substep_skin = []  # synthetic: skin positions after every time step (peaks fall between frames)
-    scheme = args.scheme if args.scheme != "auto" else ("be" if contact is not None else "midpoint")
-    result = _resimulate(args, model, take, scheme, damping, sim, contact, skin_nodes, substep_skin, step_response)
+    result = _resimulate(args, model, take, damping, sim, contact, skin_nodes, substep_skin, step_response)
     report = {
         "source": take.source,
         "tets": model.n_tets,
@@ -293,7 +292,7 @@ def _run(args: argparse.Namespace) -> int:
         print(json.dumps({k: v for k, v in report.items() if not isinstance(v, list)}, indent=2))
         return 0
     line = (
-        f"{take.n_frames} frames, {result.steps} steps ({scheme}, dt {result.dt_s * 1e3:.2f} ms), "
+        f"{take.n_frames} frames, {result.steps} steps ({result.scheme}, dt {result.dt_s * 1e3:.2f} ms), "
         f"{report['newton_iterations_per_step_mean']:.2f} Newton iterations/step, "
         f"{report['seconds_per_frame_median']:.2f} s/frame"
     )
@@ -308,13 +307,13 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _resimulate(args, model, take, scheme, damping, sim, contact, skin_nodes, substep_skin, step_response):
+def _resimulate(args, model, take, damping, sim, contact, skin_nodes, substep_skin, step_response):
     """``resimulate`` with the command's settings (synthetic step responses record every step's skin)."""
     return resimulate(
         model,
         take,
         frame=args.frame,
-        scheme=scheme,
+        scheme=args.scheme,  # auto: backward Euler with contact (wface.takes.dynamic.resimulate)
         substeps=args.substeps,
         damping=damping,
         sim=sim,
