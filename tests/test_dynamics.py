@@ -460,6 +460,20 @@ def test_the_midpoint_rule_gains_energy_at_penalty_contact(clamped):
     assert dyn.total_energy(state) > 1.5 * e0
 
 
+def test_auto_scheme_is_backward_euler_with_contact(clamped):
+    """``DynamicSimulator(scheme="auto")`` (the default) owns the choice the test above measures."""
+    from wface.physics.contact import Contact
+    from wface.physics.obstacles import HalfSpace
+
+    model, sim = clamped
+    floor = Contact(model, obstacles=[HalfSpace((0.0, -5e-4, 0.0), (0.0, 1.0, 0.0))])
+    assert DynamicSimulator(sim).scheme == "midpoint"
+    assert DynamicSimulator(sim, contact=floor).scheme == "be"
+    assert DynamicSimulator(sim, scheme="midpoint", contact=floor).scheme == "midpoint"  # asked for: kept
+    with pytest.raises(ValueError, match="scheme must be one of"):
+        DynamicSimulator(sim, scheme="rk4")
+
+
 def test_a_diverging_step_raises_diverged_error(clamped):
     """A step that throws a node farther than the mesh is across stops with DivergedError (a
     FloatingPointError) naming the step, the node and the cure, instead of handing on garbage."""

@@ -313,7 +313,7 @@ def _resimulate(args, model, take, damping, sim, contact, skin_nodes, substep_sk
         model,
         take,
         frame=args.frame,
-        scheme=args.scheme,  # auto: backward Euler with contact (wface.takes.dynamic.resimulate)
+        scheme=args.scheme,  # auto: backward Euler with contact (wface.physics.dynamics.DynamicSimulator)
         substeps=args.substeps,
         damping=damping,
         sim=sim,

@@ -85,8 +85,10 @@ class DynamicSimulator:
     Args:
         sim: the quasistatic ``Simulator`` (its energy, forces, projected stiffness and linear
             solver are reused); float64 recommended.
-        scheme: "midpoint" (second order, energy preserving; default) or "be" (backward Euler,
-            first order, numerically dissipative, the most robust).
+        scheme: "midpoint" (second order, energy preserving), "be" (backward Euler, first order,
+            numerically dissipative, the most robust) or "auto" (default): the midpoint rule without
+            ``contact``, backward Euler with it (the midpoint rule holds contact at the step's midpoint
+            only and gains energy at every penalty impact: docs/design.md, "Dynamics").
         damping: Rayleigh damping (default ``Damping()``).
         gravity_m_s2: optional (3,) gravity acceleration, e.g. (0, -9.81, 0); default none.
         tol: relative gradient tolerance of each step's Newton solve.
@@ -118,7 +120,7 @@ class DynamicSimulator:
         self,
         sim,
         *,
-        scheme: str = "midpoint",
+        scheme: str = "auto",
         damping: Damping | None = None,
         gravity_m_s2=None,
         tol: float = 1e-6,
@@ -128,8 +130,10 @@ class DynamicSimulator:
         stiffness: str = "auto",
         contact=None,
     ):
+        if scheme == "auto":
+            scheme = "be" if contact is not None else "midpoint"
         if scheme not in SCHEMES:
-            raise ValueError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
+            raise ValueError(f"scheme must be one of {(*SCHEMES, 'auto')}, got {scheme!r}")
         if not (np.isfinite(tol) and tol > 0):
             raise ValueError(f"tol must be finite and > 0, got {tol}")
         if stiffness not in ("auto", "projected", "exact"):

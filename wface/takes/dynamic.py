@@ -173,8 +173,7 @@ def resimulate(
         take: activations and bone motion per frame (``Take``, e.g. ``wface.takes.store.load_take``).
         frame: "world" (default, head motion drives inertia) or "cranium" (see module docstring).
         scheme: "midpoint" (second order), "be" (backward Euler) or "auto" (default): the midpoint rule
-            without contact, backward Euler with it (the midpoint rule gains energy at every penalty impact;
-            docs/design.md, "Dynamics").
+            without contact, backward Euler with it (``DynamicSimulator``).
         substeps: time steps per capture frame interval (dt = 1 / (fps substeps)); a take that kept every
             S-th capture frame (``take.frames``) takes S x substeps steps between its stored frames.
         damping: Rayleigh damping (default ``Damping()``).
@@ -199,8 +198,6 @@ def resimulate(
         raise ValueError(f"substeps must be a positive integer, got {substeps}")
     if frame == "cranium" and take.bones is None:
         frame = "world"  # no cranium motion to undo
-    if scheme == "auto":
-        scheme = "be" if contact is not None else "midpoint"
     sim = sim or Simulator(model, solver=solver or "auto")
     dyn = DynamicSimulator(
         sim,
