@@ -337,6 +337,7 @@ def run_retime(args: argparse.Namespace) -> int:
 
 
 def _pressures(model, report: dict) -> str:
-    """ " (intraoral_pressure in [lo, hi])" for each pressure actuator (signed: -1 suction to 1 puff)."""
+    """The closing line's note of each pressure actuator's range, e.g. ' (intraoral_pressure in [-0.2, 0.4])'
+    (signed: -1 suction to 1 puff; the muscles' range is printed before it)."""
     parts = [f"{n} in [{report[n + '_range'][0]:.3g}, {report[n + '_range'][1]:.3g}]" for n in model.pressure_actuators]
     return f" ({', '.join(parts)})" if parts else ""

@@ -159,6 +159,8 @@ class DynamicSimulator:
         self._linear = LinearSolver(solver or sim.linear_solver, sim.device, keep_factor=True)
         self.engine = self._linear.engine
         self.masses_kg = lumped_masses(self.model)
+        rest = self.model.rest_positions_m
+        self._span_m = float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0)))  # farther than this: diverged
         self._pattern = sim.pattern("free")
         self._free = self._pattern.dof_nodes
         self._fixed = self.model.attached_nodes.astype(np.int64)
@@ -313,9 +315,8 @@ class DynamicSimulator:
     def _check_bounded(self, x_new: np.ndarray, t_s: float, h: float, stats: StepStats) -> None:
         """Raise ``DivergedError`` when a node of ``x_new`` lies farther from its rest place than the
         rest mesh is across (no face motion does that; a diverging integration does within a few steps)."""
-        rest = self.model.rest_positions_m
-        moved = np.linalg.norm(x_new - rest, axis=1)
-        span = float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0)))
+        moved = np.linalg.norm(x_new - self.model.rest_positions_m, axis=1)
+        span = self._span_m
         if np.all(np.isfinite(moved)) and moved.max() <= span:
             return
         far = int(np.nanargmax(np.where(np.isfinite(moved), moved, np.inf)))

@@ -130,11 +130,10 @@ def write_tracking_outputs(
                 written.append(render_mesh_layer_path(out / USD))
             bar.update()
         if pictures:
-            images = _figures(out, model, records, X, simulated, targets_m, fps, truth, movie, bar)
+            step = frame_step([r.frame for r in records])  # every S-th capture frame: rows at fps / S
+            images = _figures(out, model, records, X, simulated, targets_m, (fps, step), truth, movie, bar)
             if report.get("holdout_rms_mm"):
-                images["held-out markers"] = plot_holdout(
-                    out / "holdout.png", report, fps=fps / frame_step([r.frame for r in records])
-                )
+                images["held-out markers"] = plot_holdout(out / "holdout.png", report, fps=fps / step)
             written.extend(Path(p) for p in images.values())
         bar.set_postfix_str("report.html")
         files = describe_outputs([*written, out / "report.html"])
@@ -145,11 +144,12 @@ def write_tracking_outputs(
     return written
 
 
-def _figures(out, model, records, X, simulated, targets_m, fps, truth, movie: bool, bar) -> dict:
-    """Pictures and plots, then the movie (``wface.viz.figures``), one progress step each."""
+def _figures(out, model, records, X, simulated, targets_m, rate, truth, movie: bool, bar) -> dict:
+    """Pictures and plots, then the movie (``wface.viz.figures``), one progress step each; ``rate``:
+    (the capture's fps, capture frames per record)."""
+    fps, step = rate
     M = model.n_muscles
     C = np.array([r.controls for r in records])
-    step = frame_step([r.frame for r in records])
     cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(c[M:]) for c in C), strict=True))
     common = dict(
         model=model,

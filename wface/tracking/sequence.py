@@ -48,6 +48,7 @@ from wface.takes.store import (
     verified_frames,
     write_frame,
 )
+from wface.takes.take import frame_step
 from wface.tracking.adaptive import is_adaptive, rebuild_linearization, restore_spare, spare_state
 from wface.tracking.estimator import FrameEstimator, TrackOptions
 from wface.tracking.markers import MarkerMap
@@ -303,7 +304,7 @@ def _track_chunk(
     if out_dir is not None and reuse:
         done = verified_frames(out_dir, frames, targets[n_warm:], run, folder=folder)[0]
     if n_warm and int(frames[0]) not in done:
-        step = int(frames[1]) - int(frames[0]) if len(frames) > 1 else 1
+        step = frame_step(frames)
         for j in range(n_warm):
             tracker.step(int(frames[0]) - (n_warm - j) * step, targets[j])
     out = []
