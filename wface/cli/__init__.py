@@ -86,7 +86,8 @@ examples:
   wface resim --take run1 --out run1_dyn    replay a tracked take with inertia (implicit dynamic FEM)
 
 Run `wface COMMAND --help` for the options of each command. Exit codes: 0 success, 1 failure,
-2 usage error, 3 not converged (simulate), 130 interrupted; --debug shows the traceback of an error.
+2 usage error, 3 not converged (simulate) or a solve that broke down (NaN, a diverged time step),
+130 interrupted; --debug shows the traceback of an error.
 """
 
 
