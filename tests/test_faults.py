@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -260,9 +261,10 @@ def test_other_options_redo_frames(tmp_path):
 def test_rerun_without_resume_leaves_no_stale_frames(tmp_path):
     _, _, _, run, out, _, _ = _tracked(tmp_path)
     (out / "controls.npz").write_bytes(b"")
+    shutil.copytree(out / "frames", out / "survey")  # a first pass's frames (they used to go uncounted)
     note = claim_take_dir(out, run)
-    assert "starting this take again" in note
-    assert not (out / "frames").exists() and not (out / "controls.npz").exists()
+    assert "removed its earlier frame files: 3 in survey/, 3 in frames/" in note
+    assert not (out / "frames").exists() and not (out / "survey").exists() and not (out / "controls.npz").exists()
 
 
 def test_edit_into_a_tracked_take_is_refused(reference, tmp_path, capsys):
@@ -437,16 +439,20 @@ def test_a_frame_with_too_few_markers_is_carried(synthetic_capture, tmp_path, ca
     pos, names = synthetic_capture
     pos = pos.copy()
     pos[2, 2:] = np.nan  # frame 2 keeps 2 markers
+    pos[3] = np.nan  # frame 3 keeps none
     path = _capture(tmp_path, pos, names)
     out = tmp_path / "carried"
     args = ["track", "--mocap", path, "--out", out, "--tets", TETS, "--no-pictures", "--prior", "off"]
     code, text = _cli(args, capsys)
     assert code == 0, text
-    assert "1 frames had too few usable markers" in text
+    assert "2 frames had too few usable markers" in text and "Mean of empty slice" not in text
     report = read_report(out)
-    assert report["carried_frames"] == [2] and report["frames"] == len(pos)
+    assert report["carried_frames"] == [2, 3] and report["frames"] == len(pos)
+    assert report["marker_rms_mm"][3] is None and np.isfinite(report["marker_rms_mm_mean"])  # was NaN
+    json.loads((out / "report.json").read_text(), parse_constant=lambda c: pytest.fail(f"{c} in report.json"))
     c = _controls(out)["activations"]
     np.testing.assert_array_equal(c[2], c[1])  # held from the frame before
+    np.testing.assert_array_equal(c[3], c[1])
     code, text = _cli([*args, "--resume"], capsys)
     assert code == 0 and f"reusing {len(pos)} of {len(pos)}" in text
 
@@ -458,7 +464,29 @@ def test_a_take_without_usable_frames_is_an_error(synthetic_capture, tmp_path, c
     path = _capture(tmp_path, pos, names)
     args = ["track", "--mocap", path, "--frames", "1:", "--neutral-frame", "0", "--out", tmp_path / "none"]
     code, text = _cli([*args, "--tets", TETS], capsys)
-    assert code == 1 and "no frame has the 10 usable markers" in text, text
+    assert code == 1 and "usable markers a frame needs" in text, text
+
+
+def test_markers_without_a_rest_place_or_samples_are_left_out_by_name(synthetic_capture, tmp_path, capsys):
+    """A marker missing in the neutral frame has no rest place on the skin, and one missing from every tracked
+    frame nothing to fit: both are left out with their names (the first used to stop the tracker with
+    "Eigenvalues did not converge", the second to fail at the USD after the whole take was tracked)."""
+    pos, names = synthetic_capture
+    pos = pos.copy()
+    pos[0, 4] = np.nan  # missing in the neutral frame only
+    pos[:, 6] = np.nan  # never seen
+    path = _capture(tmp_path, pos, names)
+    out = tmp_path / "left_out"
+    code, text = _cli(
+        ["track", "--mocap", path, "--out", out, "--tets", TETS, "--no-pictures", "--prior", "off"], capsys
+    )
+    assert code == 0, text
+    assert f"rest place (--neutral-frame picks another frame): {names[4]}" in text
+    assert f"left out of the fit, no samples in the frames tracked: {names[6]}" in text
+    assert (out / "animation.usdc").exists()
+    report = read_report(out)
+    assert names[4] not in report["marker_stats"] and names[6] not in report["marker_stats"]
+    assert np.isfinite(report["marker_rms_mm_mean"])
 
 
 # ---------------------------------------------------------------------- options out of range (usage errors)

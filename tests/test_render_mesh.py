@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -10,7 +12,7 @@ from tests.conftest import data_path
 from wface.faces import build_face
 from wface.faces.render_mesh import bind_render_mesh
 from wface.mesh.embed import bind_points
-from wface.mesh.meshfile import read_surface_mesh
+from wface.mesh.meshfile import SurfaceMesh, read_surface_mesh
 from wface.takes.take import Take
 from wface.takes.usd import write_take_usd
 
@@ -118,6 +120,91 @@ def test_the_ict_head_binds_to_the_built_in_face(face):
     with pytest.warns(UserWarning, match="Fit the face to it first"):
         rm = bind_render_mesh(face, head)  # not the face's shape: a warning, still bound
     np.testing.assert_allclose(rm.source_points(face.rest_positions_m), head.points, atol=1e-9)  # cm
+    up = rm.source_to_model[:3, :3] @ np.array([0.0, 1.0, 0.0]) / 0.01
+    assert up[1] > 0.98  # upright: the file's +y stays the face's up (it was turned upside down before)
+    assert rm.placement == "aligned"
+
+
+def _tetrahedron(centre, size):
+    v = np.asarray(centre) + size * np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    return v, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+
+
+def _head_like(face):
+    """The face's skin (the mesh's largest part), a small "tooth" on the lower teeth and a part 60 mm
+    behind the face (a back of the head), in metres."""
+    x, skin = face.rest_positions_m, face.skin_triangles
+    used = np.unique(skin)
+    local = np.full(face.n_nodes, -1)
+    local[used] = np.arange(len(used))
+    verts, tris = [x[used]], [local[skin]]
+    tooth, tt = _tetrahedron(face.bone_meshes["lower_teeth"].vertices_m.mean(axis=0), 0.002)
+    back, bt = _tetrahedron(x[used].mean(axis=0) - [0, 0, 0.06 + np.ptp(x[used][:, 2])], 0.01)
+    n0 = len(used)
+    verts += [tooth, back]
+    tris += [tt + n0, bt + n0 + 4]
+    return SurfaceMesh.from_triangles(np.vstack(verts), np.vstack(tris)), n0
+
+
+def _jaw_turn(face, deg):
+    """Rest positions with the jaw's attached nodes turned about the joint's hinge axis; the rotation."""
+    from wface.model import BONES
+
+    a = np.radians(deg)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    mid = np.asarray(face.jaw_joint.midpoint_m)
+    x = face.rest_positions_m.copy()
+    jaw = face.attached_nodes[face.attached_bone == BONES.index("jaw")]
+    x[jaw] = (x[jaw] - mid) @ R.T + mid
+    return x, lambda p: (p - mid) @ R.T + mid
+
+
+def test_far_parts_follow_the_cranium_and_a_tooth_its_jaw(face):
+    """A jaw that opens carries a separate part near the lower teeth rigidly with it, leaves a part far
+    behind the face where the cranium holds it (the local skin would swing it by its lever arm), and the
+    binding stays exact at rest and under an affine motion."""
+    mesh, n0 = _head_like(face)
+    rm = bind_render_mesh(face, mesh, source_to_model=np.eye(4))
+    a = rm.binding.anchors
+    assert a is not None and set(a.point) >= set(range(n0, n0 + 8))
+    x, turn = _jaw_turn(face, 12.0)
+    p = rm.model_points(x)
+    np.testing.assert_allclose(p[n0 : n0 + 4], turn(mesh.points[n0 : n0 + 4]), atol=_EXACT_M, rtol=0)
+    np.testing.assert_allclose(p[n0 + 4 :], mesh.points[n0 + 4 :], atol=_EXACT_M, rtol=0)
+    np.testing.assert_allclose(rm.model_points(face.rest_positions_m), mesh.points, atol=_EXACT_M, rtol=0)
+    A = np.array([[1.1, 0.05, 0.0], [0.02, 0.95, 0.1], [0.0, -0.03, 1.05]])
+    t = np.array([0.01, -0.02, 0.03])
+    moved = rm.model_points(face.rest_positions_m @ A.T + t)
+    np.testing.assert_allclose(moved, mesh.points @ A.T + t, atol=_EXACT_M, rtol=0)
+    # without the anchors the far part swings with the local skin
+    bare = bind_points(mesh.points, face.rest_positions_m, face.tets, face.skin_triangles)
+    assert np.abs(bare.positions(x)[n0 + 4 :] - mesh.points[n0 + 4 :]).max() > 1e-3
+
+
+def test_a_file_named_as_the_fit_target_but_shaped_otherwise_is_aligned(face, tmp_path):
+    """The fit's placement is used only when the face's skin lies on the mesh so placed."""
+    mesh, _ = _head_like(face)
+    model = replace(
+        face,
+        metadata={
+            **face.metadata,
+            "fit": {
+                "surface": "head.obj",
+                "surface_vertices": mesh.n_points,
+                "surface_meters_per_unit": 1.0,
+                "target_to_model": np.eye(4).tolist(),
+            },
+        },
+    )
+    same = SurfaceMesh.from_triangles(mesh.points, mesh.triangles())
+    same.source = str(tmp_path / "head.obj")
+    assert bind_render_mesh(model, same).placement == "fit"
+    moved = SurfaceMesh.from_triangles(mesh.points + [0.0, 0.0, 0.02], mesh.triangles())
+    moved.source = str(tmp_path / "head.obj")
+    with pytest.warns(UserWarning, match="fitted to a mesh of this name"):
+        rm = bind_render_mesh(model, moved)
+    assert rm.placement == "aligned"
+    np.testing.assert_allclose(rm.source_to_model[:3, 3], [0.0, 0.0, -0.02], atol=5e-4)
 
 
 def _write_skin_patch(face, path, n_triangles: int) -> np.ndarray:

@@ -13,6 +13,8 @@ import time
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
@@ -413,6 +415,31 @@ def run_demo(args: argparse.Namespace) -> int:
     return _run(args, model, perf.markers_m, model.marker_names, markers, args.fps, rig_kwargs, truth=perf, run=run)
 
 
+def _markers_with_a_rest_place(names, tracked_m, neutral_m, neutral_frame: int) -> np.ndarray:
+    """Indices of the markers that can be tracked: present in the neutral frame (which gives each its rest
+    place on the skin) and in at least one tracked frame; the others are left out with a warning."""
+    at_rest = np.isfinite(neutral_m).all(axis=1)
+    seen = np.isfinite(tracked_m).all(axis=2).any(axis=0)
+    for mask, why in (
+        (~seen, "no samples in the frames tracked"),
+        (
+            seen & ~at_rest,
+            f"missing in the neutral frame {neutral_frame}, which gives a marker its rest place "
+            "(--neutral-frame picks another frame)",
+        ),
+    ):
+        if mask.any():
+            gone = ", ".join(names[i] for i in np.flatnonzero(mask))
+            warnings.warn(f"left out of the fit, {why}: {gone}", stacklevel=2)
+    keep = np.flatnonzero(at_rest & seen)
+    if len(keep) < 3:
+        raise ValueError(
+            f"only {len(keep)} markers are present both in the neutral frame {neutral_frame} and in "
+            "the frames tracked: pick another --neutral-frame or --frames"
+        )
+    return keep
+
+
 def run_track(args: argparse.Namespace) -> int:
     take = read_mocap(args.mocap)  # a bad file fails before the face is built
     model = load_model(args.model) if args.model else build_face(args.tets, progress=True)
@@ -435,10 +462,13 @@ def run_track(args: argparse.Namespace) -> int:
     if check.removed:
         warnings.warn(check.summary(), stacklevel=1)
     clean = check.positions_m[first : kept.stop : step]
-    reference = check.positions_m[neutral] if neutral is not None else None
-    cap = prepare_capture(model, clean, take.marker_names, reference_positions_m=reference)
+    keep = _markers_with_a_rest_place(take.marker_names, clean, check.positions_m[neutral_frame], neutral_frame)
+    names = [take.marker_names[i] for i in keep]
+    clean = clean[:, keep]
+    reference = check.positions_m[neutral][keep] if neutral is not None else None
+    cap = prepare_capture(model, clean, names, reference_positions_m=reference)
     print(
-        f"aligned {take.n_markers} markers ({len(cap.matched_names)} by name), scale {cap.scale:.3f}, "
+        f"aligned {len(names)} markers ({len(cap.matched_names)} by name), scale {cap.scale:.3f}, "
         f"rest fit {cap.alignment_rms_mm:.2f} mm RMS"
     )
     source = {
@@ -448,13 +478,13 @@ def run_track(args: argparse.Namespace) -> int:
         "neutral_frame": neutral_frame,
     }
     rig_kwargs = _rig_kwargs(args, model)  # one Contact for the provenance and the tracking
-    run = _claim(args, model, cap.markers, take.marker_names, cap.targets_m, source, rig_kwargs, frames=kept)
+    run = _claim(args, model, cap.markers, names, cap.targets_m, source, rig_kwargs, frames=kept)
     info = {"capture_check": check.report()}
     return _run(
         args,
         model,
         cap.targets_m,
-        take.marker_names,
+        names,
         cap.markers,
         full.rate_hz,
         rig_kwargs,

@@ -444,6 +444,7 @@ def fit_template(
         "template": template.metadata.get("name", ""),
         "surface": None if surface is None else surface.source,
         "surface_vertices": None if surface is None else surface.n_points,
+        "surface_meters_per_unit": None if surface is None else surface.meters_per_unit,
         "markers": len(markers_m) if markers_m is not None else 0,
         "target_to_model": to_model.tolist(),
         "bones": "similarity per bone, fitted to the relaxed flesh at its attached nodes",

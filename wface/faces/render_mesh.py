@@ -4,9 +4,21 @@
 (``wface.mesh.embed.bind_points``: barycentric weights in the containing tet, or the closest skin
 point plus its offset). Placement: a model fitted to this very mesh (``wface model fit
 --surface``) carries the transform from the mesh's file coordinates to the model
-(``metadata["fit"]["target_to_model"]``); any other mesh is converted from its units and rigidly
-aligned to the skin (closest-point iterations), with a warning, since a head that is not the
-model's shape moves like the nearest skin, not like itself. ``RenderMesh.source_points`` gives the
+(``metadata["fit"]["target_to_model"]``), used once the face's skin is checked to lie on the mesh so
+placed (a file of the same name in other units or shape is not that mesh). Any other mesh is
+converted from its units and rigidly aligned: the face's skin is fitted onto the mesh (closest-point
+iterations; every skin point has its counterpart on a whole head, where most of a head has none on a
+face patch), starting from the file's own axes taken as the model's (+y up, +z forward: the OBJ, glTF
+and USD convention) with the two noses' tips together. It warns when the alignment turned the mesh
+by more than ``_TURN_WARN_DEG`` (a file with other axes) and when the mesh lies far from the flesh
+(a head that is not the model's shape moves like the nearest skin, not like itself).
+
+Points far from the skin (the back of a head, a neck, beyond ``_ANCHOR_FROM_M``) are handed
+gradually to the cranium's motion, wholly beyond ``_ANCHOR_TO_M`` (``wface.mesh.embed.anchor_points``):
+carried by the local skin alone they swing by their whole lever arm when the jaw opens. A part of
+the mesh apart from its largest (a tooth, an eye) whose median distance to a bone's meshes is
+under ``_ANCHOR_FROM_M`` moves rigidly with that bone (the nearer): upper teeth and eyes with the
+cranium, lower teeth with the jaw, where the lips' tets would bend them. ``RenderMesh.source_points`` gives the
 mesh's vertices for simulated node positions in the file's own frame and units, which is how the
 USD writer stores them (``wface.io.usd.render_mesh``).
 """
@@ -18,15 +30,22 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
-from wface.mesh.align import align_to_surface
-from wface.mesh.embed import PointBinding, bind_points
+from wface.mesh.align import Similarity, align_to_surface
+from wface.mesh.closest import SurfaceQuery
+from wface.mesh.embed import PointBinding, anchor_points, bind_points
 from wface.mesh.meshfile import SurfaceMesh, read_surface_mesh
-from wface.model import FaceModel
+from wface.model import BONES, FaceModel
 
 __all__ = ["RenderMesh", "bind_render_mesh", "placement_for"]
 
-_FAR_MM = 5.0  # a bound mesh whose median distance to the flesh exceeds this is not the model's shape
+_FIT_CHECK_MM = 2.0  # a face's skin on its own mesh: median skin-to-mesh distance within this
+_TURN_WARN_DEG = 30.0  # an alignment that turns the file's axes more than this is suspicious
+_ANCHOR_FROM_M = 0.010  # points this far off the skin start to follow the cranium ...
+_ANCHOR_TO_M = 0.030  # ... and follow it wholly from here
+_ALIGN_SAMPLES = 2000  # skin points used to align a mesh
 
 
 @dataclass
@@ -62,24 +81,95 @@ class RenderMesh:
         return self.binding.positions(x) @ inv[:3, :3].T + inv[:3, 3]
 
 
+def _skin_points(model: FaceModel, n: int) -> np.ndarray:
+    skin = np.unique(model.skin_triangles)
+    rng = np.random.default_rng(0)
+    return model.rest_positions_m[rng.choice(skin, size=min(n, len(skin)), replace=False)]
+
+
+def _fit_placement(model: FaceModel, mesh: SurfaceMesh) -> np.ndarray | None:
+    """The fit's placement if the model was fitted to this mesh (name, vertex count and geometry), else None."""
+    fit = model.metadata.get("fit") or {}
+    if not (fit.get("surface") and Path(fit["surface"]).name == Path(mesh.source).name):
+        return None
+    if int(fit.get("surface_vertices") or mesh.n_points) != mesh.n_points:
+        return None
+    m = np.asarray(fit["target_to_model"], dtype=np.float64)
+    fit_units = float(fit.get("surface_meters_per_unit") or mesh.meters_per_unit)
+    m = m @ np.diag([mesh.meters_per_unit / fit_units] * 3 + [1.0])  # this file's units -> the fit's
+    placed = mesh.points @ m[:3, :3].T + m[:3, 3]
+    off = SurfaceQuery(placed, mesh.triangles()).closest(_skin_points(model, _ALIGN_SAMPLES)).distance_m
+    off_mm = float(np.median(off)) * 1e3
+    if off_mm > _FIT_CHECK_MM:
+        warnings.warn(
+            f"{mesh.source}: the face was fitted to a mesh of this name, but its skin lies {off_mm:.1f} mm "
+            "(median) off this file placed as fitted (another shape, or other units: --render-mesh-units); "
+            "aligning it instead",
+            stacklevel=3,
+        )
+        return None
+    return m
+
+
 def placement_for(model: FaceModel, mesh: SurfaceMesh) -> tuple[np.ndarray, str]:
     """(source -> model 4x4, "fit" | "aligned") for a mesh on a model (module docstring)."""
-    fit = model.metadata.get("fit") or {}
-    same = (
-        fit.get("surface")
-        and Path(fit["surface"]).name == Path(mesh.source).name
-        and int(fit.get("surface_vertices", mesh.n_points)) == mesh.n_points
-    )
-    if same:
-        return np.asarray(fit["target_to_model"], dtype=np.float64), "fit"
-    pts = mesh.points_m
-    rng = np.random.default_rng(0)
-    sub = pts[rng.choice(len(pts), size=min(2000, len(pts)), replace=False)]
-    al = align_to_surface(
-        sub, model.rest_positions_m, model.skin_triangles, with_scale=False, trim_fraction=0.5, iterations=50
-    )
-    m = al.transform.as_matrix() @ np.diag([mesh.meters_per_unit] * 3 + [1.0])
-    return m, "aligned"
+    m = _fit_placement(model, mesh)
+    if m is not None:
+        return m, "fit"
+    p = _skin_points(model, _ALIGN_SAMPLES)
+    q = mesh.points_m
+    start = Similarity(1.0, np.eye(3), q[np.argmax(q[:, 2])] - p[np.argmax(p[:, 2])])  # skin -> mesh, tips met
+    al = align_to_surface(p, q, mesh.triangles(), with_scale=False, trim_fraction=0.2, iterations=50, initial=start)
+    r, t = al.transform.rotation, al.transform.translation_m
+    turn = float(np.degrees(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))))
+    if turn > _TURN_WARN_DEG:
+        warnings.warn(
+            f"{mesh.source}: aligning the render mesh turned it {turn:.0f} degrees from its file's axes; wface takes "
+            "+y as up and +z as forward (the model's frame): check the mesh's orientation",
+            stacklevel=3,
+        )
+    off_mm = float(np.nanmedian(al.distance_m)) * 1e3
+    if off_mm > _FIT_CHECK_MM:
+        warnings.warn(
+            f"{mesh.source}: this face's skin lies {off_mm:.1f} mm (median) from the render mesh aligned to it: the "
+            "mesh is not the face's shape and will move like the nearest skin. Fit the face to it first: wface model "
+            "fit --surface MESH",
+            stacklevel=3,
+        )
+    inv = np.eye(4)  # mesh -> skin frame: the inverse of the fitted skin -> mesh transform
+    inv[:3, :3], inv[:3, 3] = r.T, -r.T @ t
+    return inv @ np.diag([mesh.meters_per_unit] * 3 + [1.0]), "aligned"
+
+
+def _components(mesh: SurfaceMesh) -> np.ndarray:
+    """(n,) connected-component label of each vertex, 0 for the largest component."""
+    t = mesh.triangles().astype(np.int64)
+    n = mesh.n_points
+    adj = sp.coo_matrix((np.ones(3 * len(t)), (t.ravel(), np.roll(t, 1, axis=1).ravel())), shape=(n, n))
+    _, lab = connected_components(adj, directed=False)
+    order = np.argsort(-np.bincount(lab))
+    return np.argsort(order)[lab]
+
+
+def _anchors(model: FaceModel, mesh: SurfaceMesh, points_m: np.ndarray, binding: PointBinding) -> PointBinding:
+    """Hand far points to the cranium and separate parts near a bone to that bone (module docstring)."""
+    anchor = np.full(len(points_m), -1)
+    weight = np.zeros(len(points_m))
+    out = binding.outside
+    t = np.clip((binding.distance_m[out] - _ANCHOR_FROM_M) / (_ANCHOR_TO_M - _ANCHOR_FROM_M), 0.0, 1.0)
+    anchor[out], weight[out] = BONES.index("cranium"), t * t * (3.0 - 2.0 * t)  # smoothstep
+    d_bone = np.full((len(BONES), len(points_m)), np.inf)
+    for bm in model.bone_meshes.values():
+        b = BONES.index(bm.bone)
+        d_bone[b] = np.minimum(d_bone[b], SurfaceQuery(bm.vertices_m, bm.triangles).closest(points_m).distance_m)
+    lab = _components(mesh)
+    for c in range(1, lab.max() + 1):  # every part but the largest (the skin): teeth, eyes, lashes
+        v = np.flatnonzero(lab == c)
+        med = np.median(d_bone[:, v], axis=1)
+        if med.min() < _ANCHOR_FROM_M:
+            anchor[v], weight[v] = int(np.argmin(med)), 1.0
+    nodes = [model.attached_nodes[model.attached_bone == b] for b in range(len(BONES))]
+    return anchor_points(binding, points_m, model.rest_positions_m, nodes, anchor, weight)
 
 
 def bind_render_mesh(
@@ -104,11 +194,5 @@ def bind_render_mesh(
         m, how = np.asarray(source_to_model, dtype=np.float64), "given"
     pts = mesh.points @ m[:3, :3].T + m[:3, 3]
     binding = bind_points(pts, model.rest_positions_m, model.tets, model.skin_triangles)
-    far = float(np.median(binding.distance_m)) * 1e3
-    if how == "aligned" and far > _FAR_MM:
-        warnings.warn(
-            f"{mesh.source}: the render mesh lies {far:.1f} mm (median) from this face's flesh; it will move like "
-            "the nearest skin. Fit the face to it first: wface model fit --surface MESH",
-            stacklevel=2,
-        )
+    binding = _anchors(model, mesh, pts, binding)
     return RenderMesh(mesh, binding, m, how)

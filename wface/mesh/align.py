@@ -313,6 +313,7 @@ def align_to_surface(
     tolerance_m: float = 1e-7,
     landmark_weight: float = 0.0,
     trim_fraction: float = 0.0,
+    initial: Similarity | None = None,
 ) -> SurfaceAlignment:
     """Align one capture frame to a surface: similarity fit iterated with surface projection.
 
@@ -332,6 +333,7 @@ def align_to_surface(
         landmark_weight: weight of the landmark pairs relative to the projection pairs.
         trim_fraction: fraction of markers with the largest distances left out of each refit
             (robustness to markers far from any skin, e.g. on the eyes).
+        initial: the one start transform to use (instead of the landmarks' or the principal axes').
 
     Returns:
         :class:`SurfaceAlignment`.
@@ -359,7 +361,7 @@ def align_to_surface(
             raise ValueError(f"align_to_surface: landmark_points_m has shape {lm.shape}, expected ({len(m)}, 3)")
     query = SurfaceQuery(v, tris)
     best = None
-    for start in _initial_guesses(m, v, lm):
+    for start in [initial] if initial is not None else _initial_guesses(m, v, lm):
         tf = start
         history = []
         for _ in range(iterations + 1):

@@ -13,6 +13,15 @@ stretches with the flesh, F_t = A exactly under an affine motion x = A X + b, an
 For a point on the skin's normal this is "closest skin point plus normal offset"; points off to the
 side (the back of a head beyond the face patch) keep their whole offset, so the rest mesh is
 reproduced exactly.
+
+Anchors (``anchor_points``): a point far from the skin swings with the local F_t by its whole lever
+arm (the base of a neck 100 mm below a chin that opens). It can be handed, wholly or in part, to an
+anchor: a node set (a bone's attached nodes) whose least-squares affine motion carries it,
+
+    p = (1 - b) p_skin + b (xbar_a + F_a (p0 - Xbar_a)),    F_a = sum_k x_k g_k^T  over the anchor's nodes,
+
+with a blend weight b in [0, 1]. F_a = A under an affine motion and I at rest, so the binding stays
+exact in both cases.
 """
 
 from __future__ import annotations
@@ -24,9 +33,34 @@ from scipy.spatial import cKDTree
 
 from wface.mesh.closest import SurfaceQuery
 
-__all__ = ["PointBinding", "bind_points", "containing_tets"]
+__all__ = ["Anchors", "PointBinding", "anchor_points", "bind_points", "containing_tets"]
 
 _INSIDE_TOL = 1e-9  # barycentric slack: a point on a shared face belongs to either tet
+
+
+@dataclass
+class Anchors:
+    """Points carried (in part) by the affine motion of node sets (module docstring). c anchored points."""
+
+    nodes: list  # per anchor: (k_a,) node ids
+    g: list  # per anchor: (k_a, 3) g_k, 1/m
+    mean_m: np.ndarray  # (A, 3) rest centroid of each anchor's nodes
+    point: np.ndarray  # (c,) point ids
+    anchor_of: np.ndarray  # (c,) anchor index
+    weight: np.ndarray  # (c,) blend weight b in (0, 1]
+    offset_m: np.ndarray  # (c, 3) p0 - Xbar of the point's anchor
+
+    def positions(self, x: np.ndarray) -> np.ndarray:
+        """(c, 3) anchored positions for node positions ``x``."""
+        out = np.empty((len(self.point), 3))
+        for a, (nodes, g) in enumerate(zip(self.nodes, self.g, strict=True)):
+            sel = self.anchor_of == a
+            if not sel.any():
+                continue
+            xa = x[nodes]
+            F = xa.T @ g  # sum_k x_k g_k^T (g sums to zero over k)
+            out[sel] = xa.mean(axis=0) + self.offset_m[sel] @ F.T
+        return out
 
 
 @dataclass
@@ -44,6 +78,7 @@ class PointBinding:
     frame_of: np.ndarray  # (b,) row into frame_nodes / frame_g
     frame_nodes: np.ndarray  # (f, K) neighbourhood node ids (padded with node 0)
     frame_g: np.ndarray  # (f, K, 3) g_k (zero for padding), 1/m
+    anchors: Anchors | None = None  # far points carried by node sets (``anchor_points``)
 
     @property
     def distance_m(self) -> np.ndarray:
@@ -61,6 +96,9 @@ class PointBinding:
             c = np.einsum("kj,kjd->kd", self.tri_weights, x[self.tri_nodes])
             F = np.einsum("fkd,fke->fde", x[self.frame_nodes], self.frame_g)  # (f, 3, 3)
             out[self.outside] = c + np.einsum("kde,ke->kd", F[self.frame_of], self.offset_m)
+        if self.anchors is not None and len(self.anchors.point):
+            a, b = self.anchors, self.anchors.weight[:, None]
+            out[a.point] = (1.0 - b) * out[a.point] + b * a.positions(x)
         return out
 
 
@@ -93,6 +131,60 @@ def containing_tets(points, x, tets, k: int = 16, *, nearest: bool = False):
         out = found < 0
         found[out] = best[out]
     return found, weights
+
+
+def _affine_g(X: np.ndarray) -> np.ndarray | None:
+    """g_k = C^-1 (X_k - Xbar) of a node set (module docstring), or None if its nodes do not span 3D."""
+    D = X - X.mean(axis=0)
+    C = D.T @ D
+    s = np.linalg.svd(C, compute_uv=False)
+    if len(X) < 4 or s[-1] <= 1e-9 * s[0]:
+        return None
+    return np.linalg.solve(C, D.T).T
+
+
+def anchor_points(
+    binding: PointBinding,
+    points_m: np.ndarray,
+    rest_positions_m: np.ndarray,
+    anchor_nodes: list,
+    anchor_of: np.ndarray,
+    weight: np.ndarray,
+) -> PointBinding:
+    """``binding`` with points handed to anchors (module docstring).
+
+    Args:
+        binding: from ``bind_points(points_m, rest_positions_m, ...)``.
+        points_m: (n, 3) the bound points at rest.
+        rest_positions_m: (N, 3) rest node positions.
+        anchor_nodes: per anchor, its node ids (a bone's attached nodes).
+        anchor_of: (n,) anchor index per point, -1 for none.
+        weight: (n,) blend weight in [0, 1]; 0 leaves a point as bound.
+
+    Returns:
+        A new ``PointBinding``; an anchor whose nodes do not span 3D anchors nothing.
+    """
+    p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    x = np.asarray(rest_positions_m, dtype=np.float64)
+    anchor_of = np.asarray(anchor_of, dtype=np.int64).reshape(-1)
+    weight = np.clip(np.asarray(weight, dtype=np.float64).reshape(-1), 0.0, 1.0)
+    if anchor_of.shape != (binding.n_points,) or weight.shape != (binding.n_points,) or len(p) != binding.n_points:
+        raise ValueError(f"anchor_points: expected {binding.n_points} points, anchors and weights")
+    nodes = [np.asarray(a, dtype=np.int64) for a in anchor_nodes]
+    gs = [_affine_g(x[a]) for a in nodes]
+    usable = np.array([g is not None for g in gs] + [False])  # index -1 -> False
+    pick = np.flatnonzero((anchor_of >= 0) & (weight > 0) & usable[anchor_of])
+    mean = np.array([x[a].mean(axis=0) if len(a) else np.zeros(3) for a in nodes]).reshape(-1, 3)
+    anchors = Anchors(
+        nodes=nodes,
+        g=[g if g is not None else np.zeros((len(a), 3)) for a, g in zip(nodes, gs, strict=True)],
+        mean_m=mean,
+        point=pick,
+        anchor_of=anchor_of[pick],
+        weight=weight[pick],
+        offset_m=p[pick] - mean[anchor_of[pick]],
+    )
+    return PointBinding(**{**binding.__dict__, "anchors": anchors})
 
 
 def _frames(x, tets, skin_triangles, used_tris):

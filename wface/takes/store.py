@@ -137,6 +137,12 @@ def _has_results(out: Path) -> bool:
     return any((out / name).exists() for name in (*TAKE_FILES, PROVENANCE)) or bool(frames)
 
 
+def _pass_dirs(out: Path) -> list[Path]:
+    """The frame directories of every tracking pass in ``out`` (survey, refine passes, final frames)."""
+    names = (SURVEY_DIR, *sorted(p.name for p in out.glob(f"{REFINE_DIR_PREFIX}*")), FRAMES_DIR)
+    return [out / n for n in names if (out / n).is_dir()]
+
+
 def _clear_results(out: Path) -> None:
     for name in (*TAKE_FILES, PROVENANCE):
         if (out / name).is_file():
@@ -181,9 +187,10 @@ def claim_take_dir(out_dir: str | Path, run: dict, *, resume: bool = False, over
                 "--overwrite to replace them"
             )
         elif not resume:
-            n = len(frame_numbers_on_disk(out))
+            kept = [(d.name, sum(1 for _ in d.glob("*.npz"))) for d in _pass_dirs(out)]
             _clear_results(out)
-            note = f"starting this take again in {out} (removed its {n} earlier frames; --resume reuses them)"
+            done = ", ".join(f"{n} in {name}/" for name, n in kept if n) or "no frames"
+            note = f"starting this take again in {out} (removed its earlier frame files: {done}; --resume reuses them)"
     for where in (out, out / FRAMES_DIR, out / SURVEY_DIR):
         for tmp in where.glob(".*.part-*") if where.is_dir() else ():
             tmp.unlink(missing_ok=True)  # a killed writer's temporary file

@@ -107,7 +107,9 @@ def build_report(
     A, B = C[:, :M], C[:, M:]
     jaw_deg = _jaw_deg(model, B)
     err = np.array([r.marker_error_m for r in records]) * 1e3  # (F, k) mm, NaN = missing
-    per_frame = np.sqrt(np.nanmean(err**2, axis=1))
+    seen = np.isfinite(err).any(axis=1)  # a frame without usable markers has no error (it was carried)
+    per_frame = np.full(len(err), np.nan)
+    per_frame[seen] = np.sqrt(np.nanmean(err[seen] ** 2, axis=1))
     secs = np.array([r.stats["seconds"] for r in records])
     observable = identifiability_mm >= OBSERVABLE_MM
     marker_stats, totals = _marker_stats(err, marker_names, robust_mm)
@@ -118,9 +120,9 @@ def build_report(
         "nodes": model.n_nodes,
         "muscles": M,
         **rig_info,
-        "marker_rms_mm": per_frame.tolist(),
-        "marker_rms_mm_mean": float(np.mean(per_frame)),
-        "marker_max_mm": float(np.nanmax(err)),
+        "marker_rms_mm": [float(v) if ok else None for v, ok in zip(per_frame, seen, strict=True)],
+        "marker_rms_mm_mean": float(np.mean(per_frame[seen])) if seen.any() else None,
+        "marker_max_mm": float(np.nanmax(err)) if seen.any() else None,
         "marker_rms_mm_per_marker": _per_marker_rms_mm(err, marker_names),
         **totals,
         "marker_stats": marker_stats,
