@@ -46,6 +46,7 @@ _TURN_WARN_DEG = 30.0  # an alignment that turns the file's axes more than this 
 _ANCHOR_FROM_M = 0.010  # points this far off the skin start to follow the cranium ...
 _ANCHOR_TO_M = 0.030  # ... and follow it wholly from here
 _ALIGN_SAMPLES = 2000  # skin points used to align a mesh
+_PART_PROBES = 64  # vertices of a separate part whose median distance to the bones places it
 
 
 @dataclass
@@ -158,16 +159,21 @@ def _anchors(model: FaceModel, mesh: SurfaceMesh, points_m: np.ndarray, binding:
     out = binding.outside
     t = np.clip((binding.distance_m[out] - _ANCHOR_FROM_M) / (_ANCHOR_TO_M - _ANCHOR_FROM_M), 0.0, 1.0)
     anchor[out], weight[out] = BONES.index("cranium"), t * t * (3.0 - 2.0 * t)  # smoothstep
-    d_bone = np.full((len(BONES), len(points_m)), np.inf)
-    for bm in model.bone_meshes.values():
-        b = BONES.index(bm.bone)
-        d_bone[b] = np.minimum(d_bone[b], SurfaceQuery(bm.vertices_m, bm.triangles).closest(points_m).distance_m)
     lab = _components(mesh)
-    for c in range(1, lab.max() + 1):  # every part but the largest (the skin): teeth, eyes, lashes
-        v = np.flatnonzero(lab == c)
-        med = np.median(d_bone[:, v], axis=1)
-        if med.min() < _ANCHOR_FROM_M:
-            anchor[v], weight[v] = int(np.argmin(med)), 1.0
+    parts = [np.flatnonzero(lab == c) for c in range(1, lab.max() + 1)]  # all but the largest: teeth, eyes
+    if parts:
+        rng = np.random.default_rng(0)
+        probe = [v if len(v) <= _PART_PROBES else rng.choice(v, _PART_PROBES, replace=False) for v in parts]
+        q = points_m[np.concatenate(probe)]
+        d_bone = np.full((len(BONES), len(q)), np.inf)
+        for bm in model.bone_meshes.values():
+            b = BONES.index(bm.bone)
+            d_bone[b] = np.minimum(d_bone[b], SurfaceQuery(bm.vertices_m, bm.triangles).closest(q).distance_m)
+        ends = np.cumsum([len(v) for v in probe])
+        for v, d in zip(parts, np.split(d_bone, ends[:-1], axis=1), strict=True):
+            med = np.median(d, axis=1)
+            if med.min() < _ANCHOR_FROM_M:
+                anchor[v], weight[v] = int(np.argmin(med)), 1.0
     nodes = [model.attached_nodes[model.attached_bone == b] for b in range(len(BONES))]
     return anchor_points(binding, points_m, model.rest_positions_m, nodes, anchor, weight)
 
