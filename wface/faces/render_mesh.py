@@ -16,9 +16,11 @@ by more than ``_TURN_WARN_DEG`` (a file with other axes) and when the mesh lies 
 Points far from the skin (the back of a head, a neck, beyond ``_ANCHOR_FROM_M``) are handed
 gradually to the cranium's motion, wholly beyond ``_ANCHOR_TO_M`` (``wface.mesh.embed.anchor_points``):
 carried by the local skin alone they swing by their whole lever arm when the jaw opens. A part of
-the mesh apart from its largest (a tooth, an eye) whose median distance to a bone's meshes is
-under ``_ANCHOR_FROM_M`` moves rigidly with that bone (the nearer): upper teeth and eyes with the
-cranium, lower teeth with the jaw, where the lips' tets would bend them. ``RenderMesh.source_points`` gives the
+the mesh apart from its largest (a tooth, an eye) moves rigidly with a bone: with the arch of the
+nearer teeth mesh when one lies within ``_TEETH_REACH_M`` (median over the part; a back molar is
+often nearer the other bone than its own arch), else with the nearer bone mesh's bone within
+``_PART_REACH_M``: upper teeth and eyes with the cranium, lower teeth with the jaw, where the lips'
+tets would bend them. ``RenderMesh.source_points`` gives the
 mesh's vertices for simulated node positions in the file's own frame and units, which is how the
 USD writer stores them (``wface.io.usd.render_mesh``).
 """
@@ -43,10 +45,12 @@ __all__ = ["RenderMesh", "bind_render_mesh", "placement_for"]
 
 _FIT_CHECK_MM = 2.0  # a face's skin on its own mesh: median skin-to-mesh distance within this
 _TURN_WARN_DEG = 30.0  # an alignment that turns the file's axes more than this is suspicious
-_ANCHOR_FROM_M = 0.010  # points this far off the skin start to follow the cranium ...
-_ANCHOR_TO_M = 0.030  # ... and follow it wholly from here
+_ANCHOR_FROM_M = 0.020  # points this far off the skin start to follow the cranium ...
+_ANCHOR_TO_M = 0.080  # ... and follow it wholly from here (a wide band: a narrow one shears the neck)
 _ALIGN_SAMPLES = 2000  # skin points used to align a mesh
 _PART_PROBES = 64  # vertices of a separate part whose median distance to the bones places it
+_PART_REACH_M = 0.010  # a separate part this near a bone mesh (median) moves with that bone ...
+_TEETH_REACH_M = 0.030  # ... and one this near a teeth mesh with that arch's bone
 
 
 @dataclass
@@ -165,15 +169,22 @@ def _anchors(model: FaceModel, mesh: SurfaceMesh, points_m: np.ndarray, binding:
         rng = np.random.default_rng(0)
         probe = [v if len(v) <= _PART_PROBES else rng.choice(v, _PART_PROBES, replace=False) for v in parts]
         q = points_m[np.concatenate(probe)]
-        d_bone = np.full((len(BONES), len(q)), np.inf)
-        for bm in model.bone_meshes.values():
-            b = BONES.index(bm.bone)
-            d_bone[b] = np.minimum(d_bone[b], SurfaceQuery(bm.vertices_m, bm.triangles).closest(q).distance_m)
-        ends = np.cumsum([len(v) for v in probe])
-        for v, d in zip(parts, np.split(d_bone, ends[:-1], axis=1), strict=True):
-            med = np.median(d, axis=1)
-            if med.min() < _ANCHOR_FROM_M:
-                anchor[v], weight[v] = int(np.argmin(med)), 1.0
+        ends = np.cumsum([len(v) for v in probe])[:-1]
+        names = list(model.bone_meshes)
+        d = [
+            np.split(SurfaceQuery(bm.vertices_m, bm.triangles).closest(q).distance_m, ends)
+            for bm in model.bone_meshes.values()
+        ]
+        teeth = [i for i, n in enumerate(names) if "teeth" in n]
+        for k, v in enumerate(parts):
+            med = np.array([np.median(d[i][k]) for i in range(len(names))])
+            if teeth and med[teeth].min() < _TEETH_REACH_M:  # a tooth: its arch decides, not the nearer bone
+                i = teeth[int(np.argmin(med[teeth]))]
+            elif len(med) and med.min() < _PART_REACH_M:
+                i = int(np.argmin(med))
+            else:
+                continue
+            anchor[v], weight[v] = BONES.index(model.bone_meshes[names[i]].bone), 1.0
     nodes = [model.attached_nodes[model.attached_bone == b] for b in range(len(BONES))]
     return anchor_points(binding, points_m, model.rest_positions_m, nodes, anchor, weight)
 
