@@ -183,6 +183,21 @@ def test_closure_closes_the_lips_cli(tmp_path, badin_model_path):
     assert rep["contact"] is None and rep["lip_gap_mm"][0] > 0 and rep["lip_gap_mm_min"] < -3.0
 
 
+def test_speech_refuses_to_write_over_another_runs_results(tmp_path, badin_model_path, capsys):
+    """A tracking output is not replaced by a speech run (it used to be, report.json included)."""
+    from wface.cli import main
+
+    out = tmp_path / "tracked"
+    out.mkdir()
+    (out / "report.json").write_text('{"frames": 20}')
+    (out / "provenance.json").write_text('{"kind": "track", "fingerprint": "cca979150a86ef45"}')
+    args = ["speech", "--model", str(badin_model_path), "--gesture", "closure", "--max-frames", "2", "--no-usd"]
+    assert main([*args, "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "holds another take's results" in err and "--overwrite" in err, err
+    assert (out / "report.json").read_text() == '{"frames": 20}'
+
+
 def test_closure_with_lip_contact_cli(tmp_path, badin_model_path, capsys):
     from wface.cli import main
 

@@ -127,6 +127,38 @@ def test_cli_analyze_and_refine(tmp_path):
     assert main(["basis", "analyze", "--basis", str(tmp_path / "missing.npz"), "--mocap", "x.c3d", "--out", "o"]) == 1
 
 
+def test_cli_analyze_refuses_bad_landmarks_a_failed_alignment_and_another_runs_results(tmp_path, capsys):
+    """Each used to run to the end: an implausible alignment (scale 0.05) gave a wrong analysis, a landmark
+    name the take lacks or a negative vertex id was ignored, a JSON list was an internal error, and another
+    run's directory was overwritten."""
+    from wface.cli import main
+
+    ict_path = data_path("ict-facekit", "ict_expressions.npz")
+    take = str(data_path("animface", "JawMoCap.c3d"))
+    base = ["basis", "analyze", "--basis", str(ict_path), "--mocap", take, "--frames", "0:30:10", "--no-progress"]
+    for text, words in [
+        ('["Chin"]', "expected a JSON object {name: vertex index}, got a list"),
+        ('{"Chin": -5}', "landmark 'Chin': vertex index -5 is not in [0, "),
+        ('{"Foo": 10}', "none of the landmark names (Foo) is a marker of the take"),
+    ]:
+        (tmp_path / "lm.json").write_text(text)
+        assert main([*base, "--landmarks", str(tmp_path / "lm.json"), "--out", str(tmp_path / "x")]) == 1
+        err = capsys.readouterr().err
+        assert words in err and "internal error" not in err, err
+    far = {"Chin": 0, "ForeHead_M": 1, "NoseTop": 2, "Mouth_Up": 3}  # four vertices side by side: a tiny face
+    (tmp_path / "lm.json").write_text(json.dumps(far))
+    assert main([*base, "--landmarks", str(tmp_path / "lm.json"), "--out", str(tmp_path / "x")]) == 1
+    err = capsys.readouterr().err
+    assert "aligns to the basis at scale" in err and "plausible: 0.5 to 2" in err, err
+    other = tmp_path / "tracked"
+    other.mkdir()
+    (other / "report.json").write_text('{"frames": 20}')
+    assert main([*base, "--out", str(other)]) == 1
+    assert "holds another take's results" in capsys.readouterr().err
+    assert (other / "report.json").read_text() == '{"frames": 20}'
+    assert main([*base, "--out", str(other), "--overwrite"]) == 0
+
+
 def test_lower_lip_change_leaves_the_upper_lip_on_ict(ict):
     """The ICT lips touch: a lower-lip-only change moves the lower lip, not the upper one."""
     from wface.mesh.surface_fields import surface_distances

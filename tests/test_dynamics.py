@@ -341,6 +341,12 @@ def test_resim_cli_replays_a_tracking_directory(jaw_box, tmp_path, capsys):
         == 1
     )
     assert "--damping expects ALPHA,BETA" in capsys.readouterr().err
+    base = ["resim", "--take", str(take_dir), "--model", str(model_path)]
+    assert main([*base, "--out", str(take_dir), "--overwrite"]) == 1  # would delete its own input
+    assert "is the take being re-simulated" in capsys.readouterr().err
+    assert (take_dir / "controls.npz").exists()
+    assert main([*base, "--out", str(tmp_path / "none"), "--frames", "5:9"]) == 1
+    assert "selects none of the take's 3 frames" in capsys.readouterr().err
 
 
 def test_resim_help_teaches(capsys):

@@ -335,6 +335,29 @@ def test_bad_json_names_line_and_column(tmp_path):
         read_json(p)
 
 
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ('["Chin"]', "expected a JSON object {name: vertex index} or {name: [x, y, z]}, got a list"),
+        ("{}", "holds no landmarks"),
+        ('{"Chin": 999999}', "landmark 'Chin': vertex index 999999 is not in [0, 100)"),
+        ('{"Chin": true}', "landmark 'Chin': True is not a vertex index"),
+        ('{"browDown_L": "3"}', "landmark 'browDown_L': '3' is not a vertex index"),  # ICT's vertex_indices.json
+        ("Chin 12", "not valid JSON at line 1, column 1"),
+    ],
+)
+def test_bad_landmark_files_are_named(tmp_path, text, words):
+    from wface.files import read_landmarks
+
+    p = tmp_path / "lm.json"
+    p.write_text(text)
+    with pytest.raises(FileFormatError) as info:
+        read_landmarks(p, n_vertices=100, points=True)
+    assert str(info.value).startswith(str(p)) and words in str(info.value), str(info.value)
+    p.write_text('{"Chin": 12, "Nose": [1, 2.5, 3]}')
+    assert read_landmarks(p, n_vertices=100, points=True) == {"Chin": 12, "Nose": [1.0, 2.5, 3.0]}
+
+
 @pytest.mark.parametrize("kind", ["c3d", "trc", "csv"])
 def test_damaged_capture_files_are_named(tmp_path, capsys, kind):
     from wface.io.mocap import MocapTake, write_mocap

@@ -191,6 +191,16 @@ def test_fit_refuses_a_missing_target(face):
         fit_template(face)
 
 
+def test_landmark_names_that_are_not_the_templates_markers_are_named(face):
+    """Landmarks the template does not have used to be dropped without a word (the fit then started
+    from principal axes, 0 landmarks)."""
+    mesh, landmarks = _target(face, _smooth_warp)
+    with pytest.raises(ValueError, match="none of the landmark names .Nose_Tip, Jaw. is one of the template's markers"):
+        fit_template(face, surface=mesh, landmarks={"Nose_Tip": 0, "Jaw": 1})
+    with pytest.warns(UserWarning, match="landmarks that are not the template's markers, not used: Nose_Tip"):
+        fit_template(face, surface=mesh, landmarks={**landmarks, "Nose_Tip": 0})
+
+
 def test_model_fit_command_on_a_mesh_file(tmp_path, capsys):
     tpl = build_face(2000)
     save_model(tpl, tmp_path / "tpl.npz")

@@ -34,6 +34,7 @@ __all__ = [
     "is_temporary",
     "load_npz",
     "read_json",
+    "read_landmarks",
     "save_layer",
     "save_npz",
     "write_bytes",
@@ -192,6 +193,38 @@ def read_json(path: str | Path, *, what: str = "a JSON file"):
         raise FileFormatError(
             f"{path}: not valid JSON at line {exc.lineno}, column {exc.colno} ({exc.msg}); expected {what}"
         ) from None
+
+
+def read_landmarks(path: str | Path, *, n_vertices: int | None = None, points: bool = False) -> dict:
+    """A landmark file: a JSON object {name: vertex index} (or, with ``points``, {name: [x, y, z]} in the
+    mesh's units as well). Errors name the file, the landmark and what was expected.
+
+    Args:
+        path: the JSON file.
+        n_vertices: vertex indices must lie in [0, n_vertices) when given.
+        points: also accept a point [x, y, z] per name.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"landmark file not found: {path}")
+    form = "{name: vertex index}" + (" or {name: [x, y, z]}" if points else "")
+    data = read_json(path, what=f"a landmark JSON file {form}")
+    if not isinstance(data, dict):
+        raise FileFormatError(f"{path}: expected a JSON object {form}, got a {type(data).__name__}")
+    if not data:
+        raise FileFormatError(f"{path}: holds no landmarks (expected {form})")
+    out = {}
+    for name, v in data.items():
+        if isinstance(v, int) and not isinstance(v, bool):
+            if v < 0 or (n_vertices is not None and v >= n_vertices):
+                top = f"[0, {n_vertices})" if n_vertices is not None else ">= 0"
+                raise FileFormatError(f"{path}: landmark {name!r}: vertex index {v} is not in {top}")
+            out[str(name)] = v
+        elif points and isinstance(v, list) and len(v) == 3 and all(isinstance(c, int | float) for c in v):
+            out[str(name)] = [float(c) for c in v]
+        else:
+            raise FileFormatError(f"{path}: landmark {name!r}: {v!r} is not a vertex index (expected {form})")
+    return out
 
 
 def file_sha256(path: str | Path, *, chunk_bytes: int = 1 << 20) -> str:

@@ -13,6 +13,7 @@ Targets are displacements from the take's own reference frame: d^_fj = T(p_fj) -
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -21,6 +22,7 @@ import numpy as np
 from wface.basis.analysis import MarkerBasis
 from wface.basis.core import ActuationBasis
 from wface.mesh.align import (
+    FACE_SCALE_RANGE,
     STABLE_MARKERS,
     MarkerEmbedding,
     Similarity,
@@ -75,8 +77,26 @@ class MarkerLayout:
             with_scale: similarity (True) or rigid alignment.
         """
         tris = basis.skin_triangles
+        if landmarks:
+            unknown = [n for n in landmarks if n not in set(marker_names)]
+            if len(unknown) == len(landmarks):
+                raise ValueError(
+                    f"none of the landmark names ({', '.join(unknown[:8])}) is a marker of the take "
+                    f"(e.g. {', '.join(list(marker_names)[:8])})"
+                )
+            if unknown:
+                warnings.warn(
+                    f"landmarks that are not markers of the take, not used: {', '.join(unknown)}", stacklevel=2
+                )
         lm = landmark_array(marker_names, landmarks) if landmarks else None
         res = align_to_surface(markers_m, basis.neutral_m, tris, landmark_vertices=lm, with_scale=with_scale)
+        lo, hi = FACE_SCALE_RANGE
+        if with_scale and not lo <= res.transform.scale <= hi:
+            raise ValueError(
+                f"the take aligns to the basis at scale {res.transform.scale:.3g} (plausible: {lo:g} to {hi:g}): "
+                "the alignment failed; give --landmarks {marker name: basis vertex} (at least 3 markers of the take), "
+                "and check the take's length units"
+            )
         surface = res.embedding.surface_points(basis.neutral_m, tris)
         return cls(list(marker_names), res.embedding, tris, res.aligned_m, surface, res.rms_history_m[-1],
                    res.landmark_residual_m)  # fmt: skip

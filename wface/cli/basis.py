@@ -16,9 +16,11 @@ from wface.basis.physical import basis_from_face
 from wface.basis.pipeline import analyze_take, refine_basis, write_analysis
 from wface.cli.validate import positive_float, positive_fraction, positive_int
 from wface.faces.builtin import build_face
-from wface.files import read_json, write_json
+from wface.files import file_sha256, read_landmarks, write_json
 from wface.io.mocap import read_mocap
 from wface.model import load_model
+from wface.takes.provenance import run_provenance
+from wface.takes.store import claim_take_dir
 
 __all__ = ["register"]
 
@@ -61,6 +63,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     a.add_argument("--mocap", required=True, help="take: .c3d, .trc or .csv")
     a.add_argument("--out", required=True, help="output directory")
     a.add_argument("--no-plot", action="store_true", help="skip analysis.png")
+    a.add_argument("--overwrite", action="store_true", help="replace the results of another run that OUT holds")
     a.add_argument("--json", action="store_true", help="print report.json (without per-frame lists) to stdout")
     a.set_defaults(func=_analyze)
 
@@ -121,10 +124,7 @@ def _load(args):
     basis = load_basis(args.basis)
     landmarks = None
     if args.landmarks:
-        path = Path(args.landmarks)
-        if not path.exists():
-            raise FileNotFoundError(f"{path}: no such landmark file")
-        landmarks = {str(k): int(v) for k, v in read_json(path, what="a landmark JSON file").items()}
+        landmarks = read_landmarks(args.landmarks, n_vertices=basis.n_vertices)
     return basis, landmarks
 
 
@@ -143,6 +143,15 @@ def _analyze(args) -> int:
 
     basis, landmarks = _load(args)
     take = _read(args.mocap, args.frames)
+    run = run_provenance(
+        kind="basis analyze",
+        model_sha256=file_sha256(args.basis),
+        source={"basis": str(args.basis), "mocap": str(args.mocap), "frames": args.frames},
+        options={"landmarks": args.landmarks, "exaggerate": args.exaggerate, "split": args.split},
+    )
+    claim_take_dir(args.out, run, overwrite=args.overwrite)  # another run's results are not replaced silently
+    for stale in ("analysis.png", "contractions.npz", "contractions.csv", "marker_error_mm.csv"):
+        (Path(args.out) / stale).unlink(missing_ok=True)  # a rerun with --no-plot leaves no old picture
     t0 = time.perf_counter()
     res = analyze_take(basis, take, landmarks=landmarks, upper=None if args.exaggerate else 1.0, split=args.split,
                        progress=not args.no_progress)  # fmt: skip

@@ -13,6 +13,7 @@ from wface.faces.artisynth import import_artisynth
 from wface.faces.builtin import build_face
 from wface.faces.fit import fit_template, ict_feature_landmarks, select_target_faces
 from wface.faces.summary import model_summary
+from wface.files import read_landmarks
 from wface.io.mocap import read_mocap
 from wface.mesh.meshfile import read_surface_mesh
 from wface.mesh.tetio import model_cell_data, write_tet_mesh
@@ -187,10 +188,7 @@ def _import(args: argparse.Namespace) -> int:
 
 def _fit_landmarks(args, mesh, say) -> dict | None:
     if args.landmarks:
-        path = Path(args.landmarks)
-        if not path.is_file():
-            raise FileNotFoundError(f"landmark file not found: {path}")
-        return {str(k): v for k, v in json.loads(path.read_text()).items()}
+        return read_landmarks(args.landmarks, n_vertices=mesh.n_points, points=True)
     if mesh.n_points == 26719:  # the ICT-FaceKit head topology
         say("landmarks: 18 facial features of the ICT-FaceKit head (eye and mouth corners, lips, brows, nose)")
         return ict_feature_landmarks()

@@ -26,6 +26,8 @@ from wface.speech.dynamic import GestureDynamics
 from wface.speech.gestures import map_gesture_to_model, read_gesture
 from wface.speech.output import write_aperture_picture, write_gesture_usd, write_lip_opening, write_states
 from wface.speech.playback import compare_with_reference, lip_area_points, simulate_gesture, summarize
+from wface.takes.provenance import command_provenance
+from wface.takes.store import claim_take_dir
 
 _EPILOG = """\
 The gesture folders (speech/closure, speech/fricative, speech/approximant of the ArtiSynth face
@@ -72,6 +74,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="folder holding the gesture folders (default: MODEL_DATA/speech, or ../shared/data/artisynth-face/speech)",
     )
     p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--overwrite", action="store_true", help="replace the results of another run that OUT holds")
     p.add_argument(
         "--fps", type=positive_float, default=100.0, help="frame rate (default 100, the original's output rate)"
     )
@@ -258,7 +261,7 @@ def run_speech(args: argparse.Namespace) -> int:
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
     mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
     _check_model(args, model, gesture, mapping)
-    out.mkdir(parents=True, exist_ok=True)
+    claim_take_dir(out, command_provenance("speech", model, args), overwrite=args.overwrite)
     t_load = time.perf_counter() - t_start
     contact = contact_from_args(args, model)
     dynamics = _dynamics(args)

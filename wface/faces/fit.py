@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 from importlib import resources
 
@@ -268,6 +269,20 @@ def _landmark_point(spec, surface: SurfaceMesh) -> np.ndarray:
     return np.asarray(spec, dtype=np.float64).reshape(3) * surface.meters_per_unit
 
 
+def _check_landmark_names(template: FaceModel, names: list[str], used: list[str]) -> None:
+    """Refuse landmarks none of which the template has; warn of those it lacks (they are not used)."""
+    if not names:
+        return
+    unknown = [n for n in names if n not in set(template.marker_names)]
+    if not used:
+        raise ValueError(
+            f"none of the landmark names ({', '.join(names[:8])}) is one of the template's markers (e.g. "
+            f"{', '.join(template.marker_names[:8])}): name each landmark after the template marker it stands for"
+        )
+    if unknown:
+        warnings.warn(f"landmarks that are not the template's markers, not used: {', '.join(unknown)}", stacklevel=3)
+
+
 def _landmark_pairs(template: FaceModel, names: list[str], target_points_m: np.ndarray):
     """(names, template skin embedding, template points, target points) of the shared marker names."""
     known = dict(zip(template.marker_names, template.marker_positions_m, strict=True))
@@ -390,6 +405,8 @@ def fit_template(
         names = list(marker_names)
         pts = np.asarray(markers_m, dtype=np.float64)
     lm_names, lm_emb, lm_tpl, lm_tgt = _landmark_pairs(template, names, pts)
+    if surface is not None:
+        _check_landmark_names(template, names, lm_names)
     S = _initial_similarity(lm_tpl, lm_tgt, x_t[skin], target_v, target_t)
     to_fit = Similarity(1.0, S.rotation.T, -S.rotation.T @ S.translation_m)  # z = R^T (y - t)
     say(f"similarity: scale {S.scale:.4f} from {len(lm_names)} landmark(s)")

@@ -27,6 +27,7 @@ from wface.mesh.closest import SurfaceQuery
 from wface.mesh.surface import vertex_normals
 
 __all__ = [
+    "FACE_SCALE_RANGE",
     "MarkerEmbedding",
     "Similarity",
     "SurfaceAlignment",
@@ -38,6 +39,10 @@ __all__ = [
     "umeyama",
     "STABLE_MARKERS",
 ]
+
+#: Plausible scales of a similarity that brings one face onto another (an actor's capture onto a model or a
+#: basis): outside it the alignment failed, or a file's length units are wrong.
+FACE_SCALE_RANGE = (0.5, 2.0)
 
 #: AnimFace markers that move (nearly) rigidly with the skull.
 STABLE_MARKERS: tuple[str, ...] = ("ForeHead_L", "ForeHead_M", "ForeHead_R", "NoseTop")

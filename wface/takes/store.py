@@ -434,6 +434,12 @@ def load_take(
                 f"{path}: tracked frames have {tracked.shape[1]} nodes, the model {model.n_nodes}: wrong model?"
             )
     rows = np.arange(len(numbers))[frames or slice(None)]
+    if not len(rows):
+        f = frames or slice(None)
+        raise ValueError(
+            f"{path}: the frame range {'' if f.start is None else f.start}:{'' if f.stop is None else f.stop} "
+            f"selects none of the take's {len(numbers)} frames (positions 0 to {len(numbers) - 1})"
+        )
     take = Take(
         activations=model.clip_activations(acts[rows]),
         fps=fps or read_fps(path) or DEFAULT_FPS,

@@ -22,14 +22,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from wface.mesh.align import align_to_surface, umeyama
+from wface.mesh.align import FACE_SCALE_RANGE, align_to_surface, umeyama
 from wface.tracking.markers import MarkerMap
 
 __all__ = ["CaptureCheck", "CaptureError", "PreparedCapture", "check_capture", "prepare_capture"]
 
 MAX_SPEED_M_S = 2.0
 MAX_DEFORMATION_M = 0.10
-SCALE_RANGE = (0.5, 2.0)
+SCALE_RANGE = FACE_SCALE_RANGE
 MIN_NAMED_MARKERS = 3
 MAX_SHAPE_FIT_MM = 10.0
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wface.files import read_json, write_json
+from wface.files import read_landmarks, write_json
 from wface.io.usd import write_surface_mesh
 from wface.mesh.meshfile import SurfaceMesh, read_surface_mesh, write_obj
 from wface.waters.expressions import expression_pose
@@ -24,16 +24,7 @@ ICT_VERTEX_COUNT = 26719
 
 def load_landmark_vertices(path: str | Path, mesh: SurfaceMesh) -> dict[str, np.ndarray]:
     """Landmark positions from a JSON ``{name: vertex index}`` on ``mesh``."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"landmark file not found: {path}")
-    ids = read_json(path, what="a landmark JSON file {name: vertex index}")
-    out = {}
-    for name, i in ids.items():
-        if not (isinstance(i, int) and 0 <= i < mesh.n_vertices):
-            raise ValueError(f"landmark {name!r}: vertex index {i!r} is not in [0, {mesh.n_vertices})")
-        out[name] = mesh.vertices_m[i]
-    return out
+    return {name: mesh.vertices_m[i] for name, i in read_landmarks(path, n_vertices=mesh.n_vertices).items()}
 
 
 def layout_for_mesh(
