@@ -44,6 +44,34 @@ def test_csv_units_and_rate_from_time(tmp_path):
     assert np.isnan(take.positions_m[1, 0]).all()  # a gap in any coordinate voids the point
 
 
+def test_csv_rate_from_rounded_times_byte_order_mark_and_bad_times(tmp_path):
+    """Times written to 0.01 s or 1 ms gave 50 and 58.8 Hz for a 60 Hz take (the median step); a UTF-8
+    byte-order mark (Excel's "CSV UTF-8") made the header unreadable; times that stop increasing divided by 0."""
+    take = _take(frames=20)
+    for decimals in (2, 3, 6):
+        rows = [f"{f},{f / 60:.{decimals}f}," + ",".join(f"{v:.6f}" for v in take.positions_m[f].ravel() * 1e3)
+                for f in range(20)]  # fmt: skip
+        head = "frame,time_s," + ",".join(f"{n}_{a}" for n in take.marker_names for a in "xyz")
+        path = tmp_path / f"t{decimals}.csv"
+        path.write_text("# units: mm\n" + head + "\n" + "\n".join(rows) + "\n")
+        assert read_csv(path).rate_hz == 60.0
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    back = read_csv(path)
+    assert back.marker_names == take.marker_names and back.rate_hz == 60.0
+    trc = tmp_path / "bom.trc"
+    write_mocap(take, trc)
+    trc.write_bytes(b"\xef\xbb\xbf" + trc.read_bytes())
+    assert read_trc(trc).n_frames == 20
+    flat = tmp_path / "flat.csv"
+    flat.write_text("# units: mm\nframe,time_s,A_x,A_y,A_z\n0,0.0,1,2,3\n1,0.1,1,2,3\n2,0.1,1,2,3\n")
+    with pytest.raises(ValueError, match="flat.csv: CSV column 'time_s' does not increase at line 5.*# rate_hz: 60"):
+        read_csv(flat)
+    word = tmp_path / "word.csv"
+    word.write_text("# units: mm\n# rate_hz: sixty\nA_x,A_y,A_z\n1,2,3\n")
+    with pytest.raises(ValueError, match="word.csv: '# rate_hz: sixty' is not a number"):
+        read_csv(word)
+
+
 def test_frames_slice():
     take = _take(frames=10)
     sub = take.frames(2, 9, 3)
@@ -74,7 +102,7 @@ def test_bad_files(tmp_path):
         read_csv(cols)
     ragged = tmp_path / "ragged.csv"
     ragged.write_text("# rate_hz: 60\nA_x,A_y,A_z\n1,2,3\n1,2\n")
-    with pytest.raises(ValueError, match="ragged.csv: CSV row 3"):
+    with pytest.raises(ValueError, match="ragged.csv: CSV line 4 has 2 columns"):  # the file's own line number
         read_csv(ragged)
     nomark = tmp_path / "nomark.csv"
     nomark.write_text("frame,time_s\n0,0\n")

@@ -294,7 +294,7 @@ def read_trc(path: str | Path) -> MocapTake:
     """Read a TRC (OpenSim / Motion Analysis track row column) marker file."""
     path = Path(path)
     _check_file(path)
-    lines = path.read_text(errors="replace").splitlines()
+    lines = path.read_text(encoding="utf-8-sig", errors="replace").splitlines()
     if len(lines) < 5 or not lines[0].startswith("PathFileType"):
         raise ValueError(f"{path}: not a TRC file (first line should start with 'PathFileType', need 5 header lines)")
     keys = lines[1].split("\t")
@@ -364,6 +364,10 @@ def write_trc(take: MocapTake, path: str | Path, *, units: str = "mm") -> None:
 # ---------------------------------------------------------------------------------------- CSV
 
 
+#: capture rates a CSV's rounded time column is snapped to (``_csv_rate``)
+COMMON_RATES_HZ = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 100.0, 120.0, 150.0, 200.0, 240.0, 250.0, 500.0)
+
+
 def read_csv(path: str | Path, *, units: str | None = None, rate_hz: float | None = None) -> MocapTake:
     """Read a CSV take: the wface layout, a Vicon Nexus or an OptiTrack Motive export (module docstring).
 
@@ -379,7 +383,7 @@ def read_csv(path: str | Path, *, units: str | None = None, rate_hz: float | Non
     """
     path = Path(path)
     _check_file(path)
-    with path.open(newline="", errors="replace") as fh:
+    with path.open(newline="", encoding="utf-8-sig", errors="replace") as fh:  # -sig: Excel's byte-order mark
         lines = fh.read().splitlines()
     for sniff, parse in ((is_vicon, parse_vicon), (is_motive, parse_motive)):
         if sniff(lines):
@@ -392,14 +396,15 @@ def read_csv(path: str | Path, *, units: str | None = None, rate_hz: float | Non
 def _read_wface_csv(path: Path, lines: list[str], *, units: str | None, rate_hz: float | None) -> MocapTake:
     """The wface CSV layout (module docstring)."""
     meta: dict[str, str] = {}
-    body = []
-    for ln in lines:
+    body, line_no = [], []  # the header and data rows, and their line numbers in the file
+    for n, ln in enumerate(lines, start=1):
         if ln.startswith("#"):
             if ":" in ln:
                 k, v = ln[1:].split(":", 1)
                 meta[k.strip().lower()] = v.strip()
         elif ln.strip():
             body.append(ln)
+            line_no.append(n)
     if not body:
         raise ValueError(f"{path}: CSV has no header row")
     rows = list(csv.reader(body))
@@ -427,33 +432,59 @@ def _read_wface_csv(path: Path, lines: list[str], *, units: str | None, rate_hz:
         raise ValueError(f"{path}: CSV has a header but no frames")
     for i, row in enumerate(rows[1:]):
         if len(row) != len(header):
-            raise ValueError(f"{path}: CSV row {i + 2} has {len(row)} columns, header has {len(header)}")
+            raise ValueError(f"{path}: CSV line {line_no[i + 1]} has {len(row)} columns, the header {len(header)}")
         for j, c in enumerate(coords):
             cell = row[c].strip()
             if cell and cell.lower() != "nan":
                 try:
                     data[i, j] = float(cell)
                 except ValueError:
-                    raise ValueError(f"{path}: CSV row {i + 2}, column {header[c]!r}: not a number: {cell!r}") from None
+                    raise ValueError(
+                        f"{path}: CSV line {line_no[i + 1]}, column {header[c]!r}: not a number: {cell!r}"
+                    ) from None
     unit = meta.get("units", units)
     if unit is None:
         raise ValueError(
-            f"{path}: CSV gives no length units: add a line '# units: mm' (or cm, m) before the header, "
-            "or pass units= to read_csv"
+            f"{path}: CSV gives no length units: add a line '# units: mm' (or cm, m) before the header "
+            "(in Python: read_csv(path, units=...))"
         )
     scale = _unit_scale(unit, path)
-    rate = meta.get("rate_hz")
-    if rate is not None:
-        rate = float(rate)
-    elif rate_hz is not None:
-        rate = float(rate_hz)
-    else:
-        tcol = [i for i in skip if header[i].lower() in ("time_s", "time")]
-        if not tcol or len(rows) < 3:
-            raise ValueError(f"{path}: CSV gives no frame rate (no '# rate_hz:' line, no time_s column); pass rate_hz")
-        t = np.array([float(r[tcol[0]]) for r in rows[1:]])
-        rate = 1.0 / float(np.median(np.diff(t)))
+    rate = _csv_rate(path, meta, rate_hz, header, skip, rows, line_no)
     return MocapTake(data.reshape(len(rows) - 1, len(names), 3) * scale, names, rate, str(path), 0, {"units": unit})
+
+
+def _csv_rate(path, meta, rate_hz, header, skip, rows, line_no) -> float:
+    """The frame rate of a wface CSV: its ``# rate_hz:`` line, the caller's, or its time column's span over its
+    frames (not the median step: times written to the millisecond make a 60 Hz take 58.8 Hz that way), snapped
+    to a common capture rate when one lies within what the times' rounding allows."""
+    if "rate_hz" in meta:
+        try:
+            return float(meta["rate_hz"])
+        except ValueError:
+            raise ValueError(f"{path}: '# rate_hz: {meta['rate_hz']}' is not a number of frames per second") from None
+    if rate_hz is not None:
+        return float(rate_hz)
+    tcol = [i for i in skip if header[i].lower() in ("time_s", "time")]
+    fix = "add a line '# rate_hz: 60' (your rate) before the header (in Python: read_csv(path, rate_hz=...))"
+    if not tcol or len(rows) < 3:
+        raise ValueError(f"{path}: CSV gives no frame rate (no '# rate_hz:' line, no time_s column): {fix}")
+    try:
+        t = np.array([float(r[tcol[0]]) for r in rows[1:]])
+    except ValueError:
+        raise ValueError(f"{path}: CSV column {header[tcol[0]]!r} holds a value that is not a time: {fix}") from None
+    step = np.diff(t)
+    if not np.all(np.isfinite(t)) or np.any(step <= 0):
+        bad = int(np.argmax(~(step > 0))) + 2 if np.any(~(step > 0)) else 1
+        raise ValueError(
+            f"{path}: CSV column {header[tcol[0]]!r} does not increase at line {line_no[bad]} "
+            f"(times rounded too coarsely for the rate?): {fix}"
+        )
+    span, n = float(t[-1] - t[0]), len(t) - 1
+    decimals = max(len(r[tcol[0]].strip().partition(".")[2].rstrip()) for r in rows[1:])
+    res = 10.0**-decimals  # the times' resolution as written: the span is known to +- res
+    lo, hi = n / (span + res), (n / (span - res) if span > res else np.inf)
+    common = [r for r in COMMON_RATES_HZ if lo <= r <= hi]
+    return float(min(common, key=lambda r: abs(r - n / span))) if common else n / span
 
 
 def write_csv(take: MocapTake, path: str | Path, *, units: str = "mm") -> None:
