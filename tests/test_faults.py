@@ -303,7 +303,7 @@ def test_damaged_model_file_is_named(model_path, tmp_path, capsys, damage):
         bad.write_text("not a model\n")
     code, text = _cli(["model", "info", bad], capsys)
     assert code == 1
-    assert text.startswith("wface model: error: ") and str(bad) in text and "Traceback" not in text
+    assert text.startswith("wface model info: error: ") and str(bad) in text and "Traceback" not in text
     expected = {"empty": "file is empty", "truncate": "not an .npz archive", "flip": "bad checksum", "text": "not an"}
     assert expected[damage] in text
 
@@ -684,7 +684,7 @@ def test_debug_shows_the_traceback(capsys):
     with pytest.raises(FileNotFoundError):
         main(["model", "info", "nowhere.npz", "--debug"])
     code, text = _cli(["model", "info", "nowhere.npz"], capsys)
-    assert code == 1 and text.strip() == "wface model: error: face model file not found: nowhere.npz"
+    assert code == 1 and text.strip() == "wface model info: error: face model file not found: nowhere.npz"
 
 
 def test_closed_pipe_is_quiet():

@@ -223,6 +223,14 @@ def test_model_fit_command_on_a_mesh_file(tmp_path, capsys):
     assert report["surface_distance_mm"]["mean"] < 1.0
     fitted = load_model(tmp_path / "actor.npz")
     assert np.allclose(np.asarray(fitted.metadata["fit"]["target_to_model"])[3], [0, 0, 0, 1])
+    # the same head read as millimetres is a face 10x too small: refused, naming --units (it used to fit it)
+    rc = main(
+        ["model", "fit", "--template", str(tmp_path / "tpl.npz"), "--surface", str(tmp_path / "head.obj"),
+         "--units", "mm", "--landmarks", str(tmp_path / "lm.json"), "--out", str(tmp_path / "small.npz")]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 1 and "times the template's size" in err and "check --units" in err, err
+    assert not (tmp_path / "small.npz").exists()
 
 
 def test_model_fit_needs_a_target(capsys):

@@ -61,3 +61,38 @@ def test_asking_for_cuda_without_a_driver_says_why(tmp_path):
     run = _run(code, tmp_path / "cache")
     assert run.returncode != 0
     assert "device 'cuda:0' requested but Warp sees no CUDA device" in run.stderr
+
+
+def test_asking_for_cuda_without_one_is_a_user_error_on_the_command_line(capsys, tmp_path):
+    """One line and exit 1 naming the cure; it used to be reported as an internal error to report."""
+    import warp as wp
+
+    from wface.cli import main
+    from wface.warp_runtime import init_warp
+
+    init_warp()
+    if wp.is_cuda_available():
+        pytest.skip("this machine has CUDA")
+    assert (
+        main(
+            [
+                "edit",
+                "blend",
+                "--from",
+                "smile",
+                "--to",
+                "sad",
+                "--frames",
+                "2",
+                "--tets",
+                "1000",
+                "--device",
+                "cuda",
+                "--out",
+                str(tmp_path / "out"),
+            ]
+        )
+        == 1
+    )
+    err = capsys.readouterr().err
+    assert "Warp sees no CUDA device" in err and "use --device cpu" in err and "internal error" not in err, err

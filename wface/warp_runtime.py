@@ -21,7 +21,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-__all__ = ["init_warp", "kernel_cache_dir", "quiet_warp", "resolve_device"]
+__all__ = ["NoCudaDeviceError", "init_warp", "kernel_cache_dir", "quiet_warp", "resolve_device"]
 
 _initialised = False
 _cuda_messages: list[str] = []  # what Warp's native start-up said about CUDA (shown when CUDA is asked for)
@@ -128,11 +128,15 @@ def quiet_warp() -> None:
     wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)
 
 
+class NoCudaDeviceError(RuntimeError):
+    """A CUDA device was asked for on a machine where Warp sees none (a user's choice, not a bug)."""
+
+
 def resolve_device(device: str | None = None) -> str:
     """Return a Warp device name: ``"cpu"``, ``"cuda:0"``...; ``None`` or ``"auto"`` picks CUDA when present.
 
     Raises:
-        RuntimeError: a CUDA device is asked for and Warp sees none (with Warp's own note on the driver).
+        NoCudaDeviceError: a CUDA device is asked for and Warp sees none (with Warp's own note on the driver).
     """
     import warp as wp
 
@@ -142,5 +146,8 @@ def resolve_device(device: str | None = None) -> str:
         return "cuda:0" if wp.is_cuda_available() else "cpu"
     if asks_cuda and not wp.is_cuda_available():
         note = f" (Warp: {_cuda_messages[-1]})" if _cuda_messages else ""
-        raise RuntimeError(f"device {device!r} requested but Warp sees no CUDA device on this machine{note}")
+        raise NoCudaDeviceError(
+            f"device {device!r} requested but Warp sees no CUDA device on this machine{note}: use --device cpu "
+            "(or auto, which takes CUDA where there is one)"
+        )
     return device

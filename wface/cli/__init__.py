@@ -26,6 +26,7 @@ import sys
 import warnings
 
 from wface import __version__
+from wface.warp_runtime import NoCudaDeviceError
 
 __all__ = [
     "EXIT_FAILURE",
@@ -59,7 +60,7 @@ OPTIONAL_EXTRAS = {
 }
 RESUMABLE = ("track", "demo")  # commands whose frames survive an interrupt
 # what a user did wrong (or the machine refused), as opposed to a bug in wface
-USER_ERRORS = (OSError, ValueError, KeyError, ImportError, EOFError)
+USER_ERRORS = (OSError, ValueError, KeyError, ImportError, EOFError, NoCudaDeviceError)
 
 COMMAND_MODULES = [
     "wface.cli.track",
@@ -153,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
         if not getattr(args, "func", None):
             parser.print_help()
             return EXIT_USAGE
-        command = args.command
+        command = " ".join(filter(None, (args.command, getattr(args, f"{args.command}_command", None))))
         with warnings.catch_warnings():
             if not debug:
                 warnings.showwarning = _show_warning

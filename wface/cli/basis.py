@@ -14,7 +14,7 @@ from pathlib import Path
 from wface.basis.core import load_basis
 from wface.basis.physical import basis_from_face
 from wface.basis.pipeline import analyze_take, refine_basis, write_analysis
-from wface.cli.validate import positive_float, positive_fraction, positive_int
+from wface.cli.validate import npz_file, positive_float, positive_fraction, positive_int
 from wface.faces.builtin import build_face
 from wface.files import file_sha256, read_landmarks, write_json
 from wface.io.mocap import read_mocap
@@ -73,7 +73,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "basis (.npz) and PATH.report.json with the error of every iteration.")  # fmt: skip
     common(r)
     r.add_argument("--train", required=True, nargs="+", help="training takes (.c3d/.trc/.csv)")
-    r.add_argument("--out", required=True, help="refined basis .npz")
+    r.add_argument("--out", required=True, type=npz_file, help="refined basis .npz")
     r.add_argument("--regularization", default="auto",
                    help="ridge weight towards the initial shapes, or 'auto' (leave-one-take-out; default)")  # fmt: skip
     r.add_argument("--support", type=positive_float, default=None,
@@ -102,7 +102,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--tets", type=positive_int, default=5000, help="size of the built-in face when --model is not given"
     )
     f.add_argument("--activation", type=positive_fraction, default=1.0, help="activation of each muscle (default 1)")
-    f.add_argument("--out", required=True, help="basis file to write (.npz)")
+    f.add_argument("--out", required=True, type=npz_file, help="basis file to write (.npz)")
     f.set_defaults(func=_from_face)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 

@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from wface.cli.validate import non_negative_int, positive_int
+from wface.cli.validate import non_negative_int, npz_file, positive_int, tet_mesh_file
 from wface.faces.artisynth import import_artisynth
 from wface.faces.builtin import build_face
 from wface.faces.fit import fit_template, ict_feature_landmarks, select_target_faces
@@ -62,7 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     b.add_argument("--tets", type=positive_int, default=20000, help="target number of tetrahedra (default 20000)")
-    b.add_argument("--out", required=True, help="output model file (.npz)")
+    b.add_argument("--out", required=True, type=npz_file, help="output model file (.npz)")
     b.add_argument(
         "--free-to-mm",
         type=float,
@@ -71,7 +71,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(default 18: the oral vestibule; 34 frees the midface's deep surface too, measured on real capture "
         "in README, 'Your actor, your head')",
     )
-    b.add_argument("--vtu", help="also export the tet mesh (with muscle and bone data) to this .vtu/.msh file")
+    b.add_argument(
+        "--vtu", type=tet_mesh_file, help="also export the tet mesh (with muscle and bone data) to this .vtu/.msh file"
+    )
     b.add_argument("--quiet", action="store_true", help="no progress bar")
     b.set_defaults(func=_build)
 
@@ -91,7 +93,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     imp.add_argument("format", choices=["artisynth"], help="source format")
     imp.add_argument("directory", help="source directory")
-    imp.add_argument("--out", required=True, help="output model file (.npz)")
+    imp.add_argument("--out", required=True, type=npz_file, help="output model file (.npz)")
     imp.set_defaults(func=_import)
 
     f = msub.add_parser(
@@ -111,7 +113,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     f.add_argument(
         "--neutral-frame", type=non_negative_int, default=0, help="frame of --markers showing the neutral face"
     )
-    f.add_argument("--out", required=True, help="output model file (.npz)")
+    f.add_argument("--out", required=True, type=npz_file, help="output model file (.npz)")
     f.add_argument("--json", action="store_true", help="print the fit report as JSON")
     f.set_defaults(func=_fit)
     p.set_defaults(func=lambda a: p.print_help() or 2)

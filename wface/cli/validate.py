@@ -101,6 +101,25 @@ def non_negative_int(text: str) -> int:
     return v
 
 
+def npz_file(text: str) -> str:
+    """An output file name ending in .npz (checked before the work, not after it)."""
+    if not str(text).lower().endswith(".npz"):
+        raise argparse.ArgumentTypeError(f"expected a file name ending in .npz, got {text!r}")
+    return text
+
+
+TET_MESH_SUFFIXES = (".vtu", ".vtk", ".msh", ".xdmf", ".inp", ".mesh")  # meshio formats that hold tetrahedra
+
+
+def tet_mesh_file(text: str) -> str:
+    """An output file name whose suffix names a format that holds a tet mesh (``TET_MESH_SUFFIXES``)."""
+    if not str(text).lower().endswith(TET_MESH_SUFFIXES):
+        raise argparse.ArgumentTypeError(
+            f"expected a tet mesh file ({', '.join(TET_MESH_SUFFIXES)}), got {text!r} (that format holds no tets)"
+        )
+    return text
+
+
 def frame_range(text: str) -> tuple[int | None, int | None, int]:
     """``A:B`` or ``A:B:S`` (either end may be empty; a Python slice of the file's frames, A < B when both
     given; S >= 1 keeps every S-th frame)."""

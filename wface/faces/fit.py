@@ -44,7 +44,7 @@ from importlib import resources
 import numpy as np
 
 from wface.faces.registration import DEFAULT_SCHEDULE, register_surface
-from wface.mesh.align import Similarity, align_to_surface, embed_markers, umeyama
+from wface.mesh.align import FACE_SCALE_RANGE, Similarity, align_to_surface, embed_markers, umeyama
 from wface.mesh.closest import SurfaceQuery
 from wface.mesh.improve import improve_tets, tet_sine_quality_deg
 from wface.mesh.meshfile import SurfaceMesh
@@ -269,6 +269,17 @@ def _landmark_point(spec, surface: SurfaceMesh) -> np.ndarray:
     return np.asarray(spec, dtype=np.float64).reshape(3) * surface.meters_per_unit
 
 
+def _check_scale(scale: float, surface: SurfaceMesh | None) -> None:
+    """Refuse a target far from a face's size: wrong units (a cm head read as mm is 10x too small)."""
+    lo, hi = FACE_SCALE_RANGE
+    if not lo <= scale <= hi:
+        units = f" (read at {surface.meters_per_unit:g} m per unit: check --units)" if surface is not None else ""
+        raise ValueError(
+            f"the target is {scale:.3g} times the template's size (plausible: {lo:g} to {hi:g}){units}; or the "
+            "alignment failed: give --landmarks"
+        )
+
+
 def _check_landmark_names(template: FaceModel, names: list[str], used: list[str]) -> None:
     """Refuse landmarks none of which the template has; warn of those it lacks (they are not used)."""
     if not names:
@@ -405,11 +416,11 @@ def fit_template(
         names = list(marker_names)
         pts = np.asarray(markers_m, dtype=np.float64)
     lm_names, lm_emb, lm_tpl, lm_tgt = _landmark_pairs(template, names, pts)
-    if surface is not None:
-        _check_landmark_names(template, names, lm_names)
+    _check_landmark_names(template, names if surface is not None else [], lm_names)
     S = _initial_similarity(lm_tpl, lm_tgt, x_t[skin], target_v, target_t)
     to_fit = Similarity(1.0, S.rotation.T, -S.rotation.T @ S.translation_m)  # z = R^T (y - t)
     say(f"similarity: scale {S.scale:.4f} from {len(lm_names)} landmark(s)")
+    _check_scale(float(S.scale), surface)
     rest_s = S.scale * x_t
     reg = register_surface(
         rest_s,
