@@ -605,7 +605,17 @@ def test_a_directory_that_holds_no_take_is_named_before_any_face_is_built(tmp_pa
         assert code == 1 and "not a tracking output directory" in text and str(tmp_path / "empty") in text, text
     code, text = _cli(["resim", "--take", tmp_path / "nowhere", "--out", tmp_path / "o"], capsys)
     assert code == 1 and "does not exist" in text
+    (tmp_path / "afile").write_text("x")
+    code, text = _cli(["resim", "--take", tmp_path / "afile", "--out", tmp_path / "o"], capsys)
+    assert code == 1 and "is a file, not a take directory" in text
     assert not (tmp_path / "o").exists()
+
+
+def test_a_takes_controls_file_is_taken_for_its_directory(reference, tmp_path, capsys):
+    """README: feed controls.npz back with --take; the file itself used to be refused as "does not exist"."""
+    from wface.takes.store import require_take_dir
+
+    assert require_take_dir(reference / "controls.npz") == reference
 
 
 def test_broken_meshes_are_named_before_any_face_is_built(tmp_path, capsys, monkeypatch):

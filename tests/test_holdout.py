@@ -70,3 +70,6 @@ def test_demo_with_held_out_markers(tmp_path):
     # --dropout 0: the capture lacks nothing; the hidden samples are counted apart, not as missing
     assert rep["missing_samples"] == 0 and rep["holdout_samples"] == 2 * len(hidden)
     assert "held-out marker RMS" in (out / "report.html").read_text()
+    # so in each marker's row too (it read "seen 0, missing 2")
+    for n, st in rep["marker_stats"].items():
+        assert (st["seen"], st["missing"], st["held_out"]) == ((0, 0, 2) if n in hidden else (2, 0, 0)), n

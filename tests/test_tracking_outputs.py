@@ -26,7 +26,7 @@ def test_usd_is_written_without_pictures_and_skipped_with_no_usd(tmp_path, capsy
     assert not list(out.glob("*.png")) and not (out / "take.mp4").exists()
     report = json.loads((out / "report.json").read_text())
     assert report["marker_samples"] == 2 * report["markers"]
-    assert set(report["marker_stats"]["Chin"]) == {"seen", "missing", "outliers", "rms_mm", "max_mm"}
+    assert set(report["marker_stats"]["Chin"]) == {"seen", "missing", "held_out", "outliers", "rms_mm", "max_mm"}
     html = (out / "report.html").read_text()
     assert "marker RMS error vs the clean truth" in html and "<h2>Files</h2>" in html
 
@@ -48,6 +48,7 @@ def test_marker_stats_separate_outliers_and_missing_samples():
     assert stats["b"] == {
         "seen": 3,
         "missing": 0,
+        "held_out": 0,
         "outliers": 1,
         "rms_mm": pytest.approx(np.sqrt(0.025)),
         "max_mm": 5.0,
@@ -73,3 +74,21 @@ def test_headline_is_the_error_a_person_should_read():
     assert not any("capture" in c[2] for c in headline_cards(add_capture_units({**real}, 1.0)))
     with pytest.raises(ValueError, match="capture_to_model_scale"):
         add_capture_units({}, 0.0)
+
+
+def test_markers_set_aside_in_most_frames_are_named():
+    """The headline counts inliers: a marker the robust fit ignores in most frames is said by name."""
+    from wface.cli.track import _warn_rejected_markers
+
+    stats = {
+        "Chin": {"seen": 20, "outliers": 17, "max_mm": 11.8},
+        "NoseTop": {"seen": 20, "outliers": 2, "max_mm": 3.4},
+        "Hidden": {"seen": 0, "outliers": 0, "max_mm": None},
+    }
+    with pytest.warns(UserWarning, match=r"most frames .*: Chin \(17 of 20 frames, up to 11.8 mm\); the face"):
+        _warn_rejected_markers({"marker_stats": stats})
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _warn_rejected_markers({"marker_stats": {"NoseTop": stats["NoseTop"]}})

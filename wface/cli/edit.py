@@ -176,7 +176,9 @@ def _model(args):
 
     quiet_warp()
     if getattr(args, "take", None):
-        require_take_dir(args.take)  # a wrong --take fails before a face is built
+        args.take = str(
+            require_take_dir(args.take)
+        )  # a wrong --take fails before a face is built (controls.npz: its dir)
     if args.model:
         return load_model(args.model)
 

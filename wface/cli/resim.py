@@ -212,7 +212,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.fps is not None and not args.fps > 0:
         raise ValueError(f"--fps must be > 0, got {args.fps}")
     if args.take:
-        require_take_dir(args.take)  # a wrong --take fails before a face is built
+        args.take = str(require_take_dir(args.take))  # a wrong --take fails before a face is built
         if Path(args.out).resolve() == Path(args.take).resolve():  # --overwrite would delete the input
             raise ValueError(f"--out {args.out} is the take being re-simulated (--take): write it to another directory")
     model = load_model(args.model) if args.model else build_face(args.tets, progress=True)

@@ -354,6 +354,7 @@ def _run(
             stacklevel=1,
         )
     _warn_jaw_on_closed_limit(model, report, truth)
+    _warn_rejected_markers(report)
     print("  ".join(f"{k}={report[k]:.4g}" for k in keys if report.get(k) is not None))
     print_outputs(out, written)
     return 0
@@ -378,6 +379,25 @@ def _warn_jaw_on_closed_limit(model, report: dict, truth) -> None:
         f"(jaw_on_closed_limit_fraction in report.json): {hint}",
         stacklevel=1,
     )
+
+
+def _warn_rejected_markers(report: dict) -> None:
+    """Name the markers the robust fit set aside in most of the frames that saw them: the headline error
+    counts inliers, so a marker the face cannot follow (a jaw that does not open as far) would go unseen."""
+    worst = [
+        (n, st)
+        for n, st in (report.get("marker_stats") or {}).items()
+        if st.get("seen") and st.get("outliers", 0) > 0.5 * st["seen"]
+    ]
+    if worst:
+        listed = ", ".join(
+            f"{n} ({st['outliers']} of {st['seen']} frames, up to {st['max_mm']:.1f} mm)" for n, st in worst
+        )
+        warnings.warn(
+            f"set aside as outliers in most frames (the fit ignores them there, and marker_rms_mm_inliers leaves "
+            f"them out): {listed}; the face does not reach where the capture puts them (marker_stats in report.json)",
+            stacklevel=1,
+        )
 
 
 def run_demo(args: argparse.Namespace) -> int:

@@ -334,9 +334,16 @@ def _read_controls(path: Path, model: FaceModel):
 
 def require_take_dir(path: str | Path) -> Path:
     """``path`` as a Path if it is a take directory (controls.npz or frame files in it: what
-    ``load_take`` reads), else FileNotFoundError saying what it is not. Cheap: commands call it before
+    ``load_take`` reads) or a take's controls.npz (its directory is returned), else FileNotFoundError
+    saying what it is not. Cheap: commands call it before
     they build or load a face."""
     path = Path(path)
+    if path.is_file() and path.name == CONTROLS:  # the take's controls.npz itself: its directory is the take
+        path = path.parent
+    if path.is_file():
+        raise FileNotFoundError(
+            f"{path} is a file, not a take directory (give the --out of `wface track`, `wface demo` or `wface edit`)"
+        )
     if not path.is_dir():
         raise FileNotFoundError(
             f"take directory {path} does not exist (give the --out of `wface track`, `wface demo` or `wface edit`)"

@@ -103,6 +103,12 @@ def add_holdout(report: dict, records, targets_m: np.ndarray, indices: np.ndarra
     report.update(hold)
     if "missing_samples" in report:
         report["missing_samples"] = int(report["missing_samples"]) - hold["holdout_samples"]
+    present = np.isfinite(np.asarray(targets_m)[: len(records)]).all(axis=2)  # (F, k) the capture has the sample
+    for i in np.asarray(indices, dtype=np.int64):
+        stats = (report.get("marker_stats") or {}).get(str(marker_names[i]))
+        if stats is not None:  # hidden, not missing: the fit never saw the samples the capture has
+            stats["held_out"] = int(present[:, i].sum())
+            stats["missing"] = int(stats["missing"]) - stats["held_out"]
     return report
 
 

@@ -131,7 +131,13 @@ def write_tracking_outputs(
             bar.update()
         if pictures:
             step = frame_step([r.frame for r in records])  # every S-th capture frame: rows at fps / S
-            images = _figures(out, model, records, X, simulated, targets_m, (fps, step), truth, movie, bar)
+            held = set(report.get("holdout_markers") or [])
+            fitted = (
+                None
+                if not (held and marker_names)
+                else np.array([i for i, n in enumerate(marker_names) if n not in held])
+            )
+            images = _figures(out, model, records, X, simulated, targets_m, (fps, step, fitted), truth, movie, bar)
             if report.get("holdout_rms_mm"):
                 images["held-out markers"] = plot_holdout(out / "holdout.png", report, fps=fps / step)
             written.extend(Path(p) for p in images.values())
@@ -146,8 +152,8 @@ def write_tracking_outputs(
 
 def _figures(out, model, records, X, simulated, targets_m, rate, truth, movie: bool, bar) -> dict:
     """Pictures and plots, then the movie (``wface.viz.figures``), one progress step each; ``rate``:
-    (the capture's fps, capture frames per record)."""
-    fps, step = rate
+    (the capture's fps, capture frames per record, the fitted markers' ids or None for all)."""
+    fps, step, fitted = rate
     M = model.n_muscles
     C = np.array([r.controls for r in records])
     cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(c[M:]) for c in C), strict=True))
@@ -164,6 +170,7 @@ def _figures(out, model, records, X, simulated, targets_m, rate, truth, movie: b
         truth_jaw_angle_deg=None if truth is None else truth.jaw_opening_deg,
         first_frame=int(records[0].frame) if records else 0,
         frame_step=step,
+        error_markers=fitted,
     )
     bar.set_postfix_str("pictures and plots")
     images = write_take_figures(out, **common, movie=False)

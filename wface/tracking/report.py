@@ -47,7 +47,7 @@ def _per_marker_rms_mm(err_mm: np.ndarray, marker_names) -> dict:
 
 
 def _marker_stats(err_mm: np.ndarray, marker_names, robust_mm: float | None) -> tuple[dict, dict]:
-    """({marker: seen, missing, outliers, rms_mm (inliers), max_mm}, totals) of the (F, k) errors.
+    """({marker: seen, missing, held_out, outliers, rms_mm (inliers), max_mm}, totals) of the (F, k) errors.
 
     A sample is an outlier when its error exceeds ``robust_mm``, the Tukey cut-off the tracker ends
     with (such a marker pulls on the fit with weight 0); without ``robust_mm`` none is.
@@ -62,6 +62,7 @@ def _marker_stats(err_mm: np.ndarray, marker_names, robust_mm: float | None) -> 
         stats[str(name)] = {
             "seen": int(seen[:, j].sum()),
             "missing": int((~seen[:, j]).sum()),
+            "held_out": 0,  # samples hidden from the fit (``wface.tracking.holdout.add_holdout``)
             "outliers": int(outlier[:, j].sum()),
             "rms_mm": float(np.sqrt(np.mean(e_in**2))) if e_in.size else None,
             "max_mm": float(e_seen.max()) if e_seen.size else None,

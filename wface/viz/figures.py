@@ -57,6 +57,7 @@ def write_take_figures(
     first_frame: int = 0,
     frame_step: int = 1,
     progress: bool = False,
+    error_markers: np.ndarray | None = None,
 ) -> dict[str, Path]:
     """Write stills, plots and a movie of a take into ``out_dir``.
 
@@ -81,6 +82,8 @@ def write_take_figures(
         frame_step: capture frames from one row to the next (row f is capture frame
             ``first_frame + f * frame_step``).
         progress: show a progress bar over the movie's frames.
+        error_markers: the markers the error plot covers (ids; default all): the fitted ones where some were
+            held out, so that the plot reads as the report's ``marker_rms_mm_mean``.
 
     Returns:
         caption -> path, in display order (pass to ``write_html_report``).
@@ -123,6 +126,7 @@ def write_take_figures(
             jaw_affines=jaw_affines,
             cranium_affines=cranium_affines,
             jaw_frame=jaw_frame,
+            error_markers=error_markers,
             jaw_angle_deg=jaw_angle_deg,
             truth_activations=truth_activations,
             truth_jaw_angle_deg=truth_jaw_angle_deg,
@@ -228,8 +232,10 @@ def _write_plots(
     jaw_angle_deg,
     truth_activations,
     truth_jaw_angle_deg,
+    error_markers=None,
 ) -> dict[str, Path]:
-    """Plots over time: activations, marker error, jaw opening (each when its data is given)."""
+    """Plots over time: activations, marker error (over ``error_markers``, default all), jaw opening (each when
+    its data is given)."""
     captured_markers_m, simulated_markers_m = markers
     images: dict[str, Path] = {}
     if activations is not None:
@@ -237,9 +243,11 @@ def _write_plots(
             activations, model.muscle_names, out / "activations.png", fps=fps, truth=truth_activations
         )
     if captured_markers_m is not None and simulated_markers_m is not None:
-        rms, mx = plots.marker_errors_mm(captured_markers_m, simulated_markers_m)
+        cols = slice(None) if error_markers is None else np.asarray(error_markers)
+        rms, mx = plots.marker_errors_mm(captured_markers_m[:, cols], simulated_markers_m[:, cols])
+        title = "Marker error per frame" + ("" if error_markers is None else f" ({len(cols)} fitted markers)")
         images["Marker error per frame"] = plots.plot_marker_error(
-            rms, out / "marker_error.png", marker_max_mm=mx, fps=fps
+            rms, out / "marker_error.png", marker_max_mm=mx, fps=fps, title=title
         )
     if jaw_angle_deg is None and jaw_affines is not None:
         jaw_angle_deg = plots.jaw_opening_deg(
