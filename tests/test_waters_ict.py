@@ -20,7 +20,21 @@ from wface.waters.rig import WatersRig
 def ict():
     mesh = read_surface_mesh(data_path("ict-facekit", "generic_neutral_mesh.obj"), units="cm")
     layout = load_layout("ict")
-    return mesh, layout, WatersRig(layout, mesh.vertices_m)
+    return mesh, layout, WatersRig(layout, mesh.vertices_m, triangles=mesh.triangles())
+
+
+def test_the_jaw_keeps_each_lip_with_its_side(ict):
+    """By position alone the jaw took part of the upper lip where it hangs below the mouth line (a tear from
+    the philtrum to the lower lip at any opening); on the mesh each lip stays with its side."""
+    mesh, layout, rig = ict
+    tri = mesh.triangles().astype(np.int64)
+    edges = np.unique(np.sort(np.c_[tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]].reshape(-1, 2), axis=1), axis=0)
+    plane = layout.jaw.weights(mesh.vertices_m)
+    assert (np.abs(np.diff(plane[edges], axis=1)) > 0.5).sum() > 100  # measured: 108 edges tear
+    assert (np.abs(np.diff(rig.jaw_weights[edges], axis=1)) > 0.5).sum() == 0
+    upper_inner = [18110, 18186, 18073]  # the upper lip's inner midline, 0.3 mm below the mouth line
+    assert plane[upper_inner].min() == 1.0 and rig.jaw_weights[upper_inner].max() < 0.05
+    assert rig.jaw_weights[[16616, 5517]].min() > 0.95  # the lower lip's, inner and outer
 
 
 def test_ict_mesh_reads_in_metres(ict):

@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> dict:
         note = f"real data absent ({path}): fell back to a synthetic mesh; set WFACE_DATA to time the ICT head"
 
     t0 = time.perf_counter()
-    rig = WatersRig(layout, mesh.vertices_m)
+    rig = WatersRig(layout, mesh.vertices_m, triangles=mesh.triangles())
     compile_s = time.perf_counter() - t0
 
     names = list(EXPRESSIONS)

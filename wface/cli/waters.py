@@ -69,7 +69,8 @@ def _run(args: argparse.Namespace) -> int:
         rig, mesh, _ = face_model_rig(build_face(args.tets))
     else:
         mesh = read_surface_mesh(args.mesh, units=args.units)
-        rig = WatersRig(layout_for_mesh(mesh, layout=args.layout, landmarks=args.landmarks), mesh.vertices_m)
+        lay = layout_for_mesh(mesh, layout=args.layout, landmarks=args.landmarks)
+        rig = WatersRig(lay, mesh.vertices_m, triangles=mesh.triangles())
     summary = pose_mesh(
         mesh,
         args.out,

@@ -13,7 +13,7 @@ Quick start::
     from wface.mesh.meshfile import read_surface_mesh
 
     mesh = read_surface_mesh("generic_neutral_mesh.obj", units="cm")      # ICT-FaceKit head
-    rig = WatersRig(load_layout("ict"), mesh.vertices_m)
+    rig = WatersRig(load_layout("ict"), mesh.vertices_m, triangles=mesh.triangles())
     pose = expression_pose("happy", muscle_names=rig.muscle_names)
     x = rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg)  # (n, 3) metres
 """

@@ -69,7 +69,7 @@ def pose_mesh(
         mesh = read_surface_mesh(mesh, units=units)
     if rig is None:
         lay = layout if isinstance(layout, MuscleLayout) else layout_for_mesh(mesh, layout=layout, landmarks=landmarks)
-        rig = WatersRig(lay, mesh.vertices_m)
+        rig = WatersRig(lay, mesh.vertices_m, triangles=mesh.triangles())
     pose = expression_pose(
         expression, intensity=intensity, extra_action_units=action_units, muscle_names=rig.muscle_names
     )

@@ -63,6 +63,8 @@ class WatersRig:
         jaw_weights: optional (n,) weights in [0, 1] of jaw following, overriding the layout's jaw
             planes (e.g. from a volumetric model's bone attachments); the pivot and axis still come
             from the layout.
+        triangles: optional (t, 3) triangles of the mesh: the planes' weights then respect its mouth
+            (``JawRegion.weights_on_mesh``); without them they follow position alone.
     """
 
     def __init__(
@@ -72,6 +74,7 @@ class WatersRig:
         *,
         muscle_mask: np.ndarray | None = None,
         jaw_weights: np.ndarray | None = None,
+        triangles: np.ndarray | None = None,
     ):
 
         self.layout = layout
@@ -98,8 +101,12 @@ class WatersRig:
             if np.any((jaw_weights < 0) | (jaw_weights > 1)):
                 raise ValueError("jaw_weights must lie in [0, 1]")
             self.jaw_weights = jaw_weights
+        elif layout.jaw is None:
+            self.jaw_weights = np.zeros(n)
+        elif triangles is not None:
+            self.jaw_weights = layout.jaw.weights_on_mesh(self.rest_positions_m, triangles)
         else:
-            self.jaw_weights = layout.jaw.weights(self.rest_positions_m) if layout.jaw is not None else np.zeros(n)
+            self.jaw_weights = layout.jaw.weights(self.rest_positions_m)
         tree = cKDTree(self.rest_positions_m)
         rows, cols, vals = [], [], []
         strongest = np.zeros(n)
