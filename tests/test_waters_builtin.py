@@ -74,3 +74,13 @@ def test_every_preset_deforms_the_builtin_skin(rig, face, name):
 def test_builtin_rig_uses_the_harmonic_jaw_weights(face, rig):
     r, _, nodes = rig
     np.testing.assert_array_equal(r.jaw_weights, harmonic_jaw_weights(face)[nodes])
+
+
+def test_an_action_unit_on_one_side_sets_that_side_of_the_preset():
+    """--au AU12R=0 on the happy preset used to leave the right smile on (contributions combine by max)."""
+    one_sided = expression_pose("happy", extra_action_units={"AU12R": 0.0}).contractions
+    assert one_sided["zygomaticus_major_l"] == 1.0 and one_sided["zygomaticus_major_r"] == 0.0
+    half = expression_pose("happy", extra_action_units={"AU12": 0.5}).contractions
+    assert half["zygomaticus_major_l"] == half["zygomaticus_major_r"] == 0.5  # the AU set, both sides
+    back = expression_pose("happy", extra_action_units={"AU12R": 0.0, "AU12": 1.0}).contractions
+    assert back["zygomaticus_major_r"] == 1.0

@@ -42,7 +42,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--expression", default="neutral", help="expression preset (default: neutral)")
     p.add_argument("--intensity", type=probability, default=1.0, help="scale of the preset's action units, 0..1")
     p.add_argument(
-        "--au", action="append", metavar="AU=VALUE", help="extra action unit, e.g. --au AU26=0.5 (repeatable)"
+        "--au",
+        action="append",
+        metavar="AU=VALUE",
+        help="set an action unit's intensity in place of the preset's, e.g. --au AU26=0.5, one side with L / R "
+        "(--au AU12R=0 keeps a smile on the left only; repeatable)",
     )
     p.add_argument("--layout", help="muscle layout JSON, or a packaged name: ict (default), builtin")
     p.add_argument("--landmarks", help="JSON {AnimFace marker name: vertex index} on --mesh: fit the layout to it")

@@ -67,11 +67,19 @@ def expression_pose(
     extra_action_units: Mapping[str, float] | None = None,
     muscle_names: list[str] | None = None,
 ) -> Pose:
-    """Pose of a preset (``wface.facs.EXPRESSIONS``) scaled by ``intensity``; extra AUs override the preset's."""
+    """Pose of a preset (``wface.facs.EXPRESSIONS``) scaled by ``intensity``; an extra AU sets its intensity in place
+    of the preset's, on one side with an L / R suffix (``AU12R=0`` keeps the preset's smile on the left only)."""
     if not (0.0 <= float(intensity) <= 1.0):
         raise ValueError(f"intensity must lie in [0, 1], got {intensity}")
     aus = {k: float(intensity) * v for k, v in expression_action_units(name).items()}
-    aus.update(extra_action_units or {})
+    for key, value in (extra_action_units or {}).items():
+        au, side = parse_action_unit(key)
+        if side == "both":  # the AU on both sides: the preset's sided entries go
+            aus.pop(au + "L", None), aus.pop(au + "R", None)
+        elif au in aus:  # one side of a preset's AU on both sides: split it, then set that side
+            both = aus.pop(au)
+            aus.setdefault(au + "L", both), aus.setdefault(au + "R", both)
+        aus[au if side == "both" else au + side.upper()] = value
     return pose_from_action_units(aus, muscle_names)
 
 
