@@ -236,6 +236,23 @@ def test_resim_writes_the_render_mesh_too(tmp_path, capsys):
     assert len(mesh.GetPointsAttr().Get(2.0)) == len(used)
 
 
+def test_edit_puts_the_render_mesh_in_its_rig_too(tmp_path, capsys):
+    """README: the render mesh joins the rig (Rig/RenderMesh); wface edit used to add the point cache alone."""
+    from pxr import Usd
+
+    from wface.cli import main
+
+    _write_skin_patch(build_face(2000), tmp_path / "patch.obj", 60)
+    out = tmp_path / "blend"
+    args = ["edit", "blend", "--from", "smile", "--to", "surprise", "--frames", "2", "--tets", "2000", "--usda"]
+    assert main([*args, "--no-pictures", "--render-mesh", str(tmp_path / "patch.obj"), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "import the animation stage" in text and "import animation.usdc" not in text  # it wrote animation.usda
+    stage = Usd.Stage.Open(str(out / "animation.usda"))
+    assert stage.GetPrimAtPath("/Face/Rig/RenderMesh") and stage.GetPrimAtPath("/Face/RenderMesh/RenderMeshCache")
+    assert stage.GetRootLayer().customLayerData["wface"]["render_mesh_rig_rms_error_mm"] < 1.0
+
+
 def test_demo_lists_the_render_mesh_layer_it_writes(tmp_path, capsys):
     """The closing lines name every file written, the render mesh's own layer included."""
     from wface.cli import main

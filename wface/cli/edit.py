@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -34,7 +33,6 @@ from wface.takes import (
 )
 from wface.takes.provenance import command_provenance
 from wface.takes.store import claim_take_dir, require_take_dir
-from wface.takes.usd import add_render_mesh
 from wface.warp_runtime import quiet_warp
 
 _EPILOG = """\
@@ -221,9 +219,8 @@ def _finish(args, model, take, info: dict, labels: list[str] | None = None) -> i
         pictures=not args.no_pictures,
         labels=labels,
         progress=True,
+        render_mesh=render_mesh,  # in the stage and, with its own shapes, in the rig (Rig/RenderMesh)
     )
-    if render_mesh is not None:
-        add_render_mesh(Path(args.out) / report["usd"], render_mesh, result.x_m, take.fps, frames=take.frames)
     state = "converged" if report["converged"] else "NOT all converged"
     print(
         f"{report['frames']} frames {state}, max skin displacement {max(report['skin_displacement_max_mm']):.2f} mm, "

@@ -34,18 +34,29 @@ def write_edit(
     pictures: bool = False,
     labels: list[str] | None = None,
     progress: bool = False,
+    render_mesh=None,
 ) -> dict:
     """Write ``usd_name`` (a ``write_take_usd`` stage: skin, bones, activations; or with ``mesh_only``
     the skin alone), ``controls.npz`` / ``controls.csv`` (reloadable with ``load_take``),
     ``report.json`` and, with ``pictures``, ``contact_sheet.png`` (panels titled by ``labels``, one
-    per frame, default "frame k"); ``progress`` shows a bar over the rig's solves. Returns the report."""
+    per frame, default "frame k"); ``progress`` shows a bar over the rig's solves; ``render_mesh`` (a
+    ``wface.faces.render_mesh.RenderMesh``) goes into the stage and its rig (``write_take_usd``). Returns the report."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     take = result.take
     scales = take.force_length_scales
     usd = out / usd_name
     meta = {"edit": (info or {}).get("edit", "")}
-    write_take_usd(usd, model, result.x_m, take=take, metadata=meta, mesh_only=mesh_only, progress=progress)
+    write_take_usd(
+        usd,
+        model,
+        result.x_m,
+        take=take,
+        metadata=meta,
+        mesh_only=mesh_only,
+        progress=progress,
+        render_mesh=render_mesh,
+    )
     write_controls(out, model, take)
     secs = result.seconds_per_frame
     disp = _skin_displacement_mm(model, result)

@@ -39,8 +39,8 @@ OUTPUT_TOOLS = {
     "resim.npz": ("the dynamic replay: positions and per-frame stats", "numpy; wface.takes.store"),
     "states.npz": ("every node, marker and activation per frame (wface speech)", "numpy (np.load)"),
     "animation_render_mesh.usdc": (
-        "your render mesh moving with the take, in its own units (referenced by animation.usdc)",
-        "Blender (File > Import > USD: import animation.usdc), Maya, Houdini, usdview",
+        "your render mesh moving with the take, in its own units (referenced by the animation stage beside it)",
+        "Blender (File > Import > USD: import the animation stage, which brings it), Maya, Houdini, usdview",
     ),
     ".usdc": ("USD stage", "Blender (File > Import > USD), Maya, Houdini, usdview"),
     ".usda": ("USD stage (text)", "Blender (File > Import > USD), Maya, Houdini, usdview, a text editor"),
