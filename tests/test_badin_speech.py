@@ -115,6 +115,33 @@ def test_mapping_drives_both_sides():
     assert sorted(partial.unmapped) == ["LLSAN", "OOMi", "RIS"]
 
 
+def test_bad_gesture_data_is_named_and_out_of_range_excitations_are_said(tmp_path):
+    """A curve above 1 used to be clipped without a word, a bad number was "could not convert string to float"
+    without the file, and a probe the model cannot play was noted only in report.json."""
+    import shutil
+
+    from wface.cli.speech import _check_model
+
+    g = tmp_path / "closure"
+    shutil.copytree(data_path("artisynth-face", "speech", "closure"), g)
+    (g / "oom.txt").write_text((g / "oom.txt").read_text().replace("0.8  0.3", "0.8  1.5"))
+    with pytest.warns(UserWarning, match="probe OOM's excitation runs from 0 to 1.5; it is played clipped"):
+        read_gesture(g)
+    (g / "ment.txt").write_text((g / "ment.txt").read_text() + "0.9 abc\n")
+    with (
+        pytest.warns(UserWarning, match="clipped"),
+        pytest.raises(ValueError, match=r"ment.txt: data row \d+ holds a value that is not a number"),
+    ):
+        read_gesture(g)
+    model = _fake_model(["OOM_l", "OOM_r", "MENT_l", "MENT_r"])
+    model.marker_names = ["Mouth_Up", "Mouth_Down"]
+    closure = read_gesture(data_path("artisynth-face", "speech", "closure"))
+    mapping = map_gesture_to_model(closure, model)
+    assert mapping.unmapped == ["RIS"]
+    with pytest.warns(UserWarning, match="probe RIS is not played: probe RIS drives RIS, which the model does not"):
+        _check_model(SimpleNamespace(model="m.npz"), model, closure, mapping)
+
+
 def test_held_gesture_holds_each_level_for_one_frame():
     """The approximant's OOP held at 0.05, 0.1, 0.3: played at 1 fps, frame k drives OOP_l/OOP_r at
     level k and nothing else (the held-excitation apertures of docs/design.md, "Speech gestures")."""

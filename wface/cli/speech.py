@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import time
+import warnings
 from pathlib import Path
 
 from wface.cli.closing import print_outputs
@@ -194,6 +195,9 @@ def _check_model(args, model, gesture, mapping) -> None:
             f"{args.model}: the model has none of the muscles the gesture drives ({wanted}); it has "
             f"{', '.join(model.muscle_names[:8])}...: play speech on the Badin face (wface model import artisynth)"
         )
+    for probe in mapping.unmapped:  # played by ArtiSynth, not here: say so, not only in report.json
+        why = next((n for n in mapping.notes if probe in n or "OOMl" in n), "the model lacks its muscle")
+        warnings.warn(f"probe {probe} is not played: {why}", stacklevel=2)
     lacking = [n for n in ("Mouth_Up", "Mouth_Down") if n not in model.marker_names]
     if lacking:
         raise ValueError(
@@ -294,7 +298,7 @@ def run_speech(args: argparse.Namespace) -> int:
                 {"name": p.name, "drives": p.target, "active": p.active, "file": p.attached_file}
                 for p in gesture.probes
             ],
-            "played_probes": sorted(gesture.curves),
+            "played_probes": sorted(p for p in gesture.curves if p not in mapping.unmapped),
             "unmapped_probes": mapping.unmapped,
             "interpolation": {k: c.order for k, c in gesture.curves.items()},
             "tol": args.tol,

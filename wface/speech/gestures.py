@@ -35,6 +35,7 @@ approximation (``lower_oom="whole"``, stated in ``GestureMapping.notes``), or is
 from __future__ import annotations
 
 import re
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -176,12 +177,22 @@ def read_excitation_curve(path: str | Path) -> ExcitationCurve:
     head = lines[0].split()
     if len(head) != 3:
         raise ValueError(f"{path}: first line must be 't0 t1 scale', got {lines[0]!r}")
-    t0, t1, scale = (float(v) for v in head)
+    try:
+        t0, t1, scale = (float(v) for v in head)
+    except ValueError:
+        raise ValueError(f"{path}: first line must be 't0 t1 scale' (numbers), got {lines[0]!r}") from None
     spec = lines[1].split()
     if len(spec) < 3:
         raise ValueError(f"{path}: second line must be 'ORDER VSIZE explicit|STEP', got {lines[1]!r}")
     order, vsize = spec[0], int(spec[1])
-    rows = [np.array(ln.split(), dtype=np.float64) for ln in lines[2:]]
+    rows = []
+    for k, ln in enumerate(lines[2:], start=3):
+        try:
+            rows.append(np.array(ln.split(), dtype=np.float64))
+        except ValueError:
+            raise ValueError(f"{path}: data row {k} holds a value that is not a number: {ln!r}") from None
+        if not np.all(np.isfinite(rows[-1])):
+            raise ValueError(f"{path}: data row {k} holds NaN or inf: {ln!r}")
     if spec[2] == "explicit":
         if any(r.size != vsize + 1 for r in rows):
             raise ValueError(f"{path}: explicit rows must hold a time and {vsize} value(s)")
@@ -261,6 +272,13 @@ def read_gesture(directory: str | Path, *, include_inactive: bool = False) -> Sp
             )
         else:
             raise ValueError(f"{directory}: probe {p.name!r} has neither an attached file nor inline data")
+        e = curves[p.name].scale * curves[p.name].data
+        if e.size and (e.min() < 0.0 or e.max() > 1.0):
+            warnings.warn(
+                f"{directory}: probe {p.name}'s excitation runs from {e.min():.3g} to {e.max():.3g}; it is played "
+                "clipped to [0, 1]",
+                stacklevel=2,
+            )
     ref = None
     for o in outputs:
         f = directory / (o["attachedFile"] or "")
