@@ -14,7 +14,7 @@ from pathlib import Path
 from wface.basis.core import load_basis
 from wface.basis.physical import basis_from_face
 from wface.basis.pipeline import analyze_take, refine_basis, write_analysis
-from wface.cli.validate import npz_file, positive_float, positive_fraction, positive_int
+from wface.cli.validate import face_tets, npz_file, positive_float, positive_fraction, positive_int
 from wface.faces.builtin import build_face
 from wface.files import file_sha256, read_landmarks, write_json
 from wface.io.mocap import read_mocap
@@ -98,9 +98,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "alone at --activation (quasistatic solve). Element names are the muscle names.",
     )
     f.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
-    f.add_argument(
-        "--tets", type=positive_int, default=5000, help="size of the built-in face when --model is not given"
-    )
+    f.add_argument("--tets", type=face_tets, default=5000, help="size of the built-in face when --model is not given")
     f.add_argument("--activation", type=positive_fraction, default=1.0, help="activation of each muscle (default 1)")
     f.add_argument("--out", required=True, type=npz_file, help="basis file to write (.npz)")
     f.set_defaults(func=_from_face)

@@ -8,7 +8,7 @@ import json
 import sys
 
 from wface.bench import SUITES
-from wface.cli.validate import positive_int
+from wface.cli.validate import face_tets, positive_int
 from wface.files import write_text
 from wface.tracking.estimator import TrackOptions
 
@@ -20,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Benchmarks. Suites: " + ", ".join(SUITES) + ". Numbers are wall-clock seconds on this machine.",
     )
     p.add_argument("--suite", required=True, choices=SUITES, help="which benchmark to run")
-    p.add_argument("--tets", type=positive_int, action="append", help="mesh size(s) in tetrahedra (repeatable)")
+    p.add_argument("--tets", type=face_tets, action="append", help="mesh size(s) in tetrahedra (repeatable)")
     p.add_argument("--device", default="auto", help="Warp device: cpu, cuda:0 or auto (default)")
     p.add_argument("--repeat", type=positive_int, default=3, help="repetitions per timing; the median is reported")
     p.add_argument("--frames", type=positive_int, help="frames to track (track suite; default 6)")

@@ -11,9 +11,17 @@ from __future__ import annotations
 import argparse
 
 from wface.cli.validate import finite_float, non_negative_float, positive_float
-from wface.physics.contact import SURFACES, Contact
+from wface.physics.contact import REGIONS, SURFACES, Contact
 
 __all__ = ["add_contact_arguments", "contact_from_args"]
+
+
+def contact_regions(text: str) -> str:
+    """``--contact``'s type: comma-separated ``REGIONS`` (a typo is a usage error before any work)."""
+    unknown = [r for r in (p.strip() for p in str(text).split(",")) if r and r not in REGIONS]
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown contact region(s) {', '.join(unknown)}; known: {', '.join(REGIONS)}")
+    return text
 
 
 def add_contact_arguments(
@@ -39,6 +47,7 @@ def add_contact_arguments(
     p.add_argument(
         "--contact",
         default="",
+        type=contact_regions,
         metavar="REGIONS",
         help=f"contact in {where}, comma-separated: lips (upper vs lower lip self-contact), teeth (flesh "
         "against the teeth meshes), bones (against the cranium, maxilla and jaw meshes), skull (against the jaw and "

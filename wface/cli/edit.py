@@ -16,7 +16,7 @@ import numpy as np
 
 from wface.cli.closing import print_outputs
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
-from wface.cli.validate import finite_float, non_negative_int, positive_float, positive_int
+from wface.cli.validate import face_tets, finite_float, non_negative_int, positive_float, positive_int
 from wface.faces.builtin import build_face
 from wface.model import load_model
 from wface.takes import (
@@ -61,9 +61,7 @@ examples:
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
-    p.add_argument(
-        "--tets", type=positive_int, default=5000, help="size of the built-in face when --model is not given"
-    )
+    p.add_argument("--tets", type=face_tets, default=5000, help="size of the built-in face when --model is not given")
     p.add_argument("--device", default="cpu", help="Warp device: cpu, cuda:0 or auto")
     p.add_argument("--solver", default="auto", choices=["auto", "direct", "cg"], help="linear solver")
     p.add_argument("--tol", type=positive_float, default=1e-6, help="relative residual of each solve (default 1e-6)")

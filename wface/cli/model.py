@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from wface.cli.validate import non_negative_int, npz_file, positive_int, tet_mesh_file
+from wface.cli.validate import face_tets, non_negative_int, npz_file, tet_mesh_file
 from wface.faces.artisynth import import_artisynth
 from wface.faces.builtin import build_face
 from wface.faces.fit import fit_template, ict_feature_landmarks, select_target_faces
@@ -61,7 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=_BUILD_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    b.add_argument("--tets", type=positive_int, default=20000, help="target number of tetrahedra (default 20000)")
+    b.add_argument("--tets", type=face_tets, default=20000, help="target number of tetrahedra (default 20000)")
     b.add_argument("--out", required=True, type=npz_file, help="output model file (.npz)")
     b.add_argument(
         "--free-to-mm",
@@ -104,7 +104,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     f.add_argument("--template", default="builtin", help="'builtin' or a face model .npz (default builtin)")
-    f.add_argument("--tets", type=positive_int, default=20000, help="size of the built-in template (default 20000)")
+    f.add_argument("--tets", type=face_tets, default=20000, help="size of the built-in template (default 20000)")
     f.add_argument("--surface", help="target head mesh: .obj, .ply, .stl, .off, ...")
     f.add_argument("--units", default="auto", help="units of --surface: auto, m, cm, mm (default auto)")
     f.add_argument("--surface-groups", help="material groups of --surface that are skin (default: not eyes/teeth)")

@@ -11,7 +11,7 @@ from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.cli.simulate import parse_activations
-from wface.cli.validate import finite_float, non_negative_int, positive_float, positive_int
+from wface.cli.validate import face_tets, finite_float, non_negative_int, positive_float, positive_int
 from wface.faces.builtin import build_face
 from wface.model import load_model
 from wface.physics import Damping, Simulator
@@ -96,9 +96,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--take", help="tracking output directory (from `wface track` / `wface demo`); omit for synthetic")
     p.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
-    p.add_argument(
-        "--tets", type=positive_int, default=5000, help="size of the built-in face when --model is not given"
-    )
+    p.add_argument("--tets", type=face_tets, default=5000, help="size of the built-in face when --model is not given")
     p.add_argument(
         "--scheme",
         default="auto",

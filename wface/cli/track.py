@@ -19,7 +19,9 @@ from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.cli.validate import (
+    face_tets,
     frame_range,
+    holdout_spec,
     non_negative_float,
     non_negative_int,
     positive_float,
@@ -142,6 +144,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--holdout",
+        type=holdout_spec,
         metavar="N|NAME,...",
         help="hide markers from the fit and report their error (holdout_rms_mm): every Nth marker by height, or names",
     )
@@ -161,7 +164,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     _common(d)
-    d.add_argument("--tets", type=positive_int, default=5000, help="size of the built-in face in tets (default 5000)")
+    d.add_argument("--tets", type=face_tets, default=5000, help="size of the built-in face in tets (default 5000)")
     d.add_argument("--frames", type=positive_int, default=30, help="frames in the performance (default 30)")
     d.add_argument("--fps", type=positive_float, default=30.0, help="frame rate (default 30)")
     d.add_argument("--noise-mm", type=non_negative_float, default=0.5, help="RMS marker noise in mm (default 0.5)")
@@ -182,9 +185,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     _common(t)
     t.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
-    t.add_argument(
-        "--tets", type=positive_int, default=5000, help="size of the built-in face when --model is not given"
-    )
+    t.add_argument("--tets", type=face_tets, default=5000, help="size of the built-in face when --model is not given")
     t.add_argument("--mocap", required=True, help="marker file: .c3d, .trc or .csv")
     t.add_argument(
         "--frames",

@@ -101,6 +101,27 @@ def non_negative_int(text: str) -> int:
     return v
 
 
+def face_tets(text: str) -> int:
+    """A size of the built-in face in tets, within what ``build_face`` makes (checked before any work)."""
+    from wface.faces.builtin.face import MAX_TETS, MIN_TETS
+
+    v = _int(text)
+    if not MIN_TETS <= v <= MAX_TETS:
+        raise argparse.ArgumentTypeError(f"the built-in face is made with {MIN_TETS} to {MAX_TETS} tets, got {text!r}")
+    return v
+
+
+def holdout_spec(text: str) -> str:
+    """``--holdout``'s type: N >= 2 (every Nth marker by height) or marker names; the names are checked
+    against the capture later."""
+    t = str(text).strip()
+    if t.isdigit() and int(t) < 2:
+        raise argparse.ArgumentTypeError(f"hiding every Nth marker needs N >= 2, got {text!r}")
+    if not t or not any(n.strip() for n in t.split(",")):
+        raise argparse.ArgumentTypeError("expected N (every Nth marker by height) or marker names, got nothing")
+    return t
+
+
 def npz_file(text: str) -> str:
     """An output file name ending in .npz (checked before the work, not after it)."""
     if not str(text).lower().endswith(".npz"):

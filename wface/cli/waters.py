@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from wface.cli.closing import print_outputs
-from wface.cli.validate import positive_int, probability
+from wface.cli.validate import face_tets, positive_int, probability
 from wface.faces.builtin import build_face
 from wface.facs import ACTION_UNITS, EXPRESSIONS
 from wface.io.usd import write_surface_mesh
@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(the ICT layout fitted to its markers, jaw weights from its bones)",
     )
     p.add_argument(
-        "--tets", type=positive_int, default=20000, help="resolution of the built-in face (with --mesh builtin)"
+        "--tets", type=face_tets, default=20000, help="resolution of the built-in face (with --mesh builtin)"
     )
     p.add_argument("--expression", default="neutral", help="expression preset (default: neutral)")
     p.add_argument("--intensity", type=probability, default=1.0, help="scale of the preset's action units, 0..1")
