@@ -242,7 +242,7 @@ def test_closure_with_lip_contact_cli(tmp_path, badin_model_path, capsys):
     assert len(rep["lip_gap_mm"]) == 3 and min(rep["lip_gap_mm"]) > -0.2
     assert rep["max_penetration_mm_max"] < 0.2
     assert "lip gap min" in capsys.readouterr().out
-    assert main(args + ["--contact", "lips,gums", "--out", str(out)]) == 1
+    assert main(args + ["--contact", "lips,gums", "--out", str(out)]) == 2  # a usage error
     # The smooth lips offset through their nodes meet nearer the faceted lips: measured on the second frame
     # -0.094 mm against the plain blend's -0.166 (the third: -0.146 against -0.130, its deepest point near a
     # lip's rim, where the contact tapers off)

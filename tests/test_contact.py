@@ -251,7 +251,7 @@ def test_simulate_cli_with_contact(face, tmp_path, capsys):
     assert summary["contact_max_penetration_mm"] < 0.05
     assert summary["contact_sources"]["sphere0"]["active_nodes"] > 0
     assert (tmp_path / "run" / "lips_section.png").stat().st_size > 1000
-    assert main(args + ["--contact", "lips,tongue"]) == 1
+    assert main(args + ["--contact", "lips,tongue"]) == 2  # a usage error
     assert "unknown contact region" in capsys.readouterr().err
     assert main(args + ["--obstacle", "sphere:1,2"]) == 1
     assert "sphere needs 4 numbers" in capsys.readouterr().err

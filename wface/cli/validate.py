@@ -14,6 +14,8 @@ from __future__ import annotations
 import argparse
 import math
 
+from wface.faces.builtin.face import MAX_TETS, MIN_TETS
+
 __all__ = [
     "angle_deg",
     "finite_float",
@@ -103,8 +105,6 @@ def non_negative_int(text: str) -> int:
 
 def face_tets(text: str) -> int:
     """A size of the built-in face in tets, within what ``build_face`` makes (checked before any work)."""
-    from wface.faces.builtin.face import MAX_TETS, MIN_TETS
-
     v = _int(text)
     if not MIN_TETS <= v <= MAX_TETS:
         raise argparse.ArgumentTypeError(f"the built-in face is made with {MIN_TETS} to {MAX_TETS} tets, got {text!r}")

@@ -44,6 +44,8 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import spsolve
 
 from wface.facs import all_muscle_names
 from wface.files import read_json, write_json
@@ -144,9 +146,6 @@ class JawRegion:
         ICT-FaceKit head at any jaw opening). On the mesh the two lips join only at the mouth's corners, so
         the harmonic weights keep each lip with its own side (no edge of the ICT head then jumps by more
         than 0.5; 108 did)."""
-        import scipy.sparse as sp
-        from scipy.sparse.linalg import spsolve
-
         p = np.asarray(points_m, dtype=np.float64)
         w = self.weights(p)
         tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
