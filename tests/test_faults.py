@@ -431,6 +431,22 @@ def test_impossible_samples_become_missing_and_are_counted(synthetic_capture, tm
     assert read_report(out)["marker_max_mm"] < 50  # nothing tracked toward 1e19 m
 
 
+def test_a_ghost_sample_in_the_neutral_frame_is_not_blamed_on_units(synthetic_capture, tmp_path, capsys):
+    """One marker 0.5 m off in the neutral frame used to pull the alignment to scale 0.2 and stop the run with
+    'check the file's length units'; it is an impossible sample, made missing, and that marker left out."""
+    pos, names = synthetic_capture
+    pos = pos.copy()
+    pos[0, 5] += [0.5, 0.0, 0.0]
+    path = _capture(tmp_path, pos, names)
+    args = ["track", "--mocap", path, "--out", tmp_path / "ghost", "--tets", TETS, "--no-pictures", "--prior", "off"]
+    code, text = _cli(args, capsys)
+    assert code == 0 and "units" not in text, text
+    assert (
+        "1 impossible samples made missing" in text
+        and f"rest place (--neutral-frame picks another frame): {names[5]}" in text
+    )
+
+
 def test_capture_check_finds_nothing_on_real_takes():
     from tests.conftest import data_path
     from wface.io.mocap import read_mocap

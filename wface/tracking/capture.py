@@ -154,13 +154,15 @@ def check_capture(
     ref = np.where(np.isfinite(ref).all(axis=1)[:, None], ref, np.nan)
     centre = np.nanmedian(ref, axis=0) if np.isfinite(ref).any() else np.zeros(3)
     radius = np.linalg.norm(ref - centre, axis=1)
-    if np.isfinite(radius).any():  # a neutral sample that no head reaches is not a reference
-        with np.errstate(invalid="ignore"):
-            ref[radius > max(3.0 * np.nanmedian(radius), 0.3)] = np.nan
+    reach = max(3.0 * np.nanmedian(radius), 0.3) if np.isfinite(radius).any() else 0.3
+    with np.errstate(invalid="ignore"):
+        ref[radius > reach] = np.nan  # a neutral sample that no head reaches is not a reference
     far = np.zeros(pos.shape[:2], dtype=bool)
     for t in range(len(pos)):
         with np.errstate(invalid="ignore"):
             far[t] = _rigid_residuals(ref, pos[t]) > max_deformation_m
+            if np.isfinite(pos[t]).any():  # nor is one in any frame (the neutral one too), with or without a reference
+                far[t] |= np.linalg.norm(pos[t] - np.nanmedian(pos[t], axis=0), axis=1) > reach
     pos[far] = np.nan
     jumps = _spikes(pos, max_speed_m_s / rate_hz)
     pos[jumps] = np.nan

@@ -9,7 +9,10 @@ serialises through the scheduler, graphs of that size).
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import math
+import signal
 
 __all__ = ["ScatteringExecutor", "dask_executor"]
 
@@ -32,6 +35,22 @@ class ScatteringExecutor:
         return self.client.scatter([arg])[0]  # a list as one object (``scatter`` of a list scatters each item)
 
 
+@contextlib.contextmanager
+def _workers_ignore_interrupts():
+    """Start worker processes with Ctrl-C ignored: the terminal sends SIGINT to the whole process group, and
+    each worker printed its own KeyboardInterrupt traceback (2-4 of them, 40-70 lines) before the command's
+    one line. The command itself stops the cluster when interrupted."""
+    try:
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)  # inherited by the spawned processes
+    except ValueError:  # not the main thread: leave the signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
 def dask_executor(*, workers: int = 1, scheduler: str | None = None, n_frames: int, chunk_size: int | None = None):
     """(executor, chunk_size, close) for ``track_sequence``: a ``ScatteringExecutor`` on a running
     scheduler (``scheduler`` address) or on a local cluster of ``workers`` processes, or (None,
@@ -45,7 +64,14 @@ def dask_executor(*, workers: int = 1, scheduler: str | None = None, n_frames: i
         workers = max(1, len(client.scheduler_info()["workers"]))
         closers = [client.close]
     else:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        with _workers_ignore_interrupts():
+            cluster = LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            )
         client = Client(cluster)
         closers = [client.close, cluster.close]
     chunk = chunk_size or math.ceil(n_frames / workers)
