@@ -81,6 +81,10 @@ def test_expressions_map_to_muscles_and_jaw(model, smile, surprise):
         expression_pose(model, "zygomaticus_mayor_l=0.5")
     with pytest.raises(ValueError, match=r"\[0, 1\]"):
         expression_pose(model, "AU12=1.5")
+    assert expression_pose(model, "jaw_open=20").jaw_opening_deg == 20.0
+    for wide in ("jaw_open=90", "jaw_open=-10"):  # were clamped to 35 and the closed limit without a word
+        with pytest.raises(ValueError, match="the jaw opens from -2.29 to 35 degrees"):
+            expression_pose(model, wide)
 
 
 # ---------------------------------------------------------------------- interpolate and blend

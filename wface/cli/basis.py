@@ -14,7 +14,15 @@ from pathlib import Path
 from wface.basis.core import load_basis
 from wface.basis.physical import basis_from_face
 from wface.basis.pipeline import analyze_take, refine_basis, write_analysis
-from wface.cli.validate import face_tets, npz_file, positive_float, positive_fraction, positive_int
+from wface.cli.validate import (
+    face_tets,
+    frame_range,
+    non_negative_float,
+    npz_file,
+    positive_float,
+    positive_fraction,
+    positive_int,
+)
 from wface.faces.builtin import build_face
 from wface.files import file_sha256, read_landmarks, write_json
 from wface.io.mocap import read_mocap
@@ -37,7 +45,7 @@ examples:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "basis",
-        help="linear actuation basis (Choe & Ko 2001): analyse mocap, refine, inspect",
+        help="linear actuation basis (Choe & Ko 2001): analyze a take, refine, info, from-face",
         description="Linear actuation basis: E = E0 + sum_i x_i e_i. Analysis finds bounded contractions x per "
         "frame from marker displacements; refinement improves the element shapes from training takes.",
         epilog=_EPILOG,
@@ -51,7 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "(default: built-in AnimFace->ICT landmarks when the basis is the ICT face)")  # fmt: skip
         q.add_argument("--exaggerate", action="store_true", help="allow contractions above 1 (x >= 0 only)")
         q.add_argument("--split", action="store_true", help="solve upper and lower face separately")
-        q.add_argument("--frames", help="frame slice START:STOP[:STEP] of every take (default all)")
+        q.add_argument("--frames", type=frame_range, help="frame slice START:STOP[:STEP] of every take (default all)")
         q.add_argument("--no-progress", action="store_true", help="no progress bars")
 
     raw = argparse.RawDescriptionHelpFormatter
@@ -74,9 +82,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     common(r)
     r.add_argument("--train", required=True, nargs="+", help="training takes (.c3d/.trc/.csv)")
     r.add_argument("--out", required=True, type=npz_file, help="refined basis .npz")
-    r.add_argument("--regularization", default="auto",
+    r.add_argument("--regularization", default="auto", type=_regularization,
                    help="ridge weight towards the initial shapes, or 'auto' (leave-one-take-out; default)")  # fmt: skip
-    r.add_argument("--support", type=positive_float, default=None,
+    r.add_argument("--support", type=positive_fraction, default=None,
                    help="locality: an element may only change at markers it moves by at least this fraction "
                    "of its largest marker displacement (e.g. 0.1; default off)")  # fmt: skip
     r.add_argument("--carry-metric", choices=("surface", "euclidean"), default="surface",
@@ -126,14 +134,18 @@ def _load(args):
     return basis, landmarks
 
 
-def _read(path: str, frames: str | None):
+def _regularization(text: str) -> str | float:
+    """``--regularization``: "auto" or a ridge weight >= 0."""
+    if str(text).strip().lower() == "auto":
+        return "auto"
+    return non_negative_float(text)
+
+
+def _read(path: str, frames: tuple | None):
 
     take = read_mocap(path)
     if frames:
-        parts = [int(v) if v else None for v in frames.split(":")]
-        if not 2 <= len(parts) <= 3:
-            raise ValueError(f"--frames {frames!r}: expected START:STOP[:STEP]")
-        take = take.frames(parts[0], parts[1], parts[2] if len(parts) == 3 and parts[2] else 1)
+        take = take.frames(*frames)
     return take
 
 
@@ -172,7 +184,7 @@ def _refine(args) -> int:
 
     basis, landmarks = _load(args)
     takes = [_read(p, args.frames) for p in args.train]
-    reg = args.regularization if args.regularization == "auto" else float(args.regularization)
+    reg = args.regularization
     t0 = time.perf_counter()
     refined, res, layout, info = refine_basis(
         basis, takes, landmarks=landmarks, upper=None if args.exaggerate else 1.0, split=args.split,

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from wface.controls import jaw_limits
 from wface.facs import (
     ACTION_UNITS,
     EXPRESSIONS,
@@ -93,6 +94,9 @@ def expression_pose(model: FaceModel, spec: str, *, intensity: float = 1.0) -> P
         elif not 0.0 <= value <= 1.0 and key != "jaw_open":
             raise ValueError(f"{key}={value}: values must lie in [0, 1]")
         if key == "jaw_open":
+            lo, hi = jaw_limits(model.jaw_joint)["opening_deg"]
+            if not lo <= value <= hi:  # the clamp below would change it without a word
+                raise ValueError(f"jaw_open={value:g}: the jaw opens from {lo:.3g} to {hi:.3g} degrees")
             jaw_deg = max(jaw_deg, value)
         elif key.upper().startswith("AU") and key[2:3].isdigit():
             parse_action_unit(key)  # clear KeyError listing the action units
