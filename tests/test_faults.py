@@ -528,6 +528,24 @@ def test_markers_without_a_rest_place_or_samples_are_left_out_by_name(synthetic_
     assert np.isfinite(report["marker_rms_mm_mean"])
 
 
+def test_options_that_would_be_ignored_or_mislead_are_said(tmp_path, capsys):
+    """--neutral-frame without --markers was ignored; --frames past the take's end tracked 5 frames without a word;
+    waters on a head read in the wrong units moved 0.00 mm (or 181 mm)."""
+    from tests.conftest import data_path
+
+    code, text = _cli(
+        ["model", "fit", "--surface", "x.obj", "--neutral-frame", "3", "--out", tmp_path / "a.npz"], capsys
+    )
+    assert code == 1 and "--neutral-frame picks a frame of --markers, which is not given" in text
+    head = data_path("ict-facekit", "generic_neutral_mesh.obj")
+    code, text = _cli(["waters", "--mesh", head, "--units", "mm", "--no-render", "--out", tmp_path / "w"], capsys)
+    assert code == 1 and "0.0338 m across read at 0.001 m per unit" in text and "check --units" in text
+    take = data_path("animface", "JawMoCap.c3d")
+    args = ["track", "--mocap", take, "--frames", "1585:1700", "--tets", TETS, "--no-pictures", "--no-usd"]
+    code, text = _cli([*args, "--prior", "off", "--out", tmp_path / "t"], capsys)
+    assert code == 0 and "has 1590 frames; tracking 5 (1585 to 1589)" in text
+
+
 # ---------------------------------------------------------------------- options out of range (usage errors)
 _USAGE = [
     (["demo", "--outliers", "1.5"], "fraction between 0 and 1"),

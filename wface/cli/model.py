@@ -111,7 +111,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     f.add_argument("--landmarks", help="JSON {marker name: target vertex id} for --surface")
     f.add_argument("--markers", help="motion capture (.c3d, .trc, .csv) whose neutral frame is the actor's face")
     f.add_argument(
-        "--neutral-frame", type=non_negative_int, default=0, help="frame of --markers showing the neutral face"
+        "--neutral-frame",
+        type=non_negative_int,
+        default=None,
+        help="frame of --markers showing the neutral face (default 0)",
     )
     f.add_argument("--out", required=True, type=npz_file, help="output model file (.npz)")
     f.add_argument("--json", action="store_true", help="print the fit report as JSON")
@@ -201,6 +204,8 @@ def _fit(args: argparse.Namespace) -> int:
     say = print if not args.json else (lambda msg: print(msg, file=sys.stderr))  # --json: stdout is the JSON
     if not (args.surface or args.markers):
         raise ValueError("give --surface HEAD.obj|ply|stl, --markers TAKE.c3d, or both")
+    if args.neutral_frame is not None and not args.markers:
+        raise ValueError("--neutral-frame picks a frame of --markers, which is not given")
     mesh = faces = landmarks = markers = names = None  # the targets first: a bad file fails before a face is built
     if args.surface:
         mesh = read_surface_mesh(args.surface, units=args.units)
@@ -214,6 +219,7 @@ def _fit(args: argparse.Namespace) -> int:
         landmarks = _fit_landmarks(args, mesh, say)
     if args.markers:
         take = read_mocap(args.markers)
+        args.neutral_frame = 0 if args.neutral_frame is None else args.neutral_frame
         if not 0 <= args.neutral_frame < take.n_frames:
             raise ValueError(f"--neutral-frame {args.neutral_frame} is outside {args.markers}'s {take.n_frames} frames")
         markers, names = take.positions_m[args.neutral_frame], take.marker_names

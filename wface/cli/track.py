@@ -474,6 +474,12 @@ def run_track(args: argparse.Namespace) -> int:
     kept = range(take.n_frames)[slice(a, b, step)]  # the capture's frame indices tracked
     if len(kept) == 0:
         raise ValueError(f"{args.mocap}: no frames in the range {args.frames}")
+    if b is not None and b > take.n_frames:  # a slice stops at the end: say so, not only the count
+        warnings.warn(
+            f"--frames {a}:{b}: {args.mocap} has {take.n_frames} frames; tracking {len(kept)} ({kept.start} to "
+            f"{kept[-1]})",
+            stacklevel=1,
+        )
     first = kept.start
     if args.frames:
         take = take.frames(a, b, step)

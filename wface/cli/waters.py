@@ -18,6 +18,8 @@ from wface.waters.face_model import face_model_rig
 from wface.waters.pipeline import layout_for_mesh, pose_mesh
 from wface.waters.rig import WatersRig
 
+_HEAD_SIZE_M = (0.05, 1.0)  # a face or head mesh's largest extent, metres
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -73,6 +75,12 @@ def _run(args: argparse.Namespace) -> int:
         rig, mesh, _ = face_model_rig(build_face(args.tets))
     else:
         mesh = read_surface_mesh(args.mesh, units=args.units)
+        size_m = float(np.ptp(mesh.vertices_m, axis=0).max())
+        if not _HEAD_SIZE_M[0] <= size_m <= _HEAD_SIZE_M[1]:  # the layouts' muscles are in metres
+            raise ValueError(
+                f"{args.mesh} is {size_m:.3g} m across read at {mesh.meters_per_unit:g} m per unit, where a head is "
+                f"{_HEAD_SIZE_M[0]:g} to {_HEAD_SIZE_M[1]:g} m: check --units"
+            )
         lay = layout_for_mesh(mesh, layout=args.layout, landmarks=args.landmarks)
         rig = WatersRig(lay, mesh.vertices_m, triangles=mesh.triangles())
     summary = pose_mesh(
