@@ -36,6 +36,7 @@ def test_demo_writes_everything(tmp_path):
     assert len(list((out / "frames").glob("frame_*.npz"))) == 3
     header = (out / "controls.csv").read_text().splitlines()[0]
     assert header.startswith("frame,") and "jaw_opening_deg" in header
+    assert "-0.0," not in (out / "controls.csv").read_text().replace("\n", ",")  # no negative zeros
 
 
 def test_demo_with_lip_contact(tmp_path):

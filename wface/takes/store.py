@@ -254,11 +254,11 @@ def write_controls(out_dir: str | Path, model: FaceModel, take: Take) -> tuple[P
     rows = (
         [
             int(fr),
-            *np.round(a, 6),
-            round(j["opening_deg"], 4),
-            round(j["protrusion_m"] * 1e3, 4),
-            round(j["lateral_deg"], 4),
-            *np.round(b[:12], 6),
+            *(np.round(a, 6) + 0.0),  # + 0.0: no "-0.0" cells (a value rounded to zero from below)
+            round(j["opening_deg"], 4) + 0.0,
+            round(j["protrusion_m"] * 1e3, 4) + 0.0,
+            round(j["lateral_deg"], 4) + 0.0,
+            *(np.round(b[:12], 6) + 0.0),
         ]
         for fr, a, b, j in zip(take.frames, take.activations, bones, jaw, strict=True)
     )
