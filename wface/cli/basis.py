@@ -98,6 +98,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     i = bsub.add_parser("info", help="summarise a basis file")
     i.add_argument("path", help="basis .npz")
+    i.add_argument("--json", action="store_true", help="JSON (what info prints either way; as model info --json)")
     i.set_defaults(func=_info)
     f = bsub.add_parser(
         "from-face",

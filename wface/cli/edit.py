@@ -67,7 +67,10 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tol", type=positive_float, default=1e-6, help="relative residual of each solve (default 1e-6)")
     p.add_argument("--fps", type=positive_float, help="frame rate (default: the take's, else 30)")
     p.add_argument(
-        "--neutral", default="neutral", help="the neutral expression edits are measured from (default: rest face)"
+        "--neutral",
+        default="neutral",
+        help="the neutral expression edits are measured from: an expression, or first (a --take's first frame); "
+        "default: the rest face",
     )
     p.add_argument("--usda", action="store_true", help="write animation.usda (text) instead of .usdc")
     p.add_argument("--mesh-only", action="store_true", help="USD with the skin mesh only (write_mesh_animation)")
