@@ -21,7 +21,8 @@ def plot_analysis(
         analysis: result of :func:`wface.basis.analysis.analyze`.
         path: output PNG.
         rate_hz: frame rate for the time axis.
-        top: number of elements drawn as curves (largest mean contraction).
+        top: number of elements drawn as curves (largest 95th percentile of the contraction: the
+            elements that peak, such as a jaw opening, rather than those that idle high).
         title: figure title.
     """
     import matplotlib
@@ -31,24 +32,31 @@ def plot_analysis(
 
     x = analysis.contractions
     t = np.arange(x.shape[0]) / rate_hz
-    order = np.argsort(-x.mean(axis=0))[:top]
-    fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=False, gridspec_kw={"height_ratios": [2, 2, 1]})
+    order = np.argsort(-np.percentile(x, 95, axis=0))[:top]  # what peaks (a jaw opening), not what idles high
+    n = x.shape[1]
+    heat_in = max(3.0, 0.15 * n)  # a readable row per element
+    fig, axes = plt.subplots(
+        3,
+        1,
+        figsize=(11, 5.0 + heat_in),
+        sharex=True,
+        gridspec_kw={"height_ratios": [3.0, heat_in, 1.6]},
+        layout="constrained",  # the three panels keep one width beside the legend and the colour bar
+    )
     for i in order:
-        axes[0].plot(t, x[:, i], lw=1, label=analysis.element_names[i])
+        axes[0].plot(t, x[:, i], lw=1.2, label=analysis.element_names[i])
     axes[0].set_ylabel("contraction")
     axes[0].set_xlim(t[0], t[-1] if len(t) > 1 else 1)
-    axes[0].legend(fontsize=7, ncol=4, loc="upper right")
+    axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), title=f"top {len(order)} (95th pct)")
     axes[0].set_title(title or "element contractions")
     im = axes[1].imshow(x.T, aspect="auto", origin="lower", interpolation="nearest", cmap="magma",
-                        extent=(t[0], t[-1] if len(t) > 1 else 1, -0.5, x.shape[1] - 0.5), vmin=0)  # fmt: skip
-    axes[1].set_yticks(range(x.shape[1]))
-    axes[1].set_yticklabels(analysis.element_names, fontsize=4)
-    fig.colorbar(im, ax=axes[1], pad=0.01)
+                        extent=(t[0], t[-1] if len(t) > 1 else 1, -0.5, n - 0.5), vmin=0)  # fmt: skip
+    axes[1].set_yticks(range(n))
+    axes[1].set_yticklabels(analysis.element_names, fontsize=7)
+    fig.colorbar(im, ax=list(axes), pad=0.01, shrink=0.5, label="contraction (image)")
     axes[2].plot(t, analysis.marker_rms_mm, color="k", lw=1)
     axes[2].set_ylabel("marker RMS (mm)")
     axes[2].set_xlabel("time (s)")
-    axes[2].set_xlim(axes[0].get_xlim())
-    fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
     plt.close(fig)
