@@ -416,18 +416,20 @@ def test_impossible_samples_become_missing_and_are_counted(synthetic_capture, tm
     pos[2, 3] = 1e19  # corrupted data bytes
     pos[3, 5] += [0.3, 0.0, 0.0]  # 30 cm off the head
     pos[2, 7] += [0.08, 0.0, 0.0]  # a one-frame jump of 8 cm at 30 Hz: 2.4 m/s
+    pos[4, 9] = 1e200  # overflowed the frame's rigid fit, which then took every marker of frame 4
     path = _capture(tmp_path, pos * 1.0, names)
     out = tmp_path / "run"
     code, text = _cli(
         ["track", "--mocap", path, "--out", out, "--tets", TETS, "--no-pictures", "--prior", "off"], capsys
     )
     assert code == 0, text
-    assert "capture check: 3 impossible samples made missing" in text
+    assert "capture check: 4 impossible samples made missing" in text and "overflow" not in text
     check = read_report(out)["capture_check"]
+    assert check["per_marker"][names[9]]["far"] == 1
     assert check["per_marker"][names[3]]["far"] == 1
     assert check["per_marker"][names[5]]["far"] == 1
     assert check["per_marker"][names[7]]["jumps"] == 1
-    assert len(check["per_marker"]) == 3  # nothing else: the face's own motion is possible
+    assert len(check["per_marker"]) == 4  # nothing else: the face's own motion is possible
     assert read_report(out)["marker_max_mm"] < 50  # nothing tracked toward 1e19 m
 
 

@@ -159,10 +159,11 @@ def check_capture(
         ref[radius > reach] = np.nan  # a neutral sample that no head reaches is not a reference
     far = np.zeros(pos.shape[:2], dtype=bool)
     for t in range(len(pos)):
-        with np.errstate(invalid="ignore"):
-            far[t] = _rigid_residuals(ref, pos[t]) > max_deformation_m
+        with np.errstate(invalid="ignore", over="ignore"):  # a 1e200 sample's distance is inf: far, not a warning
             if np.isfinite(pos[t]).any():  # nor is one in any frame (the neutral one too), with or without a reference
-                far[t] |= np.linalg.norm(pos[t] - np.nanmedian(pos[t], axis=0), axis=1) > reach
+                far[t] = np.linalg.norm(pos[t] - np.nanmedian(pos[t], axis=0), axis=1) > reach
+            # the rigid fit without those (a 1e200 sample overflowed it and took its frame's every marker)
+            far[t] |= _rigid_residuals(ref, np.where(far[t][:, None], np.nan, pos[t])) > max_deformation_m
     pos[far] = np.nan
     jumps = _spikes(pos, max_speed_m_s / rate_hz)
     pos[jumps] = np.nan
