@@ -770,3 +770,15 @@ def test_resume_plan_counts_the_frames_of_a_take_with_hidden_markers(tmp_path, c
     code, text = _cli([*DEMO, "--holdout", "5", "--no-usd", "--out", out, "--resume"], capsys)
     assert code == 0, text
     assert f"reusing {FRAMES} of {FRAMES} frames" in text
+
+
+def test_another_runs_results_are_described_in_words():
+    """A --take source was printed as a raw dict, and an edit's own --frames option as the take's frame count."""
+    from wface.takes.provenance import describe_source
+
+    run = {"kind": "resim", "model_sha256": "ab" * 32, "source": {"take": {"path": "tk", "fingerprint": "cc"}}}
+    assert describe_source(run) == f"wface resim of tk on model {'ab' * 6}"
+    edit = {"kind": "edit exaggerate", "model_sha256": "ab" * 32, "source": {"take": {"path": "tk"}, "frames": 1}}
+    assert describe_source(edit) == f"wface edit exaggerate of tk (--frames 1) on model {'ab' * 6}"
+    track = {"kind": "track", "model_sha256": "ab" * 32, "source": {"file": "Jaw.c3d", "frames": "0:300"}}
+    assert describe_source(track) == f"wface track of Jaw.c3d frames 0:300 on model {'ab' * 6}"

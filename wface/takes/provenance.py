@@ -93,13 +93,17 @@ def describe_source(run: dict | None) -> str:
     if not run:
         return "results without provenance (written by an older wface or by hand)"
     src = run.get("source") or {}
-    what = src.get("file") or (f"synthetic seed {src['seed']}" if "seed" in src else None) or src.get("take")
+    take = src.get("take")
+    if isinstance(take, dict):  # a --take input, named by its path (and its own fingerprint, not shown)
+        take = take.get("path")
+    what = src.get("file") or (f"synthetic seed {src['seed']}" if "seed" in src else None) or take
     frames = src.get("frames")
-    text = f"wface {run.get('kind', '?')}"
+    kind = run.get("kind", "?")
+    text = f"wface {kind}"
     if what:
         text += f" of {what}"
-    if frames is not None:
-        text += f" frames {frames}"
+    if frames is not None:  # a capture's frame range (track, demo) or the command's own --frames option
+        text += f" frames {frames}" if kind in ("track", "demo") else f" (--frames {frames})"
     return text + f" on model {str(run.get('model_sha256', '?'))[:12]}"
 
 
