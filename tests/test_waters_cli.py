@@ -164,7 +164,9 @@ def test_cli_blends_between_presets(tmp_path):
     assert rc == 0
     from pxr import Usd, UsdGeom
 
-    stage = Usd.Stage.Open(str(tmp_path / "neutral_to_surprise.usdc"))
+    summary = json.loads((tmp_path / "neutral.json").read_text())
+    assert summary["files"]["animation"].endswith("neutral_to_surprise.usda")  # the summary names it; text USD
+    stage = Usd.Stage.Open(str(tmp_path / "neutral_to_surprise.usda"))  # as the pose's own (--usdc: binary)
     attr = UsdGeom.Mesh(stage.GetPrimAtPath("/WatersFace/Mesh")).GetPointsAttr()
     first, last = np.asarray(attr.Get(0)), np.asarray(attr.Get(3))
     assert np.max(np.linalg.norm(last - first, axis=1)) > 0.005  # the jaw opens by 12 degrees

@@ -11,6 +11,7 @@ from wface.cli.closing import print_outputs
 from wface.cli.validate import face_tets, positive_int, probability
 from wface.faces.builtin import build_face
 from wface.facs import ACTION_UNITS, EXPRESSIONS
+from wface.files import write_json
 from wface.io.usd import write_surface_mesh
 from wface.mesh.meshfile import read_surface_mesh
 from wface.waters.expressions import expression_pose, interpolate_poses, parse_au_assignments
@@ -94,25 +95,26 @@ def _run(args: argparse.Namespace) -> int:
         usd_suffix=".usdc" if args.usdc else ".usda",
         rig=rig,
     )
+    obj = Path(summary["files"]["obj"])
     if args.blend_to:
         summary["files"]["animation"] = str(_blend(args, summary, rig, mesh))
+        write_json(obj.with_suffix(".json"), summary)  # the summary names the blend too
     print(
-        f"{summary['expression']}: jaw open {summary['jaw_open_deg']:.1f} deg, largest skin displacement "
+        f"{obj.stem}: jaw open {summary['jaw_open_deg']:.1f} deg, largest skin displacement "
         f"{summary['max_displacement_mm']:.2f} mm"
     )
-    obj = Path(summary["files"]["obj"])
     written = {Path(p) for p in summary["files"].values()} | {obj.with_suffix(".json")}  # pose_mesh's summary
     print_outputs(args.out, sorted(written, key=lambda p: p.name))
     return 0
 
 
 def _blend(args: argparse.Namespace, summary: dict, rig, mesh):
-    """Write OUT/<expression>_to_<blend_to>.usdc: a linear blend in action-unit space."""
+    """Write OUT/<expression>_to_<blend_to>.usda (.usdc with --usdc): a linear blend in action-unit space."""
 
     start = summary["action_units"]
     frames = []
     for k in range(args.frames):
         pose = interpolate_poses(start, args.blend_to, k / (args.frames - 1), muscle_names=rig.muscle_names)
         frames.append(rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg))
-    path = Path(args.out) / f"{args.expression}_to_{args.blend_to}.usdc"
+    path = Path(args.out) / f"{args.expression}_to_{args.blend_to}{'.usdc' if args.usdc else '.usda'}"
     return write_surface_mesh(path, mesh, frames_m=np.stack(frames), fps=24.0, name="WatersFace")
