@@ -95,7 +95,7 @@ def stages(tmp_path_factory, blender):
     waters = ["waters", "--mesh", "builtin", "--expression", "happy", "--blend-to", "surprise", "--frames", "3"]
     assert main([*waters, *small, "--no-render", "--out", str(root / "waters")]) == 0
     paths = {k: root / k / "animation.usdc" for k in ("demo", "track", "edit", "resim", "suck")}
-    paths["waters"] = root / "waters" / "happy_to_surprise.usdc"
+    paths["waters"] = root / "waters" / "happy_to_surprise.usda"  # text, as the pose's own (--usdc: binary)
     run = subprocess.run([blender, str(_PROBE), *map(str, paths.values())], capture_output=True, text=True, timeout=600)
     probes = [json.loads(ln[6:]) for ln in run.stdout.splitlines() if ln.startswith("PROBE ")]
     assert len(probes) == len(paths), run.stdout[-2000:] + run.stderr[-2000:]
@@ -263,7 +263,7 @@ def test_waters_on_the_ict_head_keeps_uvs_and_materials_in_blender(blender, tmp_
     obj = data_path("ict-facekit", "generic_neutral_mesh.obj")
     args = ["waters", "--mesh", str(obj), "--expression", "happy", "--blend-to", "surprise", "--frames", "2"]
     assert main([*args, "--no-render", "--out", str(tmp_path)]) == 0
-    paths = [tmp_path / "happy.usda", tmp_path / "happy_to_surprise.usdc"]
+    paths = [tmp_path / "happy.usda", tmp_path / "happy_to_surprise.usda"]
     run = subprocess.run([blender, str(_PROBE), *map(str, paths)], capture_output=True, text=True, timeout=600)
     probes = [json.loads(ln[6:]) for ln in run.stdout.splitlines() if ln.startswith("PROBE ")]
     assert len(probes) == 2, run.stderr[-2000:]
