@@ -253,7 +253,7 @@ def test_simulate_cli_with_contact(face, tmp_path, capsys):
     assert (tmp_path / "run" / "lips_section.png").stat().st_size > 1000
     assert main(args + ["--contact", "lips,tongue"]) == 2  # a usage error
     assert "unknown contact region" in capsys.readouterr().err
-    assert main(args + ["--obstacle", "sphere:1,2"]) == 1
+    assert main(args + ["--obstacle", "sphere:1,2"]) == 2  # a usage error
     assert "sphere needs 4 numbers" in capsys.readouterr().err
 
 

@@ -575,6 +575,8 @@ _USAGE = [
     (["track", "--mocap", "x.c3d", "--contact", "lipz"], "unknown contact region(s) lipz"),
     (["resim", "--contact", "lips,tooth"], "unknown contact region(s) tooth"),
     (["model", "build", "--vtu", "x.obj"], "tet mesh file"),
+    (["simulate", "--model", "m.npz", "--activation", "zygomaticus_major_l"], "expects NAME=VALUE"),
+    (["simulate", "--model", "m.npz", "--obstacle", "cube:1,2,3"], "unknown kind 'cube'"),
     (["basis", "analyze", "--basis", "b.npz", "--mocap", "x.c3d", "--frames", "abc"], "frame range"),
     (["basis", "analyze", "--basis", "b.npz", "--mocap", "x.c3d", "--frames", "0:20:0"], "step S must be >= 1"),
     (["basis", "refine", "--basis", "b.npz", "--train", "t.c3d", "--regularization", "-1"], ">= 0"),

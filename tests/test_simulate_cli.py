@@ -65,7 +65,7 @@ def test_bad_activation_is_a_one_line_error(model_path, tmp_path, capsys, item, 
 
 
 def test_malformed_activation_and_missing_model(tmp_path, capsys, model_path):
-    assert main(["simulate", "--model", str(model_path), "--activation", "procerus", "--out", str(tmp_path)]) == 1
+    assert main(["simulate", "--model", str(model_path), "--activation", "procerus", "--out", str(tmp_path)]) == 2
     assert "NAME=VALUE" in capsys.readouterr().err
     assert main(["simulate", "--model", str(tmp_path / "none.npz"), "--out", str(tmp_path)]) == 1
     assert "not found" in capsys.readouterr().err

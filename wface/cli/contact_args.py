@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 
 from wface.cli.validate import finite_float, non_negative_float, positive_float
-from wface.physics.contact import REGIONS, SURFACES, Contact
+from wface.physics.contact import REGIONS, SURFACES, Contact, parse_obstacle
 
 __all__ = ["add_contact_arguments", "contact_from_args"]
 
@@ -21,6 +21,15 @@ def contact_regions(text: str) -> str:
     unknown = [r for r in (p.strip() for p in str(text).split(",")) if r and r not in REGIONS]
     if unknown:
         raise argparse.ArgumentTypeError(f"unknown contact region(s) {', '.join(unknown)}; known: {', '.join(REGIONS)}")
+    return text
+
+
+def obstacle_spec(text: str) -> str:
+    """``--obstacle``'s type: a spec ``parse_obstacle`` reads (a malformed one is a usage error before any work)."""
+    try:
+        parse_obstacle(text)
+    except (ValueError, KeyError) as exc:
+        raise argparse.ArgumentTypeError(str(exc).strip("'\"")) from None
     return text
 
 
@@ -58,6 +67,7 @@ def add_contact_arguments(
             "--obstacle",
             action="append",
             default=[],
+            type=obstacle_spec,
             metavar="SPEC",
             help="rigid obstacle pressed into the face (repeatable), metres: sphere:X,Y,Z,R (ball of radius R "
             "at X,Y,Z) or plane:PX,PY,PZ,NX,NY,NZ (solid half-space through P, outward normal N toward the face)",

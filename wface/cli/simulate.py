@@ -55,6 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--activation",
         action="append",
         default=[],
+        type=activation_item,
         metavar="NAME=VALUE",
         help="muscle activation in [0, 1], or a pressure actuator in [-1, 1] (intraoral_pressure=0.6 puffs "
         "the cheeks, -0.6 sucks them in; repeatable)",
@@ -85,6 +86,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=_run)
+
+
+def activation_item(text: str) -> str:
+    """``--activation``'s type: NAME=VALUE with a number (the names are checked against the model later)."""
+    try:
+        parse_activations([text])
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def parse_activations(items: list[str]) -> dict[str, float]:
