@@ -218,3 +218,16 @@ def test_cli_with_a_layout_file(tmp_path):
     assert rc == 0
     summary = json.loads((tmp_path / "o" / "happy.json").read_text())
     assert summary["muscles"] == len(lay.muscles) and summary["max_displacement_mm"] > 1.0
+
+
+def test_options_that_would_do_nothing_are_refused(tmp_path, capsys):
+    """--landmarks or --units with the built-in face, --tets with a mesh file and --frames without --blend-to were
+    silently ignored."""
+    for args, flag in [
+        (["--mesh", "builtin", "--landmarks", "lm.json"], "--landmarks"),
+        (["--mesh", "builtin", "--units", "cm"], "--units"),
+        (["--mesh", "head.obj", "--tets", "3000"], "--tets"),
+        (["--mesh", "builtin", "--frames", "5"], "--frames"),
+    ]:
+        assert main(["waters", *args, "--out", str(tmp_path)]) == 1
+        assert f"{flag} does nothing here" in capsys.readouterr().err

@@ -40,7 +40,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(the ICT layout fitted to its markers, jaw weights from its bones)",
     )
     p.add_argument(
-        "--tets", type=face_tets, default=20000, help="resolution of the built-in face (with --mesh builtin)"
+        "--tets",
+        type=face_tets,
+        default=None,
+        help="resolution of the built-in face (with --mesh builtin; default 20000)",
     )
     p.add_argument("--expression", default="neutral", help="expression preset (default: neutral)")
     p.add_argument("--intensity", type=probability, default=1.0, help="scale of the preset's action units, 0..1")
@@ -58,9 +61,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-render", action="store_true", help="skip the PNG renders")
     p.add_argument("--usdc", action="store_true", help="write binary .usdc instead of text .usda")
     p.add_argument("--blend-to", metavar="EXPRESSION", help="also write an animation from --expression to this preset")
-    p.add_argument("--frames", type=positive_int, default=24, help="frames of the --blend-to animation (24 fps)")
+    p.add_argument(
+        "--frames", type=positive_int, default=None, help="frames of the --blend-to animation (24 fps; default 24)"
+    )
     p.add_argument("--out", required=True, help="output directory")
     p.set_defaults(func=_run)
+
+
+def _refuse_ignored_options(args: argparse.Namespace) -> None:
+    """Options that would do nothing here are errors, not silently dropped."""
+    builtin = args.mesh == "builtin"
+    ignored = [
+        ("--landmarks", builtin and args.landmarks, "the built-in face has its own layout"),
+        ("--units", builtin and args.units != "auto", "the built-in face is in metres"),
+        ("--tets", not builtin and args.tets is not None, "it sizes the built-in face (--mesh builtin)"),
+        ("--frames", not args.blend_to and args.frames is not None, "it counts the --blend-to animation's frames"),
+    ]
+    for flag, hit, why in ignored:
+        if hit:
+            raise ValueError(f"{flag} does nothing here: {why}")
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -68,6 +87,9 @@ def _run(args: argparse.Namespace) -> int:
     # bad names fail before any work
     extra = parse_au_assignments(args.au)
     expression_pose(args.expression, intensity=args.intensity, extra_action_units=extra)
+    _refuse_ignored_options(args)
+    args.frames = 24 if args.frames is None else args.frames
+    args.tets = 20000 if args.tets is None else args.tets
     if args.blend_to:
         expression_pose(args.blend_to)
         if args.frames < 2:
