@@ -309,6 +309,7 @@ def test_cli_blend_then_chained_edits_write_valid_usd(model_path, tmp_path, caps
         (["exaggerate", "--expression", "smile", "--factor", "-1"], ">= 0", 1),
         (["layer", "--take", "/nonexistent/take", "--add", "happy"], "does not exist", 1),
         (["blend", "--from", "smile", "--to", "AU12=1,buccinator_x=1"], "buccinator_l", 1),
+        (["blend", "--from", "smile", "--to", "happy", "--tets", "2000"], "--tets does nothing with --model", 1),
     ],
 )
 def test_cli_errors_are_one_line(model_path, tmp_path, capsys, argv, message, code):
@@ -353,3 +354,12 @@ def test_retime_of_a_strided_take_keeps_its_true_timing(model, smile, surprise):
     assert layer(strided, smile, 0.5, joint=model.jaw_joint).frames.tolist() == strided.frames.tolist()
     with pytest.raises(ValueError, match="frame numbers must increase"):
         Take(activations=take.activations, fps=30.0, frames=np.array([0, 2, 2, 3, 4, 5]))
+
+
+def test_a_fade_longer_than_the_take_is_refused():
+    """A layer faded in and out over more than half the take never reached its weight, without a word."""
+    from wface.cli.edit import _envelope
+
+    assert _envelope(11, 5).max() == 1.0 and _envelope(12, 0).min() == 1.0
+    with pytest.raises(ValueError, match="--fade 5: a fade in and out needs at least 11 frames, the take has 10"):
+        _envelope(10, 5)

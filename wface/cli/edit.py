@@ -61,7 +61,12 @@ examples:
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
-    p.add_argument("--tets", type=face_tets, default=5000, help="size of the built-in face when --model is not given")
+    p.add_argument(
+        "--tets",
+        type=face_tets,
+        default=None,
+        help="size of the built-in face when --model is not given (default 5000)",
+    )
     p.add_argument("--device", default="cpu", help="Warp device: cpu, cuda:0 or auto")
     p.add_argument("--solver", default="auto", choices=["auto", "direct", "cg"], help="linear solver")
     p.add_argument("--tol", type=positive_float, default=1e-6, help="relative residual of each solve (default 1e-6)")
@@ -179,11 +184,10 @@ def _model(args):
             require_take_dir(args.take)
         )  # a wrong --take fails before a face is built (controls.npz: its dir)
     if args.model:
+        if args.tets is not None:
+            raise ValueError("--tets does nothing with --model: it sizes the built-in face")
         return load_model(args.model)
-
-    if args.tets < 100:
-        raise ValueError(f"--tets must be at least 100, got {args.tets}")
-    return build_face(args.tets, progress=False)
+    return build_face(5000 if args.tets is None else args.tets, progress=False)
 
 
 def _neutral(args, model, take=None):
@@ -306,6 +310,8 @@ def _envelope(n: int, fade: int) -> np.ndarray:
     if fade < 0:
         raise ValueError(f"--fade must be >= 0, got {fade}")
     env = np.ones(n)
+    if fade and 2 * fade + 1 > n:  # the ramps in and out would overlap: the layer would never reach its weight
+        raise ValueError(f"--fade {fade}: a fade in and out needs at least {2 * fade + 1} frames, the take has {n}")
     if fade:
         ramp = np.minimum(1.0, (np.arange(n) + 1.0) / (fade + 1.0))
         env = np.minimum(ramp, ramp[::-1])
