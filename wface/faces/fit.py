@@ -219,6 +219,8 @@ def _smooth_interior(template: FaceModel, x: np.ndarray) -> tuple[np.ndarray, di
         "goal_volume_ratio": volume_ratio_goal,
         "below_goal_before": rep.below_goal_before,
         "below_goal_after": rep.below_goal_after,
+        "min_dihedral_before_deg": rep.min_dihedral_before_deg,
+        "min_dihedral_after_deg": rep.min_dihedral_after_deg,
         "moved_nodes": rep.moved_nodes,
         "moves": rep.operations["smooth"],
         "rounds": rep.rounds,
@@ -237,8 +239,10 @@ def _interior(template: FaceModel, rest_s, skin_x, smooth: bool, device, solver,
     if smooth:
         x, smoothing = _smooth_interior(template, x)
         say(
-            f"interior smoothing: {smoothing['moved_nodes']} free node(s) moved, tets below the template's worst "
-            f"{smoothing['below_goal_before']} -> {smoothing['below_goal_after']}, {smoothing['seconds']:.1f} s"
+            f"interior smoothing: {smoothing['moved_nodes']} free node(s) moved, worst dihedral "
+            f"{smoothing['min_dihedral_before_deg']:.1f} -> {smoothing['min_dihedral_after_deg']:.1f} deg; "
+            f"tets below the template's worst quality {smoothing['below_goal_before']} -> "
+            f"{smoothing['below_goal_after']} (raising a node's worst tet can add some), {smoothing['seconds']:.1f} s"
         )
     return x, steps, quality_relaxed, smoothing
 
