@@ -20,6 +20,13 @@ def _take(frames=7, markers=4, gap=True, seed=0) -> MocapTake:
     return MocapTake(p, [f"M{i}" for i in range(markers)], 60.0, "mem")
 
 
+def _refused(path, text: str, match: str) -> None:
+    """A CSV holding ``text`` is refused with a message matching ``match``."""
+    path.write_text(text)
+    with pytest.raises(ValueError, match=match):
+        read_csv(path)
+
+
 @pytest.mark.parametrize("suffix", [".c3d", ".trc", ".csv"])
 @pytest.mark.parametrize("units", ["mm", "cm", "m"])
 def test_round_trip(tmp_path, suffix, units):
@@ -62,14 +69,10 @@ def test_csv_rate_from_rounded_times_byte_order_mark_and_bad_times(tmp_path):
     write_mocap(take, trc)
     trc.write_bytes(b"\xef\xbb\xbf" + trc.read_bytes())
     assert read_trc(trc).n_frames == 20
-    flat = tmp_path / "flat.csv"
-    flat.write_text("# units: mm\nframe,time_s,A_x,A_y,A_z\n0,0.0,1,2,3\n1,0.1,1,2,3\n2,0.1,1,2,3\n")
-    with pytest.raises(ValueError, match="flat.csv: CSV column 'time_s' does not increase at line 5.*# rate_hz: 60"):
-        read_csv(flat)
-    word = tmp_path / "word.csv"
-    word.write_text("# units: mm\n# rate_hz: sixty\nA_x,A_y,A_z\n1,2,3\n")
-    with pytest.raises(ValueError, match="word.csv: '# rate_hz: sixty' is not a number"):
-        read_csv(word)
+    flat = "# units: mm\nframe,time_s,A_x,A_y,A_z\n0,0.0,1,2,3\n1,0.1,1,2,3\n2,0.1,1,2,3\n"
+    _refused(tmp_path / "flat.csv", flat, "flat.csv: CSV column 'time_s' does not increase at line 5.*# rate_hz: 60")
+    word = "# units: mm\n# rate_hz: sixty\nA_x,A_y,A_z\n1,2,3\n"
+    _refused(tmp_path / "word.csv", word, "word.csv: '# rate_hz: sixty' is not a number")
 
 
 def test_frames_slice():
@@ -96,28 +99,21 @@ def test_bad_files(tmp_path):
     trunc.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
     with pytest.raises(ValueError, match="trunc.c3d"):
         read_c3d(trunc)
-    cols = tmp_path / "cols.csv"
-    cols.write_text("time_s,A_x,A_y\n0,1,2\n")
-    with pytest.raises(ValueError, match="cols.csv.*multiple of 3"):
-        read_csv(cols)
-    ragged = tmp_path / "ragged.csv"
-    ragged.write_text("# rate_hz: 60\nA_x,A_y,A_z\n1,2,3\n1,2\n")
-    with pytest.raises(ValueError, match="ragged.csv: CSV line 4 has 2 columns"):  # the file's own line number
-        read_csv(ragged)
-    nomark = tmp_path / "nomark.csv"
-    nomark.write_text("frame,time_s\n0,0\n")
-    with pytest.raises(ValueError, match="no marker columns"):
-        read_csv(nomark)
+    _refused(tmp_path / "cols.csv", "time_s,A_x,A_y\n0,1,2\n", "cols.csv.*multiple of 3")
+    ragged = "# rate_hz: 60\nA_x,A_y,A_z\n1,2,3\n1,2\n"
+    _refused(tmp_path / "ragged.csv", ragged, "ragged.csv: CSV line 4 has 2 columns")  # the file's own line number
+    _refused(tmp_path / "nomark.csv", "frame,time_s\n0,0\n", "no marker columns")
     trc = tmp_path / "t.trc"
     write_mocap(_take(frames=8), trc)
     text = trc.read_text().splitlines()
     (tmp_path / "short.trc").write_text("\n".join(text[:-2]) + "\n")
     with pytest.raises(ValueError, match="short.trc.*truncated"):
         read_trc(tmp_path / "short.trc")
-    units = tmp_path / "u.csv"
-    units.write_text("# units: furlong\n# rate_hz: 60\nA_x,A_y,A_z\n1,2,3\n")
-    with pytest.raises(ValueError, match="u.csv: unknown length units 'furlong'"):
-        read_csv(units)
+    _refused(
+        tmp_path / "u.csv",
+        "# units: furlong\n# rate_hz: 60\nA_x,A_y,A_z\n1,2,3\n",
+        "u.csv: unknown length units 'furlong'",
+    )
     with pytest.raises(ValueError, match="unknown motion-capture format"):
         read_mocap(tmp_path / "x.bvh")
 

@@ -180,9 +180,8 @@ def _model(args):
 
     quiet_warp()
     if getattr(args, "take", None):
-        args.take = str(
-            require_take_dir(args.take)
-        )  # a wrong --take fails before a face is built (controls.npz: its dir)
+        # a wrong --take fails before a face is built; a take's controls.npz stands for its directory
+        args.take = str(require_take_dir(args.take))
     if args.model:
         if args.tets is not None:
             raise ValueError("--tets does nothing with --model: it sizes the built-in face")

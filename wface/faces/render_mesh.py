@@ -32,13 +32,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from wface.mesh.align import Similarity, align_to_surface
 from wface.mesh.closest import SurfaceQuery
 from wface.mesh.embed import PointBinding, anchor_points, bind_points
 from wface.mesh.meshfile import SurfaceMesh, read_surface_mesh
+from wface.mesh.surface_fields import edge_graph
 from wface.model import BONES, FaceModel
 
 __all__ = ["RenderMesh", "bind_render_mesh", "placement_for"]
@@ -148,10 +148,7 @@ def placement_for(model: FaceModel, mesh: SurfaceMesh) -> tuple[np.ndarray, str]
 
 def _components(mesh: SurfaceMesh) -> np.ndarray:
     """(n,) connected-component label of each vertex, 0 for the largest component."""
-    t = mesh.triangles().astype(np.int64)
-    n = mesh.n_points
-    adj = sp.coo_matrix((np.ones(3 * len(t)), (t.ravel(), np.roll(t, 1, axis=1).ravel())), shape=(n, n))
-    _, lab = connected_components(adj, directed=False)
+    _, lab = connected_components(edge_graph(mesh.points, mesh.triangles()), directed=False)
     order = np.argsort(-np.bincount(lab))
     return np.argsort(order)[lab]
 

@@ -133,13 +133,15 @@ def containing_tets(points, x, tets, k: int = 16, *, nearest: bool = False):
     return found, weights
 
 
-def _affine_g(X: np.ndarray) -> np.ndarray | None:
-    """g_k = C^-1 (X_k - Xbar) of a node set (module docstring), or None if its nodes do not span 3D."""
+def _affine_g(X: np.ndarray, *, check: bool = False) -> np.ndarray | None:
+    """g_k = C^-1 (X_k - Xbar) of a node set (module docstring); with ``check``, None if its nodes do not
+    span 3D."""
     D = X - X.mean(axis=0)
     C = D.T @ D
-    s = np.linalg.svd(C, compute_uv=False)
-    if len(X) < 4 or s[-1] <= 1e-9 * s[0]:
-        return None
+    if check:
+        s = np.linalg.svd(C, compute_uv=False)
+        if len(X) < 4 or s[-1] <= 1e-9 * s[0]:
+            return None
     return np.linalg.solve(C, D.T).T
 
 
@@ -171,7 +173,7 @@ def anchor_points(
     if anchor_of.shape != (binding.n_points,) or weight.shape != (binding.n_points,) or len(p) != binding.n_points:
         raise ValueError(f"anchor_points: expected {binding.n_points} points, anchors and weights")
     nodes = [np.asarray(a, dtype=np.int64) for a in anchor_nodes]
-    gs = [_affine_g(x[a]) for a in nodes]
+    gs = [_affine_g(x[a], check=True) for a in nodes]
     usable = np.array([g is not None for g in gs] + [False])  # index -1 -> False
     pick = np.flatnonzero((anchor_of >= 0) & (weight > 0) & usable[anchor_of])
     mean = np.array([x[a].mean(axis=0) if len(a) else np.zeros(3) for a in nodes]).reshape(-1, 3)
@@ -202,10 +204,8 @@ def _frames(x, tets, skin_triangles, used_tris):
     nodes = np.zeros((len(groups), K), dtype=np.int64)
     g_out = np.zeros((len(groups), K, 3))
     for i, g in enumerate(groups):
-        X = x[g] - x[g].mean(axis=0)
-        C = X.T @ X
         nodes[i, : len(g)] = g
-        g_out[i, : len(g)] = np.linalg.solve(C, X.T).T
+        g_out[i, : len(g)] = _affine_g(x[g])
     return nodes, g_out
 
 

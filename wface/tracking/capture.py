@@ -29,7 +29,6 @@ __all__ = ["CaptureCheck", "CaptureError", "PreparedCapture", "check_capture", "
 
 MAX_SPEED_M_S = 2.0
 MAX_DEFORMATION_M = 0.10
-SCALE_RANGE = FACE_SCALE_RANGE
 MIN_NAMED_MARKERS = 3
 MAX_SHAPE_FIT_MM = 10.0
 
@@ -190,7 +189,7 @@ def _check_alignment(model, marker_names, matched: list[str], scale: float, rms_
             f"; only {len(matched)} of the capture's {len(marker_names)} marker names match the model's "
             f"(the model has e.g. {some}): rename the markers or use a model with these names"
         )
-    lo, hi = SCALE_RANGE
+    lo, hi = FACE_SCALE_RANGE
     if not lo <= scale <= hi:
         raise CaptureError(
             f"the capture aligns to the model at scale {scale:.3g} (plausible: {lo:g} to {hi:g}): check the file's "

@@ -49,6 +49,7 @@ from scipy.sparse.linalg import spsolve
 
 from wface.facs import all_muscle_names
 from wface.files import read_json, write_json
+from wface.mesh.surface_fields import edge_graph
 from wface.waters.muscles import LinearMuscle, SphincterMuscle
 
 __all__ = [
@@ -155,9 +156,8 @@ class JawRegion:
         free[np.setdiff1d(np.arange(len(p)), tri)] = False  # a vertex on no triangle keeps its weight
         if not free.any() or free.all():
             return w
-        n = len(p)
-        a = sp.coo_matrix((np.ones(tri.size), (tri.ravel(), np.roll(tri, 1, axis=1).ravel())), shape=(n, n)).tocsr()
-        a = ((a + a.T) > 0).astype(np.float64)
+        a = edge_graph(p, tri)
+        a.data[:] = 1.0  # the uniform (graph) Laplacian: adjacency, not lengths
         lap = (sp.diags(np.asarray(a.sum(axis=1)).ravel()) - a).tocsr()
         fi, xi = np.flatnonzero(free), np.flatnonzero(~free)
         k = lap[fi][:, fi].tocsc() + sp.identity(len(fi), format="csc") * 1e-12  # a part with no fixed vertex
