@@ -472,9 +472,9 @@ def _csv_rate(path, meta, rate_hz, header, skip, rows, line_no) -> float:
         t = np.array([float(r[tcol[0]]) for r in rows[1:]])
     except ValueError:
         raise ValueError(f"{path}: CSV column {header[tcol[0]]!r} holds a value that is not a time: {fix}") from None
-    step = np.diff(t)
-    if not np.all(np.isfinite(t)) or np.any(step <= 0):
-        bad = int(np.argmax(~(step > 0))) + 2 if np.any(~(step > 0)) else 1
+    good = np.isfinite(t) & np.concatenate([[True], np.diff(t) > 0])  # (F,): a finite time after its predecessor
+    if not good.all():
+        bad = int(np.argmin(good)) + 1  # the first bad data row, in line_no (whose 0 is the header)
         raise ValueError(
             f"{path}: CSV column {header[tcol[0]]!r} does not increase at line {line_no[bad]} "
             f"(times rounded too coarsely for the rate?): {fix}"

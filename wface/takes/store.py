@@ -147,9 +147,8 @@ def _clear_results(out: Path) -> None:
     for name in (*TAKE_FILES, PROVENANCE):
         if (out / name).is_file():
             (out / name).unlink()
-    for name in (FRAMES_DIR, SURVEY_DIR, *(p.name for p in out.glob(f"{REFINE_DIR_PREFIX}*"))):
-        if (out / name).is_dir():
-            shutil.rmtree(out / name)
+    for d in _pass_dirs(out):
+        shutil.rmtree(d)
 
 
 def claim_take_dir(out_dir: str | Path, run: dict, *, resume: bool = False, overwrite: bool = False) -> str:
