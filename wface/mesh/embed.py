@@ -2,17 +2,25 @@
 
 A point inside the tet mesh keeps its barycentric weights w in the tet that contains it:
 p = sum_j w_j x_j, exact for any affine motion of the mesh. A point outside keeps its closest skin
-point c (barycentric weights in a skin triangle) and its rest offset o = p0 - c0, carried by the
-local deformation gradient of the skin triangle's neighbourhood:
+point c (barycentric weights beta_j in a skin triangle t) and its rest offset o = p0 - c0, carried by
+the local deformation gradient of the skin there:
 
-    p = c(x) + F_t o,    F_t = sum_k x_k g_k^T,    g_k = C^-1 (X_k - Xbar),    C = sum_k (X_k - Xbar)(X_k - Xbar)^T
+    p = c(x) + F o,    F_S = sum_k x_k g_k^T,    g_k = C^-1 (X_k - Xbar),    C = sum_k (X_k - Xbar)(X_k - Xbar)^T
 
-over the nodes k of the tets that touch the triangle's corners (rest positions X_k, current x_k):
-F_t is the least-squares affine fit of the neighbourhood's motion, so the offset turns and
-stretches with the flesh, F_t = A exactly under an affine motion x = A X + b, and F_t = I at rest.
+F_S is the least-squares affine fit of the motion of a node set S (rest positions X_k, current x_k),
+so the offset turns and stretches with the flesh, F_S = A exactly under an affine motion
+x = A X + b, and F_S = I at rest. Near the skin F is the triangle's own, S the nodes of the tets
+that touch its corners (the most local fit). That F jumps from one triangle to the next, and a jump
+times a long offset is a fold (a render mesh 25 mm behind the skin: edges shrank to a tenth at a
+15 degree jaw opening). So with distance F hands over to a field that is continuous over the skin,
+the corners' own fits interpolated at the closest point (S_j the nodes of the tets that touch
+vertex j or its skin neighbours):
+
+    F = (1 - s) F_t + s sum_j beta_j F_j,    s = smoothstep(|o| / L),    L = 2 x the skin's median edge
+
 For a point on the skin's normal this is "closest skin point plus normal offset"; points off to the
 side (the back of a head beyond the face patch) keep their whole offset, so the rest mesh is
-reproduced exactly.
+reproduced exactly (every F_S is I at rest, and a convex blend of exact fits stays exact).
 
 Anchors (``anchor_points``): a point far from the skin swings with the local F_t by its whole lever
 arm (the base of a neck 100 mm below a chin that opens). It can be handed, wholly or in part, to an
@@ -75,7 +83,8 @@ class PointBinding:
     tri_nodes: np.ndarray  # (b, 3) node ids of the closest skin triangle
     tri_weights: np.ndarray  # (b, 3) barycentric weights of the closest skin point
     offset_m: np.ndarray  # (b, 3) rest offset p0 - c0
-    frame_of: np.ndarray  # (b,) row into frame_nodes / frame_g
+    frame_of: np.ndarray  # (b, 4) rows into frame_nodes / frame_g: the triangle's fit, its corners' fits
+    frame_weight: np.ndarray  # (b, 4) blend weights of those fits (1 - s, s beta_j), summing to 1
     frame_nodes: np.ndarray  # (f, K) neighbourhood node ids (padded with node 0)
     frame_g: np.ndarray  # (f, K, 3) g_k (zero for padding), 1/m
     anchors: Anchors | None = None  # far points carried by node sets (``anchor_points``)
@@ -94,8 +103,9 @@ class PointBinding:
         out[self.inside] = np.einsum("kj,kjd->kd", self.tet_weights, x[self.tet_nodes])
         if len(self.outside):
             c = np.einsum("kj,kjd->kd", self.tri_weights, x[self.tri_nodes])
-            F = np.einsum("fkd,fke->fde", x[self.frame_nodes], self.frame_g)  # (f, 3, 3)
-            out[self.outside] = c + np.einsum("kde,ke->kd", F[self.frame_of], self.offset_m)
+            F = np.einsum("fkd,fke->fde", x[self.frame_nodes], self.frame_g)  # (f, 3, 3) per node set
+            F_point = np.einsum("kj,kjde->kde", self.frame_weight, F[self.frame_of])
+            out[self.outside] = c + np.einsum("kde,ke->kd", F_point, self.offset_m)
         if self.anchors is not None and len(self.anchors.point):
             a, b = self.anchors, self.anchors.weight[:, None]
             out[a.point] = (1.0 - b) * out[a.point] + b * a.positions(x)
@@ -189,17 +199,20 @@ def anchor_points(
     return PointBinding(**{**binding.__dict__, "anchors": anchors})
 
 
-def _frames(x, tets, skin_triangles, used_tris):
-    """Neighbourhood nodes and g_k of each used skin triangle (module docstring)."""
+def _frames(x, tets, skin_triangles, used_tris, used_verts):
+    """Node sets and g_k of the fits F_S (module docstring): one per used skin triangle (the tets touching
+    its corners), then one per used skin vertex (the tets touching it or its skin neighbours)."""
     n = len(x)
     node_tets = [[] for _ in range(n)]
     for t, row in enumerate(tets):
         for v in row:
             node_tets[v].append(t)
-    groups = []
-    for t in used_tris:
-        ts = np.unique(np.concatenate([node_tets[v] for v in skin_triangles[t]]))
-        groups.append(np.unique(tets[ts].ravel()))
+    ring = [[] for _ in range(n)]
+    for row in skin_triangles:
+        for v in row:
+            ring[v].extend(row)
+    sets = [skin_triangles[t] for t in used_tris] + [np.unique(ring[v]) for v in used_verts]
+    groups = [np.unique(tets[np.unique(np.concatenate([node_tets[u] for u in vs]))].ravel()) for vs in sets]
     K = max(len(g) for g in groups)
     nodes = np.zeros((len(groups), K), dtype=np.int64)
     g_out = np.zeros((len(groups), K, 3))
@@ -241,8 +254,15 @@ def bind_points(
         tri = np.concatenate([h.triangle for h in hits])
         bary = np.concatenate([h.barycentric for h in hits])
         c = np.concatenate([h.point_m for h in hits])
-    used, frame_of = np.unique(tri, return_inverse=True)
-    nodes, g = _frames(x, tets, skin, used) if used.size else (np.zeros((0, 1), np.int64), np.zeros((0, 1, 3)))
+    used_tris, tri_row = np.unique(tri, return_inverse=True)
+    used_verts, vert_row = np.unique(skin[tri], return_inverse=True)
+    if tri.size:
+        nodes, g = _frames(x, tets, skin, used_tris, used_verts)
+    else:
+        nodes, g = np.zeros((0, 1), np.int64), np.zeros((0, 1, 3))
+    edges = np.linalg.norm(x[skin] - x[np.roll(skin, 1, axis=1)], axis=2)
+    s = np.clip(np.linalg.norm(p[outside] - c, axis=1) / (2.0 * np.median(edges)), 0.0, 1.0)[:, None]
+    s = s * s * (3.0 - 2.0 * s)  # smoothstep
     return PointBinding(
         n_points=len(p),
         inside=inside,
@@ -252,7 +272,8 @@ def bind_points(
         tri_nodes=skin[tri],
         tri_weights=bary,
         offset_m=p[outside] - c,
-        frame_of=frame_of.reshape(-1),
+        frame_of=np.column_stack([tri_row.reshape(-1), len(used_tris) + vert_row.reshape(-1, 3)]),
+        frame_weight=np.column_stack([1.0 - s, s * bary]),
         frame_nodes=nodes,
         frame_g=g,
     )
