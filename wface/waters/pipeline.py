@@ -10,6 +10,7 @@ import numpy as np
 
 from wface.files import read_landmarks, write_json
 from wface.io.usd import write_surface_mesh
+from wface.mesh.materials import face_appearance
 from wface.mesh.meshfile import SurfaceMesh, read_surface_mesh, write_obj
 from wface.waters.expressions import expression_pose
 from wface.waters.fit import fit_layout
@@ -96,8 +97,10 @@ def pose_mesh(
             lo, hi = region.min(axis=0), region.max(axis=0)
             pad = 0.25 * (hi - lo)
             box = np.ravel(np.column_stack([lo - pad, hi + pad]))
-        view = {"size": size, "bounds_m": box, "zoom": 1.3}
-        files["png"] = str(render_mesh(out / f"{stem}.png", x, tri, title=stem, **view))
+        rgb, opacity = face_appearance(mesh)  # eyes, teeth and overlays by material group
+        tri_face = mesh.triangle_faces()
+        view = {"size": size, "bounds_m": box, "zoom": 1.3, "visible": opacity[tri_face] > 0}
+        files["png"] = str(render_mesh(out / f"{stem}.png", x, tri, title=stem, triangle_rgb=rgb[tri_face], **view))
         files["png_displacement"] = str(
             render_mesh(
                 out / f"{stem}_displacement.png", x, tri, displacement_mm=disp_mm, title=f"{stem}: displacement", **view

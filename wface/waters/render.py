@@ -34,6 +34,8 @@ def render_mesh(
     focus_m: np.ndarray | None = None,
     zoom: float = 1.25,
     bounds_m: np.ndarray | None = None,
+    triangle_rgb: np.ndarray | None = None,
+    visible: np.ndarray | None = None,
 ) -> Path:
     """Render a mesh seen from the front (+z toward the camera, +y up) to a PNG.
 
@@ -48,11 +50,16 @@ def render_mesh(
         focus_m: (3,) point the camera looks at (default: the mesh centre).
         zoom: camera zoom factor.
         bounds_m: optional (6,) box (xmin, xmax, ymin, ymax, zmin, zmax) to frame instead of the whole mesh.
+        triangle_rgb: optional (t, 3) colour per triangle in [0, 1] (default skin; e.g. from the mesh's
+            material groups, ``wface.mesh.materials.face_appearance``).
+        visible: optional (t,) bool: triangles to draw (e.g. not an eye occlusion overlay).
     """
 
     pv = offscreen_pyvista()
     plotter = pv.Plotter(off_screen=True, window_size=(size, size))
-    mesh = _polydata(vertices_m, triangles, displacement_mm)
+    triangles = np.asarray(triangles)
+    keep = np.ones(len(triangles), dtype=bool) if visible is None else np.asarray(visible, dtype=bool)
+    mesh = _polydata(vertices_m, triangles[keep], displacement_mm)
     if displacement_mm is not None:
         plotter.add_mesh(
             mesh,
@@ -74,6 +81,9 @@ def render_mesh(
                 "label_font_size": 12,
             },
         )
+    elif triangle_rgb is not None:
+        mesh.cell_data["rgb"] = np.clip(np.asarray(triangle_rgb)[keep] * 255.0, 0, 255).astype(np.uint8)
+        plotter.add_mesh(mesh, scalars="rgb", rgb=True, smooth_shading=True, specular=0.2)
     else:
         plotter.add_mesh(mesh, color=(0.87, 0.72, 0.62), smooth_shading=True, specular=0.2)
     if title:

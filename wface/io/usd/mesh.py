@@ -17,6 +17,7 @@ from wface.io.usd._common import (
     _write_mesh,
     as_polygons,
 )
+from wface.mesh.materials import material_appearance
 
 __all__ = ["write_mesh_animation", "write_surface_mesh"]
 
@@ -67,7 +68,8 @@ def write_mesh_animation(
         material_faces: {material name: polygon indices}: one ``GeomSubset`` per material (family
             "materialBind") bound to a ``UsdPreviewSurface`` material of that name under
             ``/<name>/Materials``.
-        material_colors: {material name: (3,) diffuse colour} for those materials (default grey).
+        material_colors: {material name: (3,) diffuse colour} for those materials (default: from the
+            name, ``wface.mesh.materials``).
 
     Returns:
         The path written.
@@ -149,7 +151,9 @@ def _write_face_varying(mesh, primvar: str, values, corner_indices, n_corners: i
 
 
 def _write_materials(stage, root: str, mesh, material_faces: dict, colors: dict, n_faces: int) -> None:
-    """One GeomSubset per material, bound to a UsdPreviewSurface material of the same name."""
+    """One GeomSubset per material, bound to a UsdPreviewSurface material of the same name: the colour
+    given in ``colors``, else the one its name suggests, and opacity 0 for overlays such as an eye
+    occlusion shell (``wface.mesh.materials``)."""
     from pxr import Gf, Sdf, UsdShade
 
     idents = _bind_material_subsets(mesh, material_faces, f"{root}/Materials", n_faces)
@@ -157,8 +161,10 @@ def _write_materials(stage, root: str, mesh, material_faces: dict, colors: dict,
         material = UsdShade.Material.Define(stage, f"{root}/Materials/{ident}")
         shader = UsdShade.Shader.Define(stage, f"{root}/Materials/{ident}/PreviewSurface")
         shader.CreateIdAttr("UsdPreviewSurface")
-        rgb = colors.get(name, (0.7, 0.7, 0.7))
-        shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*map(float, rgb)))
+        look = material_appearance(name, colors.get(name))
+        shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*look.rgb))
+        if look.opacity < 1.0:
+            shader.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(look.opacity)
         material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
 
 

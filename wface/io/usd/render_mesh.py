@@ -33,16 +33,6 @@ __all__ = ["CACHE_PRIM", "add_render_mesh_reference", "reference_render_mesh", "
 
 CACHE_PRIM = "RenderMeshCache"  # the point cache's prim under the layer's root (a DCC object name)
 
-_SKIN_RGB = (0.80, 0.62, 0.52)
-_OTHER_RGB = (0.55, 0.55, 0.58)
-
-
-def _material_colors(groups) -> dict:
-    """Skin-like groups (face, head, skin, body) in a skin tone, the rest grey."""
-    return {
-        n: _SKIN_RGB if any(w in n.lower() for w in ("face", "head", "skin", "body")) else _OTHER_RGB for n in groups
-    }
-
 
 def write_render_mesh_layer(
     path: str | Path,
@@ -104,8 +94,7 @@ def write_render_mesh_layer(
     if mesh.uv is not None and mesh.uv_indices is not None:
         _write_face_varying(geom, "st", mesh.uv, mesh.uv_indices, mesh.face_vertex_indices.size, 2)
     if mesh.face_groups:
-        colors = {**_material_colors(mesh.face_groups), **mesh.material_colors}  # the .mtl's colours win
-        _write_materials(stage, root, geom, mesh.face_groups, colors, int(mesh.n_faces))
+        _write_materials(stage, root, geom, mesh.face_groups, mesh.material_colors, int(mesh.n_faces))
     stage.GetRootLayer().customLayerData = {
         "wface": {"kind": "render_mesh", "source": str(mesh.source), "first_frame": int(times[0])}
     }
