@@ -290,6 +290,30 @@ def test_demo_lists_the_render_mesh_layer_it_writes(tmp_path, capsys):
     assert (out / "animation_render_mesh.usdc").is_file() and "animation_render_mesh.usdc" in printed
 
 
+def test_a_take_carries_its_render_mesh_into_resim(tmp_path, capsys):
+    """``wface resim --take`` writes the take's render mesh without being told (a user's production mesh
+    was silently dropped), ``--render-mesh none`` leaves it out, and a mesh file since moved is said."""
+    from wface.cli import main
+
+    _write_skin_patch(build_face(1000), tmp_path / "patch.obj", 40)
+    take = tmp_path / "demo"
+    args = ["demo", "--out", str(take), "--tets", "1000", "--frames", "2", "--no-pictures", "--prior", "temporal"]
+    assert main([*args, "--render-mesh", str(tmp_path / "patch.obj"), "--render-mesh-units", "m"]) == 0
+    resim = ["resim", "--take", str(take), "--tets", "1000", "--substeps", "1"]
+    capsys.readouterr()
+    assert main([*resim, "--out", str(tmp_path / "carried")]) == 0
+    assert "render mesh from the take" in capsys.readouterr().err
+    assert (tmp_path / "carried" / "animation_render_mesh.usdc").is_file()
+    assert main([*resim, "--render-mesh", "none", "--out", str(tmp_path / "without")]) == 0
+    assert not (tmp_path / "without" / "animation_render_mesh.usdc").exists()
+    (tmp_path / "patch.obj").rename(tmp_path / "moved.obj")
+    capsys.readouterr()
+    assert main([*resim, "--out", str(tmp_path / "gone")]) == 0
+    said = capsys.readouterr().err
+    assert "the take's render mesh" in said and "patch.obj is not found" in said
+    assert not (tmp_path / "gone" / "animation_render_mesh.usdc").exists()
+
+
 def test_containing_tets_nearest_for_points_just_outside():
     """A point just outside the mesh is in no tet (-1); with nearest=True it takes the tet it is least
     outside of, one whose face it lies beyond."""

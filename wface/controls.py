@@ -358,6 +358,9 @@ def jaw_from_intuitive(
     forward along the tracks by ``protrusion_m`` on average (each condyle stays within [0, d]).
     With ``clamp`` the numbers are clipped into the joint's range; without it, out-of-range values raise.
     """
+    for name, value in (("opening_deg", opening_deg), ("protrusion_m", protrusion_m), ("lateral_deg", lateral_deg)):
+        if not np.isfinite(value):
+            raise ValueError(f"{name} must be a finite number, got {value}")
     half, d = 0.5 * joint.condyle_distance_m, joint.track_length_m
     alpha, beta, p = np.radians(opening_deg), np.radians(lateral_deg), float(protrusion_m)
     a_min, a_max = -np.arcsin(joint.max_closing_sine), np.arcsin(joint.max_opening_sine)

@@ -257,9 +257,12 @@ class FaceModel:
             for name, value in activations.items():
                 a[self.muscle_index(name)] = float(value)
         else:
-            a = np.asarray(activations, dtype=np.float64).reshape(-1)
-            if a.shape != (self.n_muscles,):
-                raise ValueError(f"activation vector has shape {a.shape}, expected ({self.n_muscles},)")
+            raw = np.asarray(activations)
+            if raw.dtype.kind not in "biuf" or raw.shape != (self.n_muscles,):
+                raise ValueError(
+                    f"activation vector must be ({self.n_muscles},) numbers, got shape {raw.shape} of {raw.dtype}"
+                )
+            a = raw.astype(np.float64)
         if not np.all(np.isfinite(a)):
             raise ValueError("activations contain NaN or inf")
         lo = self.activation_lower_bounds if self.pressure_actuators else 0.0
@@ -518,12 +521,15 @@ def model_sha256(model: FaceModel) -> str:
     return h.hexdigest()
 
 
-def save_model(model: FaceModel, path: str | Path) -> Path:
+def save_model(model: FaceModel, path: str | Path, *, validate: bool = True) -> Path:
     """Write a model to ``.npz`` (uncompressed arrays: bit-exact round trip; written to a temporary
-    file renamed into place, ``wface.files``). Returns the path."""
+    file renamed into place, ``wface.files``). Returns the path. ``validate``: refuse, with
+    ``ModelError``, a model ``load_model`` would refuse (NaN nodes, bad tets, ...) before writing."""
     path = Path(path)
     if path.suffix != ".npz":
         raise ValueError(f"face models are saved as .npz, got {path.name!r}")
+    if validate:
+        model.validate()
     arrays, header = _model_arrays(model)
     arrays["header_json"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
     return save_npz(path, **arrays)

@@ -140,6 +140,8 @@ def resolve_device(device: str | None = None) -> str:
     """
     import warp as wp
 
+    if device not in (None, "auto", "cpu") and not (isinstance(device, str) and device.startswith("cuda")):
+        raise ValueError(f"device must be 'cpu', 'cuda', 'cuda:N' or 'auto', got {device!r}")
     asks_cuda = device is not None and device.startswith("cuda")
     init_warp(cuda_requested=asks_cuda)
     if device in (None, "auto"):

@@ -35,6 +35,14 @@ PRECISIONS = ("float64", "float32")
 _TET_POOLS: dict[int, ThreadPoolExecutor] = {}  # per thread count, shared by every Simulator of the process
 
 
+def _require_finite(name: str, value) -> None:
+    """Raise ``ValueError`` naming the rows of ``value`` (positions, (k, 3)) that hold NaN or inf."""
+    arr = np.asarray(value, dtype=np.float64)
+    bad = np.flatnonzero(~np.all(np.isfinite(arr.reshape(len(arr), -1)), axis=1)) if arr.ndim else np.array([0])
+    if bad.size:
+        raise ValueError(f"{name} has NaN or inf in {bad.size} row(s), first {bad[:5].tolist()}")
+
+
 def _tet_pool(threads: int) -> ThreadPoolExecutor:
     """The process's pool of ``threads`` threads for split per-tet launches (started once: a pool per
     launch cost ~3 ms of thread start-up, ~5 % of a 100K-tet tracking frame)."""
@@ -79,6 +87,7 @@ class Simulator:
 
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+        _require_finite("the model's rest_positions_m", model.rest_positions_m)
         self._wp = wp
         self.model = model
         self.device = resolve_device(device)
@@ -287,6 +296,8 @@ class Simulator:
         """f_i(x): active force of each muscle at full activation, (M, n, 3) newtons, one launch
         (times ``force_length_scale``); a pressure actuator's row is its constant dead load."""
         wp = self._wp
+        if x is not None:
+            _require_finite("positions", x)
         self._set_state(x, None)
         M, n = self.model.n_muscles, self.model.n_nodes
         out = wp.zeros((max(M, 1), n), dtype=self._k.vec3, device=self.device)
@@ -412,7 +423,7 @@ class Simulator:
         attached_positions: np.ndarray | None = None,
         x0: np.ndarray | None = None,
         *,
-        tol: float = 1e-6,
+        tol: float | None = None,
         max_iterations: int = 40,
         solver: str | None = None,
         stiffness: str = "auto",
@@ -432,7 +443,9 @@ class Simulator:
                 from ``wface.controls.attached_positions_from_affines``.
             x0: warm start (n, 3); its attached nodes are replaced by the targets through one
                 linearised "lift" step. Default: rest positions.
-            tol: convergence on the relative residual (see ``Equilibrium``).
+            tol: convergence on the relative residual (see ``Equilibrium``); default 1e-6 in float64 and
+                1e-3 in float32, whose forces carry a relative round-off of about 1e-4 (a float32 solve
+                stalls at a residual of 2-3e-4 with positions within 1e-5 mm of float64's).
             max_iterations: Newton iteration cap.
             solver: override of the simulator's linear solver ("auto" | "cg" | "direct").
             stiffness: "auto" (exact Hessian when definite, else projected), "projected" or "exact";
@@ -458,6 +471,15 @@ class Simulator:
             ``wface.physics.newton.Equilibrium``.
         """
         start = time.perf_counter()
+        if tol is None:
+            tol = 1e-6 if self.precision == "float64" else 1e-3
+        if not (np.isfinite(tol) and tol > 0):
+            raise ValueError(f"tol must be a positive number, got {tol}")
+        if int(max_iterations) < 1:
+            raise ValueError(f"max_iterations must be at least 1, got {max_iterations}")
+        for name, value in (("attached_positions", attached_positions), ("x0", x0)):
+            if value is not None:
+                _require_finite(name, value)
         result = newton_quasistatic(
             self,
             self.model.activation_vector(activations),

@@ -45,7 +45,11 @@ class Tangent:
     def matvec(self, v: np.ndarray) -> np.ndarray:
         """K v for v of shape (n, 3) (or flat 3n); returns (n, 3) float64."""
         s = self._sim
-        s._v.assign(np.asarray(v, dtype=s._np_dtype).reshape(-1, 3))
+        v = np.asarray(v)
+        n = s.model.n_nodes
+        if v.shape not in ((n, 3), (3 * n,)):
+            raise ValueError(f"v has shape {v.shape}, expected ({n}, 3) or ({3 * n},)")
+        s._v.assign(v.astype(s._np_dtype).reshape(-1, 3))
         s._out.zero_()
         inputs = [s._tets, s._dm_inv, self.element_tangents, s._v, s._out]
         s._launch_tets(s._k.tangent_matvec, inputs, sliced=(0, 1, 2), scattered=(4,))

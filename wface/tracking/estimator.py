@@ -106,6 +106,36 @@ class TrackOptions:
     noise_mm: float | None = None  # the capture's marker noise RMS (mm), if known: the steps stop once
     noise_fraction: float = 0.02  # the predicted RMS marker change falls below this fraction of it
 
+    def __post_init__(self) -> None:
+        """Refuse settings the tracker would silently read as another (a ``prior="Auto"`` ran as "off")."""
+        for name, allowed in _CHOICES.items():
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"TrackOptions.{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        for name, low in _COUNTS.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+                raise ValueError(f"TrackOptions.{name} must be an integer >= {low}, got {value!r}")
+        for name in _POSITIVE + _NON_NEGATIVE + _OPTIONAL_POSITIVE:
+            value = getattr(self, name)
+            if value is None and name in _OPTIONAL_POSITIVE:
+                continue
+            ok = isinstance(value, (int, float, np.floating)) and np.isfinite(value)
+            if not ok or value < 0 or (value == 0 and name not in _NON_NEGATIVE):
+                need = "a number >= 0" if name in _NON_NEGATIVE else "a positive number"
+                raise ValueError(f"TrackOptions.{name} must be {need}{' or None' * (name in _OPTIONAL_POSITIVE)}, "
+                                 f"got {value!r}")  # fmt: skip
+
+
+_CHOICES = {
+    "prior": ("auto", "temporal", "off"),
+    "factor_at": ("adaptive", "prediction", "equilibrium"),
+    "factor_precision": ("float32", "float64"),
+}
+_COUNTS = {"gn_steps_first": 1, "gn_steps": 1, "line_search_evals": 1, "prior_passes": 0, "max_jacobian_age": 0}
+_POSITIVE = ("rho0", "rho_growth", "rho_max", "rigid_step_tol", "tol_mm", "min_improvement", "noise_fraction")
+_NON_NEGATIVE = ("prior_refit_change", "temporal_weight", "activation_prior", "jacobian_refresh")
+_OPTIONAL_POSITIVE = ("accept_full_step", "robust_mm", "solve_tol", "noise_mm")
+
 
 @dataclass
 class FrameResult:

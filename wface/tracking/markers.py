@@ -19,7 +19,10 @@ class MarkerMap:
         self._ring = embedding.ring_triangles(model.skin_triangles)  # the normals' triangles
 
     def positions(self, x_m: np.ndarray) -> np.ndarray:
-        """(k, 3) marker positions on the deformed skin."""
+        """(k, 3) marker positions on the deformed skin for node positions ``x_m`` (n, 3)."""
+        n = self.model.n_nodes
+        if np.shape(x_m) != (n, 3):
+            raise ValueError(f"positions have shape {np.shape(x_m)}, expected ({n}, 3)")
         return self.embedding.marker_positions(x_m, self.model.skin_triangles, ring=self._ring)
 
     def jacobian(self, node_jacobian: np.ndarray) -> np.ndarray:

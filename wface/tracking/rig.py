@@ -288,10 +288,12 @@ class FaceRig:
         keep or free). ``tol``: relative residual (default the rig's). ``load_scale``: the residual
         relative to ``load_force_scale`` (no force evaluation at X_load). ``twin``: energies and forces
         from a float32 twin of the simulator (``float32_twin``) when the tolerance is at least
-        ``TWIN_MIN_TOL`` (its residual reading error is ~1e-5 of the load)."""
+        ``TWIN_MIN_TOL`` (its residual reading error is ~1e-5 of the load). Activations outside [0, 1] (a
+        penalty method's iterates) are solved clipped (``Simulator.solve`` refuses them); NaN/inf raise."""
+        if not np.all(finite := np.isfinite(np.asarray(c, dtype=np.float64).reshape(-1))):
+            raise ValueError(f"controls have NaN or inf at {np.flatnonzero(~finite)[:5].tolist()}")
         a, b = self.split(c)
-        # Activations slightly outside [0, 1] can occur inside a penalty method: the physics
-        # sees them clipped (the penalty keeps them near the box).
+        # the physics sees activations clipped (the tracker's penalty keeps them near the box)
         a_phys = self.model.clip_activations(a)
         t0 = time.perf_counter()
         kwargs = {} if self.contact is None else {"contact": self.contact}

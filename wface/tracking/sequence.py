@@ -1,7 +1,7 @@
 """Tracking a whole take: frames in order with warm starts, split into chunks for parallel workers.
 
 Each frame starts from the previous one (a constant-velocity prediction of the controls) and, with
-``TrackOptions.temporal_prior = "auto"``, is estimated under the data-chosen temporal prior of
+``TrackOptions.prior = "auto"`` (the default), is estimated under the data-chosen temporal prior of
 ``wface.tracking.prior``. A take splits into chunks of consecutive frames for any
 ``concurrent.futures``-style executor (``submit`` returning futures), e.g. a process pool or a Dask
 ``Client.get_executor()``. A chunk starts ``warmup_frames`` before its first frame: those frames are
@@ -51,6 +51,7 @@ from wface.takes.store import (
 from wface.takes.take import frame_step
 from wface.tracking.adaptive import is_adaptive, rebuild_linearization, restore_spare, spare_state
 from wface.tracking.estimator import FrameEstimator, TrackOptions
+from wface.tracking.inputs import checked_marker_data
 from wface.tracking.markers import MarkerMap
 from wface.tracking.prior import TemporalPrior, activation_measurement
 from wface.tracking.refine import usage_priors
@@ -70,8 +71,16 @@ DEFAULT_WARMUP_FRAMES = 6  # frames a chunk tracks before its first one (see the
 
 
 def embed_model_markers(model, markers_rest_m: np.ndarray | None = None):
-    """Embed markers (default: the model's own) in the skin; returns a ``MarkerMap``."""
-    pts = model.marker_positions_m if markers_rest_m is None else markers_rest_m
+    """Embed markers (default: the model's own) in the skin; returns a ``MarkerMap``.
+
+    ``markers_rest_m``: (k, 3) rest positions in metres, every one finite (a capture's missing
+    markers are missing in its frames, not here)."""
+    pts = model.marker_positions_m if markers_rest_m is None else np.asarray(markers_rest_m, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"markers_rest_m has shape {pts.shape}, expected (k, 3)")
+    bad = np.flatnonzero(~np.isfinite(pts).all(axis=1))
+    if bad.size:
+        raise ValueError(f"markers_rest_m has NaN or inf at {bad.size} marker(s), first {bad[:5].tolist()}")
     return MarkerMap(model, embed_markers(pts, model.rest_positions_m, model.skin_triangles))
 
 
@@ -454,14 +463,8 @@ def track_sequence(
         min_markers: fewest usable markers a frame needs to be tracked (default ``min_usable_markers``);
             frames with fewer are carried.
     """
-    targets = np.asarray(targets_m, dtype=np.float64)
-    if targets.ndim != 3 or targets.shape[2] != 3:
-        raise ValueError(f"marker data must have shape (frames, markers, 3), got {targets.shape}")
     markers = markers or embed_model_markers(model)
-    if targets.shape[1] != len(markers.embedding.triangle):
-        raise ValueError(f"marker data has {targets.shape[1]} markers, the embedding {len(markers.embedding.triangle)}")
-    if targets.shape[0] == 0:
-        raise ValueError("marker data has no frames")
+    targets = checked_marker_data(model, targets_m, marker_names, markers)
     options = options or TrackOptions()
     rig_kwargs = rig_kwargs or {}
     out_dir = Path(out_dir) if out_dir is not None else None

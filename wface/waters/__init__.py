@@ -3,8 +3,9 @@
 Modules: ``muscles`` (the formulas), ``layout`` (JSON layouts), ``rig`` (a layout compiled on a
 mesh), ``fit`` (carry a layout to another face by landmarks), ``calibrate`` (fit muscle parameters to
 reference shapes), ``expressions`` (FACS action units and presets), ``face_model`` (the built-in /
-any FaceModel's skin), ``warp_backend`` (direct evaluation with a Warp kernel), ``surface`` (mesh
-I/O), ``render`` (off-screen pictures), ``pipeline`` (mesh file -> posed OBJ/USD/PNG). An
+any FaceModel's skin), ``warp_backend`` (direct evaluation with a Warp kernel), ``render``
+(off-screen pictures), ``pipeline`` (mesh file -> posed OBJ/USD/PNG); meshes are read and written by
+``wface.mesh.meshfile``. An
 ellipsoid head for data-free use is ``wface.testing.synthetic_head``.
 
 Quick start::

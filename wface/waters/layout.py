@@ -397,7 +397,7 @@ def load_layout(path_or_name: str | Path) -> MuscleLayout:
     else:
         path = Path(path_or_name)
     if not path.is_file():
-        raise FileNotFoundError(f"layout file not found: {path}")
+        raise FileNotFoundError(f"layout file not found: {path} (packaged layouts: {', '.join(sorted(_BUILTIN))})")
     return layout_from_dict(read_json(path, what="a Waters muscle layout (JSON)"))
 
 

@@ -134,6 +134,13 @@ class WatersRig:
         self.basis = sparse.csr_matrix(
             (cat(vals, np.float64), (cat(rows, np.int64), cat(cols, np.int64))), shape=(3 * n, len(layout.muscles))
         )
+        if layout.muscles and not rows:
+            lo, hi = self.rest_positions_m.min(axis=0), self.rest_positions_m.max(axis=0)
+            raise ValueError(
+                f"no muscle of layout {layout.name!r} reaches a vertex of this mesh (it spans "
+                f"{np.round(hi - lo, 4).tolist()} in the units given as metres): check the mesh's units "
+                "(rest_positions_m in metres) or fit the layout to the mesh (wface.waters.fit)"
+            )
         self._jaw_rows = np.flatnonzero(self.jaw_weights > 0)
         self._jaw_w = self.jaw_weights[self._jaw_rows]
         self.vertex_limit_m = np.minimum(layout.max_displacement_m, layout.overlap_factor * strongest)

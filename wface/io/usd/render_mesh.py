@@ -29,9 +29,35 @@ from wface.io.usd._common import _vt_vec3f
 from wface.io.usd.mesh import _write_face_varying, _write_materials
 from wface.mesh.surface import vertex_normals
 
-__all__ = ["CACHE_PRIM", "add_render_mesh_reference", "reference_render_mesh", "write_render_mesh_layer"]
+__all__ = [
+    "CACHE_PRIM",
+    "add_render_mesh_reference",
+    "recorded_render_mesh",
+    "reference_render_mesh",
+    "write_render_mesh_layer",
+]
 
 CACHE_PRIM = "RenderMeshCache"  # the point cache's prim under the layer's root (a DCC object name)
+
+
+def _absolute(source) -> str:
+    """The mesh file's absolute path (a later ``--take`` run may start elsewhere), or "" for none."""
+    return str(Path(source).resolve()) if source else ""
+
+
+def recorded_render_mesh(layer_path: str | Path) -> tuple[str, float] | None:
+    """(the mesh file, its metres per unit) a render-mesh layer was written from, or None when
+    ``layer_path`` is no such layer (``wface resim --take`` and ``wface edit --take`` carry the take's
+    render mesh on with it)."""
+    from pxr import Usd, UsdGeom
+
+    if not Path(layer_path).is_file():
+        return None
+    stage = Usd.Stage.Open(str(layer_path))
+    info = dict(stage.GetRootLayer().customLayerData).get("wface") or {}
+    if info.get("kind") != "render_mesh" or not info.get("source"):
+        return None
+    return str(info["source"]), float(UsdGeom.GetStageMetersPerUnit(stage))
 
 
 def write_render_mesh_layer(
@@ -96,7 +122,7 @@ def write_render_mesh_layer(
     if mesh.face_groups:
         _write_materials(stage, root, geom, mesh.face_groups, mesh.material_colors, int(mesh.n_faces))
     stage.GetRootLayer().customLayerData = {
-        "wface": {"kind": "render_mesh", "source": str(mesh.source), "first_frame": int(times[0])}
+        "wface": {"kind": "render_mesh", "source": _absolute(mesh.source), "first_frame": int(times[0])}
     }
     save_layer(stage.GetRootLayer(), path)  # atomic: a temporary file renamed into place
     return path
