@@ -67,6 +67,29 @@ def test_usd_skinning_equals_rig_points(tmp_path, face, rig):
         np.testing.assert_allclose(np.asarray(pts), rig_points(rig, w, C[None], J[None])[0], atol=5 * _F32_M)
 
 
+def test_the_joints_sit_at_the_skull_and_the_hinge(tmp_path, face):
+    """A DCC draws and turns the jaw bone at the condyles' midpoint (the joints were all bound at the
+    origin, a jaw turned by hand pivoted 18 mm off its hinge), and the skinned skin is unchanged."""
+    from pxr import Usd, UsdSkel
+
+    from wface.io.usd.take import joint_pivots
+
+    a = np.zeros((2, face.n_muscles))
+    take = _take(face, a, [0.0, 10.0], [0.0, 5.0])
+    x = simulate_poses(face, take).x_m
+    stage = Usd.Stage.Open(str(write_take_usd(tmp_path / "t.usda", face, x, take=take, rig="all")))
+    skel = UsdSkel.Skeleton(stage.GetPrimAtPath("/Face/Rig/Skel"))
+    pivots = joint_pivots(face)
+    bind = [np.array(m.ExtractTranslation()) for m in skel.GetBindTransformsAttr().Get()]
+    np.testing.assert_allclose(bind, pivots, atol=1e-9)
+    np.testing.assert_allclose(pivots[1], face.jaw_joint.midpoint_m)
+    query = UsdSkel.Cache().GetSkelQuery(skel)
+    hinge_now = [np.array(m.ExtractTranslation()) for m in query.ComputeJointSkelTransforms(Usd.TimeCode(6.0))][1]
+    C, J = bone_affines(take.bones[1])
+    expected = C[:, :3] @ (J[:, :3] @ pivots[1] + J[:, 3]) + C[:, 3]  # the hinge carried by the bones
+    np.testing.assert_allclose(hinge_now, expected, atol=1e-6)  # the rig takes the nearest rotation
+
+
 def test_rig_is_exact_where_it_is_built_to_be(face, rig):
     skin = np.unique(face.skin_triangles)
     theta_max = jaw_limits(face.jaw_joint)["opening_deg"][1]

@@ -2,10 +2,14 @@
 
 Layout under ``prim_path`` (a SkelRoot, e.g. ``/Face/Rig``)::
 
-    Skel        Skeleton, joints ["cranium", "cranium/jaw"], bind and rest transforms identity
-      Anim      SkelAnimation: per frame the joints' local transforms (cranium: rest to world; jaw:
-                relative to the cranium, as the 24 bone parameters of ``wface.controls``) and
-                ``blendShapeWeights`` = the muscle activation curves, one weight per muscle
+    Skel        Skeleton, joints ["cranium", "cranium/jaw"] bound at their pivots P_c and P_j (the
+                skull's centre and the jaw's hinge, the condyles' midpoint): bind transforms T(P_c),
+                T(P_j), rest transforms T(P_c), T(P_j - P_c), so a DCC shows the jaw bone at the
+                hinge and turns it about it
+      Anim      SkelAnimation: per frame the joints' local transforms, C T(P_c) and T(-P_c) J T(P_j)
+                (C: the cranium's rest-to-world motion, J: the jaw's relative to the cranium, the 24
+                bone parameters of ``wface.controls``), and ``blendShapeWeights`` = the muscle
+                activation curves, one weight per muscle
     SkinRig     Mesh at the rest skin, SkelBindingAPI: two joint influences per vertex
                 (cranium 1 - w, jaw w) and one BlendShape child per muscle (its offsets)
 
@@ -14,7 +18,8 @@ here with column vectors)::
 
     p(t) = (1 - w) C(t) q(t) + w C(t) J(t) q(t),   q(t) = G (p0 + sum_i a_i(t) d_i)
 
-with C, J the cranium and jaw transforms (rotation and translation), p0 the rest skin, d_i the
+with C, J the cranium and jaw transforms (rotation and translation; the joints' world transforms
+times their inverse bind transforms, so the pivots cancel), p0 the rest skin, d_i the
 muscle shapes, w the jaw weights and G the mesh's geomBindTransform (identity for the skin; a
 render mesh kept in its file's units and frame has its placement there). The rig linearises the face
 about rest (Choe & Ko 2001; the
@@ -133,22 +138,23 @@ def rig_points(rig: SkinRig, weights: np.ndarray, cranium_affines: np.ndarray, j
     return np.einsum("fij,fsj->fsi", Rc, local) + tc[:, None]
 
 
-def _joint_matrices(cranium_affines, jaw_affines):
-    """Per frame, the two joints' local transforms as Gf.Matrix4d (rigid parts only)."""
+def _matrix(R: np.ndarray, t: np.ndarray):
+    """Gf.Matrix4d of x -> R x + t (USD multiplies row vectors: the transpose)."""
     from pxr import Gf
 
+    m = np.eye(4)
+    m[:3, :3] = R.T
+    m[3, :3] = t
+    return Gf.Matrix4d(m.tolist())
+
+
+def _joint_matrices(cranium_affines, jaw_affines, pivots_m):
+    """Per frame, the two joints' local transforms (module docstring) as Gf.Matrix4d (rigid parts only):
+    cranium C T(P_c) = [Rc | Rc P_c + tc], jaw T(-P_c) J T(P_j) = [Rj | Rj P_j + tj - P_c]."""
     Rc, tc = _rigid(cranium_affines)
     Rj, tj = _rigid(jaw_affines)
-    out = []
-    for f in range(len(Rc)):
-        mats = []
-        for R, t in ((Rc[f], tc[f]), (Rj[f], tj[f])):
-            m = np.eye(4)
-            m[:3, :3] = R.T
-            m[3, :3] = t
-            mats.append(Gf.Matrix4d(m.tolist()))
-        out.append(mats)
-    return out
+    pc, pj = pivots_m
+    return [[_matrix(Rc[f], Rc[f] @ pc + tc[f]), _matrix(Rj[f], Rj[f] @ pj + tj[f] - pc)] for f in range(len(Rc))]
 
 
 def write_skin_rig(
@@ -165,6 +171,7 @@ def write_skin_rig(
     visible: bool = True,
     st: np.ndarray | None = None,
     extra_meshes: dict | None = None,
+    pivots_m: np.ndarray | None = None,
 ) -> np.ndarray:
     """Author the rig (module docstring) and return its (F, s, 3) skin points (``rig_points``).
 
@@ -187,18 +194,25 @@ def write_skin_rig(
             {material name: face indices}, bound to ``materials_path/<name>`` (the render mesh
             layer's materials, ``render_mesh_materials_path``); their shape names must be the skin
             rig's.
+        pivots_m: (2, 3) where the cranium and jaw joints sit at rest (module docstring), e.g. the
+            skull's centre and the condyles' midpoint, in the skin's coordinates; default the origin.
+            The skinned points do not depend on them.
     """
-    from pxr import Gf, Usd, UsdGeom, UsdSkel, Vt
+    from pxr import Usd, UsdGeom, UsdSkel, Vt
 
     root = UsdSkel.Root.Define(stage, prim_path)
     skel = UsdSkel.Skeleton.Define(stage, f"{prim_path}/Skel")
     skel.CreateJointsAttr(Vt.TokenArray(list(JOINTS)))
-    skel.CreateBindTransformsAttr(Vt.Matrix4dArray([Gf.Matrix4d(1.0)] * 2))
-    skel.CreateRestTransformsAttr(Vt.Matrix4dArray([Gf.Matrix4d(1.0)] * 2))
+    pivots = np.zeros((2, 3)) if pivots_m is None else np.asarray(pivots_m, dtype=np.float64).reshape(2, 3)
+    if not np.all(np.isfinite(pivots)):
+        raise UsdWriteError("pivots_m must be finite")
+    eye = np.eye(3)
+    skel.CreateBindTransformsAttr(Vt.Matrix4dArray([_matrix(eye, pivots[0]), _matrix(eye, pivots[1])]))
+    skel.CreateRestTransformsAttr(Vt.Matrix4dArray([_matrix(eye, pivots[0]), _matrix(eye, pivots[1] - pivots[0])]))
     anim = UsdSkel.Animation.Define(stage, f"{prim_path}/Skel/Anim")
     anim.CreateJointsAttr(Vt.TokenArray(list(JOINTS)))
     UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
-    for t, mats in zip(times, _joint_matrices(cranium_affines, jaw_affines), strict=True):
+    for t, mats in zip(times, _joint_matrices(cranium_affines, jaw_affines, pivots), strict=True):
         anim.SetTransforms(Vt.Matrix4dArray(mats), Usd.TimeCode(float(t)))
 
     meshes = {"SkinRig": (rig, counts, indices, st, None, None)}

@@ -188,6 +188,14 @@ def write_take(
     return path
 
 
+def joint_pivots(model) -> np.ndarray:
+    """(2, 3) the rig's joint pivots at rest: the centroid of the nodes attached to the cranium and the
+    jaw joint's condyle midpoint (the hinge)."""
+    cranium = model.nodes_of_bone("cranium")
+    centre = model.rest_positions_m[cranium].mean(axis=0) if cranium.size else np.zeros(3)
+    return np.stack([centre, np.asarray(model.jaw_joint.midpoint_m, dtype=np.float64)])
+
+
 def _write_rig(stage, prim_path, rig, weights, affines, jaw_frame, skin_x, topo, times, model, rig_meshes):
     """The UsdSkel rig (``wface.io.usd.rig``) and its error against the point cache in the layer metadata."""
     counts, indices, skin_nodes = topo
@@ -208,6 +216,7 @@ def _write_rig(stage, prim_path, rig, weights, affines, jaw_frame, skin_x, topo,
         times=times,
         st=_cylindrical_st(model.rest_positions_m[skin_nodes]),
         extra_meshes=rig_meshes,
+        pivots_m=joint_pivots(model),
     )
     err_mm = np.linalg.norm(pts - skin_x, axis=2) * 1e3
     info = {"rig_rms_error_mm": float(np.sqrt(np.mean(err_mm**2))), "rig_max_error_mm": float(err_mm.max())}
