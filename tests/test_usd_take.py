@@ -404,3 +404,24 @@ def test_jaw_in_world_frame_is_a_sibling(tmp_path, face, take):
     np.testing.assert_allclose(got["jaw_affines"], world, atol=1e-12)
     with pytest.raises(usd.UsdWriteError, match="jaw_frame"):
         _write(tmp_path, face, take, ".usda", jaw_frame="skull")
+
+
+def test_the_colours_reach_a_renderer_through_a_material(tmp_path, face, take):
+    """The skin's heat map and the bones' white are read by a bound preview material (a DCC renderer
+    ignores a bare displayColor: Blender rendered the skin grey); the material reads each prim's own
+    displayColor (Blender: an Attribute node into Base Color)."""
+    from pxr import Usd, UsdShade
+
+    path = _write(tmp_path, face, take, ".usda")
+    stage = Usd.Stage.Open(str(path))
+    skin = stage.GetPrimAtPath("/Face/Skin")
+    material, _ = UsdShade.MaterialBindingAPI(skin).ComputeBoundMaterial()
+    assert material and material.GetPath() == "/Face/Looks/DisplayColor"
+    surface = material.ComputeSurfaceSource()[0]
+    source = surface.GetInput("diffuseColor").GetConnectedSources()[0][0].source
+    reader = UsdShade.Shader(source.GetPrim())
+    assert reader.GetIdAttr().Get() == "UsdPrimvarReader_float3"
+    assert reader.GetInput("varname").Get() == "displayColor"
+    bones = [p for p in Usd.PrimRange(stage.GetPrimAtPath("/Face/Bones")) if p.GetTypeName() == "Mesh"]
+    assert bones and all(UsdShade.MaterialBindingAPI(p).ComputeBoundMaterial()[0] for p in bones)
+    assert usd.validate_stage(path) == []

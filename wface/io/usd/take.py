@@ -3,7 +3,9 @@
 Display colours (``primvars:displayColor``, linear RGB), the same as the pictures of ``wface.viz``
 (Sifakis et al. 2005's convention): the skin is skin-coloured with a heat map over the muscles under
 it (red tint over an inactive muscle, yellow over a fully active one, ``wface.viz.muscles``); the
-captured markers are red, the simulated / tracked markers green; bones and teeth are bone white.
+captured markers are red, the simulated / tracked markers green; bones and teeth are bone white. A
+preview material reading each prim's ``displayColor`` is bound to them (``wface.io.usd.looks``), so a
+DCC's renderer shows the colours too, not only its viewport.
 
 Prims under the default prim ``/<name>`` (an Xform) of ``write_take``:
 
@@ -57,6 +59,7 @@ from wface.io.usd._common import (
     as_polygons,
 )
 from wface.io.usd.locators import write_locators
+from wface.io.usd.looks import bind_display_colors
 from wface.io.usd.rig import SkinRig, write_skin_rig
 from wface.io.usd.skel import BlendShapeBasis, _write_blendshapes
 from wface.mesh.signed_distance import oriented_outward
@@ -182,6 +185,7 @@ def write_take(
         _write_rig(stage, f"{root}/Rig", rig, rw, affines, jaw_frame, skin_x, topo, times, model, rig_meshes)
     if basis is not None:
         _write_blendshapes(stage, f"{root}/Basis", basis, bw, counts, indices, times=times)
+    bind_display_colors(stage, root)  # the heat map, markers and bones in a DCC's render
     if edit is not None:
         edit(stage)
     save_layer(stage.GetRootLayer(), path)  # atomic: a temporary file renamed into place
