@@ -84,3 +84,20 @@ def test_an_action_unit_on_one_side_sets_that_side_of_the_preset():
     assert half["zygomaticus_major_l"] == half["zygomaticus_major_r"] == 0.5  # the AU set, both sides
     back = expression_pose("happy", extra_action_units={"AU12R": 0.0, "AU12": 1.0}).contractions
     assert back["zygomaticus_major_r"] == 1.0
+
+
+def test_the_builtin_skin_carries_the_takes_texture_coordinates(face, tmp_path):
+    """`wface waters --mesh builtin` wrote a mesh without UVs where the same skin in a take's USD has
+    them: one projection for both (wface.mesh.surface.cylindrical_uv), written as primvars:st."""
+    from pxr import Usd, UsdGeom
+
+    from wface.io.usd import write_surface_mesh
+    from wface.mesh.surface import cylindrical_uv
+    from wface.waters.face_model import skin_surface
+
+    mesh, nodes = skin_surface(face)
+    np.testing.assert_allclose(mesh.uv, cylindrical_uv(face.rest_positions_m[nodes]))
+    stage = Usd.Stage.Open(str(write_surface_mesh(tmp_path / "s.usda", mesh)))
+    mesh_prim = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
+    st = UsdGeom.PrimvarsAPI(mesh_prim).GetPrimvar("st")
+    assert st and len(st.ComputeFlattened()) == 3 * mesh.n_faces  # face-varying, one per corner

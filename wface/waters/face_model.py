@@ -16,6 +16,7 @@ from scipy.sparse.linalg import spsolve
 
 from wface.faces.builtin import build_face
 from wface.mesh.meshfile import SurfaceMesh
+from wface.mesh.surface import cylindrical_uv
 from wface.waters.fit import fit_layout
 from wface.waters.layout import JawRegion, MuscleLayout, load_layout
 from wface.waters.rig import WatersRig
@@ -29,7 +30,11 @@ def skin_surface(model) -> tuple[SurfaceMesh, np.ndarray]:
     if tri.size == 0:
         raise ValueError("the face model has no skin triangles")
     nodes, local = np.unique(tri, return_inverse=True)
-    return SurfaceMesh.from_triangles(model.rest_positions_m[nodes], local.reshape(-1, 3)), nodes
+    x = model.rest_positions_m[nodes]
+    local = local.reshape(-1, 3)
+    uv = cylindrical_uv(x)  # the take's skin's texture coordinates, so a texture fits both
+    mesh = SurfaceMesh(x, np.full(len(local), 3), local.ravel(), uv=uv, uv_indices=local.ravel())
+    return mesh, nodes
 
 
 def harmonic_jaw_weights(model) -> np.ndarray:

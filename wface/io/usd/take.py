@@ -63,7 +63,7 @@ from wface.io.usd.looks import bind_display_colors
 from wface.io.usd.rig import SkinRig, write_skin_rig
 from wface.io.usd.skel import BlendShapeBasis, _write_blendshapes
 from wface.mesh.signed_distance import oriented_outward
-from wface.mesh.surface import vertex_normals
+from wface.mesh.surface import cylindrical_uv, vertex_normals
 from wface.viz.muscles import SKIN_RGB, activation_colors, skin_muscle_influence
 
 CAPTURED_RGB = (0.9, 0.05, 0.05)
@@ -218,7 +218,7 @@ def _write_rig(stage, prim_path, rig, weights, affines, jaw_frame, skin_x, topo,
         cranium_affines=affines.get("Cranium", eye),
         jaw_affines=jaw_rel,
         times=times,
-        st=_cylindrical_st(model.rest_positions_m[skin_nodes]),
+        st=cylindrical_uv(model.rest_positions_m[skin_nodes]),
         extra_meshes=rig_meshes,
         pivots_m=joint_pivots(model),
     )
@@ -249,15 +249,6 @@ def _relative_to(cranium: np.ndarray, jaw_world: np.ndarray) -> np.ndarray:
     lin = np.linalg.solve(cranium[:, :, :3], jaw_world[:, :, :3])
     t = np.linalg.solve(cranium[:, :, :3], (jaw_world[:, :, 3] - cranium[:, :, 3])[..., None])
     return np.concatenate([lin, t], axis=2)
-
-
-def _cylindrical_st(points: np.ndarray) -> np.ndarray:
-    """(n, 2) texture coordinates: u = angle about +y / 2 pi (0.5 at the front, +z), v = height in [0, 1]."""
-    c = points.mean(axis=0)
-    u = 0.5 + np.arctan2(points[:, 0] - c[0], points[:, 2] - c[2]) / (2 * np.pi)
-    lo, hi = points[:, 1].min(), points[:, 1].max()
-    v = (points[:, 1] - lo) / max(hi - lo, 1e-12)
-    return np.stack([u, v], axis=1)
 
 
 def _checked_positions(model, node_positions_m) -> np.ndarray:
@@ -334,7 +325,7 @@ def _write_skin_primvars(skin, model, skin_nodes, act, times, muscle_radius_m, v
     node_id = pv_api.CreatePrimvar("wface:nodeId", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex)
     node_id.Set(_vt_int(skin_nodes))
     st = pv_api.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
-    st.Set(Vt.Vec2fArray.FromNumpy(_cylindrical_st(model.rest_positions_m[skin_nodes]).astype(np.float32)))
+    st.Set(Vt.Vec2fArray.FromNumpy(cylindrical_uv(model.rest_positions_m[skin_nodes]).astype(np.float32)))
     n_frames = len(times)
     if act is not None:
         influence = skin_muscle_influence(model, skin_nodes, radius_m=muscle_radius_m)
