@@ -225,6 +225,7 @@ class FaceModel:
 
     @property
     def n_muscles(self) -> int:
+        """Activation channels: the muscles and any pressure actuator (the built-in face's intraoral_pressure)."""
         return len(self.muscle_names)
 
     def muscle_index(self, name: str) -> int:
