@@ -545,3 +545,26 @@ def test_a_take_of_every_third_frame_is_simulated_over_its_true_intervals(jaw_bo
     assert runs[0].dt_s == pytest.approx(runs[1].dt_s) == pytest.approx(1 / 60)
     assert runs[0].steps == runs[1].steps == 18
     np.testing.assert_allclose(runs[1].positions_m, runs[0].positions_m, rtol=0, atol=1e-12)
+
+
+def test_a_step_that_stops_short_with_inverted_elements_is_a_divergence(clamped):
+    """A step whose Newton stops short of tol and leaves elements inverted ends the run (wface resim: exit
+    3) instead of being accepted: a midpoint lip press went on for 2 minutes to 170 inverted tets and
+    248 J. A step that merely stops short, nothing inverted, is still accepted."""
+    from wface.physics.dynamic_state import DivergedError
+
+    model, sim = clamped
+    free = np.setdiff1d(np.arange(model.n_nodes), model.attached_nodes)
+    x0 = model.rest_positions_m
+    far = free[np.argmax(x0[free, 0])]  # a free corner at the unclamped end
+    dyn = DynamicSimulator(sim, scheme="midpoint", tol=1e-14, max_iterations=1)
+
+    def flung(speed_m_s):
+        v = np.zeros_like(x0)
+        v[far] = [-speed_m_s, 0.0, 0.0]  # into the block: 20 mm in one 1 ms step
+        return dyn.initial_state(x0, v, np.zeros(0))
+
+    with pytest.raises(DivergedError, match=r"broke down: Newton stopped .* inverted"):
+        dyn.step(flung(20.0), 1e-3)
+    _, stats = dyn.step(flung(5.0), 1e-3)
+    assert not stats.converged and stats.inverted_elements == 0

@@ -258,12 +258,21 @@ def test_other_options_redo_frames(tmp_path):
     assert claim_take_dir(out, other, resume=True) == ""  # the same take: options may change
 
 
-def test_rerun_without_resume_leaves_no_stale_frames(tmp_path):
+def test_rerun_without_resume_keeps_finished_frames_and_overwrite_leaves_no_stale_ones(tmp_path):
+    """A plain rerun of the same take (after Ctrl-C, say) is refused while frames are done, naming
+    them and both ways on; --overwrite then clears every pass's frames."""
+    from wface.takes.store import TakeDirectoryError
+
     _, _, _, run, out, _, _ = _tracked(tmp_path)
     (out / "controls.npz").write_bytes(b"")
     shutil.copytree(out / "frames", out / "survey")  # a first pass's frames (they used to go uncounted)
-    note = claim_take_dir(out, run)
-    assert "removed its earlier frame files: 3 in survey/, 3 in frames/" in note
+    with pytest.raises(
+        TakeDirectoryError, match=r"finished frames \(3 in survey/, 3 in frames/\).*--resume.*--overwrite"
+    ):
+        claim_take_dir(out, run)
+    assert len(list((out / "frames").glob("*.npz"))) == 3 and (out / "controls.npz").exists()
+    note = claim_take_dir(out, run, overwrite=True)
+    assert "--overwrite: removed the earlier results" in note
     assert not (out / "frames").exists() and not (out / "survey").exists() and not (out / "controls.npz").exists()
 
 

@@ -26,6 +26,7 @@ import sys
 import warnings
 
 from wface import __version__
+from wface.cli.errors import UsageError
 from wface.warp_runtime import NoCudaDeviceError
 
 __all__ = [
@@ -169,6 +170,11 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INTERRUPT
     except BrokenPipeError:
         return _quiet_pipe()
+    except UsageError as exc:  # options that contradict each other or do nothing: as argparse's errors
+        if debug:
+            raise
+        print(f"wface {command}: error: {_message(exc)}", file=sys.stderr)
+        return EXIT_USAGE
     except FloatingPointError as exc:  # a solve that broke down (NaN, a diverged time step): not converged
         if debug:
             raise

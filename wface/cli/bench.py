@@ -6,8 +6,10 @@ import argparse
 import importlib
 import json
 import sys
+from pathlib import Path
 
 from wface.bench import SUITES
+from wface.cli.errors import UsageError
 from wface.cli.validate import face_tets, positive_int
 from wface.files import write_text
 from wface.tracking.estimator import TrackOptions
@@ -50,7 +52,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_run)
 
 
+def _check_out(path: str | None) -> None:
+    """--out must be a file that can be written, checked before the benchmark runs (its results were lost
+    after the run on a directory, and a missing folder was created)."""
+    if not path:
+        return
+    out = Path(path)
+    if out.is_dir():
+        raise UsageError(f"--out {path}: is a directory: give a file name, e.g. {out / 'bench.json'}")
+    if not out.parent.is_dir():
+        raise UsageError(f"--out {path}: folder {out.parent} does not exist")
+
+
 def _run(args: argparse.Namespace) -> int:
+    _check_out(args.out)
     module = importlib.import_module(f"wface.bench.{args.suite}")
     result = module.run(args)  # wface.bench.suite_result: {"suite", "machine", "device", "results", "notes"?}
     text = json.dumps(result, indent=2)

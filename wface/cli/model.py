@@ -129,7 +129,7 @@ def _build(args: argparse.Namespace) -> int:
     path = save_model(model, args.out)
     q = model.metadata["quality"]
     print(
-        f"wrote {path}: {model.n_tets} tets, {model.n_nodes} nodes, {model.n_muscles} muscles, "
+        f"wrote {path}: {model.n_tets} tets, {model.n_nodes} nodes, {_channels(model)}, "
         f"min dihedral {q['min_dihedral_deg']:.1f} deg, {time.perf_counter() - t0:.1f} s"
     )
     if args.vtu:
@@ -187,8 +187,15 @@ def _import(args: argparse.Namespace) -> int:
 
     model = import_artisynth(args.directory)
     path = save_model(model, args.out)
-    print(f"wrote {path}: {model.n_tets} tets, {model.n_nodes} nodes, {model.n_muscles} muscles")
+    print(f"wrote {path}: {model.n_tets} tets, {model.n_nodes} nodes, {_channels(model)}")
     return 0
+
+
+def _channels(model) -> str:
+    """ "35 muscles and 1 pressure actuator", as ``wface model info`` counts them."""
+    n_pressure = len(model.pressure_actuators)
+    text = f"{model.n_muscles - n_pressure} muscles"
+    return text + (f" and {n_pressure} pressure actuator{'s' * (n_pressure > 1)}" if n_pressure else "")
 
 
 def _fit_landmarks(args, mesh, say) -> dict | None:

@@ -11,7 +11,7 @@ from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.cli.simulate import parse_activations
-from wface.cli.validate import face_tets, finite_float, non_negative_int, positive_float, positive_int
+from wface.cli.validate import UsageError, face_tets, finite_float, non_negative_int, positive_float, positive_int
 from wface.faces.builtin import build_face
 from wface.model import load_model
 from wface.physics import Damping, Simulator
@@ -48,7 +48,8 @@ schemes:
             overshoots, and a lip press diverges (the sixth example below: with midpoint a lip
             node is 300 mm from rest 54 ms in; with be 0.93 Newton iterations a step and the
             skin within 0.01 mm of the quasistatic frames).
-  A step that diverges (a node farther from rest than the face is across) stops the run with
+  A step that diverges (a node farther from rest than the face is across, or Newton stopping
+  short with elements inverted) stops the run with
   exit code 3 and says where; no frames or report are written.
 
 time step (--substeps): the lowest modes of the built-in face ring at 100-155 Hz (5K tets, at
@@ -209,6 +210,7 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(f"--substeps must be >= 1, got {args.substeps}")
     if args.fps is not None and not args.fps > 0:
         raise ValueError(f"--fps must be > 0, got {args.fps}")
+    _refuse_options_that_do_nothing(args)
     if args.take:
         args.take = str(require_take_dir(args.take))  # a wrong --take fails before a face is built
         if Path(args.out).resolve() == Path(args.take).resolve():  # --overwrite would delete the input
@@ -221,7 +223,7 @@ def _run(args: argparse.Namespace) -> int:
         if take.n_frames < 2:
             raise ValueError(f"{args.take}: need at least 2 frames to re-simulate, got {take.n_frames}")
     else:
-        n_frames = int(args.frames) if args.frames and args.frames.isdigit() else 30
+        n_frames = int(args.frames) if args.frames else 30
         if [item.lower() for item in args.activation] == ["none"]:
             acts = {}
         else:
@@ -322,3 +324,18 @@ def _resimulate(args, model, take, damping, sim, contact, skin_nodes, substep_sk
         on_step=(lambda state: substep_skin.append(state.x_m[skin_nodes].copy())) if step_response else None,
         contact=contact,
     )
+
+
+_SYNTHETIC_ONLY = {"activation": [], "jaw_open": 0.0, "head_shake": None, "onset_frame": 1, "onset": "step"}
+
+
+def _refuse_options_that_do_nothing(args) -> None:
+    """Usage errors (exit 2) for options this run would ignore: the synthetic take's options with
+    --take (they were ignored and still recorded in provenance.json), a range for --frames without it."""
+    if args.take:
+        given = [k for k, default in _SYNTHETIC_ONLY.items() if getattr(args, k) != default]
+        if given:
+            names = ", ".join("--" + k.replace("_", "-") for k in given)
+            raise UsageError(f"{names} shape(s) the synthetic take and would do nothing with --take")
+    elif args.frames is not None and not (args.frames.isdigit() and int(args.frames) >= 2):
+        raise UsageError(f"--frames {args.frames}: without --take it is the synthetic take's frame count (>= 2)")

@@ -18,6 +18,8 @@ from wface.model import load_model
 from wface.physics import Simulator
 from wface.physics.contact import MeshObstacle, bone_affines_from_attached
 from wface.physics.contact_solve import solve_restarted
+from wface.takes.provenance import command_provenance
+from wface.takes.store import claim_take_dir
 from wface.viz.contact import plot_lip_section
 from wface.warp_runtime import quiet_warp
 
@@ -84,6 +86,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="Newton iteration cap (default 40; 100 with lip contact)",
     )
     p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--overwrite", action="store_true", help="replace the results of another run that OUT holds")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=_run)
 
@@ -132,6 +135,7 @@ def _run(args: argparse.Namespace) -> int:
     model = load_model(args.model)
     activations = model.activation_vector(parse_activations(args.activation))  # clear KeyError / ValueError
     contact = contact_from_args(args, model)  # clear ValueError for unknown regions / bad specs
+    claim_take_dir(args.out, command_provenance("simulate", model, args), overwrite=args.overwrite)
     sim = Simulator(model, device=args.device, solver=args.solver)
     targets = attached_positions_from_affines(model, jaw=jaw_opening_affine(model, args.jaw_open))
     lips = contact is not None and bool(contact.self_contact)
@@ -141,7 +145,6 @@ def _run(args: argparse.Namespace) -> int:
     else:
         eq = sim.solve(activations, targets, tol=args.tol, max_iterations=cap, contact=contact)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     save_npz(
         out / "equilibrium.npz",
         positions_m=eq.x,
@@ -200,6 +203,6 @@ def _run(args: argparse.Namespace) -> int:
                 f"contact: {eq.contact_active_nodes} nodes, max penetration "
                 f"{summary['contact_max_penetration_mm']:.3f} mm, force {eq.contact_force_n:.2f} N"
             )
-        written = [out / "equilibrium.npz", out / "summary.json"]
-        print_outputs(out, written + ([Path(summary["picture"])] if args.picture else []))
+        written = [out / "equilibrium.npz", out / "summary.json", out / "provenance.json"]
+        print_outputs(out, written + ([Path(summary["picture"])] if args.picture else []), frames=False)
     return 0 if eq.converged else 3

@@ -17,6 +17,7 @@ import numpy as np
 
 from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
+from wface.cli.errors import UsageError
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.cli.validate import (
     face_tets,
@@ -65,8 +66,9 @@ by the cranium controls.
 Before tracking, samples no face can produce (non-finite, far outside the head, one-frame jumps
 faster than 2 m/s) become missing and are counted per marker in report.json; a frame left with too
 few markers is carried from the frame before. OUT records what made it (provenance.json): --resume
-reuses only frames this same run made (same model, capture file, range and options), and a
-directory holding another take is refused unless --overwrite.
+reuses only frames this same run made (same model, capture file, range and options); a
+directory holding another take, or this take's finished frames without --resume, is refused
+unless --overwrite (which deletes them).
 
 examples:
   wface track --mocap take.c3d --out run1                      # on the built-in face (5000 tets)
@@ -230,6 +232,9 @@ def _claim(
     args, model, markers, marker_names, targets, source: dict, rig_kwargs: dict, frames: range | None = None
 ) -> dict:
     """Provenance of this run; claims --out (refusing another take's directory) and says what --resume reuses."""
+    if args.resume and args.overwrite:
+        raise UsageError("--resume and --overwrite contradict each other: --resume continues the take in --out, "
+                         "--overwrite deletes it")  # fmt: skip
     source = {**source, "holdout": getattr(args, "holdout", None)}  # hidden markers change the fit
     run = tracking_provenance(
         model, markers, options=_options(args), rig_kwargs=rig_kwargs, kind=args.command, source=source

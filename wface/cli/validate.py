@@ -14,9 +14,11 @@ from __future__ import annotations
 import argparse
 import math
 
+from wface.cli.errors import UsageError
 from wface.faces.builtin.face import MAX_TETS, MIN_TETS
 
 __all__ = [
+    "UsageError",
     "angle_deg",
     "finite_float",
     "frame_range",

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from wface.cli.closing import print_outputs
-from wface.cli.validate import face_tets, positive_int, probability
+from wface.cli.validate import UsageError, face_tets, positive_int, probability
 from wface.faces.builtin import build_face
 from wface.facs import ACTION_UNITS, EXPRESSIONS
 from wface.files import write_json
@@ -79,7 +79,7 @@ def _refuse_ignored_options(args: argparse.Namespace) -> None:
     ]
     for flag, hit, why in ignored:
         if hit:
-            raise ValueError(f"{flag} does nothing here: {why}")
+            raise UsageError(f"{flag} does nothing here: {why}")
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -254,6 +254,12 @@ class DynamicSimulator:
         stats.kinetic_energy_j = self.kinetic_energy(new)
         stats.elastic_energy_j = self.sim.energy(x_new, a_next)
         stats.inverted_elements = count_inverted(self.model, x_new)
+        if not stats.converged and stats.inverted_elements:
+            raise DivergedError(
+                f"the {self.scheme} step from t = {state.t_s:.6g} s (dt_s = {h:g}) broke down: Newton stopped at a "
+                f"residual of {stats.residual_rel:.2g} with {stats.inverted_elements} element(s) inverted. "
+                f"{self._cure()} keeps stiff contact and fast motion stable"
+            )
         stats.steps = 1
         stats.seconds = time.perf_counter() - start
         return new, stats
@@ -320,13 +326,16 @@ class DynamicSimulator:
         if np.all(np.isfinite(moved)) and moved.max() <= span:
             return
         far = int(np.nanargmax(np.where(np.isfinite(moved), moved, np.inf)))
-        cure = "a smaller time step" if self.scheme == "be" else "backward Euler (scheme 'be') or a smaller time step"
         raise DivergedError(
             f"the {self.scheme} step from t = {t_s:.6g} s (dt_s = {h:g}) diverged: node {far} moved "
             f"{moved[far] * 1e3:.3g} mm from its rest place, farther than the rest mesh is across ({span * 1e3:.0f} "
-            f"mm); Newton residual {stats.residual_rel:.2g} after {stats.newton_iterations} iterations. {cure} "
-            "keeps stiff contact and fast motion stable"
+            f"mm); Newton residual {stats.residual_rel:.2g} after {stats.newton_iterations} iterations. "
+            f"{self._cure()} keeps stiff contact and fast motion stable"
         )
+
+    def _cure(self) -> str:
+        """What keeps a diverging integration stable, for this scheme."""
+        return "a smaller time step" if self.scheme == "be" else "backward Euler (scheme 'be') or a smaller time step"
 
     # ------------------------------------------------------------------ the Newton solve of one step
     def _minimise(self, x_n, a_n, y_hat, y_c, a, kappa, delta):

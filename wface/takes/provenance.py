@@ -130,7 +130,10 @@ def explain_mismatch(expected: dict, found: dict | None) -> str:
 
 
 _NOT_OPTIONS = ("func", "out", "overwrite", "resume", "debug", "command", "json", "no_pictures", "no_movie", "no_usd")
-_SOURCE_KEYS = ("take", "model", "tets", "mocap", "from_", "to", "mix", "expression", "add", "activation", "frames")
+_SOURCE_KEYS = (
+    "take", "model", "tets", "mocap", "from_", "to", "mix", "expression", "add", "activation", "frames", "gesture",
+    "speech_dir",
+)  # fmt: skip
 
 
 def command_provenance(kind: str, model, args) -> dict:

@@ -157,8 +157,9 @@ def claim_take_dir(out_dir: str | Path, run: dict, *, resume: bool = False, over
     A directory that holds another take's results (another kind of run, model or input, or results
     without provenance) is refused unless ``overwrite``, which clears them first. The same take
     again is continued with ``resume`` (frames are then reused only where their fingerprints match,
-    ``verified_frames``) and started again without it (its old results are cleared, so no stale
-    frame survives). Writes provenance.json.
+    ``verified_frames``); without it, it is refused while it holds finished frames (a plain rerun
+    after Ctrl-C threw hours of frames away) and started again otherwise, its old results cleared so
+    that no stale frame survives. Writes provenance.json.
 
     Returns:
         A line saying what was found and done ("" for a new directory).
@@ -187,9 +188,14 @@ def claim_take_dir(out_dir: str | Path, run: dict, *, resume: bool = False, over
             )
         elif not resume:
             kept = [(d.name, sum(1 for _ in d.glob("*.npz"))) for d in _pass_dirs(out)]
+            if any(n for _, n in kept):  # finished work is not thrown away unasked (a rerun after Ctrl-C)
+                done = ", ".join(f"{n} in {name}/" for name, n in kept if n)
+                raise TakeDirectoryError(
+                    f"{out} holds this take's finished frames ({done}): pass --resume to continue from them, or "
+                    "--overwrite to start again"
+                )
             _clear_results(out)
-            done = ", ".join(f"{n} in {name}/" for name, n in kept if n) or "no frames"
-            note = f"starting this take again in {out} (removed its earlier frame files: {done}; --resume reuses them)"
+            note = f"starting this take again in {out} (it held no finished frames)"
     for where in (out, out / FRAMES_DIR, out / SURVEY_DIR):
         for tmp in where.glob(".*.part-*") if where.is_dir() else ():
             tmp.unlink(missing_ok=True)  # a killed writer's temporary file

@@ -1,0 +1,101 @@
+"""Command-line runs that lost work or did nothing they said (each reproduced by a user of the CLI) are
+refused before any work, with exit code 2 for options and 1 for a directory that holds other results."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import pytest
+
+from wface.cli import main
+from wface.faces import build_face
+from wface.model import save_model
+from wface.takes.provenance import command_provenance, same_take
+
+
+def _cli(args, capsys) -> tuple[int, str]:
+    code = main([str(a) for a in args])
+    cap = capsys.readouterr()
+    return code, cap.out + cap.err
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    path = tmp_path_factory.mktemp("model") / "face.npz"
+    save_model(build_face(1000), path)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("extra", "said"),
+    [
+        (["--activation", "zygomaticus_major_l=1"], "--activation shape(s) the synthetic take"),
+        (["--jaw-open", "5"], "--jaw-open shape(s) the synthetic take"),
+    ],
+)
+def test_resim_refuses_synthetic_options_with_a_take(tmp_path, capsys, extra, said):
+    take = tmp_path / "take"
+    take.mkdir()
+    code, text = _cli(["resim", "--take", take, "--tets", "1000", "--out", tmp_path / "o", *extra], capsys)
+    assert code == 2 and said in text and "would do nothing with --take" in text, text
+
+
+def test_resim_refuses_a_range_for_the_synthetic_frame_count(tmp_path, capsys):
+    code, text = _cli(["resim", "--tets", "1000", "--frames", "0:5", "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "synthetic take's frame count" in text, text
+
+
+def test_bench_checks_out_before_running(tmp_path, capsys):
+    code, text = _cli(["bench", "--suite", "build", "--tets", "1000", "--out", tmp_path], capsys)
+    assert code == 2 and "is a directory" in text
+    code, text = _cli(["bench", "--suite", "build", "--tets", "1000", "--out", tmp_path / "no" / "b.json"], capsys)
+    assert code == 2 and "does not exist" in text and not (tmp_path / "no").exists()
+
+
+def test_track_refuses_resume_with_overwrite(tmp_path, capsys):
+    args = ["demo", "--tets", "1000", "--frames", "2", "--no-pictures", "--out", tmp_path / "d"]
+    code, text = _cli([*args, "--resume", "--overwrite"], capsys)
+    assert code == 2 and "--resume and --overwrite contradict" in text, text
+
+
+def test_a_plain_demo_rerun_keeps_the_finished_frames(tmp_path, capsys):
+    out = tmp_path / "d"
+    args = ["demo", "--tets", "1000", "--frames", "2", "--no-pictures", "--prior", "temporal", "--out", out]
+    assert _cli(args, capsys)[0] == 0
+    before = sorted(p.name for p in (out / "frames").iterdir())
+    code, text = _cli(args, capsys)
+    assert code == 1 and "finished frames" in text and "--resume" in text, text
+    assert sorted(p.name for p in (out / "frames").iterdir()) == before
+    code, text = _cli([*args, "--resume"], capsys)
+    assert code == 0 and "survey/" not in text  # one pass: --prior temporal
+
+
+def test_simulate_claims_its_directory(tmp_path, capsys, model_path):
+    demo = tmp_path / "demo"
+    demo.mkdir()
+    (demo / "report.json").write_text('{"frames": 30}')
+    (demo / "provenance.json").write_text(json.dumps({"kind": "demo", "fingerprint": "0" * 16}))
+    args = ["simulate", "--model", model_path, "--activation", "zygomaticus_major_r=0.3"]
+    code, text = _cli([*args, "--out", demo], capsys)
+    assert code == 1 and "holds another take's results" in text and not (demo / "summary.json").exists(), text
+    code, text = _cli([*args, "--out", tmp_path / "smile"], capsys)
+    assert code == 0 and "provenance.json" in text and "frames/" not in text
+    again = ["simulate", "--model", model_path, "--activation", "zygomaticus_major_r=0.5", "--out", tmp_path / "smile"]
+    code, text = _cli(again, capsys)  # another activation: another result, not silently replaced
+    assert code == 1 and "--overwrite" in text
+    assert json.loads((tmp_path / "smile" / "summary.json").read_text())["activations"]["zygomaticus_major_r"] == 0.3
+
+
+def test_another_speech_gesture_is_another_take():
+    face = build_face(1000)
+    ns = {"model": "badin.npz", "max_frames": 2, "tol": 1e-4}
+    closure = command_provenance("speech", face, argparse.Namespace(gesture="closure", **ns))
+    approximant = command_provenance("speech", face, argparse.Namespace(gesture="approximant", **ns))
+    tighter = command_provenance("speech", face, argparse.Namespace(gesture="closure", **{**ns, "tol": 1e-6}))
+    assert not same_take(closure, approximant) and same_take(closure, tighter)
+
+
+def test_model_build_counts_the_pressure_actuator_apart(tmp_path, capsys):
+    code, text = _cli(["model", "build", "--tets", "1000", "--out", tmp_path / "f.npz"], capsys)
+    assert code == 0 and "35 muscles and 1 pressure actuator" in text
