@@ -99,3 +99,9 @@ def test_another_speech_gesture_is_another_take():
 def test_model_build_counts_the_pressure_actuator_apart(tmp_path, capsys):
     code, text = _cli(["model", "build", "--tets", "1000", "--out", tmp_path / "f.npz"], capsys)
     assert code == 0 and "35 muscles and 1 pressure actuator" in text
+
+
+def test_bench_without_json_prints_a_readable_summary(capsys):
+    code, text = _cli(["bench", "--suite", "forward", "--tets", "1000", "--repeat", "1", "--device", "cpu"], capsys)
+    assert code == 0 and text.startswith("wface bench --suite forward on cpu"), text
+    assert "result 1:" in text and "tets" in text and "{" not in text  # no raw JSON

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
-import sys
 from pathlib import Path
 
 from wface.bench import SUITES
@@ -74,8 +73,26 @@ def _run(args: argparse.Namespace) -> int:
     if args.json:
         print(text)
     else:
-        for key, value in result.items():
-            if not isinstance(value, dict | list):
-                print(f"{key:>32}: {value}")
-        print(text if not args.out else f"(full JSON written to {args.out})", file=sys.stdout)
+        print(_summary(result))
+        print(f"(full JSON written to {args.out})" if args.out else "(--json prints the full JSON)")
     return 0
+
+
+def _number(value) -> str:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return str(value)
+    return f"{value:,}" if isinstance(value, int) else f"{value:.4g}"
+
+
+def _summary(result: dict) -> str:
+    """The suite's results for a reader: one block per result, its numbers and names one level deep
+    (nested tables are in the JSON)."""
+    lines = [f"wface bench --suite {result.get('suite')} on {result.get('device')}"]
+    for k, row in enumerate(result.get("results", [])):
+        lines.append(f"result {k + 1}:")
+        scalars = {key: v for key, v in row.items() if not isinstance(v, dict | list)}
+        width = max([len(key) for key in scalars] or [0])
+        lines += [f"  {key:<{width}}  {_number(v)}" for key, v in scalars.items()]
+    for key, value in (result.get("notes") or {}).items():
+        lines.append(f"note {key}: {value}")
+    return "\n".join(lines)

@@ -65,13 +65,20 @@ def write_lip_opening(
     ax1.legend(fontsize=8)
     ax1.set_ylabel("Mouth_Up - Mouth_Down (mm)")
     ax1.grid(alpha=0.3)
-    seen = set()
+    curves: dict[str, np.ndarray] = {}  # one line per distinct curve, named by every muscle that plays it
     for i in driven:
         base = model.muscle_names[i].rsplit("_", 1)[0]
-        if base in seen:
-            continue
-        seen.add(base)
-        ax2.plot(result.times_s, result.activations[:, i], label=base)
+        if base not in curves:
+            curves[base] = result.activations[:, i]
+    groups: list[tuple[list[str], np.ndarray]] = []
+    for base, curve in curves.items():
+        same = next((g for g in groups if np.array_equal(g[1], curve)), None)
+        if same is None:
+            groups.append(([base], curve))
+        else:
+            same[0].append(base)  # drawn once: identical curves used to hide each other
+    for names, curve in groups:
+        ax2.plot(result.times_s, curve, label=" = ".join(names))
     ax2.set_ylabel("activation (both sides)")
     ax2.set_xlabel("time (s)")
     ax2.legend(fontsize=8, ncol=3)
@@ -196,7 +203,11 @@ def write_aperture_picture(
     if enclosed.any():
         u0, u1 = iv["u_lo_m"][enclosed].min() * 1e3, iv["u_hi_m"][enclosed].max() * 1e3
         v0, v1 = iv["v_m"][enclosed].min() * 1e3, iv["v_m"][enclosed].max() * 1e3
-    else:  # closed: frame the occluders in front of the window centre
+    elif near_points_m is not None and len(near_points_m):  # closed: frame the lips (the window centre
+        near = np.asarray(near_points_m, dtype=np.float64).reshape(-1, 3)  # can lie 10-20 mm off them)
+        u0, u1 = float((near @ e1).min()) * 1e3, float((near @ e1).max()) * 1e3
+        v0, v1 = float((near @ e2).min()) * 1e3, float((near @ e2).max()) * 1e3
+    else:  # closed, no lips named: the occluders in front of the window centre
         c = np.asarray(view.window_center_m)
         u0 = u1 = float(c @ e1) * 1e3
         v0 = v1 = float(c @ e2) * 1e3
@@ -218,7 +229,8 @@ def write_aperture_picture(
     ax.set_ylabel("image up (mm)")
     ax.set_title(
         (title + "\n" if title else "")
-        + f"lip opening {res.area_mm2:.2f} mm$^2$ (+-{res.error_mm2:.2g}), {res.regions} region(s); view {view.name}",
+        + f"lip opening {res.area_mm2:.2f} $\\pm$ {res.error_mm2:.2f} mm$^2$, {res.regions} region(s); "
+        + f"view {view.name}",
         fontsize=9,
     )
     fig.savefig(path, dpi=120, bbox_inches="tight")

@@ -57,9 +57,13 @@ def plot_lip_section(model, positions: dict, out_path, *, x_plane_m: float = 1e-
             seg = plane_section(x, model.surface_groups[g], x_plane_m)
             ax.add_collection(LineCollection(seg[..., [2, 1]] * 1e3, colors=colour, linewidths=1.5, label=g))
             box.append(seg.reshape(-1, 3))
-        for name, (v, t) in ((teeth or {}).get(title, {}) or {}).items():
+        shades = ("0.25", "0.55", "0.4", "0.7")  # upper and lower teeth apart (one grey made them one)
+        for k, (name, (v, t)) in enumerate(((teeth or {}).get(title, {}) or {}).items()):
             seg = plane_section(v, t, x_plane_m)
-            ax.add_collection(LineCollection(seg[..., [2, 1]] * 1e3, colors="0.4", linewidths=1.0, label=name))
+            style = "solid" if k % 2 == 0 else "dashed"
+            lines = LineCollection(seg[..., [2, 1]] * 1e3, colors=shades[k % 4], linewidths=1.0, linestyles=style)
+            ax.add_collection(lines)
+            lines.set_label(name)
         ax.set_title(title, fontsize=10)
         ax.set_xlabel("z (mm, forward)")
         ax.set_aspect("equal")
@@ -69,7 +73,7 @@ def plot_lip_section(model, positions: dict, out_path, *, x_plane_m: float = 1e-
         ax.set_xlim(lo[2] - 5, hi[2] + 5)
         ax.set_ylim(lo[1] - 5, hi[1] + 5)
     axes[0][0].set_ylabel("y (mm, up)")
-    axes[0][0].legend(loc="lower left", fontsize=8)
+    axes[0][0].legend(loc="best", fontsize=8)
     fig.tight_layout()
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)

@@ -256,9 +256,12 @@ def _box_corners(points: np.ndarray) -> np.ndarray:
     ).reshape(-1, 3)
 
 
-def _place_camera(plotter, points: np.ndarray, view, *, fill: float, pad_m: float, zoom: float = 1.0) -> None:
+def _place_camera(
+    plotter, points: np.ndarray, view, *, fill: float, pad_m: float, zoom: float = 1.0, reserve_bottom: float = 0.0
+) -> None:
     """Look at the points' box centre from direction ``view`` (+y up), as close as possible while
-    every point (grown by ``pad_m``) stays inside ``fill`` of the viewport (perspective projection)."""
+    every point (grown by ``pad_m``) stays inside ``fill`` of the viewport (perspective projection),
+    above a band of ``reserve_bottom`` of the viewport's height kept free (a colour bar's)."""
     lo, hi = points.min(axis=0), points.max(axis=0)
     centre = (lo + hi) / 2
     d = np.asarray(view, dtype=np.float64)
@@ -269,17 +272,19 @@ def _place_camera(plotter, points: np.ndarray, view, *, fill: float, pad_m: floa
     w, h = plotter.window_size
     shape = getattr(plotter, "shape", (1, 1))
     aspect = (w / shape[1]) / (h / shape[0])
-    t = np.tan(np.radians(plotter.camera.view_angle) / 2) * fill
+    half = np.tan(np.radians(plotter.camera.view_angle) / 2)
+    t, ty = half * fill, half * fill * (1.0 - reserve_bottom)
     for step in range(3):  # fit the distance; centre the projected points; fit again
         r = points - centre
         depth = r @ d
         px, py = r @ right, r @ up
         lx, ly = np.abs(px) + pad_m, np.abs(py) + pad_m
-        dist = float(np.max(np.maximum(depth + ly / t, depth + lx / (t * aspect))))
+        dist = float(np.max(np.maximum(depth + ly / ty, depth + lx / (t * aspect))))
         if step == 2:
             break
         sx, sy = px / (dist - depth), py / (dist - depth)  # tangents of the view angles
         centre = centre + dist * ((sx.max() + sx.min()) / 2 * right + (sy.max() + sy.min()) / 2 * up)
+    centre = centre - up * (dist * half * reserve_bottom)  # the points' centre sits above the band's middle
     plotter.camera_position = [tuple(centre + dist * d), tuple(centre), tuple(up)]
     if zoom != 1.0:
         plotter.camera.zoom(zoom)
@@ -287,6 +292,7 @@ def _place_camera(plotter, points: np.ndarray, view, *, fill: float, pad_m: floa
 
 
 ACTIVATION_LEGEND = "muscle activation (0-1, dimensionless)"
+_LEGEND_BAND = 0.14  # share of a panel's height the activation colour bar and its title take at the bottom
 
 
 def _add_activation_legend(pv, plotter) -> None:
@@ -404,7 +410,8 @@ def render_panels(
             p.add_text(pnl.title, position="upper_left", font_size=14, color="black")
         if pnl.activations is not None:
             _add_activation_legend(pv, p)
-        _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom)
+        reserve = _LEGEND_BAND if pnl.activations is not None else 0.0
+        _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom, reserve_bottom=reserve)
     p.enable_anti_aliasing("ssaa")
     p.screenshot(str(out_path))
     p.close()
@@ -535,7 +542,8 @@ def render_take_movie(
     )
     if activations is not None:
         _add_activation_legend(pv, p)
-    _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom)
+    reserve = _LEGEND_BAND if activations is not None else 0.0
+    _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom, reserve_bottom=reserve)
     p.enable_anti_aliasing("msaa", multi_samples=8)  # ssaa costs ~4x per frame; fxaa is not in OSMesa builds
     p.open_movie(str(out_path), framerate=int(round(fps)), quality=quality)
     text = None

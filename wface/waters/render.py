@@ -68,14 +68,14 @@ def render_mesh(
             clim=clim_mm if clim_mm is not None else (0.0, max(float(np.max(displacement_mm)), 1e-6)),
             smooth_shading=True,
             scalar_bar_args={
-                "title": "displacement (mm)",
+                "title": "mm",  # the picture's own title says "displacement"; a longer one was clipped
                 "n_labels": 3,
                 "fmt": "%.1f",
                 "color": "black",
                 "vertical": True,
-                "position_x": 0.84,
+                "position_x": 0.89,
                 "position_y": 0.25,
-                "width": 0.08,
+                "width": 0.06,
                 "height": 0.5,
                 "title_font_size": 14,
                 "label_font_size": 12,
