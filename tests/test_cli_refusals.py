@@ -105,3 +105,12 @@ def test_bench_without_json_prints_a_readable_summary(capsys):
     code, text = _cli(["bench", "--suite", "forward", "--tets", "1000", "--repeat", "1", "--device", "cpu"], capsys)
     assert code == 0 and text.startswith("wface bench --suite forward on cpu"), text
     assert "result 1:" in text and "tets" in text and "{" not in text  # no raw JSON
+
+
+def test_model_commands_do_not_replace_an_existing_file_unasked(tmp_path, capsys, model_path):
+    out = tmp_path / "kept.npz"
+    out.write_bytes(model_path.read_bytes())
+    code, text = _cli(["model", "build", "--tets", "1000", "--out", out], capsys)
+    assert code == 2 and "exists" in text and "--overwrite" in text
+    assert out.read_bytes() == model_path.read_bytes()
+    assert _cli(["model", "build", "--tets", "1000", "--out", out, "--overwrite"], capsys)[0] == 0

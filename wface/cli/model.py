@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+from wface.cli.errors import UsageError
 from wface.cli.validate import face_tets, non_negative_int, npz_file, tet_mesh_file
 from wface.faces.artisynth import import_artisynth
 from wface.faces.builtin import build_face
@@ -63,6 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     b.add_argument("--tets", type=face_tets, default=20000, help="target number of tetrahedra (default 20000)")
     b.add_argument("--out", required=True, type=npz_file, help="output model file (.npz)")
+    b.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     b.add_argument(
         "--free-to-mm",
         type=float,
@@ -94,6 +96,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     imp.add_argument("format", choices=["artisynth"], help="source format")
     imp.add_argument("directory", help="source directory")
     imp.add_argument("--out", required=True, type=npz_file, help="output model file (.npz)")
+    imp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     imp.set_defaults(func=_import)
 
     f = msub.add_parser(
@@ -117,12 +120,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="frame of --markers showing the neutral face (default 0)",
     )
     f.add_argument("--out", required=True, type=npz_file, help="output model file (.npz)")
+    f.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     f.add_argument("--json", action="store_true", help="print the fit report as JSON")
     f.set_defaults(func=_fit)
     p.set_defaults(func=lambda a: p.print_help() or 2)
 
 
+def _refuse_existing(args: argparse.Namespace) -> None:
+    """An existing --out is not replaced unasked (an imported 3 MB Badin model was silently rebuilt as a
+    640 KB built-in face), and that is said before any work."""
+    if Path(args.out).exists() and not args.overwrite:
+        raise UsageError(f"--out {args.out} exists: choose another file, or pass --overwrite to replace it")
+
+
 def _build(args: argparse.Namespace) -> int:
+    _refuse_existing(args)
 
     t0 = time.perf_counter()
     model = build_face(args.tets, progress=not args.quiet, free_to_mm=args.free_to_mm)
@@ -181,7 +193,7 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _import(args: argparse.Namespace) -> int:
-
+    _refuse_existing(args)
     if not Path(args.directory).is_dir():
         raise FileNotFoundError(f"source directory not found: {args.directory}")
 
@@ -208,6 +220,7 @@ def _fit_landmarks(args, mesh, say) -> dict | None:
 
 
 def _fit(args: argparse.Namespace) -> int:
+    _refuse_existing(args)
     say = print if not args.json else (lambda msg: print(msg, file=sys.stderr))  # --json: stdout is the JSON
     if not (args.surface or args.markers):
         raise ValueError("give --surface HEAD.obj|ply|stl, --markers TAKE.c3d, or both")

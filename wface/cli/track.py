@@ -302,7 +302,7 @@ def _run(
     info = {
         "device": rig.sim.device,
         "solver": rig.sim.linear_solver,
-        "wall_seconds": wall,
+        "tracking_wall_seconds": wall,  # the tracking alone: not the face build, pictures or USD
         "workers": args.workers if not args.scheduler else "scheduler",
         "contact": getattr(args, "contact", None) or None,
         "contact_smoothing_mm": args.contact_smoothing_mm if getattr(args, "contact", None) else None,
