@@ -114,3 +114,21 @@ def test_model_commands_do_not_replace_an_existing_file_unasked(tmp_path, capsys
     assert code == 2 and "exists" in text and "--overwrite" in text
     assert out.read_bytes() == model_path.read_bytes()
     assert _cli(["model", "build", "--tets", "1000", "--out", out, "--overwrite"], capsys)[0] == 0
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (["simulate", "--activation", "orbicularis_oris_upper=1", "--lip-surface", "faceted"], "which is off"),
+        (["simulate", "--activation", "orbicularis_oris_upper=1", "--contact-stiffness", "1e6"], "which is off"),
+        (["edit", "blend", "--from", "smile", "--to", "surprise", "--mix", "happy:0.5"], "not both"),
+        (["model", "build", "--tets", "1000", "--free-to-mm", "50"], "within [5, 40] mm"),
+    ],
+)
+def test_options_that_contradict_or_do_nothing_exit_2(tmp_path, capsys, model_path, args, said):
+    if args[0] == "simulate":
+        args = [args[0], "--model", model_path, *args[1:]]
+    out = tmp_path / ("o.npz" if args[0] == "model" else "o")
+    code, text = _cli([*args, "--out", out], capsys)
+    assert code == 2 and said in text, text
+    assert not out.exists()

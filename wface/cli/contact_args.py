@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 
+from wface.cli.errors import UsageError
 from wface.cli.validate import finite_float, non_negative_float, positive_float
 from wface.physics.contact import REGIONS, SURFACES, Contact, parse_obstacle
 
@@ -112,6 +113,15 @@ def add_contact_arguments(
         "smooth_through_nodes (the same, offset at rest to pass through the lip nodes) or faceted (the collision "
         "triangles as they are; --freeze-below works only there). docs/design.md, 'Smooth lip surfaces'",
     )
+    p.set_defaults(
+        contact_option_defaults={
+            "contact_stiffness": None,
+            "contact_smoothing_mm": smoothing_mm,
+            "contact_inside_at_rest": "ignore",
+            "freeze_below": -1.0 if freeze_below is None else freeze_below,
+            "lip_surface": lip_surface,
+        }
+    )
 
 
 def contact_from_args(args: argparse.Namespace, model):
@@ -121,11 +131,16 @@ def contact_from_args(args: argparse.Namespace, model):
     regions = getattr(args, "contact", "") or ""
     specs = getattr(args, "obstacle", []) or []
     if not regions and not specs:
+        defaults = getattr(args, "contact_option_defaults", {})
+        given = ["--" + k.replace("_", "-") for k, v in defaults.items() if getattr(args, k, v) != v]
+        if given:  # they were silently dropped
+            names = ", ".join(given)
+            raise UsageError(f"{names} set(s) the contact, which is off: add --contact REGIONS or --obstacle")
         return None
     lips = "lips" in [r.strip() for r in regions.split(",")]
     surface = getattr(args, "lip_surface", "faceted") if lips else "faceted"  # the lip contact's only
     if surface != "faceted" and args.freeze_below >= 0:
-        raise ValueError(
+        raise UsageError(
             f"--freeze-below freezes faceted lip features; the lip surface is {surface}: "
             "use --freeze-below with --lip-surface faceted, or leave it out"
         )

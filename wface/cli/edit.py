@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from wface.cli.closing import print_outputs
+from wface.cli.errors import UsageError
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.cli.validate import face_tets, finite_float, non_negative_int, positive_float, positive_int
 from wface.faces.builtin import build_face
@@ -251,9 +252,9 @@ def run_blend(args: argparse.Namespace) -> int:
 
     fps = args.fps or 30.0
     if args.mix and (args.from_ or args.to):
-        raise ValueError("give either --from/--to or --mix, not both")
+        raise UsageError("give either --from/--to or --mix, not both")
     if not args.mix and not (args.from_ and args.to):
-        raise ValueError("blend needs --from EXPR --to EXPR, or --mix EXPR:WEIGHT (repeatable)")
+        raise UsageError("blend needs --from EXPR --to EXPR, or --mix EXPR:WEIGHT (repeatable)")
     model = _model(args)
     joint = model.jaw_joint
     if args.mix:

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 from wface.cli.errors import UsageError
-from wface.cli.validate import face_tets, non_negative_int, npz_file, tet_mesh_file
+from wface.cli.validate import face_tets, finite_float, non_negative_int, npz_file, tet_mesh_file
 from wface.faces.artisynth import import_artisynth
 from wface.faces.builtin import build_face
 from wface.faces.fit import fit_template, ict_feature_landmarks, select_target_faces
@@ -67,7 +67,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     b.add_argument(
         "--free-to-mm",
-        type=float,
+        type=_free_to_mm,
         default=18.0,
         help="how far above the mouth line the bone side of lips and cheeks is free of the maxilla, 5-40 mm "
         "(default 18: the oral vestibule; 34 frees the midface's deep surface too, measured on real capture "
@@ -124,6 +124,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     f.add_argument("--json", action="store_true", help="print the fit report as JSON")
     f.set_defaults(func=_fit)
     p.set_defaults(func=lambda a: p.print_help() or 2)
+
+
+def _free_to_mm(text: str) -> float:
+    """``--free-to-mm``'s type: 5-40 mm (checked before the face is built)."""
+    value = finite_float(text)
+    if not 5.0 <= value <= 40.0:
+        raise argparse.ArgumentTypeError(f"must be within [5, 40] mm above the mouth line, got {text}")
+    return value
 
 
 def _refuse_existing(args: argparse.Namespace) -> None:
