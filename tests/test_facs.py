@@ -40,3 +40,14 @@ def test_stand_ins_are_canonical_and_used():
     for fine, (coarse, factor) in STAND_INS.items():
         assert fine in bases and 0 < factor <= 1
         assert any(n.startswith(coarse) for n in names)
+
+
+def test_au43_falls_back_down_the_stand_in_chain():
+    """AU43 drives the upper lid's palpebral part where a face has it, else the palpebral ring at half
+    (AU43 before the lid muscle), else the whole orbicularis oculi ring at half (the FEM face)."""
+    lid = ["orbicularis_oculi_palpebral_superior_l", "orbicularis_oculi_palpebral_superior_r"]
+    ring = ["orbicularis_oculi_palpebral_l", "orbicularis_oculi_palpebral_r"]
+    whole = ["orbicularis_oculi_l", "orbicularis_oculi_r"]
+    assert action_unit_muscles("AU43", muscle_names=lid + ring + whole) == dict.fromkeys(lid, 1.0)
+    assert action_unit_muscles("AU43", muscle_names=ring + whole) == dict.fromkeys(ring, 0.5)
+    assert action_unit_muscles("AU43", muscle_names=whole) == dict.fromkeys(whole, 0.5)

@@ -43,6 +43,7 @@ BILATERAL_MUSCLES: tuple[str, ...] = (
     "corrugator",
     "orbicularis_oculi",
     "orbicularis_oculi_palpebral",
+    "orbicularis_oculi_palpebral_superior",
     "levator_palpebrae",
     "nasalis",
     "levator_labii_superioris_alaeque_nasi",
@@ -69,11 +70,14 @@ MIDLINE_MUSCLES: tuple[str, ...] = (
 # is signed, suction to pressure). An action unit may drive it with a negative weight (AU35).
 ACTUATORS: tuple[str, ...] = ("intraoral_pressure",)
 # Finer muscles and the coarser muscle that stands in for them, at a weight factor, on a face that
-# lacks them: ``orbicularis_oculi`` is the whole ring (its orbital part, AU6) where a face has no
-# separate palpebral part (AU7, AU43); the incisivii (AU18, lip pucker; one ring per lip in the
-# vector-muscle model) fall back on orbicularis oris. Faces with only the coarse muscles get the
+# lacks them (followed down the chain): ``orbicularis_oculi`` is the whole ring (its orbital part,
+# AU6) where a face has no separate palpebral part (AU7); the palpebral part of the upper lid, which
+# lowers it over the eye (AU43), falls back on the palpebral ring at half (AU43 before it existed);
+# the incisivii (AU18, lip pucker; one ring per lip in the vector-muscle model) fall back on
+# orbicularis oris. Faces with only the coarse muscles get the
 # activations they had before the finer muscles existed.
 STAND_INS: dict[str, tuple[str, float]] = {
+    "orbicularis_oculi_palpebral_superior": ("orbicularis_oculi_palpebral", 0.5),
     "orbicularis_oculi_palpebral": ("orbicularis_oculi", 1.0),
     "incisivus_labii_superioris": ("orbicularis_oris_upper", 0.8),
     "incisivus_labii_inferioris": ("orbicularis_oris_lower", 0.8),
@@ -139,7 +143,7 @@ ACTION_UNITS: dict[str, ActionUnit] = {
             34, "Puff", {"intraoral_pressure": 1.0, "orbicularis_oris_upper": 0.3, "orbicularis_oris_lower": 0.3}
         ),
         ActionUnit(35, "Cheek suck", {"intraoral_pressure": -1.0, "buccinator": 0.5}),
-        ActionUnit(43, "Eyes closed", {"orbicularis_oculi_palpebral": 0.5}),
+        ActionUnit(43, "Eyes closed", {"orbicularis_oculi_palpebral_superior": 1.0}),
     )
 }
 
@@ -181,7 +185,7 @@ def action_unit_muscles(au: str, side: str = "both", *, muscle_names: Iterable[s
     out: dict[str, float] = {}
     for base, weight in ACTION_UNITS[au].muscles.items():
         names = expand_muscle(base, side if base not in MIDLINE_MUSCLES else "both")
-        if keep is not None and base in STAND_INS and not any(n in keep for n in names):
+        while keep is not None and base in STAND_INS and not any(n in keep for n in names):
             stand_in, factor = STAND_INS[base]
             base, weight = stand_in, weight * factor
             names = expand_muscle(base, side if base not in MIDLINE_MUSCLES else "both")
