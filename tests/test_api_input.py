@@ -143,3 +143,11 @@ def test_waters_rig_on_a_mesh_in_the_wrong_units_is_refused():
         WatersRig(layout, head.vertices_m * 1000.0)
     with pytest.raises(FileNotFoundError, match="packaged layouts: builtin, ict"):
         load_layout("ictt")
+
+
+def test_a_take_prints_as_one_line():
+    from wface.takes.take import Take
+
+    take = Take(activations=np.zeros((500, 36)), fps=60.0, bones=np.zeros((500, 24)), source="tracked")
+    text = repr(take)
+    assert text == "Take(500 frames at 60 fps, 36 muscles, frames 0..499, with bones, source='tracked')"

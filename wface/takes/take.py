@@ -195,6 +195,15 @@ class Take:
     def __len__(self) -> int:
         return self.n_frames
 
+    def __repr__(self) -> str:
+        """A line a console can show (the dataclass's printed every array in full)."""
+        span = f"frames {int(self.frames[0])}..{int(self.frames[-1])}" if self.frames is not None else ""
+        extras = [n for n in ("bones", "attached_positions_m", "reference_positions_m") if getattr(self, n) is not None]
+        return (
+            f"Take({self.n_frames} frames at {self.fps:g} fps, {self.n_muscles} muscles, {span}"
+            f"{', with ' + ', '.join(extras) if extras else ''}, source={self.source!r})"
+        )
+
     @property
     def n_muscles(self) -> int:
         return int(self.activations.shape[1])
