@@ -132,3 +132,14 @@ def test_options_that_contradict_or_do_nothing_exit_2(tmp_path, capsys, model_pa
     code, text = _cli([*args, "--out", out], capsys)
     assert code == 2 and said in text, text
     assert not out.exists()
+
+
+def test_resim_takes_the_face_the_take_was_made_on(tmp_path, capsys):
+    """`wface resim --take` without --tets rebuilt the default 5K face and refused the 1K take ("pass the
+    same --model (or --tets)"); report.json records the face and resim builds it."""
+    take = tmp_path / "demo"
+    args = ["demo", "--tets", "1000", "--frames", "2", "--no-pictures", "--prior", "temporal", "--out", take]
+    assert _cli(args, capsys)[0] == 0
+    assert json.loads((take / "report.json").read_text())["face_model"] == {"builtin_tets": 1000}
+    code, text = _cli(["resim", "--take", take, "--substeps", "1", "--out", tmp_path / "dyn"], capsys)
+    assert code == 0 and "the built-in face at --tets 1000" in text, text

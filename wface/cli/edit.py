@@ -17,9 +17,8 @@ import numpy as np
 from wface.cli.closing import print_outputs
 from wface.cli.errors import UsageError
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
+from wface.cli.take_face import face_for_take
 from wface.cli.validate import face_tets, finite_float, non_negative_int, positive_float, positive_int
-from wface.faces.builtin import build_face
-from wface.model import load_model
 from wface.takes import (
     Take,
     blend,
@@ -183,11 +182,9 @@ def _model(args):
     if getattr(args, "take", None):
         # a wrong --take fails before a face is built; a take's controls.npz stands for its directory
         args.take = str(require_take_dir(args.take))
-    if args.model:
-        if args.tets is not None:
-            raise ValueError("--tets does nothing with --model: it sizes the built-in face")
-        return load_model(args.model)
-    return build_face(5000 if args.tets is None else args.tets, progress=False)
+    if args.model and args.tets is not None:
+        raise UsageError("--tets does nothing with --model: it sizes the built-in face")
+    return face_for_take(args)
 
 
 def _neutral(args, model, take=None):

@@ -11,9 +11,8 @@ from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.cli.simulate import parse_activations
+from wface.cli.take_face import face_for_take
 from wface.cli.validate import UsageError, face_tets, finite_float, non_negative_int, positive_float, positive_int
-from wface.faces.builtin import build_face
-from wface.model import load_model
 from wface.physics import Damping, Simulator
 from wface.takes.dynamic import compare_with_quasistatic, quasistatic_reference, resimulate
 from wface.takes.provenance import command_provenance
@@ -97,7 +96,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--take", help="tracking output directory (from `wface track` / `wface demo`); omit for synthetic")
     p.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
-    p.add_argument("--tets", type=face_tets, default=5000, help="size of the built-in face when --model is not given")
+    p.add_argument(
+        "--tets",
+        type=face_tets,
+        default=None,
+        help="size of the built-in face when --model is not given (default: the take's face, else 5000)",
+    )
     p.add_argument(
         "--scheme",
         default="auto",
@@ -215,7 +219,7 @@ def _run(args: argparse.Namespace) -> int:
         args.take = str(require_take_dir(args.take))  # a wrong --take fails before a face is built
         if Path(args.out).resolve() == Path(args.take).resolve():  # --overwrite would delete the input
             raise ValueError(f"--out {args.out} is the take being re-simulated (--take): write it to another directory")
-    model = load_model(args.model) if args.model else build_face(args.tets, progress=True)
+    model = face_for_take(args, progress=True)
     if args.take:
         take = load_take(
             args.take, model, fps=args.fps, frames=_frame_range(args.frames), reference=not args.no_reference

@@ -19,6 +19,7 @@ from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.errors import UsageError
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
+from wface.cli.take_face import face_record
 from wface.cli.validate import (
     face_tets,
     frame_range,
@@ -303,6 +304,7 @@ def _run(
         "device": rig.sim.device,
         "solver": rig.sim.linear_solver,
         "tracking_wall_seconds": wall,  # the tracking alone: not the face build, pictures or USD
+        "face_model": face_record(args),  # what resim / edit --take rebuild (wface.cli.take_face)
         "workers": args.workers if not args.scheduler else "scheduler",
         "contact": getattr(args, "contact", None) or None,
         "contact_smoothing_mm": args.contact_smoothing_mm if getattr(args, "contact", None) else None,
