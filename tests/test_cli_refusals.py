@@ -143,3 +143,17 @@ def test_resim_takes_the_face_the_take_was_made_on(tmp_path, capsys):
     assert json.loads((take / "report.json").read_text())["face_model"] == {"builtin_tets": 1000}
     code, text = _cli(["resim", "--take", take, "--substeps", "1", "--out", tmp_path / "dyn"], capsys)
     assert code == 0 and "the built-in face at --tets 1000" in text, text
+
+
+def test_no_rig_writes_the_point_cache_alone(tmp_path, capsys):
+    """The rig's skin z-fights with the point cache until a DCC user hides one; --no-rig leaves it out."""
+    from pxr import Usd
+
+    out = tmp_path / "demo"
+    args = ["demo", "--tets", "1000", "--frames", "2", "--no-pictures", "--prior", "temporal", "--out", out]
+    assert _cli([*args, "--no-rig"], capsys)[0] == 0
+    stage = Usd.Stage.Open(str(out / "animation.usdc"))
+    assert stage.GetPrimAtPath("/Face/Skin") and not stage.GetPrimAtPath("/Face/Rig")
+    args[-1] = tmp_path / "with_rig"
+    assert _cli(args, capsys)[0] == 0
+    assert Usd.Stage.Open(str(tmp_path / "with_rig" / "animation.usdc")).GetPrimAtPath("/Face/Rig")

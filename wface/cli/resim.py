@@ -160,6 +160,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_render_mesh_arguments(p)
     p.add_argument("--no-reference", action="store_true", help="skip the quasistatic reference frames")
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
+    p.add_argument(
+        "--no-rig", action="store_true", help="animation.usdc without the UsdSkel rig (the point cache alone)"
+    )
     p.add_argument("--overwrite", action="store_true", help="replace the results of another take that OUT holds")
     p.add_argument("--tol", type=positive_float, default=1e-6, help="relative Newton tolerance per step (default 1e-6)")
     p.add_argument("--device", default="cpu", help="Warp device: cpu (default), cuda:0 or auto")
@@ -291,6 +294,7 @@ def _run(args: argparse.Namespace) -> int:
             metadata={"dynamic": True},
             render_mesh=render_mesh_from_args(args, model),
             progress=True,
+            rig=False if args.no_rig else "active",
         )
     report["seconds"] = time.perf_counter() - start
     write_report(out, report)

@@ -139,6 +139,12 @@ def _common(p: argparse.ArgumentParser) -> None:
         "--no-pictures", action="store_true", help="skip pictures, plots and movie (report.html keeps the numbers)"
     )
     p.add_argument("--no-usd", action="store_true", help="skip animation.usdc")
+    p.add_argument(
+        "--no-rig",
+        action="store_true",
+        help="animation.usdc without the UsdSkel rig: the exact point cache alone (no second skin to hide in a "
+        "DCC; the rig costs one solve per muscle the take uses)",
+    )
     add_contact_arguments(
         p,
         smoothing_mm=1e3 * TRACKING_SMOOTHING_M,
@@ -334,6 +340,7 @@ def _run(
         report=report,
         truth=truth,
         usd=not args.no_usd,
+        rig=not args.no_rig,
         pictures=not args.no_pictures,
         movie=not args.no_movie,
         title=f"wface {args.command}",

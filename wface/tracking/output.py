@@ -73,6 +73,7 @@ def write_tracking_outputs(
     report: dict,
     truth=None,
     usd: bool = True,
+    rig: bool = True,
     pictures: bool = True,
     movie: bool = True,
     title: str = "wface track",
@@ -80,8 +81,9 @@ def write_tracking_outputs(
     progress: bool = False,
     render_mesh=None,
 ) -> list[Path]:
-    """Write controls.npz / .csv, report.json, animation.usdc (``usd``), pictures and plots
-    (``pictures``), the movie (``pictures and movie``) and report.html. Returns every path written.
+    """Write controls.npz / .csv, report.json, animation.usdc (``usd``; its UsdSkel rig with ``rig``),
+    pictures and plots (``pictures``), the movie (``pictures and movie``) and report.html. Returns every
+    path written.
 
     Args:
         out_dir: the take directory.
@@ -124,6 +126,7 @@ def write_tracking_outputs(
                     marker_names=marker_names,
                     render_mesh=render_mesh,
                     progress=progress,
+                    rig="active" if rig else False,
                 )
             )
             if render_mesh is not None:
