@@ -49,7 +49,7 @@ def track_both(out: Path, take: Path, tets: int, frames: str) -> tuple[dict, flo
         path = save_model(models[run], out / f"{run}.npz")
         args = ["track", "--model", str(path), "--mocap", str(take), "--frames", frames, "--neutral-frame", "0"]
         args += ["--holdout", "5"]
-        if wface_main([*args, "--no-pictures", "--no-usd", "--out", str(out / run)]) != 0:
+        if wface_main([*args, "--no-pictures", "--no-usd", "--overwrite", "--out", str(out / run)]) != 0:
             raise SystemExit(f"wface track failed for {run}")
         reports[run] = json.loads((out / run / "report.json").read_text())
     return reports, -jaw_limits(face.jaw_joint)["opening_deg"][0]

@@ -215,7 +215,7 @@ def track_variants(args, out: Path) -> list[dict]:
             run = out / f"{take}_{tag}"
             argv = ["track", "--model", str(path), "--mocap", str(data_dir() / "animface" / f"{take}MoCap.c3d")]
             argv += ["--frames", f"0:{args.frames}", "--holdout", str(args.holdout), "--no-pictures", "--no-usd"]
-            if wface_main([*argv, "--out", str(run)]) != 0:
+            if wface_main([*argv, "--overwrite", "--out", str(run)]) != 0:  # a rerun measures again
                 raise SystemExit(f"wface track failed on {take} with {label}")
             rep = json.loads((run / "report.json").read_text())
             per = rep["marker_rms_mm_per_marker"] | rep["holdout_rms_mm_per_marker"]
