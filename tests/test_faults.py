@@ -648,15 +648,13 @@ def test_missing_surfaces_and_muscles_are_named(model_path, tmp_path, capsys):
 
 
 def test_a_directory_that_holds_no_take_is_named_before_any_face_is_built(tmp_path, capsys, monkeypatch):
-    import wface.cli.edit as edit_cli
-    import wface.cli.resim as resim_cli
+    import wface.cli.take_face as take_face  # where resim and edit build their face
 
     def no_face(*_args, **_kwargs):
         raise AssertionError("a face was built before --take was checked")
 
     (tmp_path / "empty").mkdir()
-    for mod in (resim_cli, edit_cli):
-        monkeypatch.setattr(mod, "build_face", no_face)
+    monkeypatch.setattr(take_face, "build_face", no_face)
     for args in (["resim", "--take", tmp_path / "empty"], ["edit", "retime", "--take", tmp_path / "empty"]):
         code, text = _cli([*args, "--out", tmp_path / "o"], capsys)
         assert code == 1 and "not a tracking output directory" in text and str(tmp_path / "empty") in text, text
