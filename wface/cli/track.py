@@ -384,8 +384,8 @@ def _warn_jaw_on_closed_limit(model, report: dict, truth) -> None:
         return
     lo = jaw_limits(model.jaw_joint)["opening_deg"][0]
     hint = (
-        "this model has no closing range past its rest (saved before wface had one?): "
-        "`wface model build` makes a face whose jaw closes by the freeway space"
+        "this model's jaw has no closing range past its rest (max_closing_sine 0: a model saved before wface had "
+        "one, or made so on purpose): `wface model build` makes a face whose jaw closes by the freeway space"
         if model.jaw_joint.max_closing_sine == 0
         else "the capture closes the jaw further past its neutral frame than the model allows"
     )
