@@ -60,15 +60,18 @@ def test_track_refuses_resume_with_overwrite(tmp_path, capsys):
 
 
 def test_a_plain_demo_rerun_keeps_the_finished_frames(tmp_path, capsys):
+    """The same run again (the README's command twice, a rerun after Ctrl-C) continues from its frames;
+    the same take with other options is refused while frames are done (it deleted them), naming why."""
     out = tmp_path / "d"
     args = ["demo", "--tets", "1000", "--frames", "2", "--no-pictures", "--prior", "temporal", "--out", out]
     assert _cli(args, capsys)[0] == 0
-    before = sorted(p.name for p in (out / "frames").iterdir())
+    before = {p.name: p.stat().st_mtime_ns for p in (out / "frames").iterdir()}
     code, text = _cli(args, capsys)
-    assert code == 1 and "finished frames" in text and "--resume" in text, text
-    assert sorted(p.name for p in (out / "frames").iterdir()) == before
-    code, text = _cli([*args, "--resume"], capsys)
-    assert code == 0 and "survey/" not in text  # one pass: --prior temporal
+    assert code == 0 and "continuing the same run" in text and "reusing 2 of 2 frames" in text, text
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "frames").iterdir()} == before  # reused, not redone
+    code, text = _cli([*args, "--robust-mm", "5"], capsys)
+    assert code == 1 and "finished frames" in text and "other options" in text and "--resume" in text, text
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "frames").iterdir()} == before
 
 
 def test_simulate_claims_its_directory(tmp_path, capsys, model_path):

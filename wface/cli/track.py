@@ -36,7 +36,7 @@ from wface.files import file_sha256, save_npz
 from wface.io.mocap import read_mocap
 from wface.model import load_model
 from wface.physics.penalty import TRACKING_SMOOTHING_M
-from wface.takes.store import claim_take_dir, resume_plan
+from wface.takes.store import claim_take_dir, recorded_run, resume_plan
 from wface.tracking.capture import check_capture, prepare_capture
 from wface.tracking.cluster import dask_executor
 from wface.tracking.estimator import TrackOptions
@@ -67,9 +67,10 @@ by the cranium controls.
 Before tracking, samples no face can produce (non-finite, far outside the head, one-frame jumps
 faster than 2 m/s) become missing and are counted per marker in report.json; a frame left with too
 few markers is carried from the frame before. OUT records what made it (provenance.json): --resume
-reuses only frames this same run made (same model, capture file, range and options); a
-directory holding another take, or this take's finished frames without --resume, is refused
-unless --overwrite (which deletes them).
+reuses only frames this same run made (same model, capture file, range and options), and the
+very same command again continues that way by itself; a directory holding another take, or this
+take's finished frames made with other options, is refused unless --resume or --overwrite (which
+deletes them).
 
 examples:
   wface track --mocap take.c3d --out run1                      # on the built-in face (5000 tets)
@@ -246,6 +247,9 @@ def _claim(
     run = tracking_provenance(
         model, markers, options=_options(args), rig_kwargs=rig_kwargs, kind=args.command, source=source
     )
+    if not (args.resume or args.overwrite) and (recorded_run(args.out) or {}).get("fingerprint") == run["fingerprint"]:
+        args.resume = True  # the very same run again (the README's command twice, a rerun after Ctrl-C)
+        print(f"continuing the same run in {args.out} (--overwrite starts it again)")
     note = claim_take_dir(args.out, run, resume=args.resume, overwrite=args.overwrite)
     if note:
         print(note)

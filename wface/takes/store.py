@@ -158,8 +158,9 @@ def claim_take_dir(out_dir: str | Path, run: dict, *, resume: bool = False, over
     without provenance) is refused unless ``overwrite``, which clears them first. The same take
     again is continued with ``resume`` (frames are then reused only where their fingerprints match,
     ``verified_frames``); without it, it is refused while it holds finished frames (a plain rerun
-    after Ctrl-C threw hours of frames away) and started again otherwise, its old results cleared so
-    that no stale frame survives. Writes provenance.json.
+    after Ctrl-C threw hours of frames away; ``wface track`` resumes the very same run by itself)
+    and started again otherwise, its old results cleared so that no stale frame survives. Writes
+    provenance.json.
 
     Returns:
         A line saying what was found and done ("" for a new directory).
@@ -190,9 +191,10 @@ def claim_take_dir(out_dir: str | Path, run: dict, *, resume: bool = False, over
             kept = [(d.name, sum(1 for _ in d.glob("*.npz"))) for d in _pass_dirs(out)]
             if any(n for _, n in kept):  # finished work is not thrown away unasked (a rerun after Ctrl-C)
                 done = ", ".join(f"{n} in {name}/" for name, n in kept if n)
+                why = explain_mismatch(run, found) if (found or {}).get("fingerprint") != run.get("fingerprint") else ""
                 raise TakeDirectoryError(
-                    f"{out} holds this take's finished frames ({done}): pass --resume to continue from them, or "
-                    "--overwrite to start again"
+                    f"{out} holds this take's finished frames ({done}{'; ' + why if why else ''}): pass --resume "
+                    "to continue from them (frames made otherwise are redone), or --overwrite to start again"
                 )
             _clear_results(out)
             note = f"starting this take again in {out} (it held no finished frames)"
