@@ -375,7 +375,7 @@ def _run(
     _warn_jaw_on_closed_limit(model, report, truth)
     _warn_rejected_markers(report)
     print("  ".join(f"{k}={report[k]:.4g}" for k in keys if report.get(k) is not None))
-    print_outputs(out, written)
+    print_outputs(out, [*written, Path(out) / "provenance.json"])  # claimed before the run: what made the take
     return 0
 
 
