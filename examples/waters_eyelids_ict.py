@@ -51,6 +51,7 @@ def placed(layout):
 
 
 def main(argv: list[str] | None = None) -> dict:
+    from wface.basis import ActuationBasis
     from wface.mesh.meshfile import read_surface_mesh
     from wface.waters.calibrate import calibrate_muscle, reference_agreement
     from wface.waters.layout import load_layout, save_layout
@@ -68,9 +69,7 @@ def main(argv: list[str] | None = None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     mesh = read_surface_mesh(data / "ict-facekit" / "generic_neutral_mesh.obj", units="cm")
     rest = mesh.vertices_m
-    with np.load(data / "ict-facekit" / "ict_expressions.npz") as z:
-        names = [str(n) for n in z["names"]]
-        blink = z["deltas"][names.index("eyeBlink_L")].astype(np.float64) * 0.01
+    blink = ActuationBasis.from_ict_npz(data / "ict-facekit" / "ict_expressions.npz", names=["eyeBlink_L"]).shapes_m[0]
     reference = np.zeros_like(rest)
     reference[:FACE_ROWS] = blink[:FACE_ROWS]
     rows = np.arange(FACE_ROWS)

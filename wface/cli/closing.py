@@ -9,18 +9,13 @@ from wface.tracking.output import describe_outputs
 __all__ = ["print_outputs"]
 
 
-def print_outputs(out_dir: str | Path, paths=None, *, since: float | None = None, frames: bool = True) -> None:
+def print_outputs(out_dir: str | Path, paths=None, *, since: float | None = None) -> None:
     """Print ``wrote OUT/:`` and one line per file (``paths``, else the files directly in ``out_dir``
-    modified at or after ``since``, a ``time.time()``), then, with ``frames`` (a command that writes
-    frame files), the count of frames/ files if any."""
+    modified at or after ``since``, a ``time.time()``), then the count of frames/ files if any."""
     out = Path(out_dir)
     if paths is None:
         paths = sorted(
-            (
-                p
-                for p in out.iterdir()
-                if p.is_file() and (since is None or p.stat().st_mtime >= since - 1.0 or p.name == "provenance.json")
-            ),
+            (p for p in out.iterdir() if p.is_file() and (since is None or p.stat().st_mtime >= since - 1.0)),
             key=lambda p: p.name,
         )
     print(f"wrote {out}/:")
@@ -28,7 +23,7 @@ def print_outputs(out_dir: str | Path, paths=None, *, since: float | None = None
     width = max([24, *(len(r["file"]) + 1 for r in rows)])  # one column for what opens each
     for row in rows:
         print(f"  {row['file']:<{width}} {row['opens_in']}".rstrip())
-    n = len(list((out / "frames").glob("frame_*.npz"))) if frames and (out / "frames").is_dir() else 0
+    n = len(list((out / "frames").glob("frame_*.npz"))) if (out / "frames").is_dir() else 0
     if n:
         print(f"  frames/ ({n} frame files; --resume continues from them)")
         for d in sorted(out.iterdir()):

@@ -36,6 +36,9 @@ over one frame, held to the end. The report gives the overshoot of the skin past
 quasistatic target.
 """
 
+# the synthetic take's options and their defaults: the parser's, and what a run with --take refuses
+_SYNTHETIC_ONLY = {"activation": [], "jaw_open": 0.0, "head_shake": None, "onset_frame": 1, "onset": "step"}
+
 _EPILOG = """\
 schemes:
   midpoint  implicit midpoint rule: second order, no numerical damping (energy of a linear
@@ -131,14 +134,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--activation",
         action="append",
-        default=[],
+        default=list(_SYNTHETIC_ONLY["activation"]),
         metavar="NAME=VALUE",
         help="synthetic: activation (repeatable; 'none' for no muscle)",
     )
     p.add_argument(
         "--jaw-open",
         type=finite_float,
-        default=0.0,
+        default=_SYNTHETIC_ONLY["jaw_open"],
         metavar="DEG",
         help="synthetic: jaw opening at the onset (negative: closed past rest, within the model's range)",
     )
@@ -148,11 +151,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="synthetic: shake the head (yaw amplitude in degrees, frequency in Hz) from the onset on",
     )
     p.add_argument(
-        "--onset-frame", type=non_negative_int, default=1, help="synthetic: first frame with the activations on"
+        "--onset-frame",
+        type=non_negative_int,
+        default=_SYNTHETIC_ONLY["onset_frame"],
+        help="synthetic: first frame with the activations on",
     )
     p.add_argument(
         "--onset",
-        default="step",
+        default=_SYNTHETIC_ONLY["onset"],
         choices=["step", "linear"],
         help="synthetic: activations switch on within one time step (default) or ramp over one frame",
     )
@@ -332,9 +338,6 @@ def _resimulate(args, model, take, damping, sim, contact, skin_nodes, substep_sk
         on_step=(lambda state: substep_skin.append(state.x_m[skin_nodes].copy())) if step_response else None,
         contact=contact,
     )
-
-
-_SYNTHETIC_ONLY = {"activation": [], "jaw_open": 0.0, "head_shake": None, "onset_frame": 1, "onset": "step"}
 
 
 def _refuse_options_that_do_nothing(args) -> None:

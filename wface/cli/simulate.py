@@ -204,5 +204,5 @@ def _run(args: argparse.Namespace) -> int:
                 f"{summary['contact_max_penetration_mm']:.3f} mm, force {eq.contact_force_n:.2f} N"
             )
         written = [out / "equilibrium.npz", out / "summary.json", out / "provenance.json"]
-        print_outputs(out, written + ([Path(summary["picture"])] if args.picture else []), frames=False)
+        print_outputs(out, written + ([Path(summary["picture"])] if args.picture else []))  # a claimed --out
     return 0 if eq.converged else 3

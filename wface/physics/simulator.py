@@ -37,8 +37,8 @@ _TET_POOLS: dict[int, ThreadPoolExecutor] = {}  # per thread count, shared by ev
 
 def _require_finite(name: str, value) -> None:
     """Raise ``ValueError`` naming the rows of ``value`` (positions, (k, 3)) that hold NaN or inf."""
-    arr = np.asarray(value, dtype=np.float64)
-    bad = np.flatnonzero(~np.all(np.isfinite(arr.reshape(len(arr), -1)), axis=1)) if arr.ndim else np.array([0])
+    arr = np.atleast_2d(np.asarray(value, dtype=np.float64))
+    bad = np.flatnonzero(~np.isfinite(arr.reshape(len(arr), -1)).all(axis=1))
     if bad.size:
         raise ValueError(f"{name} has NaN or inf in {bad.size} row(s), first {bad[:5].tolist()}")
 
