@@ -9,9 +9,12 @@ cannot give. Layout under ``prim_path`` (an Xform, e.g. ``/Face/Markers/Captured
                               "invisible" and a scale op of 0 (Blender's importer reads transforms
                               but not animated visibility), and the translation holds the last
                               seen position (the first seen one before it)
-      <marker><suffix>        Sphere of radius ``radius_m`` with a constant displayColor, named
-                              like its locator (Blender merges an Xform with its one child into a
-                              single object named after the child, so the object keeps the name)
+      <marker><suffix>        Mesh: a once-subdivided icosahedron (42 points) of radius
+                              ``radius_m`` with a constant displayColor, named like its locator
+                              (Blender merges an Xform with its one child into a single object
+                              named after the child, so the object keeps the name). A mesh, not a
+                              UsdGeom.Sphere: Blender 5 imports a Sphere without its material
+                              binding, so the markers rendered grey
 
 The original names (which need not be USD identifiers) are in the uniform string array
 ``wface:markerNames`` of ``prim_path``, in order, and ``wface:markerName`` of each locator.
@@ -23,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wface.io.usd._common import _identifier, _vt_vec3f
+from wface.io.usd._common import _identifier, _write_mesh
 
 __all__ = ["read_locators", "write_locators"]
 
@@ -49,6 +52,7 @@ def write_locators(
     group.GetPrim().CreateAttribute(
         "wface:markerNames", Sdf.ValueTypeNames.StringArray, custom=True, variability=Sdf.VariabilityUniform
     ).Set(Vt.StringArray([str(n) for n in names]))
+    ball, tris = _icosphere(1)
     taken: set[str] = set()
     for k, name in enumerate(names):
         p = positions_m[:, k]
@@ -70,11 +74,37 @@ def write_locators(
                 was_seen = s
             if scale is not None:
                 scale.Set(Gf.Vec3f(1.0 if s else 0.0), float(t))
-        ball = UsdGeom.Sphere.Define(stage, f"{xf.GetPath()}/{ident}")
-        ball.CreateRadiusAttr(float(radius_m))
-        ball.CreateExtentAttr(_vt_vec3f(np.array([[-radius_m] * 3, [radius_m] * 3])))
-        ball.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(_vt_vec3f(np.asarray(rgb, dtype=float)[None]))
+        counts = np.full(len(tris), 3)
+        _write_mesh(stage, f"{xf.GetPath()}/{ident}", radius_m * ball, counts, tris.ravel(), colors=rgb, normals=ball)
     return group
+
+
+def _icosphere(subdivisions: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(unit points (n, 3), outward-wound triangles (m, 3)) of an icosahedron split ``subdivisions`` times."""
+    t = (1.0 + 5.0**0.5) / 2.0
+    pts = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t)]
+    pts += [(0, -1, -t), (0, 1, -t), (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
+    tris = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2)]
+    tris += [(10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5)]
+    tris += [(2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    points = [np.array(p, dtype=float) / np.linalg.norm(p) for p in pts]
+    mid: dict[tuple[int, int], int] = {}  # edge -> its midpoint's index; edges are new each level
+
+    def middle(a: int, b: int) -> int:
+        key = (min(a, b), max(a, b))
+        if key not in mid:
+            m = points[a] + points[b]
+            points.append(m / np.linalg.norm(m))
+            mid[key] = len(points) - 1
+        return mid[key]
+
+    for _ in range(subdivisions):
+        split = []
+        for a, b, c in tris:
+            ab, bc, ca = middle(a, b), middle(b, c), middle(c, a)
+            split += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        tris = split
+    return np.array(points), np.array(tris, dtype=np.int64)
 
 
 def read_locators(prim, times) -> tuple[np.ndarray, list[str]]:
