@@ -36,8 +36,8 @@ def main(argv: list[str] | None = None) -> dict:
         default_face_split,
         interpolate_to_mesh,
         load_basis,
-        prepare_capture,
         refine_marker_basis,
+        stabilise_capture,
     )
     from wface.basis.landmarks import load_ict_animface_landmarks
     from wface.basis.plots import plot_analysis
@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> dict:
         layout = MarkerLayout.from_frame(basis, first.marker_names, first.positions_m[0], landmarks=landmarks)
         mb = layout.marker_basis(basis)
         split = default_face_split(mb.marker_names, mb.element_names) if args.split else None
-        disp = {n: prepare_capture(takes[n], layout).displacements_m for n in TAKES}
+        disp = {n: stabilise_capture(takes[n], layout).displacements_m for n in TAKES}
         if args.no_select:
             lam, n_it, scores = args.regularization, args.max_iterations, {}
         else:

@@ -13,9 +13,9 @@ from wface.basis import (
     analyze,
     interpolate_to_mesh,
     load_basis,
-    prepare_capture,
     refine_marker_basis,
     retarget,
+    stabilise_capture,
 )
 from wface.basis.landmarks import load_ict_animface_landmarks
 
@@ -56,7 +56,7 @@ def test_layout_alignment_is_close(layout):
 def test_analysis_explains_most_of_the_motion(ict, takes, layout):
     mb = layout.marker_basis(ict)
     for name, take in takes.items():
-        cap = prepare_capture(take.frames(0, None, 6), layout)
+        cap = stabilise_capture(take.frames(0, None, 6), layout)
         an = analyze(mb, cap.displacements_m)
         assert an.contractions.min() >= 0 and an.contractions.max() <= 1
         disp = np.sqrt(np.mean(np.sum(cap.displacements_m**2, axis=2)))
@@ -67,7 +67,7 @@ def test_analysis_explains_most_of_the_motion(ict, takes, layout):
 def test_refinement_generalises_to_held_out_take(ict, takes, layout):
     """Refine on three takes (subsampled), test on the fourth: the held-out error must drop."""
     mb = layout.marker_basis(ict)
-    disp = {n: prepare_capture(t, layout).displacements_m for n, t in takes.items()}
+    disp = {n: stabilise_capture(t, layout).displacements_m for n, t in takes.items()}
     test = "EyebrowsMoCap.c3d"  # the hardest fold: brows barely appear in the training takes
     train = [disp[n][::12] for n in TAKES if n != test]
     res = refine_marker_basis(mb, train, regularization=1.0, max_iterations=4, rel_tol=1e-4)

@@ -8,7 +8,7 @@ ICT), ``pipeline`` (the steps the CLI runs), ``plots``.
 """
 
 from wface.basis.analysis import Analysis, FaceSplit, MarkerBasis, analyze, default_face_split
-from wface.basis.capture import CaptureOnBasis, MarkerLayout, prepare_capture
+from wface.basis.capture import CaptureOnBasis, MarkerLayout, stabilise_capture
 from wface.basis.core import ActuationBasis, load_basis
 from wface.basis.refine import RefinementResult, interpolate_to_mesh, model_marker_shapes, refine_marker_basis
 from wface.basis.retarget import ElementMatch, RetargetResult, match_elements, retarget
@@ -33,7 +33,7 @@ __all__ = [
     "load_basis",
     "match_elements",
     "model_marker_shapes",
-    "prepare_capture",
     "refine_marker_basis",
     "retarget",
+    "stabilise_capture",
 ]

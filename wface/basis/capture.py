@@ -32,7 +32,7 @@ from wface.mesh.align import (
     umeyama,
 )
 
-__all__ = ["CaptureOnBasis", "MarkerLayout", "prepare_capture"]
+__all__ = ["CaptureOnBasis", "MarkerLayout", "stabilise_capture"]
 
 
 @dataclass
@@ -135,7 +135,7 @@ class CaptureOnBasis:
     source: str
 
 
-def prepare_capture(
+def stabilise_capture(
     take,
     layout: MarkerLayout,
     *,

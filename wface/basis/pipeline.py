@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from wface.basis.analysis import Analysis, FaceSplit, analyze, default_face_split
-from wface.basis.capture import CaptureOnBasis, MarkerLayout, prepare_capture
+from wface.basis.capture import CaptureOnBasis, MarkerLayout, stabilise_capture
 from wface.basis.core import ActuationBasis
 from wface.basis.landmarks import load_ict_animface_landmarks
 from wface.basis.plots import plot_analysis
@@ -63,7 +63,7 @@ def analyze_take(
         landmarks = default_landmarks(basis, take.marker_names)
     if layout is None:
         layout = MarkerLayout.from_frame(basis, take.marker_names, take.positions_m[0], landmarks=landmarks)
-    cap = prepare_capture(take, layout)
+    cap = stabilise_capture(take, layout)
     mb = layout.marker_basis(basis)
     an = analyze(mb, cap.displacements_m, upper=upper, split=_split(split, mb.marker_names, mb.element_names),
                  progress=progress)  # fmt: skip
@@ -162,7 +162,7 @@ def refine_basis(
         landmarks = default_landmarks(basis, first.marker_names)
     layout = MarkerLayout.from_frame(basis, first.marker_names, first.positions_m[0], landmarks=landmarks)
     mb = layout.marker_basis(basis)
-    disps = [prepare_capture(t, layout).displacements_m for t in takes]
+    disps = [stabilise_capture(t, layout).displacements_m for t in takes]
     sp = _split(split, mb.marker_names, mb.element_names)
     info: dict = {}
     if regularization == "auto":

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wface.basis import MarkerBasis, MarkerLayout, analyze, load_basis, prepare_capture
+from wface.basis import MarkerBasis, MarkerLayout, analyze, load_basis, stabilise_capture
 from wface.basis.landmarks import load_ict_animface_landmarks
 from wface.basis.refine import model_marker_shapes
 from wface.bench import suite_result
@@ -44,7 +44,11 @@ def _real():
         basis, take.marker_names, take.positions_m[0], landmarks=load_ict_animface_landmarks()
     )
     mb = layout.marker_basis(basis)
-    return mb, prepare_capture(take, layout).displacements_m, prepare_capture(read_c3d(cheeks), layout).displacements_m
+    return (
+        mb,
+        stabilise_capture(take, layout).displacements_m,
+        stabilise_capture(read_c3d(cheeks), layout).displacements_m,
+    )
 
 
 def _synthetic(frames=1590, markers=41, elements=57, seed=0):
