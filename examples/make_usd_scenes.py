@@ -180,7 +180,7 @@ def waters_expression(path: Path) -> Path:
     frames = []
     for k in range(8):
         pose = interpolate_poses("neutral", "happy", k / 7, muscle_names=rig.muscle_names)
-        frames.append(rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg))
+        frames.append(rig.deform(pose.contractions, jaw_opening_deg=pose.jaw_opening_deg))
     frames = np.stack(frames)
     disp_mm = np.linalg.norm(frames[-1] - frames[0], axis=1) * 1000.0
     t = np.clip(disp_mm / max(float(disp_mm.max()), 1e-9), 0, 1)[:, None]

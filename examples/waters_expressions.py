@@ -71,9 +71,9 @@ def main(argv: list[str] | None = None) -> dict:
     summaries, pictures = {}, []
     for name in args.presets:
         s = pose_mesh(mesh, out, expression=name, rig=rig, size=args.size)
-        summaries[name] = {k: s[k] for k in ("contractions", "jaw_open_deg", "max_displacement_mm")}
+        summaries[name] = {k: s[k] for k in ("contractions", "jaw_opening_deg", "max_displacement_mm")}
         pictures.append(Path(s["files"]["png"]))
-        print(f"{name:>9}: max displacement {s['max_displacement_mm']:.1f} mm, jaw {s['jaw_open_deg']:.1f} deg")
+        print(f"{name:>9}: max displacement {s['max_displacement_mm']:.1f} mm, jaw {s['jaw_opening_deg']:.1f} deg")
     render_grid(out / "expressions.png", pictures, columns=min(4, len(pictures)))
     marks = np.stack(list(rig.layout.landmarks_m.values()))
     lo, hi = marks.min(axis=0), marks.max(axis=0)
@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> dict:
     for a, b in zip(cycle[:-1], cycle[1:], strict=True):
         for k in range(max(1, args.blend_frames)):
             pose = interpolate_poses(a, b, k / max(1, args.blend_frames), muscle_names=rig.muscle_names)
-            frames.append(rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg))
+            frames.append(rig.deform(pose.contractions, jaw_opening_deg=pose.jaw_opening_deg))
     write_surface_mesh(out / "expressions.usdc", mesh, frames_m=np.stack(frames), fps=24.0, name="WatersFace")
     report = {
         "mesh": source,

@@ -62,7 +62,7 @@ def test_packaged_builtin_layout_matches_a_fresh_fit():
 def test_every_preset_deforms_the_builtin_skin(rig, face, name):
     r, skin, nodes = rig
     pose = expression_pose(name, muscle_names=r.muscle_names)
-    x = r.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg)
+    x = r.deform(pose.contractions, jaw_opening_deg=pose.jaw_opening_deg)
     assert np.all(np.isfinite(x))
     d = np.linalg.norm(x - skin.vertices_m, axis=1)
     attached = np.isin(nodes, face.attached_nodes)

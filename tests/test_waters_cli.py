@@ -43,7 +43,7 @@ def test_cli_poses_the_ict_head(tmp_path, capsys):
     )
     assert rc == 0
     summary = json.loads((tmp_path / "happy+AU26.json").read_text())
-    assert summary["jaw_open_deg"] == pytest.approx(6.0)
+    assert summary["jaw_opening_deg"] == pytest.approx(6.0)
     assert summary["contractions"]["zygomaticus_major_l"] == 1.0
     posed = read_surface_mesh(tmp_path / "happy+AU26.obj", units="m")
     assert posed.n_vertices == 26719 and 3.0 < summary["max_displacement_mm"] < 60.0

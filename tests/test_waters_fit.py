@@ -66,8 +66,8 @@ def test_fit_reproduces_layout_under_a_similarity(method):
     # the fitted rig deforms the transformed points exactly like the original rig, transformed
     pts = np.stack(list(lay.landmarks_m.values()))
     c = {"zygomaticus_major_l": 0.8, "orbicularis_oris_lower": 0.5, "frontalis_lateral_r": 1.0}
-    d0 = WatersRig(lay, pts, muscle_mask=np.ones(len(pts), bool)).deform(c, jaw_open_deg=8.0)
-    d1 = WatersRig(fitted, _xf(pts), muscle_mask=np.ones(len(pts), bool)).deform(c, jaw_open_deg=8.0)
+    d0 = WatersRig(lay, pts, muscle_mask=np.ones(len(pts), bool)).deform(c, jaw_opening_deg=8.0)
+    d1 = WatersRig(fitted, _xf(pts), muscle_mask=np.ones(len(pts), bool)).deform(c, jaw_opening_deg=8.0)
     np.testing.assert_allclose(d1, _xf(d0), atol=1e-9 * S)
 
 
@@ -103,7 +103,7 @@ def test_fitted_layout_deforms_the_synthetic_head_sensibly():
     )
     rig = WatersRig(lay, head.vertices_m)
     pose = expression_pose("happy", muscle_names=rig.muscle_names)
-    d = rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg) - head.vertices_m
+    d = rig.deform(pose.contractions, jaw_opening_deg=pose.jaw_opening_deg) - head.vertices_m
     size = np.linalg.norm(d, axis=1)
     assert 0.002 < size.max() <= lay.max_displacement_m + 0.01  # muscles + a few degrees of jaw
     # a smile pulls the left mouth corner up and out (toward +x, +y)
@@ -127,7 +127,7 @@ def test_action_units_map_through_the_shared_facs_table():
     names = load_layout("ict").muscle_names
     pose = pose_from_action_units({"AU12": 1.0, "AU26": 0.5}, names)
     assert pose.contractions == {"zygomaticus_major_l": 1.0, "zygomaticus_major_r": 1.0}
-    assert pose.jaw_open_deg == pytest.approx(6.0)
+    assert pose.jaw_opening_deg == pytest.approx(6.0)
     one_side = pose_from_action_units({"AU12L": 0.6}, names)
     assert one_side.contractions == {"zygomaticus_major_l": 0.6}
     required = ["AU1", "AU2", "AU4", "AU5", "AU6", "AU7", "AU9", "AU10", "AU12", "AU15", "AU17", "AU20", "AU23", "AU25"]
@@ -156,7 +156,7 @@ def test_presets_and_interpolation():
     assert nonzero(interpolate_poses("happy", "surprise", 1.0, muscle_names=names)) == b.contractions
     mid = interpolate_poses("happy", "surprise", 0.5, muscle_names=names)
     # blending happens in action-unit space; the jaw is the largest AU demand (AU26 at 0.5 -> 6 deg)
-    assert mid.jaw_open_deg == pytest.approx(0.5 * 12.0)
+    assert mid.jaw_opening_deg == pytest.approx(0.5 * 12.0)
     assert mid.action_units["AU26"] == pytest.approx(0.5) and mid.action_units["AU12"] == pytest.approx(0.5)
     assert mid.contractions["zygomaticus_major_l"] == pytest.approx(0.5)
     half = expression_pose("happy", intensity=0.5, muscle_names=names)

@@ -47,13 +47,13 @@ def test_ict_mesh_reads_in_metres(ict):
 def test_every_preset_deforms_the_ict_head_boundedly(ict, name):
     mesh, layout, rig = ict
     pose = expression_pose(name, muscle_names=rig.muscle_names)
-    x = rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg)
+    x = rig.deform(pose.contractions, jaw_opening_deg=pose.jaw_opening_deg)
     assert np.all(np.isfinite(x))
     muscles = np.linalg.norm(rig.muscle_displacement(pose.contractions), axis=1)
     assert muscles.max() <= layout.max_displacement_m * (1 + 1e-12)
     total = np.linalg.norm(x - mesh.vertices_m, axis=1)
     reach = np.linalg.norm(mesh.vertices_m - layout.jaw.pivot_m, axis=1)
-    jaw_bound = 2 * np.sin(np.radians(pose.jaw_open_deg) / 2) * (reach + layout.max_displacement_m)
+    jaw_bound = 2 * np.sin(np.radians(pose.jaw_opening_deg) / 2) * (reach + layout.max_displacement_m)
     assert np.all(total <= muscles + jaw_bound + 1e-12)
     assert total[21451:24591].max() == 0.0  # the eyeballs are not skin: muscles leave them alone
     if name == "neutral":
@@ -101,7 +101,7 @@ def test_action_units_resemble_the_ict_artist_shapes(ict, au, shape, jaw_deg, mi
     shapes = np.load(data_path("ict-facekit", "ict_expressions.npz"))
     ref = shapes["deltas"][list(shapes["names"]).index(shape)][:9409].astype(np.float64) * 0.01
     pose = pose_from_action_units({au: 1.0}, rig.muscle_names)
-    ours = (rig.deform(pose.contractions, jaw_open_deg=jaw_deg or pose.jaw_open_deg) - mesh.vertices_m)[:9409]
+    ours = (rig.deform(pose.contractions, jaw_opening_deg=jaw_deg or pose.jaw_opening_deg) - mesh.vertices_m)[:9409]
     assert _cosine(ours, ref) > min_cos
 
 
@@ -132,7 +132,7 @@ def test_action_units_move_the_skin_the_facs_way(ict, au):
     name, axis, sign = _AU_MOTION[au]
     v = int(np.argmin(np.linalg.norm(mesh.vertices_m - layout.landmarks_m[name], axis=1)))
     pose = pose_from_action_units({au: 1.0}, rig.muscle_names)
-    d = rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg)[v] - mesh.vertices_m[v]
+    d = rig.deform(pose.contractions, jaw_opening_deg=pose.jaw_opening_deg)[v] - mesh.vertices_m[v]
     assert sign * d[axis] > 0.0005, f"{au} moves {name} by {d * 1e3} mm"  # at least 0.5 mm the right way
     if au == "AU4":
         assert d[0] < 0  # ... and toward the midline

@@ -165,7 +165,7 @@ def test_rig_is_deterministic():
     b = WatersRig(_layout(), _grid())
     c = np.array([0.3, 0.9, 0.5, 0.2, 1.0])
     assert (a.basis != b.basis).nnz == 0
-    np.testing.assert_array_equal(a.deform(c, jaw_open_deg=7.0), b.deform(c, jaw_open_deg=7.0))
+    np.testing.assert_array_equal(a.deform(c, jaw_opening_deg=7.0), b.deform(c, jaw_opening_deg=7.0))
 
 
 def test_regions_split_the_lips():
@@ -183,7 +183,7 @@ def test_jaw_rotates_the_jaw_region_rigidly_about_the_pivot():
     lay = _layout()
     x = _grid(41)
     rig = WatersRig(lay, x)
-    y = rig.deform(None, jaw_open_deg=12.0)
+    y = rig.deform(None, jaw_opening_deg=12.0)
     w = rig.jaw_weights
     full, none = w >= 1.0, w <= 0.0
     assert full.any() and none.any()
@@ -211,9 +211,9 @@ def test_rig_errors_name_the_problem():
     with pytest.raises(ValueError, match="out of range: risorius_l"):
         rig.deform({"risorius_l": 1.5})
     with pytest.raises(ValueError, match="outside"):
-        rig.deform(None, jaw_open_deg=80.0)
+        rig.deform(None, jaw_opening_deg=80.0)
     with pytest.raises(ValueError, match="no jaw region"):
-        WatersRig(_layout(jaw=None), _grid(11)).deform(None, jaw_open_deg=5.0)
+        WatersRig(_layout(jaw=None), _grid(11)).deform(None, jaw_opening_deg=5.0)
     with pytest.raises(ValueError, match="shape"):
         WatersRig(_layout(), np.zeros((5, 2)))
 
@@ -229,7 +229,7 @@ def test_given_jaw_weights_override_the_planes():
     w = np.clip((0.02 - x[:, 1]) / 0.04, 0.0, 1.0)
     rig = WatersRig(_layout(), x, jaw_weights=w)
     np.testing.assert_array_equal(rig.jaw_weights, w)
-    y = rig.deform(None, jaw_open_deg=10.0)
+    y = rig.deform(None, jaw_opening_deg=10.0)
     np.testing.assert_array_equal(y[w == 0], x[w == 0])
     assert np.all(np.linalg.norm(y[w == 1] - x[w == 1], axis=1) > 0)
     with pytest.raises(ValueError, match="jaw_weights must lie"):

@@ -4,7 +4,7 @@ One table serves the FEM face, the actuation basis and the Waters vector muscles
 unit means the same muscles everywhere. Muscle names are snake_case anatomical names; bilateral
 muscles carry a side suffix ``_l`` (the subject's left, +x) or ``_r``. Midline muscles have no suffix.
 
-Action unit values are intensities in [0, 1] (FACS A..E mapped to 0.2..1.0). ``jaw_open_deg`` is
+Action unit values are intensities in [0, 1] (FACS A..E mapped to 0.2..1.0). ``jaw_opening_deg`` is
 the jaw rotation an action unit asks for: AU26/AU27 act through the jaw, not through a muscle.
 
 References: Ekman & Friesen, Facial Action Coding System (1978); Waters (1987) for the muscle
@@ -109,7 +109,7 @@ class ActionUnit:
     name: str
     muscles: Mapping[str, float] = field(default_factory=dict)  # base muscle name -> activation at intensity 1
     # (negative only for a signed actuator: AU35 drives the intra-oral pressure to suction)
-    jaw_open_deg: float = 0.0
+    jaw_opening_deg: float = 0.0
 
 
 ACTION_UNITS: dict[str, ActionUnit] = {
@@ -135,9 +135,9 @@ ACTION_UNITS: dict[str, ActionUnit] = {
         ActionUnit(22, "Lip funneler", {"orbicularis_oris_upper": 0.6, "orbicularis_oris_lower": 0.6}),
         ActionUnit(23, "Lip tightener", {"orbicularis_oris_upper": 1.0, "orbicularis_oris_lower": 1.0}),
         ActionUnit(24, "Lip pressor", {"orbicularis_oris_upper": 0.9, "orbicularis_oris_lower": 0.9, "mentalis": 0.3}),
-        ActionUnit(25, "Lips part", {"depressor_labii_inferioris": 0.4}, jaw_open_deg=2.0),
-        ActionUnit(26, "Jaw drop", {}, jaw_open_deg=12.0),
-        ActionUnit(27, "Mouth stretch", {"platysma": 0.3}, jaw_open_deg=25.0),
+        ActionUnit(25, "Lips part", {"depressor_labii_inferioris": 0.4}, jaw_opening_deg=2.0),
+        ActionUnit(26, "Jaw drop", {}, jaw_opening_deg=12.0),
+        ActionUnit(27, "Mouth stretch", {"platysma": 0.3}, jaw_opening_deg=25.0),
         ActionUnit(28, "Lip suck", {"orbicularis_oris_upper": 1.0, "orbicularis_oris_lower": 1.0}),
         ActionUnit(
             34, "Puff", {"intraoral_pressure": 1.0, "orbicularis_oris_upper": 0.3, "orbicularis_oris_lower": 0.3}
@@ -219,7 +219,7 @@ def muscle_activations(
         if not (0.0 <= v <= 1.0):
             raise ValueError(f"action unit {key!r} intensity {v} is outside [0, 1]")
         au_key, side = parse_action_unit(key)
-        jaw_deg = max(jaw_deg, ACTION_UNITS[au_key].jaw_open_deg * v)
+        jaw_deg = max(jaw_deg, ACTION_UNITS[au_key].jaw_opening_deg * v)
         for name, weight in action_unit_muscles(au_key, side, muscle_names=names).items():
             out[name] = combine_contributions(out.get(name, 0.0), float(np.clip(weight * v, -1.0, 1.0)))
     return out, jaw_deg

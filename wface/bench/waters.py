@@ -65,12 +65,12 @@ def run(args: argparse.Namespace) -> dict:
     for a, b in zip(names, names[1:] + names[:1], strict=True):
         for k in range(steps):
             pose = interpolate_poses(a, b, k / steps, muscle_names=rig.muscle_names)
-            poses.append((rig.contraction_vector(pose.contractions), pose.jaw_open_deg))
+            poses.append((rig.contraction_vector(pose.contractions), pose.jaw_opening_deg))
 
     def loop():
         t = time.perf_counter()
         for c, jaw in poses:
-            x = rig.deform(c, jaw_open_deg=jaw)
+            x = rig.deform(c, jaw_opening_deg=jaw)
         return time.perf_counter() - t, x
 
     loop()  # warm-up

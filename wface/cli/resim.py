@@ -246,7 +246,7 @@ def _run(args: argparse.Namespace) -> int:
             frames=n_frames,
             fps=args.fps or 30.0,
             activations=acts,
-            jaw_open_deg=args.jaw_open,
+            jaw_opening_deg=args.jaw_open,
             onset_frame=args.onset_frame,
             ramp=args.onset,
             head_shake=_head_shake(args.head_shake),

@@ -151,7 +151,7 @@ def _run(args: argparse.Namespace) -> int:
         rest_positions_m=model.rest_positions_m,
         activations=activations,
         muscle_names=np.array(model.muscle_names),
-        jaw_open_deg=np.float64(args.jaw_open),
+        jaw_opening_deg=np.float64(args.jaw_open),
     )
     disp = np.linalg.norm(eq.x - model.rest_positions_m, axis=1)
     summary = {
@@ -161,7 +161,7 @@ def _run(args: argparse.Namespace) -> int:
         "device": sim.device,
         "solver": eq.solver,
         "activations": {model.muscle_names[i]: float(a) for i, a in enumerate(activations) if a != 0.0},
-        "jaw_open_deg": args.jaw_open,
+        "jaw_opening_deg": args.jaw_open,
         "converged": eq.converged,
         "newton_iterations": eq.iterations,
         "projected_steps": eq.projected_steps,

@@ -122,7 +122,7 @@ def _run(args: argparse.Namespace) -> int:
         summary["files"]["animation"] = str(_blend(args, summary, rig, mesh))
         write_json(obj.with_suffix(".json"), summary)  # the summary names the blend too
     print(
-        f"{obj.stem}: jaw open {summary['jaw_open_deg']:.1f} deg, largest skin displacement "
+        f"{obj.stem}: jaw open {summary['jaw_opening_deg']:.1f} deg, largest skin displacement "
         f"{summary['max_displacement_mm']:.2f} mm"
     )
     written = {Path(p) for p in summary["files"].values()} | {obj.with_suffix(".json")}  # pose_mesh's summary
@@ -137,6 +137,6 @@ def _blend(args: argparse.Namespace, summary: dict, rig, mesh):
     frames = []
     for k in range(args.frames):
         pose = interpolate_poses(start, args.blend_to, k / (args.frames - 1), muscle_names=rig.muscle_names)
-        frames.append(rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg))
+        frames.append(rig.deform(pose.contractions, jaw_opening_deg=pose.jaw_opening_deg))
     path = Path(args.out) / f"{args.expression}_to_{args.blend_to}{'.usdc' if args.usdc else '.usda'}"
     return write_surface_mesh(path, mesh, frames_m=np.stack(frames), fps=24.0, name="WatersFace")

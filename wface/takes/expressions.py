@@ -110,7 +110,7 @@ def expression_pose(model: FaceModel, spec: str, *, intensity: float = 1.0) -> P
             )
     for key, v in aus.items():
         au, side = parse_action_unit(key)
-        jaw_deg = max(jaw_deg, ACTION_UNITS[au].jaw_open_deg * v)
+        jaw_deg = max(jaw_deg, ACTION_UNITS[au].jaw_opening_deg * v)
         for name, w in _au_muscles(model, au, side).items():
             i = model.muscle_index(name)
             act[i] = combine_contributions(act[i], float(np.clip(w * v, -1.0, 1.0)))

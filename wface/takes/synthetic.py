@@ -22,7 +22,7 @@ def step_take(
     frames: int,
     fps: float,
     activations: dict,
-    jaw_open_deg: float = 0.0,
+    jaw_opening_deg: float = 0.0,
     onset_frame: int = 1,
     ramp: str = "step",
     head_shake: tuple[float, float] | None = None,
@@ -41,8 +41,8 @@ def step_take(
     a = model.activation_vector(activations)
     on = (np.arange(frames) >= onset_frame).astype(float)
     bones = np.tile(IDENTITY_BONES, (frames, 1))
-    if jaw_open_deg:
-        A = jaw_opening_affine(model, jaw_open_deg)
+    if jaw_opening_deg:
+        A = jaw_opening_affine(model, jaw_opening_deg)
         bones[on > 0, 12:] = params_from_affine(A[:, :3], A[:, 3])
     if head_shake is not None:
         amplitude_deg, frequency_hz = head_shake

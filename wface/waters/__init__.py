@@ -16,7 +16,7 @@ Quick start::
     mesh = read_surface_mesh("generic_neutral_mesh.obj", units="cm")      # ICT-FaceKit head
     rig = WatersRig(load_layout("ict"), mesh.vertices_m, triangles=mesh.triangles())
     pose = expression_pose("happy", muscle_names=rig.muscle_names)
-    x = rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg)  # (n, 3) metres
+    x = rig.deform(pose.contractions, jaw_opening_deg=pose.jaw_opening_deg)  # (n, 3) metres
 """
 
 from wface.waters.expressions import Pose, expression_pose, interpolate_poses, pose_from_action_units

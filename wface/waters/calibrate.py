@@ -99,18 +99,18 @@ def reference_agreement(
     action_units: Mapping[str, float],
     *,
     rows: np.ndarray | None = None,
-    jaw_open_deg: float | None = None,
+    jaw_opening_deg: float | None = None,
 ) -> Agreement:
     """Compare the displacement of ``action_units`` on ``rig`` with ``reference_m`` (n, 3) metres.
 
     Args:
         rows: vertices compared (default all; e.g. the ICT face region 0-9408).
-        jaw_open_deg: jaw angle (default the action units' own).
+        jaw_opening_deg: jaw angle (default the action units' own).
     """
 
     pose = pose_from_action_units(action_units, rig.muscle_names)
-    jaw = pose.jaw_open_deg if jaw_open_deg is None else jaw_open_deg
-    d = rig.deform(pose.contractions, jaw_open_deg=jaw) - rig.rest_positions_m
+    jaw = pose.jaw_opening_deg if jaw_opening_deg is None else jaw_opening_deg
+    d = rig.deform(pose.contractions, jaw_opening_deg=jaw) - rig.rest_positions_m
     ref = np.asarray(reference_m, dtype=np.float64)
     if rows is not None:
         d, ref = d[rows], ref[rows]
@@ -156,7 +156,7 @@ def calibrate_muscle(
     *,
     muscle: str,
     action_units: Mapping[str, float],
-    jaw_open_deg: float = 0.0,
+    jaw_opening_deg: float = 0.0,
     vertices: np.ndarray | None = None,
     surface: tuple[np.ndarray, np.ndarray] | None = None,
     mirror: bool = True,
@@ -177,7 +177,7 @@ def calibrate_muscle(
         reference_m: (n, 3) reference displacement of the same action, metres.
         muscle: the muscle to calibrate (its mirror partner follows when ``mirror``).
         action_units: the action units whose displacement is compared (e.g. ``{"AU12L": 1.0}``).
-        jaw_open_deg: jaw angle used with them.
+        jaw_opening_deg: jaw angle used with them.
         vertices: rows of the mesh that count (default: all); the muscle vertex mask also applies.
         surface: (vertices_m, triangles) of the skin, to keep insertions on it.
         max_evaluations: objective evaluations of the Powell search.
@@ -223,7 +223,7 @@ def calibrate_muscle(
         )
 
     partner = mirror_name(muscle) if mirror else None
-    error, count = _objective(layout, used, muscle, partner, build, lo, hi, x[rows], ref[rows], pose, jaw_open_deg)
+    error, count = _objective(layout, used, muscle, partner, build, lo, hi, x[rows], ref[rows], pose, jaw_opening_deg)
     q0 = np.clip((p0 - lo) / np.maximum(hi - lo, 1e-300), 0.0, 1.0)
     before = error(q0)
     res = minimize(
@@ -305,7 +305,7 @@ def _sphincter_space(m0, mb, centre_range_m, axis_scale_range, protrusion_range_
     return lo, hi, p0, build
 
 
-def _objective(layout, used, muscle, partner, build, lo, hi, pts, target, pose, jaw_open_deg):
+def _objective(layout, used, muscle, partner, build, lo, hi, pts, target, pose, jaw_opening_deg):
     """The search's objective of normalised parameters q in [0, 1]^d (the relative error of the displacement
     on ``pts`` against ``target``, 1e3 for an invalid muscle) and its evaluation counter ([count])."""
 
@@ -325,7 +325,7 @@ def _objective(layout, used, muscle, partner, build, lo, hi, pts, target, pose, 
         except ValueError:
             return 1e3
         rig = WatersRig(lay, pts, muscle_mask=np.ones(len(pts), bool))
-        d = rig.deform(pose.contractions, jaw_open_deg=jaw_open_deg) - pts
+        d = rig.deform(pose.contractions, jaw_opening_deg=jaw_opening_deg) - pts
         return relative_error(d, target)
 
     return error, count

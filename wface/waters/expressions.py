@@ -23,7 +23,7 @@ class Pose:
 
     action_units: dict[str, float]
     contractions: dict[str, float]
-    jaw_open_deg: float
+    jaw_opening_deg: float
 
 
 def pose_from_action_units(action_units: Mapping[str, float], muscle_names: list[str] | None = None) -> Pose:

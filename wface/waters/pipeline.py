@@ -75,7 +75,7 @@ def pose_mesh(
         expression, intensity=intensity, extra_action_units=action_units, muscle_names=rig.muscle_names
     )
     t0 = time.perf_counter()
-    x = rig.deform(pose.contractions, jaw_open_deg=pose.jaw_open_deg)
+    x = rig.deform(pose.contractions, jaw_opening_deg=pose.jaw_opening_deg)
     seconds = time.perf_counter() - t0
     if not np.all(np.isfinite(x)):
         raise FloatingPointError("deformed mesh contains NaN or inf")
@@ -110,7 +110,7 @@ def pose_mesh(
         "expression": expression,
         "action_units": pose.action_units,
         "contractions": pose.contractions,
-        "jaw_open_deg": pose.jaw_open_deg,
+        "jaw_opening_deg": pose.jaw_opening_deg,
         "layout": rig.layout.name,
         "muscles": len(rig.muscle_names),
         "vertices": mesh.n_vertices,

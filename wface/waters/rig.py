@@ -195,10 +195,10 @@ class WatersRig:
         d[self.influenced] = self._influenced_displacement(self.contraction_vector(contractions), limit)
         return d
 
-    def _jaw_matrix(self, jaw_open_deg: float) -> np.ndarray | None:
-        angle = float(jaw_open_deg)
+    def _jaw_matrix(self, jaw_opening_deg: float) -> np.ndarray | None:
+        angle = float(jaw_opening_deg)
         if not np.isfinite(angle):
-            raise ValueError(f"jaw angle must be finite, got {jaw_open_deg!r}")
+            raise ValueError(f"jaw angle must be finite, got {jaw_opening_deg!r}")
         if angle == 0.0:
             return None
         jaw = self.layout.jaw
@@ -208,19 +208,19 @@ class WatersRig:
             raise ValueError(f"jaw angle {angle} deg is outside [-10, {jaw.max_open_deg}] (the layout's max_open_deg)")
         return jaw.rotation(angle) - np.eye(3)
 
-    def jaw_displacement(self, positions_m: np.ndarray, jaw_open_deg: float) -> np.ndarray:
-        """(n, 3) displacement that opens the jaw by ``jaw_open_deg`` (weighted rotation about the pivot)."""
+    def jaw_displacement(self, positions_m: np.ndarray, jaw_opening_deg: float) -> np.ndarray:
+        """(n, 3) displacement that opens the jaw by ``jaw_opening_deg`` (weighted rotation about the pivot)."""
         out = np.zeros_like(positions_m)
-        m = self._jaw_matrix(jaw_open_deg)
+        m = self._jaw_matrix(jaw_opening_deg)
         if m is not None:
             rows = self._jaw_rows
             out[rows] = self._jaw_w[:, None] * ((positions_m[rows] - self.layout.jaw.pivot_m) @ m.T)
         return out
 
-    def deform(self, contractions=None, *, jaw_open_deg: float = 0.0, limit: bool = True) -> np.ndarray:
+    def deform(self, contractions=None, *, jaw_opening_deg: float = 0.0, limit: bool = True) -> np.ndarray:
         """Deformed vertex positions (n, 3) in metres: rest + muscles, then the jaw rotation."""
         c = self.contraction_vector(contractions)
-        m = self._jaw_matrix(jaw_open_deg)
+        m = self._jaw_matrix(jaw_opening_deg)
         x = self.rest_positions_m.copy()
         if c.any():
             x[self.influenced] += self._influenced_displacement(c, limit)
