@@ -88,15 +88,16 @@ def test_an_action_unit_on_one_side_sets_that_side_of_the_preset():
 
 def test_the_builtin_skin_carries_the_takes_texture_coordinates(face, tmp_path):
     """`wface waters --mesh builtin` wrote a mesh without UVs where the same skin in a take's USD has
-    them: one projection for both (wface.mesh.surface.cylindrical_uv), written as primvars:st."""
+    them: one projection for both (wface.mesh.uv.skin_uv), written as primvars:st."""
     from pxr import Usd, UsdGeom
 
     from wface.io.usd import write_surface_mesh
-    from wface.mesh.surface import cylindrical_uv
+    from wface.mesh.uv import skin_uv
     from wface.waters.face_model import skin_surface
 
     mesh, nodes = skin_surface(face)
-    np.testing.assert_allclose(mesh.uv, cylindrical_uv(face.rest_positions_m[nodes]))
+    local = np.searchsorted(nodes, face.skin_triangles)
+    np.testing.assert_allclose(mesh.uv, skin_uv(face.rest_positions_m[nodes], local))
     stage = Usd.Stage.Open(str(write_surface_mesh(tmp_path / "s.usda", mesh)))
     mesh_prim = next(p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
     st = UsdGeom.PrimvarsAPI(mesh_prim).GetPrimvar("st")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["boundary_faces", "cylindrical_uv", "surface_vertices", "triangle_normals", "vertex_normals"]
+__all__ = ["boundary_faces", "surface_vertices", "triangle_normals", "vertex_normals"]
 
 _TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
 
@@ -43,15 +43,3 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     for j in range(3):
         np.add.at(out, triangles[:, j], n)
     return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-300)
-
-
-def cylindrical_uv(points: np.ndarray) -> np.ndarray:
-    """(n, 2) texture coordinates of a face's skin: u = angle about +y / 2 pi (0.5 at the front, +z),
-    v = height in [0, 1] (a cylindrical projection about the points' centroid; surfaces facing
-    straight up or down, such as under the chin, are squeezed by it)."""
-    points = np.asarray(points, dtype=np.float64)
-    c = points.mean(axis=0)
-    u = 0.5 + np.arctan2(points[:, 0] - c[0], points[:, 2] - c[2]) / (2 * np.pi)
-    lo, hi = points[:, 1].min(), points[:, 1].max()
-    v = (points[:, 1] - lo) / max(hi - lo, 1e-12)
-    return np.stack([u, v], axis=1)

@@ -16,7 +16,7 @@ from scipy.sparse.linalg import spsolve
 
 from wface.faces.builtin import build_face
 from wface.mesh.meshfile import SurfaceMesh
-from wface.mesh.surface import cylindrical_uv
+from wface.mesh.uv import skin_uv
 from wface.waters.fit import fit_layout
 from wface.waters.layout import JawRegion, MuscleLayout, load_layout
 from wface.waters.rig import WatersRig
@@ -32,7 +32,7 @@ def skin_surface(model) -> tuple[SurfaceMesh, np.ndarray]:
     nodes, local = np.unique(tri, return_inverse=True)
     x = model.rest_positions_m[nodes]
     local = local.reshape(-1, 3)
-    uv = cylindrical_uv(x)  # the take's skin's texture coordinates, so a texture fits both
+    uv = skin_uv(x, local)  # the take's skin's texture coordinates, so a texture fits both
     mesh = SurfaceMesh(x, np.full(len(local), 3), local.ravel(), uv=uv, uv_indices=local.ravel())
     return mesh, nodes
 

@@ -11,9 +11,9 @@ Prims under the default prim ``/<name>`` (an Xform) of ``write_take``:
 
 - ``Skin`` (Mesh): the exact point cache. The nodes used by ``model.skin_triangles``,
   renumbered compactly (their model node ids in the primvar ``wface:nodeId``); topology once,
-  points, extent and vertex normals per frame, ``primvars:st`` texture coordinates (a
-  cylindrical projection about the model's +y axis: u = angle / 2 pi, v = height over the
-  skin's range). With ``activations``: ``primvars:wface:activation`` (float per vertex per
+  points, extent and vertex normals per frame, ``primvars:st`` texture coordinates
+  (``wface.mesh.uv.skin_uv``: the skin flattened onto the unit square by a mean-value Tutte
+  map, no triangle turned over, +y up). With ``activations``: ``primvars:wface:activation`` (float per vertex per
   frame, max_m w_m a_m over nearby muscles) and a ``displayColor`` heat map (above).
   Without: a constant skin colour.
 - ``Markers/Captured`` and ``Markers/Simulated``: one named locator per marker (Xform with a
@@ -63,7 +63,8 @@ from wface.io.usd.looks import bind_display_colors
 from wface.io.usd.rig import SkinRig, write_skin_rig
 from wface.io.usd.skel import BlendShapeBasis, _write_blendshapes
 from wface.mesh.signed_distance import oriented_outward
-from wface.mesh.surface import cylindrical_uv, vertex_normals
+from wface.mesh.surface import vertex_normals
+from wface.mesh.uv import skin_uv
 from wface.viz.muscles import SKIN_RGB, activation_colors, skin_muscle_influence
 
 CAPTURED_RGB = (0.9, 0.05, 0.05)
@@ -218,7 +219,7 @@ def _write_rig(stage, prim_path, rig, weights, affines, jaw_frame, skin_x, topo,
         cranium_affines=affines.get("Cranium", eye),
         jaw_affines=jaw_rel,
         times=times,
-        st=cylindrical_uv(model.rest_positions_m[skin_nodes]),
+        st=_skin_st(model, skin_nodes),
         extra_meshes=rig_meshes,
         pivots_m=joint_pivots(model),
     )
@@ -317,6 +318,11 @@ def _checked_basis(basis, basis_weights, model, skin_nodes: np.ndarray, n_frames
     return None, None
 
 
+def _skin_st(model, skin_nodes: np.ndarray) -> np.ndarray:
+    """(k, 2) texture coordinates of the skin's vertices (``wface.mesh.uv.skin_uv``; ``skin_nodes`` sorted)."""
+    return skin_uv(model.rest_positions_m[skin_nodes], np.searchsorted(skin_nodes, model.skin_triangles))
+
+
 def _write_skin_primvars(skin, model, skin_nodes, act, times, muscle_radius_m, vertex_colors: bool) -> None:
     """The skin Mesh's node ids, texture coordinates, activation primvar and colours."""
     from pxr import Sdf, UsdGeom, Vt
@@ -325,7 +331,7 @@ def _write_skin_primvars(skin, model, skin_nodes, act, times, muscle_radius_m, v
     node_id = pv_api.CreatePrimvar("wface:nodeId", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex)
     node_id.Set(_vt_int(skin_nodes))
     st = pv_api.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
-    st.Set(Vt.Vec2fArray.FromNumpy(cylindrical_uv(model.rest_positions_m[skin_nodes]).astype(np.float32)))
+    st.Set(Vt.Vec2fArray.FromNumpy(_skin_st(model, skin_nodes).astype(np.float32)))
     n_frames = len(times)
     if act is not None:
         influence = skin_muscle_influence(model, skin_nodes, radius_m=muscle_radius_m)
