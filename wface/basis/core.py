@@ -58,6 +58,9 @@ class ActuationBasis:
         skin_vertices: vertex ids markers may be attached to and refinement may move (default:
             all vertices).
         source: where the basis came from.
+        landmarks: {marker name: vertex} the basis knows its markers by (a basis made from a face
+            model: the model's markers at their nearest skin vertices), or None. Capture
+            alignment starts from them when no landmarks are given.
     """
 
     neutral_m: np.ndarray
@@ -67,6 +70,7 @@ class ActuationBasis:
     face_indices: np.ndarray
     skin_vertices: np.ndarray | None = None
     source: str = ""
+    landmarks: dict[str, int] | None = None
     _triangles: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self):
@@ -88,6 +92,11 @@ class ActuationBasis:
             raise ValueError("basis polygons reference vertices out of range")
         if self.skin_vertices is not None:
             self.skin_vertices = np.asarray(self.skin_vertices, dtype=np.int64)
+        if self.landmarks is not None:
+            self.landmarks = {str(k): int(v) for k, v in self.landmarks.items()}
+            bad = {k: v for k, v in self.landmarks.items() if not 0 <= v < n}
+            if bad:
+                raise ValueError(f"basis landmarks name vertices outside its {n} vertices: {bad}")
 
     # ------------------------------------------------------------------ properties and synthesis
     @property
@@ -152,6 +161,7 @@ class ActuationBasis:
             self.face_indices,
             self.skin_vertices,
             self.source,
+            self.landmarks,
         )
 
     # ------------------------------------------------------------------------------- builders
@@ -167,6 +177,7 @@ class ActuationBasis:
         face_indices: np.ndarray | None = None,
         skin_vertices: np.ndarray | None = None,
         source: str = "displacements",
+        landmarks: dict[str, int] | None = None,
     ) -> ActuationBasis:
         """Basis from displacement fields, e.g. an FEM face with each muscle activated alone.
 
@@ -181,7 +192,7 @@ class ActuationBasis:
             face_counts, face_indices = np.full(len(tri), 3), tri.ravel()
         if face_counts is None or face_indices is None:
             raise ValueError("from_displacements: give triangles or face_counts and face_indices")
-        return cls(neutral_m, shapes_m, list(names), face_counts, face_indices, skin_vertices, source)
+        return cls(neutral_m, shapes_m, list(names), face_counts, face_indices, skin_vertices, source, landmarks)
 
     @classmethod
     def from_ict_npz(
@@ -242,6 +253,9 @@ class ActuationBasis:
     def save(self, path: str | Path) -> None:
         """Write a compressed npz (metres, float64) that :func:`load_basis` reads back exactly."""
         extra = {} if self.skin_vertices is None else {"skin_vertices": self.skin_vertices}
+        if self.landmarks:
+            extra["landmark_names"] = np.array(list(self.landmarks))
+            extra["landmark_vertices"] = np.array(list(self.landmarks.values()), dtype=np.int64)
         save_npz(
             path, compressed=True, format="wface.actuation_basis", format_version=FORMAT_VERSION,
             neutral_m=self.neutral_m, shapes_m=self.shapes_m, names=np.array(self.names), face_counts=self.face_counts,
@@ -287,6 +301,9 @@ def load_basis(path: str | Path) -> ActuationBasis:
         if version > FORMAT_VERSION:
             raise ValueError(f"{path}: basis format version {version} is newer than this wface ({FORMAT_VERSION})")
         skin = d["skin_vertices"] if "skin_vertices" in files else None
+        landmarks = None
+        if "landmark_names" in files:
+            landmarks = dict(zip([str(n) for n in d["landmark_names"]], d["landmark_vertices"].tolist(), strict=True))
         return ActuationBasis(
             d["neutral_m"],
             d["shapes_m"],
@@ -295,6 +312,7 @@ def load_basis(path: str | Path) -> ActuationBasis:
             d["face_indices"],
             skin,
             str(d["source"]),
+            landmarks,
         )
     if {"neutral", "deltas", "names"} <= files:
         return ActuationBasis.from_ict_npz(path)

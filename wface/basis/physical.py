@@ -36,4 +36,16 @@ def basis_from_face(
         names,
         triangles=local[model.skin_triangles],
         source=f"wface FEM face ({model.n_tets} tets), each muscle alone at activation {activation}",
+        landmarks=_marker_landmarks(model, skin_nodes),
     )
+
+
+def _marker_landmarks(model, skin_nodes: np.ndarray) -> dict[str, int] | None:
+    """{marker name: nearest skin vertex} for the model's markers, so that a capture with those names
+    aligns to the basis without a landmark file (as the model's own tracking does)."""
+    names = list(getattr(model, "marker_names", None) or [])
+    if not names:
+        return None
+    rest = model.rest_positions_m[skin_nodes]
+    d = np.linalg.norm(np.asarray(model.marker_positions_m)[:, None, :] - rest[None, :, :], axis=2)
+    return dict(zip(names, np.argmin(d, axis=1).tolist(), strict=True))

@@ -26,7 +26,11 @@ _ICT_VERTEX_COUNT = 26719
 
 
 def default_landmarks(basis: ActuationBasis, marker_names: Sequence[str]) -> dict[str, int] | None:
-    """The built-in AnimFace->ICT landmarks when the basis is the ICT face and the names match."""
+    """The basis's own landmarks (a basis made from a face model) or, for the ICT face, the built-in
+    AnimFace->ICT ones, when at least 3 of them are markers of the take."""
+    if basis.landmarks:
+        hits = {n: basis.landmarks[n] for n in marker_names if n in basis.landmarks}
+        return hits if len(hits) >= 3 else None
     if basis.n_vertices != _ICT_VERTEX_COUNT:
         return None
 

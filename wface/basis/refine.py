@@ -263,7 +263,7 @@ def interpolate_to_mesh(
     shapes = basis.shapes_m.copy()
     shapes[:, vertices, :] += field_.reshape(len(vertices), 3, nb).transpose(2, 0, 1)
     return ActuationBasis(basis.neutral_m, shapes, list(basis.names), basis.face_counts, basis.face_indices,
-                          basis.skin_vertices, basis.source + " (refined)")  # fmt: skip
+                          basis.skin_vertices, basis.source + " (refined)", basis.landmarks)  # fmt: skip
 
 
 def _fade(dist: np.ndarray, start: float, end: float) -> np.ndarray:

@@ -11,9 +11,10 @@ import json
 import time
 from pathlib import Path
 
+from wface.basis.capture import MarkerLayout
 from wface.basis.core import load_basis
 from wface.basis.physical import basis_from_face
-from wface.basis.pipeline import analyze_take, refine_basis, write_analysis
+from wface.basis.pipeline import analyze_take, default_landmarks, refine_basis, write_analysis
 from wface.cli.validate import (
     face_tets,
     frame_range,
@@ -154,6 +155,10 @@ def _analyze(args) -> int:
 
     basis, landmarks = _load(args)
     take = _read(args.mocap, args.frames)
+    if landmarks is None:
+        landmarks = default_landmarks(basis, take.marker_names)
+    # aligned before --out is claimed: a take that does not fit leaves no folder behind
+    layout = MarkerLayout.from_frame(basis, take.marker_names, take.positions_m[0], landmarks=landmarks)
     run = run_provenance(
         kind="basis analyze",
         model_sha256=file_sha256(args.basis),
@@ -164,7 +169,7 @@ def _analyze(args) -> int:
     for stale in ("analysis.png", "contractions.npz", "contractions.csv", "marker_error_mm.csv"):
         (Path(args.out) / stale).unlink(missing_ok=True)  # a rerun with --no-plot leaves no old picture
     t0 = time.perf_counter()
-    res = analyze_take(basis, take, landmarks=landmarks, upper=None if args.exaggerate else 1.0, split=args.split,
+    res = analyze_take(basis, take, layout=layout, upper=None if args.exaggerate else 1.0, split=args.split,
                        progress=not args.no_progress)  # fmt: skip
     seconds = time.perf_counter() - t0
     report = write_analysis(
