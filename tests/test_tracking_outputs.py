@@ -26,7 +26,9 @@ def test_usd_is_written_without_pictures_and_skipped_with_no_usd(tmp_path, capsy
     assert not list(out.glob("*.png")) and not (out / "take.mp4").exists()
     report = json.loads((out / "report.json").read_text())
     assert report["marker_samples"] == 2 * report["markers"]
-    assert set(report["marker_stats"]["Chin"]) == {"seen", "missing", "held_out", "outliers", "rms_mm", "max_mm"}
+    assert set(report["marker_stats"]["Chin"]) == {
+        "seen", "missing", "held_out", "outliers", "rms_mm", "inlier_rms_mm", "max_mm"
+    }  # fmt: skip
     html = (out / "report.html").read_text()
     assert "marker RMS error vs the clean truth" in html and "<h2>Files</h2>" in html
 
@@ -50,7 +52,8 @@ def test_marker_stats_separate_outliers_and_missing_samples():
         "missing": 0,
         "held_out": 0,
         "outliers": 1,
-        "rms_mm": pytest.approx(np.sqrt(0.025)),
+        "rms_mm": pytest.approx(np.sqrt((25.0 + 0.04 + 0.01) / 3)),  # every sample seen: the outlier shows
+        "inlier_rms_mm": pytest.approx(np.sqrt(0.025)),
         "max_mm": 5.0,
     }
     assert stats["c"]["missing"] == 2 and stats["c"]["rms_mm"] == pytest.approx(1.0)
@@ -62,15 +65,19 @@ def test_headline_is_the_error_a_person_should_read():
     real = {"marker_rms_mm_mean": 2.3, "marker_rms_mm_inliers": 0.4, "outlier_samples": 7, "missing_samples": 3}
     real |= {"marker_samples": 400, "outlier_threshold_mm": 3.0, "frames": 10}
     cards = headline_cards(real)
-    assert cards[0] == ("0.4", "mm", "marker RMS, inliers (error <= 3 mm)")
-    assert cards[1] == ("7 / 3", "", "outlier / missing samples of 400")
+    # every fitted sample first: on a take the face cannot follow the inlier error measures the cut-off
+    assert cards[0] == ("2.3", "mm", "marker RMS, every fitted sample (outliers included)")
+    assert cards[1] == ("0.4", "mm", "inlier RMS (error <= 3 mm; 2 % of fitted samples over it)")  # 7 of 397
+    assert cards[2] == ("7 / 3", "", "outlier / missing samples of 400")
+    held = headline_cards({**real, "holdout_rms_mm_mean": 2.9, "holdout_samples": 47})
+    assert [c[0] for c in held[:3]] == ["2.3", "2.9", "0.4"] and "2 % of fitted" in held[2][2]  # 7 of 350
     synthetic = {**real, "truth_marker_rms_mm": 0.24}
     assert headline_cards(synthetic)[0] == ("0.24", "mm", "marker RMS error vs the clean truth")
     assert all("2.3" != c[0] for c in headline_cards(synthetic))  # the outlier-corrupted RMS is not a headline
     scaled = add_capture_units({**real}, 0.9)  # a face 0.9 times the actor's size: the actor's mm shown too
     assert scaled["marker_rms_capture_mm_mean"] == pytest.approx(2.3 / 0.9)
     assert scaled["marker_rms_capture_mm_inliers"] == pytest.approx(0.4 / 0.9)
-    assert ("0.4444", "mm", "marker RMS in the capture's mm (face = 0.9 x actor)") in headline_cards(scaled)
+    assert ("2.556", "mm", "marker RMS in the capture's mm (face = 0.9 x actor)") in headline_cards(scaled)
     assert not any("capture" in c[2] for c in headline_cards(add_capture_units({**real}, 1.0)))
     with pytest.raises(ValueError, match="capture_to_model_scale"):
         add_capture_units({}, 0.0)

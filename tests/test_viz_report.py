@@ -60,9 +60,25 @@ def test_per_marker_rms_is_shown_once_when_the_marker_stats_table_has_it(tmp_pat
     stats = {"Chin": {"seen": 3, "outliers": 1, "rms_mm": 0.25}}
     report = {"marker_rms_mm_per_marker": {"Chin": 0.31}, "marker_stats": stats}
     text = write_html_report(tmp_path, report, {}).read_text()
-    assert "<h2>marker_stats</h2>" in text and "marker_rms_mm_per_marker" not in text
+    assert "<h2>Per marker <code>marker_stats</code></h2>" in text and "marker_rms_mm_per_marker" not in text
     alone = write_html_report(tmp_path, {"marker_rms_mm_per_marker": {"Chin": 0.31}}, {}).read_text()
-    assert "<h2>marker_rms_mm_per_marker</h2>" in alone  # without the fuller table it stays
+    assert "<h2>Per marker <code>marker_rms_mm_per_marker</code></h2>" in alone  # without the fuller table it stays
+
+
+def test_tables_have_titles_and_units_and_values_are_not_cut(tmp_path):
+    """Raw keys as headings, a "value" column without units and long values cut with "..." (the review)."""
+    names = [f"muscle_{i:02d}" for i in range(35)]
+    report = {
+        "muscle_identifiability": {"zygomaticus_major_l": 1.2},
+        "observable_muscles": names,
+        "usage_prior": {"activation_sd": {n: 0.1 for n in names}, "noise_mm": 0.4},
+    }
+    text = write_html_report(tmp_path, report, {}).read_text()
+    assert "<h2>Muscle identifiability <code>muscle_identifiability</code></h2>" in text
+    assert "mm of marker motion per unit activation" in text
+    assert f"35: {', '.join(names)}" in text  # every name, readable
+    assert "<details>" in text and "&quot;muscle_34&quot;: 0.1" in text  # the long value folded, whole
+    _assert_balanced(text)
 
 
 def _assert_balanced(text):

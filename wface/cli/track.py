@@ -354,15 +354,15 @@ def _run(
     )
     keys = (
         "truth_marker_rms_mm",
+        "marker_rms_mm_mean",
+        "holdout_rms_mm_mean",
         "marker_rms_mm_inliers",
         "outlier_samples",
         "missing_samples",
-        "marker_rms_mm_mean",
         "activation_rms_error",
         "activation_rms_error_all",
         "jaw_angle_error_deg",
         "seconds_per_frame_median",
-        "holdout_rms_mm_mean",
         "capture_to_model_scale",
         *CAPTURE_UNIT_KEYS.values(),
     )

@@ -47,10 +47,12 @@ def _per_marker_rms_mm(err_mm: np.ndarray, marker_names) -> dict:
 
 
 def _marker_stats(err_mm: np.ndarray, marker_names, robust_mm: float | None) -> tuple[dict, dict]:
-    """({marker: seen, missing, held_out, outliers, rms_mm (inliers), max_mm}, totals) of the (F, k) errors.
+    """({marker: seen, missing, held_out, outliers, rms_mm, inlier_rms_mm, max_mm}, totals) of the (F, k) errors.
 
     A sample is an outlier when its error exceeds ``robust_mm``, the Tukey cut-off the tracker ends
-    with (such a marker pulls on the fit with weight 0); without ``robust_mm`` none is.
+    with (such a marker pulls on the fit with weight 0); without ``robust_mm`` none is. ``rms_mm`` is
+    over every sample seen, outliers included (a marker the face cannot follow shows there);
+    ``inlier_rms_mm`` over the inliers alone.
     """
     seen = np.isfinite(err_mm)
     outlier = seen & (err_mm > robust_mm) if robust_mm else np.zeros_like(seen)
@@ -64,7 +66,8 @@ def _marker_stats(err_mm: np.ndarray, marker_names, robust_mm: float | None) -> 
             "missing": int((~seen[:, j]).sum()),
             "held_out": 0,  # samples hidden from the fit (``wface.tracking.holdout.add_holdout``)
             "outliers": int(outlier[:, j].sum()),
-            "rms_mm": float(np.sqrt(np.mean(e_in**2))) if e_in.size else None,
+            "rms_mm": float(np.sqrt(np.mean(e_seen**2))) if e_seen.size else None,
+            "inlier_rms_mm": float(np.sqrt(np.mean(e_in**2))) if e_in.size else None,
             "max_mm": float(e_seen.max()) if e_seen.size else None,
         }
     e_in = err_mm[inlier]

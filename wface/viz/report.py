@@ -7,9 +7,10 @@ status blocks) become their own tables, and so do dicts of records with the same
 per-marker table; a key a fuller table already shows, ``_SUPERSEDED``, stays in report.json only).
 
 The headline cards show the error a person should read first (``headline_cards``): on a synthetic
-take the tracked markers against the clean truth (``truth_marker_rms_mm``), on a real take the
-error over the inlier samples (``marker_rms_mm_inliers``) with the outlier and missing sample
-counts beside it; the error against the raw input, outliers included, stays in the table.
+take the tracked markers against the clean truth (``truth_marker_rms_mm``); on a real take the
+error over every fitted sample, outliers included (``marker_rms_mm_mean``), then the held-out
+markers', then the inlier error with the share of fitted samples set aside as outliers beside it.
+On a take the face cannot follow the inlier error mostly measures the cut-off, so it does not lead.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ h1{font-size:1.6em;margin-bottom:.2em} h2{font-size:1.2em;margin-top:1.6em;borde
 .meta{color:#777;font-size:.9em}
 table{border-collapse:collapse;margin:.5em 0;font-size:.92em}
 td,th{border:1px solid #ddd;padding:.28em .6em;text-align:left;vertical-align:top}
+code{white-space:pre-wrap;word-break:break-word}
 th{background:#f4f4f4} td.num{text-align:right;font-variant-numeric:tabular-nums}
 figure{display:inline-block;margin:.6em;vertical-align:top} figcaption{font-size:.85em;color:#555;text-align:center}
 img,video{max-width:100%;border:1px solid #eee}
@@ -74,6 +76,30 @@ def _fmt(v) -> str:
 
 # report.json keys a fuller table shows in the page (both stay in report.json): key -> the fuller key
 _SUPERSEDED = {"marker_rms_mm_per_marker": "marker_stats"}
+
+# the page's titles of report.json's tables (key -> title, what the numbers are); the key stays beside
+# the title, so a reader finds it in report.json
+_SECTIONS = {
+    "marker_stats": (
+        "Per marker",
+        "samples seen, missing, held out and outliers (over the cut-off: the fit sets them aside); errors in mm: "
+        "rms_mm over every sample seen, inlier_rms_mm without the outliers, max_mm the largest",
+    ),
+    "muscle_identifiability": ("Muscle identifiability", "mm of marker motion per unit activation"),
+    "seconds_breakdown_median": ("Time per frame by stage (median over frames)", "seconds"),
+    "holdout_rms_mm_per_marker": ("Held-out markers", "RMS error over the frames, mm"),
+    "marker_rms_mm_per_marker": ("Per marker", "RMS error over the frames, mm"),
+    "capture_check": ("Capture check", "samples removed from the capture before tracking, by cause"),
+    "face_model": ("Face model", "the face the take was tracked on"),
+    "provenance": ("Provenance", "what made these files"),
+}
+
+
+def _heading(key: str) -> str:
+    title, what = _SECTIONS.get(key, (key, ""))
+    code = f" <code>{html.escape(key)}</code>" if title != key else ""
+    note = f'<p class="meta">{html.escape(what)}</p>' if what else ""
+    return f"<h2>{html.escape(title)}{code}</h2>{note}"
 
 
 def _is_number(v) -> bool:
@@ -111,29 +137,37 @@ def _value_cell(v) -> str:
         )
     if _is_number(v):
         return f'<td class="num">{_fmt(v)}</td>'
+    if isinstance(v, list) and v and all(isinstance(x, str) for x in v):  # names: all of them, readable
+        return f"<td>{len(v)}: {html.escape(', '.join(v))}</td>"
     if isinstance(v, (list, dict)):
         text = json.dumps(v)
-        return f"<td><code>{html.escape(text[:400] + ('...' if len(text) > 400 else ''))}</code></td>"
+        if len(text) <= 400:
+            return f"<td><code>{html.escape(text)}</code></td>"
+        return (  # folded, not cut: the whole value is one click away
+            f"<td><details><summary><code>{html.escape(text[:160])}...</code></summary>"
+            f"<code>{html.escape(json.dumps(v, indent=1))}</code></details></td>"
+        )
     return f"<td>{_fmt(v)}</td>"
 
 
 def headline_cards(report: dict) -> list[tuple[str, str, str]]:
     """[(value, unit, label)] of the headline cards (module docstring), in display order."""
     cards = []
-    if _is_number(report.get("truth_marker_rms_mm")):
+    truth = _is_number(report.get("truth_marker_rms_mm"))
+    if truth:
         cards.append((_fmt(report["truth_marker_rms_mm"]), "mm", "marker RMS error vs the clean truth"))
-    elif _is_number(report.get("marker_rms_mm_inliers")):
-        thr = report.get("outlier_threshold_mm")
-        cards.append((_fmt(report["marker_rms_mm_inliers"]), "mm", f"marker RMS, inliers (error <= {_fmt(thr)} mm)"))
     elif _is_number(report.get("marker_rms_mm_mean")):
-        cards.append((_fmt(report["marker_rms_mm_mean"]), "mm", "marker RMS vs input"))
+        cards.append((_fmt(report["marker_rms_mm_mean"]), "mm", "marker RMS, every fitted sample (outliers included)"))
     if _is_number(report.get("holdout_rms_mm_mean")):  # the honest measure: markers the fit never saw
         cards.append((_fmt(report["holdout_rms_mm_mean"]), "mm", "held-out marker RMS (hidden from the fit)"))
+    if not truth and _is_number(report.get("marker_rms_mm_inliers")):
+        cards.append(_inlier_card(report))
     scale = report.get("capture_to_model_scale")
     if _is_number(scale) and abs(scale - 1.0) > 0.005:  # the face is not the actor's size: the actor's mm
-        inliers = _is_number(report.get("marker_rms_mm_inliers")) and not _is_number(report.get("truth_marker_rms_mm"))
-        shown = "marker_rms_capture_mm_inliers" if inliers else "marker_rms_capture_mm_mean"
-        for key, label in ((shown, "marker RMS"), ("holdout_rms_capture_mm_mean", "held-out RMS")):
+        for key, label in (
+            ("marker_rms_capture_mm_mean", "marker RMS"),
+            ("holdout_rms_capture_mm_mean", "held-out RMS"),
+        ):
             if _is_number(report.get(key)):
                 cards.append((_fmt(report[key]), "mm", f"{label} in the capture's mm (face = {_fmt(scale)} x actor)"))
     if _is_number(report.get("marker_samples")):
@@ -153,6 +187,16 @@ def headline_cards(report: dict) -> list[tuple[str, str, str]]:
     return cards
 
 
+def _inlier_card(report: dict) -> tuple[str, str, str]:
+    """The inlier error with the share of fitted samples (seen, not held out) over the cut-off."""
+    thr = report.get("outlier_threshold_mm")
+    fitted = report.get("marker_samples", 0) - report.get("missing_samples", 0) - report.get("holdout_samples", 0)
+    share = (
+        f"; {100.0 * report.get('outlier_samples', 0) / fitted:.0f} % of fitted samples over it" if fitted > 0 else ""
+    )
+    return _fmt(report["marker_rms_mm_inliers"]), "mm", f"inlier RMS (error <= {_fmt(thr)} mm{share})"
+
+
 def _record_table(key: str, v: dict) -> str | None:
     """A dict of records with the same keys (e.g. per marker) as one table; None if it is not one."""
     rows = list(v.values())
@@ -167,7 +211,7 @@ def _record_table(key: str, v: dict) -> str | None:
     body = "".join(
         f"<tr><td>{html.escape(str(k))}</td>" + "".join(_value_cell(r[c]) for c in cols) + "</tr>" for k, r in v.items()
     )
-    return f"<h2>{html.escape(key)}</h2><table><tr>{head}</tr>{body}</table>"
+    return f"{_heading(key)}<table><tr>{head}</tr>{body}</table>"
 
 
 def _outputs_table(outputs: list[dict]) -> str:
@@ -241,9 +285,7 @@ def write_html_report(
             sub_tables.insert(0, records)
         elif isinstance(v, dict) and v and all(isinstance(x, (int, float, str, bool)) or x is None for x in v.values()):
             body = "".join(f"<tr><td>{html.escape(str(k))}</td>{_value_cell(x)}</tr>" for k, x in v.items())
-            sub_tables.append(
-                f"<h2>{html.escape(str(key))}</h2><table><tr><th>name</th><th>value</th></tr>{body}</table>"
-            )
+            sub_tables.append(f"{_heading(str(key))}<table><tr><th>name</th><th>value</th></tr>{body}</table>")
         else:
             rows.append(f"<tr><th>{html.escape(str(key))}</th>{_value_cell(v)}</tr>")
     cards = "".join(
