@@ -313,9 +313,12 @@ def _run(args: argparse.Namespace) -> int:
         f"{report['seconds_per_frame_median']:.2f} s/frame"
     )
     if "deviation_mm_max" in report:
-        line += f", max deviation from quasistatic {report['deviation_mm_max']:.2f} mm"
-    if "overshoot_mm" in report:
-        line += f", overshoot {report['overshoot_mm']:.2f} mm of {report['displacement_mm']:.2f} mm"
+        line += f", skin off the quasistatic frames by at most {report['deviation_mm_max']:.2f} mm (at the frames)"
+    if "overshoot_mm" in report:  # between frames too: every time step after the onset
+        line += (
+            f", overshoot past the held pose {report['overshoot_mm']:.2f} mm of its {report['displacement_mm']:.2f} mm "
+            "travel (the node moving most, any time step)"
+        )
     print(line)
     if not report["converged"]:
         print("warning: some steps did not reach --tol (see residual_rel in report.json)")
