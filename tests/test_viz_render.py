@@ -208,3 +208,31 @@ def test_headless_render_prints_no_vtk_warning(tmp_path):
     assert run.returncode == 0, run.stderr
     assert "X server" not in run.stderr and "WARN" not in run.stderr
     assert (tmp_path / "s.png").stat().st_size > 100
+
+
+def test_an_open_mouth_shows_a_dark_cavity_not_the_background(tmp_path):
+    """The built-in face has no oral cavity (no tongue, palate or throat): with the jaw open, the
+    picture showed the white background through the mouth. The flesh's inner surfaces, the bones and
+    a backdrop behind the teeth are drawn dark now, so no background is enclosed by the face."""
+    from scipy.ndimage import binary_fill_holes
+
+    from wface.controls import jaw_opening_affine
+    from wface.faces.builtin import build_face
+    from wface.physics.simulator import Simulator
+
+    model = build_face(target_tets=2000)
+    jaw = jaw_opening_affine(model, 15.0)
+    x = Simulator(model).solve(np.zeros(model.n_muscles), _opened(model, jaw)).x
+    img = _img(render.render_expression(model, x, tmp_path / "open.png", jaw_affine=jaw, panel_size=_SIZE))
+    face = img[: int(0.8 * img.shape[0])]  # above the colour bar (its lettering has holes of its own)
+    fg = face.sum(axis=2) < 750
+    holes = binary_fill_holes(fg) & ~fg
+    assert np.count_nonzero(holes) == 0, f"{np.count_nonzero(holes)} background pixels seen through the face"
+
+
+def _opened(model, jaw):
+    """Bone-attached nodes' targets with the jaw's nodes moved by the (3, 4) affine ``jaw``."""
+    targets = model.rest_positions_m.copy()
+    on_jaw = model.nodes_of_bone("jaw")
+    targets[on_jaw] = targets[on_jaw] @ jaw[:, :3].T + jaw[:, 3]
+    return targets[model.attached_nodes]

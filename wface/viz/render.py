@@ -23,6 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 from tqdm.auto import tqdm
 
+from wface.viz.inside import INSIDE_RGB, inner_surface, throat_quad
 from wface.viz.muscles import ACTIVE_RGB, INACTIVE_RGB, SKIN_RGB, activation_colors, skin_muscle_influence
 from wface.viz.offscreen import offscreen_pyvista
 
@@ -154,7 +155,11 @@ class _Scene:
         self.influence = None
         self.muscles: list[tuple[int, object, np.ndarray, object, object]] = []
         self.bones: list[tuple[object, np.ndarray]] = []
+        self.inside = None
         if style == "skin":
+            self.inside = inner_surface(pv, model, _tri_polydata)  # dark behind the skin: an open mouth shows a cavity
+            if self.inside is not None:
+                self.p.add_mesh(self.inside[0], color=INSIDE_RGB, smooth_shading=True, specular=0.0, ambient=0.15)
             self.influence = skin_muscle_influence(model, self.skin_nodes, radius_m=muscle_radius_m)
             self.skin["rgb"] = np.tile(SKIN_RGB, (self.skin.n_points, 1))
             self.p.add_mesh(
@@ -174,15 +179,23 @@ class _Scene:
                 surf.points = _taubin(lap, x0[ids], muscle_smoothing)
                 actor = self.p.add_mesh(surf, color=INACTIVE_RGB, smooth_shading=True, specular=0.2)
                 self.muscles.append((m, surf, ids, lap, actor))
-            if show_bones:
-                for mesh, tri in _cropped_bones(model):
-                    bp = _tri_polydata(pv, mesh.vertices_m, tri)
-                    self.p.add_mesh(bp, color=BONE_RGB, smooth_shading=True, specular=0.1)
-                    self.bones.append((bp, mesh))
+        if show_bones:  # the "skin" style draws the teeth alone: only an open mouth shows them
+            for name, mesh, tri in _cropped_bones(model):
+                if style == "skin" and "teeth" not in name:
+                    continue  # a skull cropped to the skin's box pokes through its rim
+                bp = _tri_polydata(pv, mesh.vertices_m, tri)
+                self.p.add_mesh(bp, color=BONE_RGB, smooth_shading=True, specular=0.1)
+                self.bones.append((bp, mesh.vertices_m, mesh.bone))
+        throat = throat_quad(pv, model) if style == "skin" else None
+        if throat is not None:
+            self.p.add_mesh(throat[0], color=INSIDE_RGB, ambient=0.3, diffuse=0.2, specular=0.0)
+            self.bones.append(throat)
         self.marker_actors: dict[str, object] = {}
 
     def update(self, x, activations, captured, simulated, *, bone_affines: dict | None = None) -> None:
         self.skin.points = x[self.skin_nodes]
+        if self.inside is not None:
+            self.inside[0].points = x[self.inside[1]]
         a = None if activations is None else np.asarray(activations, dtype=np.float64)
         if a is not None and a.shape != (self.model.n_muscles,):
             raise ValueError(f"activations must have shape ({self.model.n_muscles},); got {a.shape}")
@@ -197,10 +210,15 @@ class _Scene:
                 surf.points = _taubin(lap, x[ids], self.muscle_smoothing)
                 level = 0.0 if a is None else float(np.clip(a[m], 0, 1))
                 actor.prop.color = tuple(INACTIVE_RGB + level * (ACTIVE_RGB - INACTIVE_RGB))
-            for bp, mesh in self.bones:
-                aff = None if bone_affines is None else bone_affines.get(mesh.bone)
-                v = mesh.vertices_m if aff is None else mesh.vertices_m @ aff[:, :3].T + aff[:, 3]
-                bp.points = v
+        for bp, rest, bone in self.bones:  # bone: one name, or one per point (the throat's corners)
+            names = [bone] * len(rest) if isinstance(bone, str) else list(bone)
+            moved = np.array(rest, dtype=np.float64)
+            for name in set(names):
+                aff = None if bone_affines is None else bone_affines.get(name)
+                if aff is not None:
+                    rows = [i for i, n in enumerate(names) if n == name]
+                    moved[rows] = rest[rows] @ aff[:, :3].T + aff[:, 3]
+            bp.points = moved
         for key, pts, rgb in (("cap", captured, CAPTURED_RGB), ("sim", simulated, SIMULATED_RGB)):
             if key in self.marker_actors:
                 self.p.remove_actor(self.marker_actors.pop(key), render=False)
@@ -218,7 +236,7 @@ class _Scene:
             )
 
 
-def _cropped_bones(model, margin: float = 0.03) -> list[tuple[object, np.ndarray]]:
+def _cropped_bones(model, margin: float = 0.03) -> list[tuple[str, object, np.ndarray]]:
     """Bone meshes with only the triangles whose rest centroid lies in the skin's box (+ margin).
 
     A skull usually reaches far beyond the face's skin (the top of the head): drawing it whole
@@ -228,12 +246,12 @@ def _cropped_bones(model, margin: float = 0.03) -> list[tuple[object, np.ndarray
     lo, hi = skin.min(axis=0), skin.max(axis=0)
     pad = margin * (hi - lo)
     out = []
-    for mesh in model.bone_meshes.values():
+    for name, mesh in model.bone_meshes.items():
         tri = np.asarray(mesh.triangles).reshape(-1, 3)
         c = np.asarray(mesh.vertices_m)[tri].mean(axis=1)
         keep = np.all((c >= lo - pad) & (c <= hi + pad), axis=1)
         if np.any(keep):
-            out.append((mesh, tri[keep]))
+            out.append((name, mesh, tri[keep]))
     return out
 
 
@@ -242,7 +260,7 @@ def _framing_points(model, arrays, *, bones: bool) -> np.ndarray:
     pts = [np.asarray(a, dtype=np.float64).reshape(-1, 3) for a in arrays if a is not None]
     pts = np.concatenate([p[np.all(np.isfinite(p), axis=1)] for p in pts])
     if bones:
-        for mesh, tri in _cropped_bones(model):
+        for _, mesh, tri in _cropped_bones(model):
             pts = np.concatenate([pts, np.asarray(mesh.vertices_m)[np.unique(tri)]])
     return pts
 
@@ -365,7 +383,7 @@ def render_panels(
         view: direction from the face to the camera (model coordinates, +y up).
         panel_size: (width, height) pixels of one panel.
         marker_radius_m: marker sphere radius; default 1% of the face's bounding-box diagonal.
-        show_bones: draw bone meshes in the "muscles" style.
+        show_bones: draw bone meshes (in the "skin" style they show only through an open mouth: the teeth).
         muscle_radius_m: falloff of the skin colour around muscles (see ``skin_muscle_influence``).
         fill: fraction of the panel's width or height the framed points may take (the camera
             comes as close as that allows, perspective included).
