@@ -31,6 +31,8 @@ def test_usd_is_written_without_pictures_and_skipped_with_no_usd(tmp_path, capsy
     }  # fmt: skip
     html = (out / "report.html").read_text()
     assert "marker RMS error vs the clean truth" in html and "<h2>Files</h2>" in html
+    # the page lists what the closing lines list: provenance.json and the per-frame folder too
+    assert "<code>provenance.json</code>" in html and "<code>frames/</code>" in html
 
     (out / "animation.usdc").unlink()
     assert (

@@ -35,6 +35,10 @@ OUTPUT_TOOLS = {
     "controls.csv": ("the same per frame, one column per muscle", "a spreadsheet, pandas, DCC scripts"),
     "report.json": ("every number of the run", "any text editor, jq, Python json"),
     "report.html": ("this report, pictures embedded", "a web browser"),
+    "provenance.json": (
+        "what made these files: model and capture hashes, frames, options, wface version",
+        "any text editor, jq, Python json",
+    ),
     "truth.npz": ("the synthetic take's ground truth", "numpy"),
     "resim.npz": ("the dynamic replay: positions and per-frame stats", "numpy; wface.takes.store"),
     "states.npz": ("every node, marker and activation per frame (wface speech)", "numpy (np.load)"),
@@ -58,9 +62,22 @@ def describe_outputs(paths) -> list[dict]:
     rows = []
     for p in paths:
         p = Path(p)
+        if p.is_dir():  # frames/ and the earlier passes' survey/, refineN/
+            n = sum(1 for _ in p.glob("*.npz"))
+            what = "one file per tracked frame" if p.name == "frames" else "the frames of an earlier pass"
+            rows.append({"file": f"{p.name}/", "what": f"{what} ({n} files; --resume continues from them)",
+                         "opens_in": "numpy; wface track --resume"})  # fmt: skip
+            continue
         what, tool = OUTPUT_TOOLS.get(p.name) or OUTPUT_TOOLS.get(p.suffix.lower(), ("", ""))
         rows.append({"file": p.name, "what": what, "opens_in": tool})
     return rows
+
+
+def _run_records(out: Path) -> list[Path]:
+    """provenance.json and the per-frame folders of a take directory, those that exist."""
+    dirs = [d for d in ("frames", "survey") if (out / d).is_dir()]
+    dirs += sorted(d.name for d in out.glob("refine*") if d.is_dir())
+    return [p for p in [out / "provenance.json", *(out / d for d in dirs)] if p.exists()]
 
 
 def write_tracking_outputs(
@@ -145,7 +162,7 @@ def write_tracking_outputs(
                 images["held-out markers"] = plot_holdout(out / "holdout.png", report, fps=fps / step)
             written.extend(Path(p) for p in images.values())
         bar.set_postfix_str("report.html")
-        files = describe_outputs([*written, out / "report.html"])
+        files = describe_outputs([*written, out / "report.html", *_run_records(out)])
         written.append(write_html_report(out, report, images, title=title, outputs=files))
         bar.update()
     finally:
