@@ -141,7 +141,7 @@ def test_jaw_joint_checks():
 
 def test_model_metadata_keeps_no_wall_clock_times():
     """A fit or an import reports its time, but the model it writes must hash the same each run."""
-    from wface.model import without_timings
+    from wface.files import without_timings
 
     report = {"seconds": 3.2, "a": {"seconds": 1.0, "b": [{"seconds": 2.0, "c": 1}]}, "d": 4}
     assert without_timings(report) == {"a": {"b": [{"c": 1}]}, "d": 4}

@@ -19,6 +19,7 @@ import contextlib
 import csv
 import hashlib
 import json
+import math
 import os
 import secrets
 import zipfile
@@ -40,6 +41,7 @@ __all__ = [
     "write_bytes",
     "write_csv",
     "write_json",
+    "without_timings",
     "write_text",
 ]
 
@@ -181,12 +183,25 @@ def load_npz(path: str | Path, *, what: str = "an .npz archive", required: Itera
     return out
 
 
-def read_json(path: str | Path, *, what: str = "a JSON file"):
-    """Parse a JSON file; errors name the file, the line and the column."""
+def _unique_keys(pairs: list) -> dict:
+    """A JSON object's dict, refusing a key given twice (``json`` keeps the last one without a word)."""
+    out = {}
+    for key, value in pairs:
+        if key in out:
+            raise FileFormatError(f"the key {key!r} is given twice")
+        out[key] = value
+    return out
+
+
+def read_json(path: str | Path, *, what: str = "a JSON file", unique_keys: bool = False):
+    """Parse a JSON file; errors name the file, the line and the column (``unique_keys``: and a key
+    that an object gives twice)."""
     path = Path(path)
     _size_problem(path, what)
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        return json.loads(path.read_text(encoding="utf-8"), object_pairs_hook=_unique_keys if unique_keys else None)
+    except FileFormatError as exc:
+        raise FileFormatError(f"{path}: {exc}; expected {what}") from None
     except UnicodeDecodeError as exc:
         raise FileFormatError(f"{path}: not {what}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     except json.JSONDecodeError as exc:
@@ -208,7 +223,7 @@ def read_landmarks(path: str | Path, *, n_vertices: int | None = None, points: b
     if not path.is_file():
         raise FileNotFoundError(f"landmark file not found: {path}")
     form = "{name: vertex index}" + (" or {name: [x, y, z]}" if points else "")
-    data = read_json(path, what=f"a landmark JSON file {form}")
+    data = read_json(path, what=f"a landmark JSON file {form}", unique_keys=True)
     if not isinstance(data, dict):
         raise FileFormatError(f"{path}: expected a JSON object {form}, got a {type(data).__name__}")
     if not data:
@@ -221,6 +236,8 @@ def read_landmarks(path: str | Path, *, n_vertices: int | None = None, points: b
                 raise FileFormatError(f"{path}: landmark {name!r}: vertex index {v} is not in {top}")
             out[str(name)] = v
         elif points and isinstance(v, list) and len(v) == 3 and all(isinstance(c, int | float) for c in v):
+            if not all(math.isfinite(c) for c in v):  # json reads NaN and Infinity
+                raise FileFormatError(f"{path}: landmark {name!r}: the point {v!r} is not 3 finite numbers")
             out[str(name)] = [float(c) for c in v]
         else:
             raise FileFormatError(f"{path}: landmark {name!r}: {v!r} is not a vertex index (expected {form})")
@@ -234,3 +251,13 @@ def file_sha256(path: str | Path, *, chunk_bytes: int = 1 << 20) -> str:
         for block in iter(lambda: fh.read(chunk_bytes), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def without_timings(report):
+    """A report as a model's metadata keeps it: every "seconds" entry (wall-clock time, at any depth)
+    left out, so the same inputs make the same model and ``model_sha256`` (a take's provenance)."""
+    if isinstance(report, dict):
+        return {k: without_timings(v) for k, v in report.items() if k != "seconds"}
+    if isinstance(report, list):
+        return [without_timings(v) for v in report]
+    return report

@@ -38,7 +38,6 @@ __all__ = [
     "load_model",
     "model_sha256",
     "save_model",
-    "without_timings",
 ]
 
 # 2: the material may carry mu20_pa or fibre_stress. 3: the model has pressure actuators. 4: the jaw
@@ -48,20 +47,11 @@ __all__ = [
 FORMAT_VERSION = 4
 FIBRE_STRESSES = ("uniaxial", "deviatoric")  # Material.fibre_stress; the first is the default
 BONES = ("cranium", "jaw")  # bone ids 0 and 1 in attachment arrays
+FACE_SPAN_M = (0.02, 2.0)  # the rest flesh's largest extent, metres: a lip alone to head and shoulders
 
 
 class ModelError(ValueError):
     """A face model is inconsistent; the message names the problem and where it is."""
-
-
-def without_timings(report):
-    """A report as a model's metadata keeps it: every "seconds" entry (wall-clock time, at any depth)
-    left out, so the same inputs make the same model and ``model_sha256`` (a take's provenance)."""
-    if isinstance(report, dict):
-        return {k: without_timings(v) for k, v in report.items() if k != "seconds"}
-    if isinstance(report, list):
-        return [without_timings(v) for v in report]
-    return report
 
 
 @dataclass(frozen=True)
@@ -348,6 +338,11 @@ class FaceModel:
             raise ModelError(
                 f"{tiny.size} tet(s) have near-zero volume (< {volume_tol:g} x median), first ids {tiny[:5].tolist()}"
             )
+        span = float(np.ptp(x, axis=0).max())
+        if not FACE_SPAN_M[0] <= span <= FACE_SPAN_M[1]:  # a millimetre mesh saved as metres, say
+            raise ModelError(
+                f"the flesh spans {span:.3g} m, where a face spans {FACE_SPAN_M[0]:g} to {FACE_SPAN_M[1]:g} m"
+            )
         st = self.skin_triangles
         if st.size and (st.min() < 0 or st.max() >= n):
             raise ModelError(f"skin_triangles reference nodes outside [0, {n})")
@@ -443,6 +438,7 @@ class FaceModel:
 
 
 # ---------------------------------------------------------------------- save / load
+_HEADER_KEYS = ("muscle_names", "marker_names", "jaw_joint", "material", "bones", "surface_groups", "facs", "metadata")
 _ARRAY_FIELDS = (
     "rest_positions_m",
     "tets",
@@ -571,7 +567,7 @@ def load_model(path: str | Path, *, validate: bool = True) -> FaceModel:
             f"{path}: written by a newer wface (model format {version}; this version reads up to "
             f"{FORMAT_VERSION}). Upgrade wface to load it."
         )
-    missing = [k for k in _ARRAY_FIELDS if k not in data]
+    missing = [k for k in _ARRAY_FIELDS if k not in data] + [f"header {k}" for k in _HEADER_KEYS if k not in header]
     missing += [f"bone/{n}/vertices_m" for n in header.get("bones", {}) if f"bone/{n}/vertices_m" not in data]
     missing += [f"surface/{n}" for n in header.get("surface_groups", []) if f"surface/{n}" not in data]
     if missing:
@@ -595,4 +591,7 @@ def load_model(path: str | Path, *, validate: bool = True) -> FaceModel:
         metadata=header["metadata"],
         pressure_actuators=header.get("pressure_actuators", {}),
     )
-    return model.validate() if validate else model
+    try:
+        return model.validate() if validate else model
+    except ModelError as exc:
+        raise ModelError(f"{path}: {exc}") from None

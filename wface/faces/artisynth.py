@@ -56,10 +56,11 @@ from wface.faces.ansys import (
 from wface.faces.artisynth_markers import default_markers
 from wface.faces.fibres import embed_fibres
 from wface.facs import ACTION_UNITS, STAND_INS
+from wface.files import without_timings
 from wface.mesh.improve import improve_tets
 from wface.mesh.quality import quality_report
 from wface.mesh.surface import boundary_faces, triangle_normals, vertex_normals
-from wface.model import BoneMesh, FaceModel, JawJoint, Material, without_timings
+from wface.model import BoneMesh, FaceModel, JawJoint, Material
 
 __all__ = [
     "BADIN_MUSCLES",
@@ -296,12 +297,8 @@ def import_artisynth(
     fibre_tet, fibre_muscle, fibre_fraction, fibre_direction, n_overfull = _embed_muscles(
         x, tets, muscle_fibres, fibre_radius_m
     )
-    _log(
-        progress,
-        t0,
-        f"{len(muscle_names)} muscles embedded in {np.unique(fibre_tet).size} tets "
-        f"(radius {fibre_radius_m * 1e3:g} mm; {n_overfull} tets rescaled to sum 1)",
-    )
+    embedded = f"{len(muscle_names)} muscles embedded in {np.unique(fibre_tet).size} tets"
+    _log(progress, t0, f"{embedded} (radius {fibre_radius_m * 1e3:g} mm; {n_overfull} tets rescaled to sum 1)")
 
     # ---- markers and FACS
     marker_names, marker_pos, marker_how = default_markers(x, groups["skin"], fibres_l)

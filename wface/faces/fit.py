@@ -44,12 +44,13 @@ from importlib import resources
 import numpy as np
 
 from wface.faces.registration import DEFAULT_SCHEDULE, register_surface
+from wface.files import without_timings
 from wface.mesh.align import FACE_SCALE_RANGE, Similarity, align_to_surface, embed_markers, umeyama
 from wface.mesh.closest import SurfaceQuery
 from wface.mesh.improve import improve_tets, tet_sine_quality_deg
 from wface.mesh.meshfile import SurfaceMesh
 from wface.mesh.quality import quality_report, signed_volumes, volume_ratio_quality
-from wface.model import BoneMesh, FaceModel, JawJoint, Material, ModelError, without_timings
+from wface.model import BoneMesh, FaceModel, JawJoint, Material, ModelError
 from wface.physics import Simulator
 
 __all__ = ["FitReport", "FitResult", "fit_template", "ict_feature_landmarks", "select_target_faces"]

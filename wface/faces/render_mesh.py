@@ -48,6 +48,7 @@ _TURN_WARN_DEG = 30.0  # an alignment that turns the file's axes more than this 
 _ANCHOR_FROM_M = 0.020  # points this far off the skin start to follow the cranium ...
 _ANCHOR_TO_M = 0.080  # ... and follow it wholly from here (a wide band: a narrow one shears the neck)
 _ALIGN_SAMPLES = 2000  # skin points used to align a mesh
+_SIZE_RATIO = (0.1, 5.0)  # a render mesh's extent over the skin's: an eye to head and shoulders
 _PART_PROBES = 64  # vertices of a separate part whose median distance to the bones places it
 _PART_REACH_M = 0.010  # a separate part this near a bone mesh (median) moves with that bone ...
 _TEETH_REACH_M = 0.030  # ... and one this near a teeth mesh with that arch's bone
@@ -186,6 +187,20 @@ def _anchors(model: FaceModel, mesh: SurfaceMesh, points_m: np.ndarray, binding:
     return anchor_points(binding, points_m, model.rest_positions_m, nodes, anchor, weight)
 
 
+def _check_size(model: FaceModel, mesh: SurfaceMesh) -> None:
+    """Refuse a mesh whose size, in metres as read, is not within 0.1 to 5 times the face's skin (a
+    millimetre file read as metres, a mesh of one point or one triangle), before binding it."""
+    size_m = float(np.ptp(mesh.points_m, axis=0).max())
+    skin_m = float(np.ptp(model.rest_positions_m[np.unique(model.skin_triangles)], axis=0).max())
+    lo, hi = _SIZE_RATIO
+    if not lo * skin_m <= size_m <= hi * skin_m:
+        raise ValueError(
+            f"{mesh.source or 'the render mesh'} is {size_m:.3g} m across read at {mesh.meters_per_unit:g} m per "
+            f"unit, where the face's skin is {skin_m:.3g} m (a render mesh is {lo:g} to {hi:g} times that): check "
+            "--render-mesh-units and that the file is the head's mesh"
+        )
+
+
 def bind_render_mesh(
     model: FaceModel, mesh: SurfaceMesh | str | Path, *, units: str | float = "auto", source_to_model=None
 ) -> RenderMesh:
@@ -202,6 +217,7 @@ def bind_render_mesh(
     """
     if not isinstance(mesh, SurfaceMesh):
         mesh = read_surface_mesh(mesh, units=units)
+    _check_size(model, mesh)
     if source_to_model is None:
         m, how = placement_for(model, mesh)
     else:

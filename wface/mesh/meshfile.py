@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -235,9 +236,26 @@ def _material_text(path: Path, text: str) -> tuple[str, str, str | None, set[str
     return text, mtl + stubs, lib.group(1) if lib else None, defined
 
 
+def _check_obj_vertices(path: Path, text: str) -> None:
+    """Refuse ``v`` lines whose position is not 3 finite numbers: tinyobjloader reads ``nan``, a missing
+    coordinate or a word as 0, which would put the vertex at the origin without a word."""
+    for number, line in enumerate(text.splitlines(), 1):
+        parts = line.split()
+        if not parts or parts[0] != "v":
+            continue
+        try:
+            xyz = [float(p) for p in parts[1:4]]
+        except ValueError:
+            xyz = []
+        if len(xyz) < 3 or not all(math.isfinite(c) for c in xyz):
+            raise ValueError(f"{path}:{number}: a vertex needs 3 finite coordinates, got {line.strip()!r}")
+
+
 def _read_obj(path: Path) -> dict:
     """The pieces of an OBJ file, in the file's units, via tinyobjloader (polygons kept)."""
-    text, mtl, library, defined = _material_text(path, path.read_text(errors="replace"))
+    raw = path.read_text(errors="replace")
+    _check_obj_vertices(path, raw)
+    text, mtl, library, defined = _material_text(path, raw)
     reader = tinyobjloader.ObjReader()
     config = tinyobjloader.ObjReaderConfig()
     config.triangulate = False
