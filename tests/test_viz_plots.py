@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -103,3 +105,69 @@ def test_activation_colors_chunked_equals_direct():
         np.testing.assert_allclose(va1, va[f])
         np.testing.assert_allclose(rgb1, rgb[f])
     assert np.all((rgb >= 0) & (rgb <= 1))
+
+
+def _drawn_figure(monkeypatch):
+    """Keep the figure a plot function saves (its axes are what the tests read)."""
+    kept = {}
+
+    def keep(fig, out_path):
+        kept["fig"] = fig
+        return Path(out_path)
+
+    monkeypatch.setattr(plots, "_save", keep)
+    return kept
+
+
+@pytest.mark.parametrize("n_muscles", [3, 12])
+def test_activation_plot_shows_negative_pressure(monkeypatch, tmp_path, n_muscles):
+    a = np.full((20, n_muscles), 0.5)
+    a[:, -1] = np.linspace(-1.0, 1.0, 20)  # intraoral_pressure: suction is negative
+    kept = _drawn_figure(monkeypatch)
+    plots.plot_activations(a, [f"m{i}" for i in range(n_muscles - 1)] + ["intraoral_pressure"], tmp_path / "a.png")
+    fig = kept["fig"]
+    lo, hi = fig.axes[0].get_ylim()
+    assert lo <= -1.0 and hi >= 1.0
+    labels = [ax.get_ylabel() for ax in fig.axes] + [fig._supylabel.get_text() if fig._supylabel else ""]
+    assert plots.ACTIVATION_AXIS_LABEL in labels and "-1 to 1" in plots.ACTIVATION_AXIS_LABEL
+    assert plots.activation_ylim(np.full((2, 1), 0.5))[0] == pytest.approx(-0.03)  # muscles alone: 0..1
+
+
+def test_marker_error_plot_keeps_outliers_apart(monkeypatch, tmp_path):
+    """The truth error and the inliers' RMS and max on top; the max counting outliers (26 mm) in its own
+    panel, so that the curves above keep their scale."""
+    rng = np.random.default_rng(1)
+    sim = rng.normal(size=(10, 6, 3)) * 0.01
+    clean = sim + 1e-4
+    cap = clean + rng.normal(size=sim.shape) * 2e-4
+    cap[::2, 0] += 0.026  # an injected outlier every other frame
+    rms, mx = plots.marker_errors_mm(cap, sim, outlier_mm=3.0)
+    assert np.nanmax(mx) < 3.0 and np.nanmax(plots.marker_errors_mm(cap, sim)[1]) > 20.0
+    kept = _drawn_figure(monkeypatch)
+    plots.plot_marker_error(
+        rms,
+        tmp_path / "e.png",
+        marker_max_mm=mx,
+        truth_rms_mm=plots.marker_errors_mm(clean, sim)[0],
+        outlier_mm=3.0,
+        max_all_mm=plots.marker_errors_mm(cap, sim)[1],
+    )
+    top, bottom = kept["fig"].axes
+    assert top.get_ylim()[1] < 3.0 and bottom.get_ylim()[1] > 20.0
+    labels = [line.get_label() for line in top.get_lines()]
+    assert labels[0].startswith("vs truth") and any("RMS of inliers" in s for s in labels)
+    assert any("incl. outliers" in line.get_label() for line in bottom.get_lines())
+
+
+def test_jaw_plot_draws_the_joint_limits(monkeypatch, tmp_path):
+    ang = np.r_[np.full(10, -2.3), np.linspace(-2.3, 20.0, 10)]  # flat on the closed limit, then opening
+    kept = _drawn_figure(monkeypatch)
+    plots.plot_jaw_opening(ang, tmp_path / "j.png", limits_deg=(-2.3, 22.0))
+    (ax,) = kept["fig"].axes
+    limits = {line.get_label(): line.get_ydata()[0] for line in ax.get_lines() if "joint limit" in line.get_label()}
+    assert sorted(limits.values()) == [-2.3, 22.0]
+    kept.clear()
+    plots.plot_jaw_opening(ang, tmp_path / "k.png", limits_deg=(-2.3, 80.0))  # the open limit far above: left out
+    assert [s for s in (line.get_label() for line in kept["fig"].axes[0].get_lines()) if "joint" in s] == [
+        "joint limit, closed (-2.3 deg)"
+    ]

@@ -157,7 +157,8 @@ def write_tracking_outputs(
                 if not (held and marker_names)
                 else np.array([i for i, n in enumerate(marker_names) if n not in held])
             )
-            images = _figures(out, model, records, X, simulated, targets_m, (fps, step, fitted), truth, movie, bar)
+            rate = (fps, step, fitted, report.get("outlier_threshold_mm"))
+            images = _figures(out, model, records, X, simulated, targets_m, rate, truth, movie, bar)
             if report.get("holdout_rms_mm"):
                 images["held-out markers"] = plot_holdout(out / "holdout.png", report, fps=fps / step)
             written.extend(Path(p) for p in images.values())
@@ -172,8 +173,9 @@ def write_tracking_outputs(
 
 def _figures(out, model, records, X, simulated, targets_m, rate, truth, movie: bool, bar) -> dict:
     """Pictures and plots, then the movie (``wface.viz.figures``), one progress step each; ``rate``:
-    (the capture's fps, capture frames per record, the fitted markers' ids or None for all)."""
-    fps, step, fitted = rate
+    (the capture's fps, capture frames per record, the fitted markers' ids or None for all, the outlier
+    cut-off in mm or None)."""
+    fps, step, fitted, outlier_mm = rate
     M = model.n_muscles
     C = np.array([r.controls for r in records])
     cranium, jaw = (np.stack(a) for a in zip(*(bone_affines(c[M:]) for c in C), strict=True))
@@ -188,6 +190,8 @@ def _figures(out, model, records, X, simulated, targets_m, rate, truth, movie: b
         jaw_affines=jaw,
         truth_activations=None if truth is None else truth.activations,
         truth_jaw_angle_deg=None if truth is None else truth.jaw_opening_deg,
+        truth_markers_m=None if truth is None else truth.clean_markers_m,
+        outlier_mm=outlier_mm,
         first_frame=int(records[0].frame) if records else 0,
         frame_step=step,
         error_markers=fitted,

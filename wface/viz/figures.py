@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.controls import jaw_limits
 from wface.viz import plots, render
 
 __all__ = ["comparison_frame", "peak_frame", "write_take_figures"]
@@ -58,6 +59,8 @@ def write_take_figures(
     frame_step: int = 1,
     progress: bool = False,
     error_markers: np.ndarray | None = None,
+    truth_markers_m: np.ndarray | None = None,
+    outlier_mm: float | None = None,
 ) -> dict[str, Path]:
     """Write stills, plots and a movie of a take into ``out_dir``.
 
@@ -84,6 +87,10 @@ def write_take_figures(
         progress: show a progress bar over the movie's frames.
         error_markers: the markers the error plot covers (ids; default all): the fitted ones where some were
             held out, so that the plot reads as the report's ``marker_rms_mm_mean``.
+        truth_markers_m: (F, k, 3) the true (noise-free) markers of a synthetic take: the error plot
+            leads with the error against them, as the report does (``truth_marker_rms_mm``).
+        outlier_mm: the tracker's outlier cut-off (the report's ``outlier_threshold_mm``): the error
+            plot shows the inliers' RMS and max, and the max counting outliers in a panel below.
 
     Returns:
         caption -> path, in display order (pass to ``write_html_report``).
@@ -105,6 +112,7 @@ def write_take_figures(
         jaw_angle_deg=jaw_angle_deg,
         truth_activations=truth_activations,
         truth_jaw_angle_deg=truth_jaw_angle_deg,
+        truth_markers_m=truth_markers_m,
     )
     jaw_rel = _jaw_relative(jaw_affines, cranium_affines, jaw_frame)
     markers = (captured_markers_m, simulated_markers_m)
@@ -126,7 +134,7 @@ def write_take_figures(
             jaw_affines=jaw_affines,
             cranium_affines=cranium_affines,
             jaw_frame=jaw_frame,
-            error_markers=error_markers,
+            error=(error_markers, truth_markers_m, outlier_mm),
             jaw_angle_deg=jaw_angle_deg,
             truth_activations=truth_activations,
             truth_jaw_angle_deg=truth_jaw_angle_deg,
@@ -232,10 +240,11 @@ def _write_plots(
     jaw_angle_deg,
     truth_activations,
     truth_jaw_angle_deg,
-    error_markers=None,
+    error=(None, None, None),
 ) -> dict[str, Path]:
-    """Plots over time: activations, marker error (over ``error_markers``, default all), jaw opening (each when
-    its data is given)."""
+    """Plots over time: activations, marker error, jaw opening with the joint's limits (each when its data is
+    given); ``error``: (the markers the error covers, default all; the true markers or None; the outlier
+    cut-off in mm or None)."""
     captured_markers_m, simulated_markers_m = markers
     images: dict[str, Path] = {}
     if activations is not None:
@@ -243,21 +252,42 @@ def _write_plots(
             activations, model.muscle_names, out / "activations.png", fps=fps, truth=truth_activations
         )
     if captured_markers_m is not None and simulated_markers_m is not None:
-        cols = slice(None) if error_markers is None else np.asarray(error_markers)
-        rms, mx = plots.marker_errors_mm(captured_markers_m[:, cols], simulated_markers_m[:, cols])
-        title = "Marker error per frame" + ("" if error_markers is None else f" ({len(cols)} fitted markers)")
-        images["Marker error per frame"] = plots.plot_marker_error(
-            rms, out / "marker_error.png", marker_max_mm=mx, fps=fps, title=title
-        )
+        images["Marker error per frame"] = _marker_error_plot(out, fps, markers, *error)
     if jaw_angle_deg is None and jaw_affines is not None:
         jaw_angle_deg = plots.jaw_opening_deg(
             jaw_affines, model.jaw_joint, cranium_affines=cranium_affines, jaw_frame=jaw_frame
         )
     if jaw_angle_deg is not None:
         images["Jaw opening"] = plots.plot_jaw_opening(
-            jaw_angle_deg, out / "jaw_opening.png", fps=fps, truth_deg=truth_jaw_angle_deg
+            jaw_angle_deg,
+            out / "jaw_opening.png",
+            fps=fps,
+            truth_deg=truth_jaw_angle_deg,
+            limits_deg=jaw_limits(model.jaw_joint)["opening_deg"],
         )
     return images
+
+
+def _marker_error_plot(out: Path, fps, markers, error_markers, truth_markers_m, outlier_mm) -> Path:
+    """marker_error.png: against the truth when known, the inliers' RMS and max against the capture (over
+    ``error_markers``, default all) and, with an outlier cut-off, the max counting outliers apart."""
+    captured_markers_m, simulated_markers_m = markers
+    cols = slice(None) if error_markers is None else np.asarray(error_markers)
+    cap, sim = captured_markers_m[:, cols], simulated_markers_m[:, cols]
+    rms, mx = plots.marker_errors_mm(cap, sim, outlier_mm=outlier_mm)
+    truth_rms = None if truth_markers_m is None else plots.marker_errors_mm(truth_markers_m, simulated_markers_m)[0]
+    max_all = None if outlier_mm is None else plots.marker_errors_mm(cap, sim)[1]
+    title = "Marker error per frame" + ("" if error_markers is None else f" ({len(cols)} fitted markers)")
+    return plots.plot_marker_error(
+        rms,
+        out / "marker_error.png",
+        marker_max_mm=mx,
+        fps=fps,
+        title=title,
+        truth_rms_mm=truth_rms,
+        outlier_mm=outlier_mm,
+        max_all_mm=max_all,
+    )
 
 
 def _write_movie(
