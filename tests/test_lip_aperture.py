@@ -167,3 +167,25 @@ def test_badin_rest_matches_the_original_first_frame(badin_model):
         x, boundary_faces(m.tets), ApertureView.for_model(m, frontal=True), near_points_m=x[lip_area_points(m)]
     )
     assert front.elsewhere_mm2 > 50.0 and front.area_mm2 < res.area_mm2
+
+
+def test_aperture_pictures_share_one_window_and_explain_their_colours(tmp_path, monkeypatch):
+    """The first and last frames' pictures are drawn in one window (the union of theirs: they are
+    compared), and the legend names each colour, white (outside the window) included."""
+    pytest.importorskip("matplotlib")
+    from wface.speech import output
+
+    small, wide = _annulus(0.002, 0.02, 32), _annulus(0.006, 0.02, 32)
+    drawn = []
+    monkeypatch.setattr(output, "_draw_aperture", lambda path, x, occ, view, res, limits, title: drawn.append(limits))
+    output.write_aperture_pictures(
+        [tmp_path / "first.png", tmp_path / "last.png"], [small[0], wide[0] + (0.003, 0.0, 0.0)], small[1], _view()
+    )
+    assert len(drawn) == 2 and drawn[0] == drawn[1]
+    (u0, u1), (v0, v1) = drawn[0]
+    assert u0 < -2.0 and u1 > 9.0 and v0 < -6.0 and v1 > 6.0  # both holes, mm: r 2 at 0, r 6 at u = 3
+    labels = [h.get_label() for h in output._aperture_legend({"occluders", "enclosed"})]
+    assert any("counted" in s for s in labels) and any("not measured" in s for s in labels)
+    monkeypatch.undo()
+    output.write_aperture_picture(tmp_path / "one.png", small[0], small[1], _view())
+    assert (tmp_path / "one.png").stat().st_size > 1000

@@ -25,7 +25,7 @@ from wface.speech.aperture import ApertureView
 from wface.speech.artisynth_demo import lip_opening_demo_model
 from wface.speech.dynamic import GestureDynamics
 from wface.speech.gestures import map_gesture_to_model, read_gesture
-from wface.speech.output import write_aperture_picture, write_gesture_usd, write_lip_opening, write_states
+from wface.speech.output import write_aperture_pictures, write_gesture_usd, write_lip_opening, write_states
 from wface.speech.playback import compare_with_reference, lip_area_points, simulate_gesture, summarize
 from wface.takes.provenance import command_provenance
 from wface.takes.store import claim_take_dir
@@ -220,20 +220,19 @@ def _dynamics(args) -> GestureDynamics | None:
 
 def _write_pictures_and_usd(args, out: Path, model, result, view, gesture) -> list[str]:
     """The aperture pictures of the first and last frames and animation.usdc; returns their names."""
-    files = []
     occluders, lips = boundary_faces(model.tets), lip_area_points(model)
-    for tag, f in (("first", 0), ("last", len(result.times_s) - 1)):
-        x = result.node_positions_m[f]
-        write_aperture_picture(
-            out / f"aperture_{tag}.png",
-            x,
-            occluders,
-            view,
-            resolution_m=args.area_resolution_mm * 1e-3,
-            near_points_m=None if lips is None else x[lips],
-            title=f"{result.gesture} t = {result.times_s[f]:.3f} s ({result.mode})",
-        )
-        files.append(f"aperture_{tag}.png")
+    frames = {"first": 0, "last": len(result.times_s) - 1}
+    xs = [result.node_positions_m[f] for f in frames.values()]
+    files = [f"aperture_{tag}.png" for tag in frames]
+    write_aperture_pictures(  # one window for both: they are there to be compared
+        [out / name for name in files],
+        xs,
+        occluders,
+        view,
+        resolution_m=args.area_resolution_mm * 1e-3,
+        near_points_m=[None if lips is None else x[lips] for x in xs],
+        titles=[f"{result.gesture} t = {result.times_s[f]:.3f} s ({result.mode})" for f in frames.values()],
+    )
     if not args.no_usd:
         F = len(result.times_s)
         fps_out = (

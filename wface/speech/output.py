@@ -15,7 +15,13 @@ from wface.takes.take import Take
 from wface.takes.usd import write_take_usd
 from wface.viz.plots import _plt
 
-__all__ = ["write_aperture_picture", "write_gesture_usd", "write_lip_opening", "write_states"]
+__all__ = [
+    "write_aperture_picture",
+    "write_aperture_pictures",
+    "write_gesture_usd",
+    "write_lip_opening",
+    "write_states",
+]
 
 
 def write_lip_opening(
@@ -175,6 +181,15 @@ def _area_samples(area_mm2: np.ndarray, stage) -> None:
         attr.Set(float(v), Usd.TimeCode(f))
 
 
+#: the aperture picture's colours: (face colour, what it shows); white is the background
+_APERTURE_COLOURS = {
+    "occluders": ("#c0392b", "face (occluders)"),
+    "enclosed": ("#2ecc40", "lip opening (counted)"),
+    "elsewhere": ("#3498db", "enclosed away from the lips, e.g. nostrils (not counted)"),
+    "outline": ("#f1c40f", "seen past the face's outline (not counted)"),
+}
+
+
 def write_aperture_picture(
     path: Path,
     x_m: np.ndarray,
@@ -186,44 +201,99 @@ def write_aperture_picture(
     title: str = "",
     margin_mm: float = 6.0,
 ) -> ApertureResult:
-    """A picture of the aperture measure (``wface.speech.aperture``): the occluders projected in the
-    camera's image plane (red), the seen window enclosed by them near ``near_points_m`` (green: the
-    lip opening), enclosed elsewhere (blue, e.g. open nostrils) and seen past their outline (yellow).
-    Returns the measure."""
-    from matplotlib.collections import PolyCollection
+    """A picture of the aperture measure of one frame (``write_aperture_pictures``); returns the measure."""
+    return write_aperture_pictures(
+        [path],
+        [x_m],
+        occluders,
+        view,
+        resolution_m=resolution_m,
+        near_points_m=[near_points_m],
+        titles=[title],
+        margin_mm=margin_mm,
+    )[0]
 
-    res = aperture_area(
-        x_m, occluders, view, resolution_m=resolution_m, near_points_m=near_points_m, keep_intervals=True
-    )
+
+def write_aperture_pictures(
+    paths: list[Path],
+    xs_m: list[np.ndarray],
+    occluders: np.ndarray,
+    view: ApertureView,
+    *,
+    resolution_m: float = 5e-5,
+    near_points_m: list | None = None,
+    titles: list[str] | None = None,
+    margin_mm: float = 6.0,
+) -> list[ApertureResult]:
+    """Pictures of the aperture measure (``wface.speech.aperture``), one per frame ``xs_m[i]``: the
+    occluders projected in the camera's image plane (red), the seen window enclosed by them near
+    ``near_points_m[i]`` (green: the lip opening), enclosed elsewhere (blue, e.g. open nostrils) and
+    seen past their outline (yellow); the window's edge dashed (white outside it: not measured), and
+    a legend of the colours. Every picture shows the same window (the union of each frame's frame),
+    so that the first and last frames of a gesture compare at one scale. Returns the measures."""
+    near = list(near_points_m) if near_points_m is not None else [None] * len(xs_m)
+    results = [
+        aperture_area(x, occluders, view, resolution_m=resolution_m, near_points_m=n, keep_intervals=True)
+        for x, n in zip(xs_m, near, strict=True)
+    ]
+    boxes = np.array([_aperture_box_mm(res, view, n) for res, n in zip(results, near, strict=True)])
+    u0, v0 = boxes[:, 0].min(), boxes[:, 2].min()
+    u1, v1 = boxes[:, 1].max(), boxes[:, 3].max()
+    half = max(u1 - u0, v1 - v0) / 2 + margin_mm
+    limits = ((u0 + u1) / 2 - half, (u0 + u1) / 2 + half), ((v0 + v1) / 2 - half, (v0 + v1) / 2 + half)
+    for path, x, res, title in zip(paths, xs_m, results, titles or [""] * len(xs_m), strict=True):
+        _draw_aperture(path, x, occluders, view, res, limits, title)
+    return results
+
+
+def _aperture_box_mm(res: ApertureResult, view: ApertureView, near_points_m) -> tuple[float, float, float, float]:
+    """(u0, u1, v0, v1) in the image plane, mm: the enclosed apertures; when closed, the lips (the
+    window centre can lie 10-20 mm off them), else the window centre."""
     e1, e2 = view.image_axes
-    uv = np.stack([x_m @ e1, x_m @ e2], axis=1) * 1e3
     iv = res.intervals
-    h = resolution_m * 1e3
     enclosed = iv["enclosed"]
     if enclosed.any():
         u0, u1 = iv["u_lo_m"][enclosed].min() * 1e3, iv["u_hi_m"][enclosed].max() * 1e3
         v0, v1 = iv["v_m"][enclosed].min() * 1e3, iv["v_m"][enclosed].max() * 1e3
-    elif near_points_m is not None and len(near_points_m):  # closed: frame the lips (the window centre
-        near = np.asarray(near_points_m, dtype=np.float64).reshape(-1, 3)  # can lie 10-20 mm off them)
+    elif near_points_m is not None and len(near_points_m):
+        near = np.asarray(near_points_m, dtype=np.float64).reshape(-1, 3)
         u0, u1 = float((near @ e1).min()) * 1e3, float((near @ e1).max()) * 1e3
         v0, v1 = float((near @ e2).min()) * 1e3, float((near @ e2).max()) * 1e3
-    else:  # closed, no lips named: the occluders in front of the window centre
+    else:
         c = np.asarray(view.window_center_m)
         u0 = u1 = float(c @ e1) * 1e3
         v0 = v1 = float(c @ e2) * 1e3
-    half = max(u1 - u0, v1 - v0) / 2 + margin_mm
-    cu, cv = (u0 + u1) / 2, (v0 + v1) / 2
+    return u0, u1, v0, v1
+
+
+def _draw_aperture(path: Path, x_m, occluders, view: ApertureView, res: ApertureResult, limits, title: str) -> None:
+    """One aperture picture inside ``limits`` ((u0, u1), (v0, v1)) mm, the legend below the axes."""
+    from matplotlib.collections import PolyCollection
+
+    e1, e2 = view.image_axes
+    uv = np.stack([x_m @ e1, x_m @ e2], axis=1) * 1e3
+    iv = res.intervals
+    h = res.resolution_m * 1e3
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(6.5, 6.5))
-    ax.add_collection(PolyCollection(uv[occluders], facecolors="#c0392b", edgecolors="#7b241c", linewidths=0.2))
-    other = iv["elsewhere"]
-    for sel, colour in ((enclosed, "#2ecc40"), (other, "#3498db"), (~enclosed & ~other, "#f1c40f")):
+    fig, ax = plt.subplots(figsize=(6.5, 7.4))
+    colour = {k: c for k, (c, _) in _APERTURE_COLOURS.items()}
+    ax.add_collection(
+        PolyCollection(uv[occluders], facecolors=colour["occluders"], edgecolors="#7b241c", linewidths=0.2)
+    )
+    enclosed, other = iv["enclosed"], iv["elsewhere"]
+    shown = {"occluders", "enclosed"}  # the measure's two colours, listed even when nothing is open
+    for key, sel in (("enclosed", enclosed), ("elsewhere", other), ("outline", ~enclosed & ~other)):
         v, lo, hi = iv["v_m"][sel] * 1e3, iv["u_lo_m"][sel] * 1e3, iv["u_hi_m"][sel] * 1e3
         rects = np.stack([np.stack([lo, v - h / 2], 1), np.stack([hi, v - h / 2], 1), np.stack([hi, v + h / 2], 1)], 1)
         rects = np.concatenate([rects, np.stack([lo, v + h / 2], 1)[:, None]], axis=1)
-        ax.add_collection(PolyCollection(rects, facecolors=colour, edgecolors="none"))
-    ax.set_xlim(cu - half, cu + half)
-    ax.set_ylim(cv - half, cv + half)
+        ax.add_collection(PolyCollection(rects, facecolors=colour[key], edgecolors="none"))
+        if sel.any():
+            shown.add(key)
+    corners = view.window_corners_m()
+    window = np.stack([corners @ e1, corners @ e2], axis=1) * 1e3
+    ax.plot(*np.vstack([window, window[:1]]).T, ls="--", lw=1.2, color="k")
+    ax.set_xlim(*limits[0])
+    ax.set_ylim(*limits[1])
     ax.set_aspect("equal")
     ax.set_xlabel("image right (mm)")
     ax.set_ylabel("image up (mm)")
@@ -233,6 +303,17 @@ def write_aperture_picture(
         + f"view {view.name}",
         fontsize=9,
     )
+    ax.legend(handles=_aperture_legend(shown), loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2, fontsize=7.5)
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
-    return res
+
+
+def _aperture_legend(shown: set[str]) -> list:
+    """Legend handles: the colours drawn (in ``_APERTURE_COLOURS`` order), the window's edge, white."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles = [Patch(facecolor=c, label=text) for k, (c, text) in _APERTURE_COLOURS.items() if k in shown]
+    handles.append(Line2D([], [], ls="--", lw=1.2, color="k", label="window behind the face (edge)"))
+    handles.append(Patch(facecolor="white", edgecolor="0.5", label="outside the window: not measured"))
+    return handles
