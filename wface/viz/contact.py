@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plane_section", "plot_lip_section"]
+__all__ = ["lip_section_figure", "plane_section", "plot_lip_section"]
 
 
 def plane_section(points_m: np.ndarray, triangles: np.ndarray, x_plane_m: float) -> np.ndarray:
@@ -41,42 +41,69 @@ def plot_lip_section(model, positions: dict, out_path, *, x_plane_m: float = 1e-
     Returns:
         The written path.
     """
+    fig = lip_section_figure(model, positions, x_plane_m=x_plane_m, teeth=teeth)
+    out_path = Path(out_path)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_path, dpi=120, bbox_inches="tight", pad_inches=0.08)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return out_path
+
+
+#: lip lines: (colour, width, style, z-order). The upper lip is drawn dashed over a wider lower lip, so
+#: that lips in contact (one line on the other, as at rest) both stay visible.
+_LIP_STYLE = {
+    "upper_lip": ("tab:red", 1.5, "dashed", 3),
+    "lower_lip": ("tab:blue", 3.0, "solid", 2),
+}
+_TEETH_SHADES = ("0.25", "0.55", "0.4", "0.7")  # upper and lower teeth apart (one grey made them one)
+_PAD_MM = 3.0  # around everything drawn
+
+
+def lip_section_figure(model, positions: dict, *, x_plane_m: float = 1e-4, teeth=None):
+    """The figure of ``plot_lip_section``: every panel has the limits of everything drawn in all of
+    them (lips and teeth, so that a teeth outline moved by the jaw stays in view), the legend sits
+    below the panels, and the height follows the drawing's aspect (no empty bands)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection
 
-    groups = [g for g in ("upper_lip", "lower_lip") if g in model.surface_groups]
+    groups = [g for g in _LIP_STYLE if g in model.surface_groups]
     if not groups:
         raise ValueError(f"the model has no upper_lip / lower_lip surface groups: {list(model.surface_groups)}")
-    fig, axes = plt.subplots(1, len(positions), figsize=(4.2 * len(positions), 4.2), squeeze=False)
-    box = []
-    for ax, (title, x) in zip(axes[0], positions.items(), strict=True):
-        for g, colour in zip(groups, ("tab:red", "tab:blue"), strict=False):
-            seg = plane_section(x, model.surface_groups[g], x_plane_m)
-            ax.add_collection(LineCollection(seg[..., [2, 1]] * 1e3, colors=colour, linewidths=1.5, label=g))
-            box.append(seg.reshape(-1, 3))
-        shades = ("0.25", "0.55", "0.4", "0.7")  # upper and lower teeth apart (one grey made them one)
+    drawn = {}  # panel title -> [(label, segments (s, 2, 2) in (z, y) mm, style)]
+    for title, x in positions.items():
+        lines = [(g, _section_zy_mm(x, model.surface_groups[g], x_plane_m), _LIP_STYLE[g]) for g in groups]
         for k, (name, (v, t)) in enumerate(((teeth or {}).get(title, {}) or {}).items()):
-            seg = plane_section(v, t, x_plane_m)
-            style = "solid" if k % 2 == 0 else "dashed"
-            lines = LineCollection(seg[..., [2, 1]] * 1e3, colors=shades[k % 4], linewidths=1.0, linestyles=style)
-            ax.add_collection(lines)
-            lines.set_label(name)
+            style = (_TEETH_SHADES[k % 4], 1.0, "solid" if k % 2 == 0 else "dashed", 1)
+            lines.append((name, _section_zy_mm(v, t, x_plane_m), style))
+        drawn[title] = lines
+    pts = np.concatenate([seg.reshape(-1, 2) for lines in drawn.values() for _, seg, _ in lines])
+    lo, hi = pts.min(axis=0) - _PAD_MM, pts.max(axis=0) + _PAD_MM
+    panel_w = 4.2
+    panel_h = max(1.5, panel_w * (hi[1] - lo[1]) / max(hi[0] - lo[0], 1e-9))
+    fig, axes = plt.subplots(
+        1, len(drawn), figsize=(panel_w * len(drawn), panel_h + 1.0), squeeze=False, layout="constrained"
+    )
+    for ax, (title, lines) in zip(axes[0], drawn.items(), strict=True):
+        for label, seg, (colour, width, style, z) in lines:
+            ax.add_collection(
+                LineCollection(seg, colors=colour, linewidths=width, linestyles=style, zorder=z, label=label)
+            )
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
         ax.set_title(title, fontsize=10)
         ax.set_xlabel("z (mm, forward)")
         ax.set_aspect("equal")
-    pts = np.concatenate(box) * 1e3
-    for ax in axes[0]:
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        ax.set_xlim(lo[2] - 5, hi[2] + 5)
-        ax.set_ylim(lo[1] - 5, hi[1] + 5)
     axes[0][0].set_ylabel("y (mm, up)")
-    axes[0][0].legend(loc="best", fontsize=8)
-    fig.tight_layout()
-    out_path = Path(out_path)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_path, dpi=120)
-    plt.close(fig)
-    return out_path
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=8, frameon=False)
+    return fig
+
+
+def _section_zy_mm(points_m, triangles, x_plane_m: float) -> np.ndarray:
+    """``plane_section`` as (s, 2, 2) segments in the drawing's (z, y) plane, mm."""
+    return plane_section(points_m, triangles, x_plane_m)[..., [2, 1]] * 1e3
