@@ -270,6 +270,18 @@ def test_load_take_reads_tracking_outputs(model, smile, surprise, tmp_path):
 
 
 # ---------------------------------------------------------------------- CLI
+def test_cli_blend_labels_its_panels_by_blend_weight(model_path, tmp_path, monkeypatch):
+    """The contact sheet's panels of ``edit blend`` are blend weights (0..1), not times: "blend 0.50"."""
+    from wface.cli import main
+    from wface.takes import output
+
+    seen = {}
+    monkeypatch.setattr(output, "write_contact_sheet", lambda path, model, result, labels: seen.update(labels=labels))
+    argv = ["edit", "blend", "--from", "smile", "--to", "surprise", "--frames", "3", "--model", str(model_path)]
+    assert main([*argv, "--mesh-only", "--out", str(tmp_path / "b")]) == 0
+    assert seen["labels"] == ["blend 0.00", "blend 0.50", "blend 1.00"]
+
+
 def test_cli_blend_then_chained_edits_write_valid_usd(model_path, tmp_path, capsys):
     from wface.cli import main
     from wface.io.usd import assert_stage_valid, read_take

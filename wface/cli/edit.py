@@ -276,7 +276,7 @@ def run_blend(args: argparse.Namespace) -> int:
     poses = [interpolate(a, b, float(t), joint=joint) for t in ts]
     take = _take(model, poses, fps, f"{args.from_} -> {args.to}")
     info = {"edit": "interpolate", "from": args.from_, "to": args.to, "t": ts.tolist()}
-    return _finish(args, model, take, info, [f"t = {t:.2f}" for t in ts])
+    return _finish(args, model, take, info, [f"blend {t:.2f}" for t in ts])  # weights, not times
 
 
 def run_exaggerate(args: argparse.Namespace) -> int:

@@ -275,11 +275,20 @@ def _box_corners(points: np.ndarray) -> np.ndarray:
 
 
 def _place_camera(
-    plotter, points: np.ndarray, view, *, fill: float, pad_m: float, zoom: float = 1.0, reserve_bottom: float = 0.0
+    plotter,
+    points: np.ndarray,
+    view,
+    *,
+    fill: float,
+    pad_m: float,
+    zoom: float = 1.0,
+    reserve_bottom: float = 0.0,
+    reserve_top: float = 0.0,
 ) -> None:
     """Look at the points' box centre from direction ``view`` (+y up), as close as possible while
     every point (grown by ``pad_m``) stays inside ``fill`` of the viewport (perspective projection),
-    above a band of ``reserve_bottom`` of the viewport's height kept free (a colour bar's)."""
+    between bands of ``reserve_bottom`` and ``reserve_top`` of the viewport's height kept free (a
+    colour bar's, a title's)."""
     lo, hi = points.min(axis=0), points.max(axis=0)
     centre = (lo + hi) / 2
     d = np.asarray(view, dtype=np.float64)
@@ -291,7 +300,7 @@ def _place_camera(
     shape = getattr(plotter, "shape", (1, 1))
     aspect = (w / shape[1]) / (h / shape[0])
     half = np.tan(np.radians(plotter.camera.view_angle) / 2)
-    t, ty = half * fill, half * fill * (1.0 - reserve_bottom)
+    t, ty = half * fill, half * fill * (1.0 - reserve_bottom - reserve_top)
     for step in range(3):  # fit the distance; centre the projected points; fit again
         r = points - centre
         depth = r @ d
@@ -302,7 +311,7 @@ def _place_camera(
             break
         sx, sy = px / (dist - depth), py / (dist - depth)  # tangents of the view angles
         centre = centre + dist * ((sx.max() + sx.min()) / 2 * right + (sy.max() + sy.min()) / 2 * up)
-    centre = centre - up * (dist * half * reserve_bottom)  # the points' centre sits above the band's middle
+    centre = centre - up * (dist * half * (reserve_bottom - reserve_top))  # the points' centre: between the bands
     plotter.camera_position = [tuple(centre + dist * d), tuple(centre), tuple(up)]
     if zoom != 1.0:
         plotter.camera.zoom(zoom)
@@ -310,20 +319,25 @@ def _place_camera(
 
 
 ACTIVATION_LEGEND = "muscle activation (0-1, dimensionless)"
-_LEGEND_BAND = 0.14  # share of a panel's height the activation colour bar and its title take at the bottom
+_LEGEND_BAND = 0.16  # share of a panel's height the activation colour bar and its title take at the bottom
+_LEGEND_PX_PER_POINT = 38.0  # width of ACTIVATION_LEGEND in pixels per point of font size (measured)
+_TITLE_BAND = 0.08  # share of a panel's height its title takes at the top (above the head, not over it)
 
 
 def _add_activation_legend(pv, plotter) -> None:
     """A colour bar for the muscle heat map: red (inactive, 0) to yellow (fully active, 1).
 
     The skin and muscle colours are written as RGB, which VTK cannot label, so an invisible
-    two-point mesh carries the lookup table of the bar.
+    two-point mesh carries the lookup table of the bar. The tick labels go below the bar and the
+    title is a text of its own above it: VTK's own title overlapped the "0.0" and "1.0" labels.
     """
     from matplotlib.colors import LinearSegmentedColormap
 
     cmap = LinearSegmentedColormap.from_list("activation", [INACTIVE_RGB, ACTIVE_RGB])
     probe = pv.PolyData(np.zeros((2, 3)))
     probe["activation"] = np.array([0.0, 1.0])
+    first = ACTIVATION_LEGEND not in plotter.scalar_bars  # one bar per plotter (pyvista keys them by title)
+    x, y, w, h = 0.2, 0.01, 0.6, 0.09  # the bar and its labels, share of the panel
     plotter.add_mesh(
         probe,
         scalars="activation",
@@ -337,14 +351,24 @@ def _add_activation_legend(pv, plotter) -> None:
             "fmt": "%.1f",
             "color": "black",
             "vertical": False,
-            "position_x": 0.2,
-            "position_y": 0.01,
-            "width": 0.6,
-            "height": 0.1,
-            "title_font_size": 14,
+            "position_x": x,
+            "position_y": y,
+            "width": w,
+            "height": h,
             "label_font_size": 12,
+            "unconstrained_font_size": True,
         },
     )
+    if first:
+        bar = plotter.scalar_bars[ACTIVATION_LEGEND]
+        bar.SetTitle("")
+        bar.SetTextPositionToPrecedeScalarBar()
+        panel_px = plotter.window_size[0] / getattr(plotter, "shape", (1, 1))[1]
+        size = int(np.clip(0.85 * panel_px / _LEGEND_PX_PER_POINT, 6, 10))  # the title fits the panel's width
+        title = plotter.add_text(
+            ACTIVATION_LEGEND, position=(x + w / 2, y + h), viewport=True, font_size=size, color="black"
+        )
+        title.GetTextProperty().SetJustificationToCentered()
 
 
 def _new_plotter(pv, shape, window_size):
@@ -425,11 +449,12 @@ def render_panels(
             x, pnl.activations, pnl.captured_markers_m, pnl.simulated_markers_m, bone_affines=pnl.bone_affines()
         )
         if pnl.title:
-            p.add_text(pnl.title, position="upper_left", font_size=14, color="black")
+            p.add_text(pnl.title, position="upper_edge", font_size=12, color="black")
         if pnl.activations is not None:
             _add_activation_legend(pv, p)
         reserve = _LEGEND_BAND if pnl.activations is not None else 0.0
-        _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom, reserve_bottom=reserve)
+        top = _TITLE_BAND if pnl.title else 0.0
+        _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom, reserve_bottom=reserve, reserve_top=top)
     p.enable_anti_aliasing("ssaa")
     p.screenshot(str(out_path))
     p.close()
