@@ -47,6 +47,9 @@ def test_cli_poses_the_ict_head(tmp_path, capsys):
     assert summary["contractions"]["zygomaticus_major_l"] == 1.0
     posed = read_surface_mesh(tmp_path / "happy+AU26.obj", units="m")
     assert posed.n_vertices == 26719 and 3.0 < summary["max_displacement_mm"] < 60.0
+    # the smile's muscles reach the layout's 15 mm cap: the summary and the log line say so
+    assert summary["displacement_cap_mm"] == 15.0 and summary["vertices_at_cap"] > 0
+    assert f"{summary['vertices_at_cap']} vertices at it" in capsys.readouterr().out
     for key in ("png", "png_displacement", "usd"):
         assert Path(summary["files"][key]).stat().st_size > 1000
     from pxr import Usd, UsdGeom

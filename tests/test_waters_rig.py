@@ -147,6 +147,9 @@ def test_overlap_is_limited_per_vertex():
     # the global cap too
     capped = WatersRig(_layout(max_displacement_m=0.002), _grid(61))
     assert np.max(np.linalg.norm(capped.muscle_displacement(both), axis=1)) <= 0.002 * (1 + 1e-12)
+    over = np.flatnonzero(np.linalg.norm(capped.muscle_displacement(both, limit=False), axis=1) > 0.002)
+    assert len(over) and np.array_equal(capped.vertices_at_cap(both), over)
+    assert len(rig.vertices_at_cap({})) == 0
 
 
 @settings(max_examples=40, deadline=None)

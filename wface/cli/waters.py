@@ -123,11 +123,24 @@ def _run(args: argparse.Namespace) -> int:
         write_json(obj.with_suffix(".json"), summary)  # the summary names the blend too
     print(
         f"{obj.stem}: jaw open {summary['jaw_opening_deg']:.1f} deg, largest skin displacement "
-        f"{summary['max_displacement_mm']:.2f} mm"
+        f"{summary['max_displacement_mm']:.2f} mm{_cap_note(summary)}"
     )
     written = {Path(p) for p in summary["files"].values()} | {obj.with_suffix(".json")}  # pose_mesh's summary
     print_outputs(args.out, sorted(written, key=lambda p: p.name))
     return 0
+
+
+def _cap_note(summary: dict) -> str:
+    """What the largest displacement owes to the layout's cap, when muscles reached it ("" otherwise)."""
+    n, cap = summary["vertices_at_cap"], summary["displacement_cap_mm"]
+    if not n:
+        return ""
+    at = (
+        "the layout's cap"
+        if abs(summary["max_displacement_mm"] - cap) < 1e-6
+        else f"the layout caps muscles at {cap:g} mm"
+    )
+    return f" ({at}; {n} vertices at it)"
 
 
 def _blend(args: argparse.Namespace, summary: dict, rig, mesh):

@@ -88,6 +88,7 @@ def pose_mesh(
         "usd": str(write_surface_mesh(out / f"{stem}{usd_suffix}", posed, name="WatersFace")),
     }
     disp_mm = np.linalg.norm(x - mesh.vertices_m, axis=1) * 1e3
+    cap_mm, capped = rig.layout.max_displacement_m * 1e3, len(rig.vertices_at_cap(pose.contractions))
     if render:
         tri = mesh.triangles()
         box = None  # frame the face: the layout's landmarks, else the muscles' reach
@@ -103,7 +104,13 @@ def pose_mesh(
         files["png"] = str(render_mesh(out / f"{stem}.png", x, tri, title=stem, triangle_rgb=rgb[tri_face], **view))
         files["png_displacement"] = str(
             render_mesh(
-                out / f"{stem}_displacement.png", x, tri, displacement_mm=disp_mm, title=f"{stem}: displacement", **view
+                out / f"{stem}_displacement.png",
+                x,
+                tri,
+                displacement_mm=disp_mm,
+                title=f"{stem}: displacement",
+                colour_label="mm" + (f"\n(capped at {cap_mm:g})" if capped else ""),
+                **view,
             )
         )
     summary = {
@@ -115,6 +122,8 @@ def pose_mesh(
         "muscles": len(rig.muscle_names),
         "vertices": mesh.n_vertices,
         "max_displacement_mm": float(disp_mm.max()),
+        "displacement_cap_mm": cap_mm,  # the layout's per-vertex cap on the muscles' displacement
+        "vertices_at_cap": capped,
         "deform_seconds": seconds,
         "files": files,
     }

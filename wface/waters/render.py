@@ -22,6 +22,18 @@ def _polydata(vertices_m: np.ndarray, triangles: np.ndarray, scalars: np.ndarray
     return mesh
 
 
+def _on_white(text, *, right: bool = False):
+    """A text actor on a white box (readable over the dark head), right-aligned with ``right`` (its
+    position then is its lower right corner)."""
+    prop = text.GetTextProperty()
+    prop.SetBackgroundColor(1.0, 1.0, 1.0)
+    prop.SetBackgroundOpacity(0.85)
+    if right:
+        prop.SetJustificationToRight()
+        prop.SetVerticalJustificationToBottom()
+    return text
+
+
 def render_mesh(
     path: str | Path,
     vertices_m: np.ndarray,
@@ -36,6 +48,7 @@ def render_mesh(
     bounds_m: np.ndarray | None = None,
     triangle_rgb: np.ndarray | None = None,
     visible: np.ndarray | None = None,
+    colour_label: str = "mm",
 ) -> Path:
     """Render a mesh seen from the front (+z toward the camera, +y up) to a PNG.
 
@@ -53,6 +66,7 @@ def render_mesh(
         triangle_rgb: optional (t, 3) colour per triangle in [0, 1] (default skin; e.g. from the mesh's
             material groups, ``wface.mesh.materials.face_appearance``).
         visible: optional (t,) bool: triangles to draw (e.g. not an eye occlusion overlay).
+        colour_label: the colour bar's title (lines split by newlines), drawn above the bar.
     """
 
     pv = offscreen_pyvista()
@@ -68,7 +82,7 @@ def render_mesh(
             clim=clim_mm if clim_mm is not None else (0.0, max(float(np.max(displacement_mm)), 1e-6)),
             smooth_shading=True,
             scalar_bar_args={
-                "title": "mm",  # the picture's own title says "displacement"; a longer one was clipped
+                "title": "displacement_mm",
                 "n_labels": 3,
                 "fmt": "%.1f",
                 "color": "black",
@@ -77,17 +91,19 @@ def render_mesh(
                 "position_y": 0.25,
                 "width": 0.06,
                 "height": 0.5,
-                "title_font_size": 14,
                 "label_font_size": 12,
             },
         )
+        plotter.scalar_bars["displacement_mm"].SetTitle("")  # VTK's title sat on the top tick label
+        label = plotter.add_text(colour_label, position=(0.97, 0.77), viewport=True, font_size=max(7, size // 75))
+        _on_white(label, right=True)
     elif triangle_rgb is not None:
         mesh.cell_data["rgb"] = np.clip(np.asarray(triangle_rgb)[keep] * 255.0, 0, 255).astype(np.uint8)
         plotter.add_mesh(mesh, scalars="rgb", rgb=True, smooth_shading=True, specular=0.2)
     else:
         plotter.add_mesh(mesh, color=(0.87, 0.72, 0.62), smooth_shading=True, specular=0.2)
     if title:
-        plotter.add_text(title, font_size=max(8, size // 40))
+        _on_white(plotter.add_text(title, position="upper_edge", font_size=max(8, size // 50)))  # centred, off the edge
     plotter.view_xy()
     if bounds_m is not None:
         plotter.reset_camera(bounds=[float(b) for b in bounds_m])

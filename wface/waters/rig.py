@@ -189,6 +189,17 @@ class WatersRig:
                 d[over] *= (cap[over] / size[over])[:, None]
         return d
 
+    def vertices_at_cap(self, contractions) -> np.ndarray:
+        """Ids of the vertices whose muscle displacement the layout's cap (``max_displacement_m``) cut:
+        their displacement is the cap, not what the muscles asked for (the overlap limit, lower near
+        a single muscle's edge, is not counted)."""
+        c = self.contraction_vector(contractions)
+        if not c.any():
+            return np.zeros(0, dtype=np.int64)
+        d = self._influenced_displacement(c, limit=False)
+        size = np.sqrt(np.einsum("ij,ij->i", d, d))
+        return self.influenced[size > self.layout.max_displacement_m]
+
     def muscle_displacement(self, contractions, *, limit: bool = True) -> np.ndarray:
         """(n, 3) combined muscle displacement in metres (limited per vertex unless ``limit=False``)."""
         d = np.zeros_like(self.rest_positions_m)
