@@ -121,6 +121,25 @@ def test_analysis_recovers_contractions_with_gaps_and_split():
         FaceSplit([(np.arange(3), [0]), (np.arange(2, 5), [1])])
 
 
+def test_analysis_plot_says_what_its_colours_and_frames_are(tmp_path, monkeypatch):
+    """analysis.png: the colour bar reads 'contraction (0-1, dimensionless)', the title names the frames."""
+    pytest.importorskip("matplotlib")
+    from matplotlib.figure import Figure
+
+    from wface.basis import plots
+
+    mb = _marker_basis(_grid_basis(n_elements=4), k=20)
+    an = analyze(mb, mb.predict(np.random.default_rng(2).uniform(0, 1, size=(12, 4))))
+    saved = []
+    monkeypatch.setattr(Figure, "savefig", lambda fig, path, **kw: saved.append(fig))
+    plots.plot_analysis(an, tmp_path / "a.png", title=plots.frames_title("JawMoCap.c3d", (0, 600, 5)))
+    (fig,) = saved
+    assert fig.axes[0].get_title() == "JawMoCap.c3d, frames 0:600:5"
+    assert fig.axes[-1].get_ylabel() == "contraction (0-1, dimensionless)"  # the colour bar's axes
+    assert plots.frames_title("a.c3d", None) == "a.c3d, all frames"
+    assert plots.frames_title("a.c3d", (None, 90, 1)) == "a.c3d, frames :90:1"
+
+
 def test_analysis_matches_scipy_per_frame_on_noisy_data():
     from scipy.optimize import lsq_linear
 

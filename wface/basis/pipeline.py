@@ -16,7 +16,7 @@ from wface.basis.analysis import Analysis, FaceSplit, analyze, default_face_spli
 from wface.basis.capture import CaptureOnBasis, MarkerLayout, stabilise_capture
 from wface.basis.core import ActuationBasis
 from wface.basis.landmarks import load_ict_animface_landmarks
-from wface.basis.plots import plot_analysis
+from wface.basis.plots import frames_title, plot_analysis
 from wface.basis.refine import RefinementResult, interpolate_to_mesh, refine_marker_basis, select_regularization
 from wface.files import save_npz, write_csv, write_json
 
@@ -74,8 +74,16 @@ def analyze_take(
     return TakeAnalysis(layout, cap, an)
 
 
-def write_analysis(out_dir: str | Path, result: TakeAnalysis, *, extra: dict | None = None, plot: bool = True) -> dict:
-    """Write contractions (npz + CSV), per-frame marker errors (CSV), report.json and a plot.
+def write_analysis(
+    out_dir: str | Path,
+    result: TakeAnalysis,
+    *,
+    extra: dict | None = None,
+    plot: bool = True,
+    frames: tuple | None = None,
+) -> dict:
+    """Write contractions (npz + CSV), per-frame marker errors (CSV), report.json and a plot (its title
+    names the take's file and ``frames``, the slice (start, stop, step) of its frames analysed).
 
     Returns:
         The report dictionary (also in ``out_dir/report.json``).
@@ -125,7 +133,7 @@ def write_analysis(out_dir: str | Path, result: TakeAnalysis, *, extra: dict | N
     if extra:
         report.update(extra)
     if plot:
-        plot_analysis(an, out / "analysis.png", rate_hz=cap.rate_hz, title=Path(cap.source).name)
+        plot_analysis(an, out / "analysis.png", rate_hz=cap.rate_hz, title=frames_title(Path(cap.source).name, frames))
         report["plot"] = "analysis.png"
     write_json(out / "report.json", report)
     return report

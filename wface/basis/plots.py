@@ -8,7 +8,19 @@ import numpy as np
 
 from wface.basis.analysis import Analysis
 
-__all__ = ["plot_analysis"]
+__all__ = ["CONTRACTION_LABEL", "frames_title", "plot_analysis"]
+
+#: the contraction image's colour bar: contractions are fractions of full contraction
+CONTRACTION_LABEL = "contraction (0-1, dimensionless)"
+
+
+def frames_title(source: str, frames: tuple | None) -> str:
+    """``source`` and the frames analysed: "JawMoCap.c3d, frames 0:600:5" (slice A:B:S of the file's
+    frames; "all frames" without one), so that the picture says which part of the take it shows."""
+    if not frames:
+        return f"{source}, all frames"
+    a, b, step = (list(frames) + [1])[:3]
+    return f"{source}, frames {'' if a is None else a}:{'' if b is None else b}:{step}"
 
 
 def plot_analysis(
@@ -53,7 +65,7 @@ def plot_analysis(
                         extent=(t[0], t[-1] if len(t) > 1 else 1, -0.5, n - 0.5), vmin=0)  # fmt: skip
     axes[1].set_yticks(range(n))
     axes[1].set_yticklabels(analysis.element_names, fontsize=7)
-    fig.colorbar(im, ax=list(axes), pad=0.01, shrink=0.5, label="contraction (image)")
+    fig.colorbar(im, ax=list(axes), pad=0.01, shrink=0.5, label=CONTRACTION_LABEL)
     axes[2].plot(t, analysis.marker_rms_mm, color="k", lw=1)
     axes[2].set_ylabel("marker RMS (mm)")
     axes[2].set_xlabel("time (s)")

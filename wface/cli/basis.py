@@ -173,7 +173,7 @@ def _analyze(args) -> int:
                        progress=not args.no_progress)  # fmt: skip
     seconds = time.perf_counter() - t0
     report = write_analysis(
-        args.out, res, plot=not args.no_plot,
+        args.out, res, plot=not args.no_plot, frames=args.frames,
         extra={"basis": str(args.basis), "seconds": seconds, "seconds_per_frame": seconds / take.n_frames,
                "bounds": "x >= 0" if args.exaggerate else "0 <= x <= 1", "split": bool(args.split)},
     )  # fmt: skip
