@@ -87,10 +87,9 @@ def write_take_figures(
         progress: show a progress bar over the movie's frames.
         error_markers: the markers the error plot covers (ids; default all): the fitted ones where some were
             held out, so that the plot reads as the report's ``marker_rms_mm_mean``.
-        truth_markers_m: (F, k, 3) the true (noise-free) markers of a synthetic take: the error plot
-            leads with the error against them, as the report does (``truth_marker_rms_mm``).
-        outlier_mm: the tracker's outlier cut-off (the report's ``outlier_threshold_mm``): the error
-            plot shows the inliers' RMS and max, and the max counting outliers in a panel below.
+        truth_markers_m: (F, k, 3) a synthetic take's noise-free markers: the error plot leads with them.
+        outlier_mm: the report's ``outlier_threshold_mm``: the error plot shows the inliers' RMS and max
+            and, in a panel below, the max counting outliers.
 
     Returns:
         caption -> path, in display order (pass to ``write_html_report``).
