@@ -24,6 +24,7 @@ import scipy.sparse as sp
 from tqdm.auto import tqdm
 
 from wface.viz.inside import INSIDE_RGB, inner_surface, throat_quad
+from wface.viz.legend import LEGEND_BAND, add_activation_legend
 from wface.viz.muscles import ACTIVE_RGB, INACTIVE_RGB, SKIN_RGB, activation_colors, skin_muscle_influence
 from wface.viz.offscreen import offscreen_pyvista
 
@@ -318,57 +319,7 @@ def _place_camera(
     plotter.renderer.ResetCameraClippingRange()
 
 
-ACTIVATION_LEGEND = "muscle activation (0-1, dimensionless)"
-_LEGEND_BAND = 0.16  # share of a panel's height the activation colour bar and its title take at the bottom
-_LEGEND_PX_PER_POINT = 38.0  # width of ACTIVATION_LEGEND in pixels per point of font size (measured)
 _TITLE_BAND = 0.08  # share of a panel's height its title takes at the top (above the head, not over it)
-
-
-def _add_activation_legend(pv, plotter) -> None:
-    """A colour bar for the muscle heat map: red (inactive, 0) to yellow (fully active, 1).
-
-    The skin and muscle colours are written as RGB, which VTK cannot label, so an invisible
-    two-point mesh carries the lookup table of the bar. The tick labels go below the bar and the
-    title is a text of its own above it: VTK's own title overlapped the "0.0" and "1.0" labels.
-    """
-    from matplotlib.colors import LinearSegmentedColormap
-
-    cmap = LinearSegmentedColormap.from_list("activation", [INACTIVE_RGB, ACTIVE_RGB])
-    probe = pv.PolyData(np.zeros((2, 3)))
-    probe["activation"] = np.array([0.0, 1.0])
-    first = ACTIVATION_LEGEND not in plotter.scalar_bars  # one bar per plotter (pyvista keys them by title)
-    x, y, w, h = 0.2, 0.01, 0.6, 0.09  # the bar and its labels, share of the panel
-    plotter.add_mesh(
-        probe,
-        scalars="activation",
-        cmap=cmap,
-        clim=(0.0, 1.0),
-        opacity=0.0,
-        reset_camera=False,
-        scalar_bar_args={
-            "title": ACTIVATION_LEGEND,
-            "n_labels": 2,
-            "fmt": "%.1f",
-            "color": "black",
-            "vertical": False,
-            "position_x": x,
-            "position_y": y,
-            "width": w,
-            "height": h,
-            "label_font_size": 12,
-            "unconstrained_font_size": True,
-        },
-    )
-    if first:
-        bar = plotter.scalar_bars[ACTIVATION_LEGEND]
-        bar.SetTitle("")
-        bar.SetTextPositionToPrecedeScalarBar()
-        panel_px = plotter.window_size[0] / getattr(plotter, "shape", (1, 1))[1]
-        size = int(np.clip(0.85 * panel_px / _LEGEND_PX_PER_POINT, 6, 10))  # the title fits the panel's width
-        title = plotter.add_text(
-            ACTIVATION_LEGEND, position=(x + w / 2, y + h), viewport=True, font_size=size, color="black"
-        )
-        title.GetTextProperty().SetJustificationToCentered()
 
 
 def _new_plotter(pv, shape, window_size):
@@ -451,8 +402,8 @@ def render_panels(
         if pnl.title:
             p.add_text(pnl.title, position="upper_edge", font_size=12, color="black")
         if pnl.activations is not None:
-            _add_activation_legend(pv, p)
-        reserve = _LEGEND_BAND if pnl.activations is not None else 0.0
+            add_activation_legend(pv, p)
+        reserve = LEGEND_BAND if pnl.activations is not None else 0.0
         top = _TITLE_BAND if pnl.title else 0.0
         _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom, reserve_bottom=reserve, reserve_top=top)
     p.enable_anti_aliasing("ssaa")
@@ -584,8 +535,8 @@ def render_take_movie(
         muscle_smoothing=muscle_smoothing,
     )
     if activations is not None:
-        _add_activation_legend(pv, p)
-    reserve = _LEGEND_BAND if activations is not None else 0.0
+        add_activation_legend(pv, p)
+    reserve = LEGEND_BAND if activations is not None else 0.0
     _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom, reserve_bottom=reserve)
     p.enable_anti_aliasing("msaa", multi_samples=8)  # ssaa costs ~4x per frame; fxaa is not in OSMesa builds
     p.open_movie(str(out_path), framerate=int(round(fps)), quality=quality)
