@@ -338,11 +338,6 @@ class FaceModel:
             raise ModelError(
                 f"{tiny.size} tet(s) have near-zero volume (< {volume_tol:g} x median), first ids {tiny[:5].tolist()}"
             )
-        span = float(np.ptp(x, axis=0).max())
-        if not FACE_SPAN_M[0] <= span <= FACE_SPAN_M[1]:  # a millimetre mesh saved as metres, say
-            raise ModelError(
-                f"the flesh spans {span:.3g} m, where a face spans {FACE_SPAN_M[0]:g} to {FACE_SPAN_M[1]:g} m"
-            )
         st = self.skin_triangles
         if st.size and (st.min() < 0 or st.max() >= n):
             raise ModelError(f"skin_triangles reference nodes outside [0, {n})")
@@ -591,7 +586,15 @@ def load_model(path: str | Path, *, validate: bool = True) -> FaceModel:
         metadata=header["metadata"],
         pressure_actuators=header.get("pressure_actuators", {}),
     )
+    if not validate:
+        return model
     try:
-        return model.validate() if validate else model
+        model.validate()
+        span = float(np.ptp(model.rest_positions_m, axis=0).max())
+        if not FACE_SPAN_M[0] <= span <= FACE_SPAN_M[1]:  # a file's units: mm saved as m, say (files only)
+            raise ModelError(
+                f"the flesh spans {span:.3g} m, where a face spans {FACE_SPAN_M[0]:g} to {FACE_SPAN_M[1]:g} m"
+            )
     except ModelError as exc:
         raise ModelError(f"{path}: {exc}") from None
+    return model
