@@ -120,3 +120,24 @@ def test_an_animface_take_analyses_on_a_basis_from_the_face(cli_basis, tmp_path)
     assert main([*args, "--no-plot", "--no-progress", "--out", str(out)]) == 0
     report = __import__("json").loads((out / "report.json").read_text())
     assert report["marker_rms_mm_mean"] < 3.0
+
+
+def test_from_face_and_refine_do_not_replace_files_unasked(cli_basis, tmp_path, capsys):
+    """`basis from-face --out victim.npz` replaced a face model, `basis refine --out v3.npz` an earlier basis
+    and its v3.npz.report.json; each is refused before any work unless --overwrite."""
+    from wface.cli import main
+
+    victim = tmp_path / "victim.npz"
+    victim.write_bytes(b"a face model")
+    assert main(["basis", "from-face", "--tets", "1500", "--out", str(victim)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {victim} exists" in err and "--overwrite" in err, err
+    refine = ["basis", "refine", "--basis", str(cli_basis), "--train", str(tmp_path / "none.c3d")]
+    report = tmp_path / "v3.npz.report.json"
+    report.write_text("{}")
+    assert main([*refine, "--out", str(tmp_path / "v3.npz")]) == 2  # the report alone is there
+    err = capsys.readouterr().err
+    assert f"{report} exists" in err and "--overwrite" in err, err
+    assert main([*refine, "--out", str(victim)]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert victim.read_bytes() == b"a face model" and report.read_text() == "{}"

@@ -160,3 +160,24 @@ def test_no_rig_writes_the_point_cache_alone(tmp_path, capsys):
     args[-1] = tmp_path / "with_rig"
     assert _cli(args, capsys)[0] == 0
     assert Usd.Stage.Open(str(tmp_path / "with_rig" / "animation.usdc")).GetPrimAtPath("/Face/Rig")
+
+
+def test_bench_does_not_replace_a_file_unasked(tmp_path, capsys):
+    """`bench --out v2.npz` replaced a face model with JSON text after the run."""
+    kept = tmp_path / "v2.json"
+    kept.write_text("earlier")
+    args = ["bench", "--suite", "build", "--tets", "1000", "--repeat", "1", "--out"]
+    code, text = _cli([*args, kept], capsys)
+    assert code == 2 and f"--out {kept} exists" in text and "--overwrite" in text, text
+    code, text = _cli([*args, tmp_path / "v2.npz"], capsys)
+    assert code == 2 and "ending in .json" in text and not (tmp_path / "v2.npz").exists(), text
+    assert kept.read_text() == "earlier"
+
+
+def test_model_build_does_not_replace_the_vtu_unasked(tmp_path, capsys, model_path):
+    """--out was protected, --vtu was not: `model build --out new.npz --vtu keep.vtu` replaced keep.vtu."""
+    keep = tmp_path / "keep.vtu"
+    keep.write_text("a mesh")
+    code, text = _cli(["model", "build", "--tets", "1000", "--out", tmp_path / "new.npz", "--vtu", keep], capsys)
+    assert code == 2 and f"--vtu {keep} exists" in text and "--overwrite" in text, text
+    assert keep.read_text() == "a mesh" and not (tmp_path / "new.npz").exists()

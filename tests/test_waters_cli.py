@@ -234,3 +234,69 @@ def test_options_that_would_do_nothing_are_refused(tmp_path, capsys):
     ]:
         assert main(["waters", *args, "--out", str(tmp_path)]) == 2  # a usage error
         assert f"{flag} does nothing here" in capsys.readouterr().err
+
+
+def _small_head(tmp_path) -> list[str]:
+    """A synthetic head with landmarks for the ICT layout: the mesh options of a fast waters run."""
+    from wface.testing.synthetic_head import synthetic_landmarks
+    from wface.waters.layout import load_layout
+
+    head = synthetic_head(20, 40)
+    write_obj(tmp_path / "head.obj", head)
+    marks = synthetic_landmarks(load_layout("ict"))
+    ids = {k: int(np.argmin(np.linalg.norm(head.vertices_m - p, axis=1))) for k, p in marks.items()}
+    (tmp_path / "marks.json").write_text(json.dumps(ids))
+    return ["--mesh", str(tmp_path / "head.obj"), "--units", "m", "--landmarks", str(tmp_path / "marks.json")]
+
+
+def test_an_input_is_never_written_over(tmp_path, capsys):
+    """`wface waters --mesh wself/happy.obj --expression happy --out wself` replaced the input mesh with the
+    posed one; now it is refused before any work, even with --overwrite."""
+    mesh = _small_head(tmp_path)
+    (tmp_path / "wself").mkdir()
+    (tmp_path / "head.obj").rename(tmp_path / "wself" / "happy.obj")
+    before = (tmp_path / "wself" / "happy.obj").read_bytes()
+    mesh[1] = str(tmp_path / "wself" / "happy.obj")
+    args = ["waters", *mesh, "--expression", "happy", "--no-render", "--out", str(tmp_path / "wself")]
+    for extra in ([], ["--overwrite"]):
+        assert main([*args, *extra]) == 2
+        err = capsys.readouterr().err
+        assert "--mesh" in err and "happy.obj" in err and "even with --overwrite" in err, err
+    assert (tmp_path / "wself" / "happy.obj").read_bytes() == before
+    assert sorted(p.name for p in (tmp_path / "wself").iterdir()) == ["happy.obj"]  # nothing claimed
+
+
+def test_waters_claims_its_directory(tmp_path, capsys):
+    """Two runs into one --out (the second at --intensity 0.2) silently replaced happy.obj/.json/.usda; now
+    the second is refused unless --overwrite, and the very same command again reruns."""
+    args = ["waters", *_small_head(tmp_path), "--expression", "happy", "--no-render", "--out", str(tmp_path / "w")]
+    assert main(args) == 0
+    assert "provenance.json" in capsys.readouterr().out
+    first = {n: (tmp_path / "w" / n).read_bytes() for n in ("happy.obj", "happy.json", "happy.usda")}
+    assert main([*args, "--intensity", "0.2"]) == 1
+    err = capsys.readouterr().err
+    assert "holds another take's results" in err and "--overwrite" in err, err
+    assert {n: (tmp_path / "w" / n).read_bytes() for n in first} == first
+    assert main(args) == 0  # the very same command again
+    assert main([*args, "--intensity", "0.2", "--overwrite"]) == 0
+    zyg = json.loads((tmp_path / "w" / "happy.json").read_text())["contractions"]["zygomaticus_major_l"]
+    assert zyg == pytest.approx(0.2 * json.loads(first["happy.json"])["contractions"]["zygomaticus_major_l"])
+
+
+def test_waters_does_not_write_into_a_take(tmp_path, capsys):
+    """`waters --out TRACK_OUT` mixed its files into the take and listed the track's frames/ as its own;
+    a directory of another run's results, or an older waters run's files without provenance, is refused."""
+    mesh = _small_head(tmp_path)
+    take = tmp_path / "take"
+    (take / "frames").mkdir(parents=True)
+    (take / "frames" / "frame_000000.npz").write_bytes(b"x")
+    (take / "report.json").write_text('{"frames": 1}')
+    (take / "provenance.json").write_text(json.dumps({"kind": "track", "fingerprint": "0" * 16}))
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "happy.obj").write_text("v 0 0 0\n")
+    for out in (take, old):
+        assert main(["waters", *mesh, "--expression", "happy", "--no-render", "--out", str(out)]) == 1
+        err = capsys.readouterr().err
+        assert "--overwrite" in err, err
+    assert not (take / "happy.obj").exists() and (old / "happy.obj").read_text() == "v 0 0 0\n"

@@ -23,6 +23,7 @@ from wface.cli.validate import (
     positive_float,
     positive_fraction,
     positive_int,
+    refuse_existing,
 )
 from wface.faces.builtin import build_face
 from wface.files import file_sha256, read_landmarks, write_json
@@ -83,6 +84,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     common(r)
     r.add_argument("--train", required=True, nargs="+", help="training takes (.c3d/.trc/.csv)")
     r.add_argument("--out", required=True, type=npz_file, help="refined basis .npz")
+    r.add_argument("--overwrite", action="store_true", help="replace an existing --out file and its PATH.report.json")
     r.add_argument("--regularization", default="auto", type=_regularization,
                    help="ridge weight towards the initial shapes, or 'auto' (leave-one-take-out; default)")  # fmt: skip
     r.add_argument("--support", type=positive_fraction, default=None,
@@ -111,12 +113,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     f.add_argument("--tets", type=face_tets, default=5000, help="size of the built-in face when --model is not given")
     f.add_argument("--activation", type=positive_fraction, default=1.0, help="activation of each muscle (default 1)")
     f.add_argument("--out", required=True, type=npz_file, help="basis file to write (.npz)")
+    f.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     f.set_defaults(func=_from_face)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def _from_face(args) -> int:
 
+    refuse_existing(("--out", args.out), overwrite=args.overwrite)  # before the face is built or loaded
     if args.model:
         model = load_model(args.model)
     else:
@@ -186,8 +190,15 @@ def _analyze(args) -> int:
     return 0
 
 
+def _report_path(out: str | Path) -> Path:
+    """PATH.report.json beside the refined basis PATH."""
+    return Path(out).with_name(Path(out).name + ".report.json")
+
+
 def _refine(args) -> int:
 
+    report_path = _report_path(args.out)
+    refuse_existing(("--out", args.out), ("--out's report", report_path), overwrite=args.overwrite)  # before reading
     basis, landmarks = _load(args)
     takes = [_read(p, args.frames) for p in args.train]
     reg = args.regularization
@@ -210,7 +221,6 @@ def _refine(args) -> int:
         "seconds": time.perf_counter() - t0,
         **info,
     }
-    report_path = out.with_name(out.name + ".report.json")
     write_json(report_path, report)
     print(f"training RMS {res.errors_mm[0]:.3f} -> {min(res.errors_mm):.3f} mm in {res.iterations} iterations "
           f"(regularization {info['regularization']}); wrote {out} and {report_path}")  # fmt: skip

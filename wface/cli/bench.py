@@ -9,7 +9,7 @@ from pathlib import Path
 
 from wface.bench import SUITES
 from wface.cli.errors import UsageError
-from wface.cli.validate import face_tets, positive_int
+from wface.cli.validate import face_tets, positive_int, refuse_existing
 from wface.files import write_text
 from wface.tracking.estimator import TrackOptions
 
@@ -47,13 +47,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         f"moved the activations by more than this RMS (default {TrackOptions.prior_refit_change:g})",
     )
     p.add_argument("--json", action="store_true", help="print JSON only")
-    p.add_argument("--out", help="also write the JSON to this file")
+    p.add_argument("--out", help="also write the JSON to this file (.json)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.set_defaults(func=_run)
 
 
-def _check_out(path: str | None) -> None:
-    """--out must be a file that can be written, checked before the benchmark runs (its results were lost
-    after the run on a directory, and a missing folder was created)."""
+def _check_out(path: str | None, overwrite: bool) -> None:
+    """--out must be a new .json file that can be written, checked before the benchmark runs (its results
+    were lost after the run on a directory, a missing folder was created, and an existing face model was
+    replaced by the JSON)."""
     if not path:
         return
     out = Path(path)
@@ -61,10 +63,13 @@ def _check_out(path: str | None) -> None:
         raise UsageError(f"--out {path}: is a directory: give a file name, e.g. {out / 'bench.json'}")
     if not out.parent.is_dir():
         raise UsageError(f"--out {path}: folder {out.parent} does not exist")
+    if out.suffix.lower() != ".json":
+        raise UsageError(f"--out {path}: the benchmark writes JSON: give a file name ending in .json")
+    refuse_existing(("--out", path), overwrite=overwrite)
 
 
 def _run(args: argparse.Namespace) -> int:
-    _check_out(args.out)
+    _check_out(args.out, args.overwrite)
     module = importlib.import_module(f"wface.bench.{args.suite}")
     result = module.run(args)  # wface.bench.suite_result: {"suite", "machine", "device", "results", "notes"?}
     text = json.dumps(result, indent=2)

@@ -8,8 +8,14 @@ import sys
 import time
 from pathlib import Path
 
-from wface.cli.errors import UsageError
-from wface.cli.validate import face_tets, finite_float, non_negative_int, npz_file, tet_mesh_file
+from wface.cli.validate import (
+    face_tets,
+    finite_float,
+    non_negative_int,
+    npz_file,
+    refuse_existing,
+    tet_mesh_file,
+)
 from wface.faces.artisynth import import_artisynth
 from wface.faces.builtin import build_face
 from wface.faces.fit import fit_template, ict_feature_landmarks, select_target_faces
@@ -64,7 +70,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     b.add_argument("--tets", type=face_tets, default=20000, help="target number of tetrahedra (default 20000)")
     b.add_argument("--out", required=True, type=npz_file, help="output model file (.npz)")
-    b.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    b.add_argument("--overwrite", action="store_true", help="replace an existing --out (and --vtu) file")
     b.add_argument(
         "--free-to-mm",
         type=_free_to_mm,
@@ -135,10 +141,9 @@ def _free_to_mm(text: str) -> float:
 
 
 def _refuse_existing(args: argparse.Namespace) -> None:
-    """An existing --out is not replaced unasked (an imported 3 MB Badin model was silently rebuilt as a
-    640 KB built-in face), and that is said before any work."""
-    if Path(args.out).exists() and not args.overwrite:
-        raise UsageError(f"--out {args.out} exists: choose another file, or pass --overwrite to replace it")
+    """An existing --out (or build's --vtu) is not replaced unasked (an imported 3 MB Badin model was silently
+    rebuilt as a 640 KB built-in face), and that is said before any work."""
+    refuse_existing(("--out", args.out), ("--vtu", getattr(args, "vtu", None)), overwrite=args.overwrite)
 
 
 def _build(args: argparse.Namespace) -> int:

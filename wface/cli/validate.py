@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 from wface.cli.errors import UsageError
 from wface.faces.builtin.face import MAX_TETS, MIN_TETS
@@ -28,6 +29,7 @@ __all__ = [
     "positive_fraction",
     "positive_int",
     "probability",
+    "refuse_existing",
     "unit_interval",
 ]
 
@@ -129,6 +131,19 @@ def npz_file(text: str) -> str:
     if not str(text).lower().endswith(".npz"):
         raise argparse.ArgumentTypeError(f"expected a file name ending in .npz, got {text!r}")
     return text
+
+
+def refuse_existing(*outputs: tuple[str, str | Path | None], overwrite: bool) -> None:
+    """Output files are checked before the work: a directory in a file's place is refused, and an existing
+    file is not replaced unless ``overwrite`` (--overwrite). ``outputs``: (what names it, e.g. "--vtu", path);
+    a None path is skipped."""
+    for what, path in outputs:
+        if path is None:
+            continue
+        if Path(path).is_dir():
+            raise UsageError(f"{what} {path} is a directory: give a file name")
+        if Path(path).exists() and not overwrite:
+            raise UsageError(f"{what} {path} exists: choose another file, or pass --overwrite to replace it")
 
 
 TET_MESH_SUFFIXES = (".vtu", ".vtk", ".msh", ".xdmf", ".inp", ".mesh")  # meshio formats that hold tetrahedra
