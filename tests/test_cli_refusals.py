@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 
+import numpy as np
 import pytest
 
 from wface.cli import main
@@ -181,3 +182,42 @@ def test_model_build_does_not_replace_the_vtu_unasked(tmp_path, capsys, model_pa
     code, text = _cli(["model", "build", "--tets", "1000", "--out", tmp_path / "new.npz", "--vtu", keep], capsys)
     assert code == 2 and f"--vtu {keep} exists" in text and "--overwrite" in text, text
     assert keep.read_text() == "a mesh" and not (tmp_path / "new.npz").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "code", "said"),
+    [  # a user's pass with bad input: each was silently taken, or answered with the wrong reason
+        (["track", "--mocap", "none.c3d", "--tets", "3000"], 2, "--tets does nothing here"),  # with --model
+        (["demo", "--dropout", "0.95"], 2, "leaves too few markers to track"),
+        (["simulate", "--activation", "frontalis_medial_l=0.5", "--activation", "frontalis_medial_l=0.9"], 1,
+         "frontalis_medial_l is given twice (0.5 and 0.9)"),
+        (["resim", "--activation", "none", "--activation", "mentalis_l=1"], 1, "'none' stands alone"),
+    ],
+)  # fmt: skip
+def test_options_taken_wrong_are_said(tmp_path, capsys, model_path, args, code, said):
+    if args[0] in ("track", "simulate"):
+        args = [args[0], "--model", model_path, *args[1:]]
+    got, text = _cli([*args, "--out", tmp_path / "o"], capsys)
+    assert got == code and said in text, text
+
+
+def test_a_negative_number_list_is_a_value():
+    """`--head-shake -10,3` was read as an unknown option (it worked only as --head-shake=-10,3)."""
+    from wface.cli import build_parser
+
+    args = build_parser().parse_args(["resim", "--out", "o", "--head-shake", "-10,3", "--damping", "0,-2e-4"])
+    assert args.head_shake == "-10,3" and args.damping == "0,-2e-4"
+
+
+def test_import_of_a_file_says_it_is_a_file(tmp_path, capsys):
+    f = tmp_path / "face.txt"
+    f.write_text("x")
+    code, text = _cli(["model", "import", "artisynth", f, "--out", tmp_path / "o.npz"], capsys)
+    assert code != 0 and "is a file: give the ArtiSynth face's directory" in text
+
+
+def test_coincident_landmarks_are_said_in_words():
+    from wface.mesh.align import umeyama
+
+    with pytest.raises(ValueError, match="all lie at one place"):
+        umeyama(np.zeros((4, 3)), np.eye(4, 3))

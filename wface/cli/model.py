@@ -207,6 +207,10 @@ def _info(args: argparse.Namespace) -> int:
 
 def _import(args: argparse.Namespace) -> int:
     _refuse_existing(args)
+    if Path(args.directory).is_file():
+        raise ValueError(
+            f"{args.directory} is a file: give the ArtiSynth face's directory (the one holding badinjaw.obj)"
+        )
     if not Path(args.directory).is_dir():
         raise FileNotFoundError(f"source directory not found: {args.directory}")
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import time
 from pathlib import Path
 
@@ -96,6 +97,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    # "--head-shake -10,3": argparse takes a value starting with '-' for an option unless it looks like a
+    # negative number; a number list counts as one here (argparse's own attribute, read where it parses)
+    p._negative_number_matcher = re.compile(r"^-\d*\.?\d+([eE][-+]?\d+)?(,[-+]?\d*\.?\d+([eE][-+]?\d+)?)*$")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--take", help="tracking output directory (from `wface track` / `wface demo`); omit for synthetic")
     p.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")

@@ -106,11 +106,15 @@ def parse_activations(items: list[str]) -> dict[str, float]:
     for item in items:
         name, sep, value = item.partition("=")
         if not sep or not name:
-            raise ValueError(f"--activation expects NAME=VALUE, got {item!r}")
+            hint = " ('none' stands alone: no other --activation with it)" if item.strip().lower() == "none" else ""
+            raise ValueError(f"--activation expects NAME=VALUE, got {item!r}{hint}")
         try:
-            out[name.strip()] = float(value)
+            number = float(value)
         except ValueError:
             raise ValueError(f"--activation {item!r}: {value!r} is not a number") from None
+        if name.strip() in out:  # the last would win without a word
+            raise ValueError(f"--activation {name.strip()} is given twice ({out[name.strip()]:g} and {number:g})")
+        out[name.strip()] = number
     return out
 
 

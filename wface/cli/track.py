@@ -195,7 +195,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     _common(t)
     t.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
-    t.add_argument("--tets", type=face_tets, default=5000, help="size of the built-in face when --model is not given")
+    t.add_argument(
+        "--tets",
+        type=face_tets,
+        default=None,
+        help="size of the built-in face without --model (default 5000)",
+    )
     t.add_argument("--mocap", required=True, help="marker file: .c3d, .trc or .csv")
     t.add_argument(
         "--frames",
@@ -420,6 +425,8 @@ def _warn_rejected_markers(report: dict) -> None:
 
 
 def run_demo(args: argparse.Namespace) -> int:
+    if args.dropout >= 0.9:  # the tracker needs markers to see: at 1 every sample is missing
+        raise UsageError(f"--dropout {args.dropout:g} leaves too few markers to track: give a fraction below 0.9")
     model = build_face(args.tets, progress=True)
     rig = FaceRig(model, device=args.device, solver=args.solver, tol=1e-6, contact=_contact(args, model))
     markers = embed_model_markers(model)
@@ -480,8 +487,10 @@ def _markers_with_a_rest_place(names, tracked_m, neutral_m, neutral_frame: int) 
 
 
 def run_track(args: argparse.Namespace) -> int:
+    if args.model and args.tets is not None:
+        raise UsageError("--tets does nothing here: it sizes the built-in face, and --model gives the face")
     take = read_mocap(args.mocap)  # a bad file fails before the face is built
-    model = load_model(args.model) if args.model else build_face(args.tets, progress=True)
+    model = load_model(args.model) if args.model else build_face(args.tets or 5000, progress=True)
     for note in take.meta.get("notices", []):
         print(f"note: {note}")
     neutral = args.neutral_frame

@@ -133,7 +133,9 @@ def umeyama(
     xc, yc = x - mu_x, y - mu_y
     var_x = float(w @ np.einsum("ij,ij->i", xc, xc))
     if var_x <= 1e-30:
-        raise ValueError("umeyama: source points are coincident")
+        raise ValueError(
+            f"the {len(x)} points to align all lie at one place (landmarks naming one vertex, or a mesh of one point)"
+        )
     cov = (yc * w[:, None]).T @ xc
     u, d, vt = np.linalg.svd(cov)
     sign = np.ones(3)
