@@ -192,6 +192,7 @@ def test_model_build_does_not_replace_the_vtu_unasked(tmp_path, capsys, model_pa
         (["simulate", "--activation", "frontalis_medial_l=0.5", "--activation", "frontalis_medial_l=0.9"], 1,
          "frontalis_medial_l is given twice (0.5 and 0.9)"),
         (["resim", "--activation", "none", "--activation", "mentalis_l=1"], 1, "'none' stands alone"),
+        (["edit", "blend", "--from", "smile", "--to", "surprise", "--neutral", "foo"], 2, "--neutral does nothing"),
     ],
 )  # fmt: skip
 def test_options_taken_wrong_are_said(tmp_path, capsys, model_path, args, code, said):

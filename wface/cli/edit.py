@@ -187,6 +187,12 @@ def _model(args):
     return face_for_take(args)
 
 
+def _refuse_neutral(args) -> None:
+    """blend and retime measure nothing from a neutral: a --neutral there would be dropped without a word."""
+    if args.neutral != "neutral":
+        raise UsageError(f"--neutral does nothing in edit {args.edit_command}: exaggerate and layer measure from it")
+
+
 def _neutral(args, model, take=None):
 
     if args.neutral == "first":
@@ -247,6 +253,7 @@ def _positive_frames(n: int) -> int:
 # ---------------------------------------------------------------------- sub-commands
 def run_blend(args: argparse.Namespace) -> int:
 
+    _refuse_neutral(args)
     fps = args.fps or 30.0
     if args.mix and (args.from_ or args.to):
         raise UsageError("give either --from/--to or --mix, not both")
@@ -331,7 +338,7 @@ def run_layer(args: argparse.Namespace) -> int:
 
 
 def run_retime(args: argparse.Namespace) -> int:
-
+    _refuse_neutral(args)
     model = _model(args)
     take = _load(args, model)
     out = retime(take, speed=args.speed, fps_out=args.fps_out, joint=model.jaw_joint)
