@@ -192,6 +192,9 @@ def test_signed_surface_of_inconsistent_closed_mesh():
         ({"regions": "lips", "stiffness_n_per_m": float("nan")}, "stiffness"),
         ({}, "nothing to do"),
         ({"self_pairs": [("upper_lip", "nose")]}, "unknown surface group"),
+        # a ball round the whole face pushed it out through itself (resim: the sparse solver's raw message)
+        ({"obstacles": ["sphere:0,0,0,0.5"]}, r"holds (\d+) of the face's \1 surface nodes at rest"),
+        ({"obstacles": ["plane:0,0,0.5,0,0,1"]}, "is a solid the skin is pushed out of"),
     ],
 )
 def test_bad_input_is_refused(face, kwargs, message):

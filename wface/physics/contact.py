@@ -379,12 +379,21 @@ class Contact:
         self.nodes = nodes
 
         self.rigid: list[tuple[str, object]] = []
-        for i, ob in enumerate(obstacles):
-            ob = parse_obstacle(ob) if isinstance(ob, str) else ob
+        for i, spec in enumerate(obstacles):
+            ob = parse_obstacle(spec) if isinstance(spec, str) else spec
             if not isinstance(ob, Sphere | HalfSpace | MeshObstacle):
                 raise TypeError(f"obstacle {i} is a {type(ob).__name__}; use Sphere, HalfSpace or MeshObstacle")
             label = getattr(ob, "name", None) or type(ob).__name__.lower()
             self.rigid.append((f"{label}{i}" if label in ("sphere", "halfspace") else label, ob))
+            phi = ob.signed(model.rest_positions_m[nodes], {}, 0.0)[0]
+            inside = int(np.count_nonzero(phi < 0))
+            if nodes.size and inside > nodes.size // 2:  # it would push the face out through itself
+                shown = spec if isinstance(spec, str) else self.rigid[-1][0]
+                raise ValueError(
+                    f"obstacle {shown} holds {inside} of the face's {nodes.size} surface nodes at rest (down to "
+                    f"{-phi.min() * 1e3:.1f} mm inside): an obstacle is a solid the skin is pushed out of; place "
+                    "it against the skin (a sphere's centre outside the face)"
+                )
         # Nodes that may touch each rigid source (all contact nodes; for the model's bone and teeth
         # meshes, those already inside at rest are left out, see ``ignore_inside_at_rest``).
         self.rigid_nodes: list[np.ndarray] = [nodes] * len(self.rigid)
@@ -460,7 +469,7 @@ class Contact:
     @classmethod
     def from_spec(cls, model: FaceModel, regions: str = "", obstacles=(), **kwargs) -> Contact:
         """``Contact(model, regions="lips,teeth", obstacles=["sphere:0,-0.06,0.1,0.02"])``."""
-        return cls(model, regions=regions, obstacles=[parse_obstacle(s) for s in obstacles], **kwargs)
+        return cls(model, regions=regions, obstacles=list(obstacles), **kwargs)
 
     def set_pose(self, attached_positions: np.ndarray | None) -> None:
         """Place the bone-following meshes for a solve whose attached nodes go to ``attached_positions``
