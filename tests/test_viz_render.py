@@ -86,6 +86,18 @@ def test_without_markers_there_is_no_red_or_green(tmp_path, face):
     assert _count(img, _red) == 0 and _count(img, _green) == 0
 
 
+@pytest.mark.parametrize("shown", [("captured",), ("simulated",), ("captured", "simulated")])
+def test_the_marker_legend_names_the_markers_shown(tmp_path, face, take, shown):
+    """Red and green balls without a word on which is which (a user read red as the error)."""
+    f = 3
+    kw = {f"{k}_markers_m": take[f"{k}_markers_m"][f] for k in shown}
+    img = _img(render.render_expression(face, take["node_positions_m"][f], tmp_path / "l.png", panel_size=_SIZE, **kw))
+    corner = img[: int(0.12 * _SIZE[1]), : int(0.35 * _SIZE[0])]  # the legend's band, above the head
+    assert (_count(corner, _red) > 0) == ("captured" in shown)
+    assert (_count(corner, _green) > 0) == ("simulated" in shown)
+    assert _border_is_background(img)
+
+
 def test_muscle_colours_follow_activation(tmp_path, face):
     M = face.n_muscles
     off = _img(

@@ -1,5 +1,6 @@
-"""The colour bar of the muscle heat map in pictures (``wface.viz.render``): red (inactive, 0) to
-yellow (fully active, 1), labelled ``ACTIVATION_LEGEND``, at the bottom of each panel."""
+"""The legends of pictures (``wface.viz.render``): the colour bar of the muscle heat map, red
+(inactive, 0) to yellow (fully active, 1), labelled ``ACTIVATION_LEGEND`` at the bottom of each panel,
+and the markers' colours (captured red, the face's green; Sifakis et al. 2005) at its top left."""
 
 from __future__ import annotations
 
@@ -7,10 +8,19 @@ import numpy as np
 
 from wface.viz.muscles import ACTIVE_RGB, INACTIVE_RGB
 
-__all__ = ["ACTIVATION_LEGEND", "LEGEND_BAND", "add_activation_legend"]
+__all__ = [
+    "ACTIVATION_LEGEND",
+    "CAPTURED_RGB",
+    "LEGEND_BAND",
+    "SIMULATED_RGB",
+    "add_activation_legend",
+    "add_marker_legend",
+]
 
 ACTIVATION_LEGEND = "muscle activation (0-1, dimensionless)"
 LEGEND_BAND = 0.16  # share of a panel's height the activation colour bar and its title take at the bottom
+CAPTURED_RGB = (0.90, 0.05, 0.05)  # captured markers
+SIMULATED_RGB = (0.05, 0.75, 0.10)  # the face's markers: tracked or simulated
 _LEGEND_PX_PER_POINT = 38.0  # width of ACTIVATION_LEGEND in pixels per point of font size (measured)
 
 
@@ -59,3 +69,26 @@ def add_activation_legend(pv, plotter) -> None:
             ACTIVATION_LEGEND, position=(x + w / 2, y + h), viewport=True, font_size=size, color="black"
         )
         title.GetTextProperty().SetJustificationToCentered()
+
+
+def marker_legend_labels(captured: bool, simulated: bool) -> list[tuple[str, tuple[float, float, float]]]:
+    """The marker legend's entries for a picture showing captured and/or the face's markers."""
+    face = "tracked (the face's)" if captured else "the face's markers"
+    entries = ((captured, "captured", CAPTURED_RGB), (simulated, face, SIMULATED_RGB))
+    return [(text, rgb) for on, text, rgb in entries if on]
+
+
+def add_marker_legend(plotter, *, captured: bool, simulated: bool) -> float:
+    """Which colour is which marker, at the panel's top left (nothing when it shows no markers).
+    Returns the share of the panel's height it takes at the top (0 without markers)."""
+    labels = marker_legend_labels(captured, simulated)
+    if labels:
+        plotter.add_legend(
+            labels=[[text, rgb] for text, rgb in labels],
+            bcolor="white",
+            face="circle",
+            size=(0.3, 0.05 * len(labels)),
+            loc="upper left",
+            background_opacity=0.8,
+        )
+    return 0.05 * len(labels) + 0.01 if labels else 0.0

@@ -24,7 +24,7 @@ import scipy.sparse as sp
 from tqdm.auto import tqdm
 
 from wface.viz.inside import INSIDE_RGB, inner_surface, throat_quad
-from wface.viz.legend import LEGEND_BAND, add_activation_legend
+from wface.viz.legend import CAPTURED_RGB, LEGEND_BAND, SIMULATED_RGB, add_activation_legend, add_marker_legend
 from wface.viz.muscles import ACTIVE_RGB, INACTIVE_RGB, SKIN_RGB, activation_colors, skin_muscle_influence
 from wface.viz.offscreen import offscreen_pyvista
 
@@ -39,8 +39,6 @@ __all__ = [
     "render_take_movie",
 ]
 
-CAPTURED_RGB = (0.90, 0.05, 0.05)
-SIMULATED_RGB = (0.05, 0.75, 0.10)
 BONE_RGB = (0.93, 0.91, 0.84)
 DEFAULT_VIEW = (0.45, 0.12, 1.0)  # camera direction from the face: front (+z), a little right and above
 _BACKGROUND = "white"
@@ -266,6 +264,11 @@ def _framing_points(model, arrays, *, bones: bool) -> np.ndarray:
     return pts
 
 
+def _shows(markers) -> bool:
+    """Whether a picture draws any of these markers ((k, 3) or (F, k, 3); NaN rows are not drawn)."""
+    return markers is not None and bool(np.isfinite(np.asarray(markers, dtype=float)).all(axis=-1).any())
+
+
 def _box_corners(points: np.ndarray) -> np.ndarray:
     """(F*8, 3) corners of the per-frame bounding boxes of (F, n, 3) points (cheap framing of a movie)."""
     lo, hi = points.min(axis=1), points.max(axis=1)
@@ -403,8 +406,9 @@ def render_panels(
             p.add_text(pnl.title, position="upper_edge", font_size=12, color="black")
         if pnl.activations is not None:
             add_activation_legend(pv, p)
+        key = add_marker_legend(p, captured=_shows(pnl.captured_markers_m), simulated=_shows(pnl.simulated_markers_m))
         reserve = LEGEND_BAND if pnl.activations is not None else 0.0
-        top = _TITLE_BAND if pnl.title else 0.0
+        top = max(_TITLE_BAND if pnl.title else 0.0, key)
         _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom, reserve_bottom=reserve, reserve_top=top)
     p.enable_anti_aliasing("ssaa")
     p.screenshot(str(out_path))
@@ -536,8 +540,9 @@ def render_take_movie(
     )
     if activations is not None:
         add_activation_legend(pv, p)
+    key = add_marker_legend(p, captured=_shows(captured_markers_m), simulated=_shows(simulated_markers_m))
     reserve = LEGEND_BAND if activations is not None else 0.0
-    _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom, reserve_bottom=reserve)
+    _place_camera(p, pts, view, fill=fill, pad_m=r, zoom=zoom, reserve_bottom=reserve, reserve_top=key)
     p.enable_anti_aliasing("msaa", multi_samples=8)  # ssaa costs ~4x per frame; fxaa is not in OSMesa builds
     p.open_movie(str(out_path), framerate=int(round(fps)), quality=quality)
     text = None
