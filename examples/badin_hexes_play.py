@@ -113,6 +113,7 @@ def play(
     fps: float = 25.0,
     end_s=None,
     tol: float = 1e-4,
+    max_iterations: int = 25,
     ring_directions: str = "nearest",
     mass_lumping: str = "equal",
     start_from: str = "pushed",
@@ -198,6 +199,7 @@ def play(
                 beta_s=DYNAMICS["beta_s"],
                 gravity_m_s2=DYNAMICS["gravity_m_s2"],
                 tol=tol,
+                max_iterations=max_iterations,
             )
             x = x_new
             solves.append(r)
@@ -291,6 +293,13 @@ def main(argv=None) -> int:
         "ArtiSynth's vertex penetrations)",
     )
     p.add_argument("--tol", type=float, default=1e-4, help="relative residual of each solve (wface speech's default)")
+    p.add_argument(
+        "--max-iterations",
+        type=int,
+        default=25,
+        help="Newton iterations per time step at most (1: one linearised solve a step, as ArtiSynth's "
+        "backward Euler makes; default 25, to --tol)",
+    )
     a = p.parse_args(argv)
     if not a.data.is_dir():
         p.error(f"no ArtiSynth face data at {a.data} (--data)")
@@ -305,6 +314,7 @@ def main(argv=None) -> int:
         fps=a.fps,
         end_s=a.end,
         tol=a.tol,
+        max_iterations=a.max_iterations,
         ring_directions=a.ring_directions,
         mass_lumping=a.mass_lumping,
         start_from=a.start,
@@ -333,6 +343,7 @@ def main(argv=None) -> int:
         "lip_points": a.lip_points,
         "fps": a.fps,
         "tol": a.tol,
+        "max_iterations": a.max_iterations,
         "dynamics": DYNAMICS,
         "mesh": run["mesh"],
         "summary": summarise(run["rows"]),

@@ -633,6 +633,32 @@ def test_speech_on_a_face_without_its_muscles_is_refused(model_path, tmp_path, c
     assert not (tmp_path / "s").exists()
 
 
+@pytest.mark.parametrize(
+    ("extra", "said"),
+    [  # each was accepted and did nothing
+        (["--damping-alpha", "1"], "--damping-alpha set(s) the dynamic playback: add --dynamic"),
+        (["--no-gravity", "--scheme", "midpoint"], "--scheme, --no-gravity set(s) the dynamic playback"),
+        (["--data", "somewhere"], "--data is the artisynth-face folder of --setup artisynth"),
+    ],
+)
+def test_speech_options_that_would_do_nothing_are_usage_errors(model_path, tmp_path, capsys, extra, said):
+    code, text = _cli(
+        ["speech", "--model", model_path, "--gesture", "closure", *extra, "--out", tmp_path / "s"], capsys
+    )
+    assert code == 2 and said in text, text
+    assert not (tmp_path / "s").exists()
+
+
+def test_the_speech_dir_given_is_the_only_one_looked_in(model_path, tmp_path, capsys):
+    """A --speech-dir without the gesture fell through to ../shared/data's gestures, unsaid."""
+    (tmp_path / "gestures" / "hum").mkdir(parents=True)
+    (tmp_path / "gestures" / "hum" / "0probes.art").write_text("")
+    args = ["speech", "--model", model_path, "--gesture", "closure", "--speech-dir", tmp_path / "gestures"]
+    code, text = _cli([*args, "--out", tmp_path / "s"], capsys)
+    assert code == 1 and "no closure/0probes.art there (its gestures: hum)" in text, text
+    assert not (tmp_path / "s").exists()
+
+
 def test_missing_surfaces_and_muscles_are_named(model_path, tmp_path, capsys):
     from wface.model import load_model, save_model
 

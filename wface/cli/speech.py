@@ -16,6 +16,7 @@ from pathlib import Path
 
 from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
+from wface.cli.errors import UsageError
 from wface.cli.validate import non_negative_float, positive_float, positive_int
 from wface.faces.artisynth import import_artisynth
 from wface.files import write_json
@@ -53,6 +54,9 @@ examples:
   wface speech --model badin.npz --gesture approximant --setup artisynth --contact lips,skull \\
       --contact-inside-at-rest push --out skull   # ArtiSynth's lip-skull contact (jaw and maxilla)
 """
+
+
+_DYNAMIC_ONLY = ("scheme", "max_step_ms", "damping_alpha", "damping_beta", "no_gravity")  # used with --dynamic
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -141,7 +145,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="animation.usdc without the UsdSkel rig (the rig costs one solve per muscle, ~20 s each on Badin)",
     )
-    p.set_defaults(func=run_speech)
+    p.set_defaults(func=run_speech, dynamic_option_defaults={k: p.get_default(k) for k in _DYNAMIC_ONLY})
 
 
 def _load_model(path: Path):
@@ -155,9 +159,16 @@ def _gesture_dir(args) -> Path:
     g = Path(args.gesture)
     if (g / "0probes.art").exists():
         return g
+    if args.speech_dir:  # the folder given, and no other (it fell through to the shared data before)
+        given = Path(args.speech_dir)
+        if (given / args.gesture / "0probes.art").exists():
+            return given / args.gesture
+        there = sorted(d.name for d in given.glob("*") if (d / "0probes.art").exists()) if given.is_dir() else []
+        raise FileNotFoundError(
+            f"--speech-dir {given}: no {args.gesture}/0probes.art there "
+            f"({'its gestures: ' + ', '.join(there) if there else 'it holds no gesture folder'})"
+        )
     candidates = []
-    if args.speech_dir:
-        candidates.append(Path(args.speech_dir))
     model = Path(args.model)
     if model.is_dir():
         candidates.append(model / "speech")
@@ -172,7 +183,13 @@ def _gesture_dir(args) -> Path:
 
 
 def _data_dir(args) -> Path:
-    candidates = [Path(args.data)] if args.data else []
+    if args.data:  # the folder given, and no other
+        if not (Path(args.data) / "badinface_oop_csa_midsagittal.elem").exists():
+            raise FileNotFoundError(
+                f"--data {args.data}: not the artisynth-face data folder (no badinface_oop_csa_midsagittal.elem)"
+            )
+        return Path(args.data)
+    candidates = []
     if Path(args.model).is_dir():
         candidates.append(Path(args.model))
     candidates += [
@@ -253,8 +270,21 @@ def _write_pictures_and_usd(args, out: Path, model, result, view, gesture) -> li
     return files
 
 
+def _check_options(args) -> None:
+    """Options that would do nothing are usage errors (they were dropped silently)."""
+    defaults = args.dynamic_option_defaults
+    given = ["--" + k.replace("_", "-") for k in _DYNAMIC_ONLY if getattr(args, k) != defaults[k]]
+    if given and not args.dynamic:
+        raise UsageError(f"{', '.join(given)} set(s) the dynamic playback: add --dynamic, or leave it out")
+    if args.data and args.setup != "artisynth":
+        raise UsageError(
+            "--data is the artisynth-face folder of --setup artisynth: add --setup artisynth, or leave it out"
+        )
+
+
 def run_speech(args: argparse.Namespace) -> int:
     started = time.time()
+    _check_options(args)
 
     out = Path(args.out)
     t_start = time.perf_counter()

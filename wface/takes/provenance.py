@@ -129,7 +129,19 @@ def explain_mismatch(expected: dict, found: dict | None) -> str:
     return "another fingerprint"
 
 
-_NOT_OPTIONS = ("func", "out", "overwrite", "resume", "debug", "command", "json", "no_pictures", "no_movie", "no_usd")
+_NOT_OPTIONS = (
+    "func",
+    "out",
+    "overwrite",
+    "resume",
+    "debug",
+    "command",
+    "json",
+    "no_pictures",
+    "no_movie",
+    "no_usd",
+    "dynamic_option_defaults",
+)
 _SOURCE_KEYS = (
     "take", "model", "tets", "mocap", "from_", "to", "mix", "expression", "add", "activation", "frames", "gesture",
     "speech_dir",
