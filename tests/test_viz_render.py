@@ -222,10 +222,13 @@ def test_headless_render_prints_no_vtk_warning(tmp_path):
     assert (tmp_path / "s.png").stat().st_size > 100
 
 
-def test_an_open_mouth_shows_a_dark_cavity_not_the_background(tmp_path):
+@pytest.mark.parametrize("affines_given", [True, False])
+def test_an_open_mouth_shows_a_dark_cavity_not_the_background(tmp_path, affines_given):
     """The built-in face has no oral cavity (no tongue, palate or throat): with the jaw open, the
     picture showed the white background through the mouth. The flesh's inner surfaces, the bones and
-    a backdrop behind the teeth are drawn dark now, so no background is enclosed by the face."""
+    a backdrop behind the teeth are drawn dark now, so no background is enclosed by the face. The head
+    turned and the jaw open: without the bones' affines (an edit's contact sheet) the teeth and the
+    backdrop follow the attached nodes (they stood at rest, and the mouth showed the background)."""
     from scipy.ndimage import binary_fill_holes
 
     from wface.controls import jaw_opening_affine
@@ -235,7 +238,11 @@ def test_an_open_mouth_shows_a_dark_cavity_not_the_background(tmp_path):
     model = build_face(target_tets=2000)
     jaw = jaw_opening_affine(model, 15.0)
     x = Simulator(model).solve(np.zeros(model.n_muscles), _opened(model, jaw)).x
-    img = _img(render.render_expression(model, x, tmp_path / "open.png", jaw_affine=jaw, panel_size=_SIZE))
+    c, s = np.cos(np.radians(20.0)), np.sin(np.radians(20.0))
+    head = np.array([[c, 0.0, s, 0.004], [0.0, 1.0, 0.0, -0.003], [-s, 0.0, c, 0.002]])  # turned 20 deg, moved
+    x = x @ head[:, :3].T + head[:, 3]
+    given = {"cranium_affine": head, "jaw_affine": jaw} if affines_given else {}
+    img = _img(render.render_expression(model, x, tmp_path / "open.png", panel_size=_SIZE, **given))
     face = img[: int(0.8 * img.shape[0])]  # above the colour bar (its lettering has holes of its own)
     fg = face.sum(axis=2) < 750
     holes = binary_fill_holes(fg) & ~fg

@@ -23,6 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 from tqdm.auto import tqdm
 
+from wface.physics.obstacles import bone_affines_from_attached
 from wface.viz.inside import INSIDE_RGB, inner_surface, throat_quad
 from wface.viz.legend import CAPTURED_RGB, LEGEND_BAND, SIMULATED_RGB, add_activation_legend, add_marker_legend
 from wface.viz.muscles import ACTIVE_RGB, INACTIVE_RGB, SKIN_RGB, activation_colors, skin_muscle_influence
@@ -209,11 +210,14 @@ class _Scene:
                 surf.points = _taubin(lap, x[ids], self.muscle_smoothing)
                 level = 0.0 if a is None else float(np.clip(a[m], 0, 1))
                 actor.prop.color = tuple(INACTIVE_RGB + level * (ACTIVE_RGB - INACTIVE_RGB))
+        # bones no affine was given for follow their attached nodes (an edit's or a resim's frames moved
+        # the head and jaw, and the teeth and throat stood at rest: an open mouth showed the background)
+        bone_affines = {**bone_affines_from_attached(self.model, x[self.model.attached_nodes]), **(bone_affines or {})}
         for bp, rest, bone in self.bones:  # bone: one name, or one per point (the throat's corners)
             names = [bone] * len(rest) if isinstance(bone, str) else list(bone)
             moved = np.array(rest, dtype=np.float64)
             for name in set(names):
-                aff = None if bone_affines is None else bone_affines.get(name)
+                aff = bone_affines.get(name)
                 if aff is not None:
                     rows = [i for i, n in enumerate(names) if n == name]
                     moved[rows] = rest[rows] @ aff[:, :3].T + aff[:, 3]
