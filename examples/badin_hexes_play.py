@@ -114,6 +114,7 @@ def play(
     end_s=None,
     tol: float = 1e-4,
     max_iterations: int = 25,
+    exact_damping: bool = False,
     ring_directions: str = "nearest",
     mass_lumping: str = "equal",
     start_from: str = "pushed",
@@ -200,6 +201,7 @@ def play(
                 gravity_m_s2=DYNAMICS["gravity_m_s2"],
                 tol=tol,
                 max_iterations=max_iterations,
+                exact_damping=exact_damping,
             )
             x = x_new
             solves.append(r)
@@ -300,6 +302,11 @@ def main(argv=None) -> int:
         help="Newton iterations per time step at most (1: one linearised solve a step, as ArtiSynth's "
         "backward Euler makes; default 25, to --tol)",
     )
+    p.add_argument(
+        "--exact-damping",
+        action="store_true",
+        help="stiffness damping with the exact tangent at the step's start, as ArtiSynth's (default: projected)",
+    )
     a = p.parse_args(argv)
     if not a.data.is_dir():
         p.error(f"no ArtiSynth face data at {a.data} (--data)")
@@ -315,6 +322,7 @@ def main(argv=None) -> int:
         end_s=a.end,
         tol=a.tol,
         max_iterations=a.max_iterations,
+        exact_damping=a.exact_damping,
         ring_directions=a.ring_directions,
         mass_lumping=a.mass_lumping,
         start_from=a.start,
@@ -344,6 +352,7 @@ def main(argv=None) -> int:
         "fps": a.fps,
         "tol": a.tol,
         "max_iterations": a.max_iterations,
+        "exact_damping": a.exact_damping,
         "dynamics": DYNAMICS,
         "mesh": run["mesh"],
         "summary": summarise(run["rows"]),

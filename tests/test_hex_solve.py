@@ -138,21 +138,25 @@ def test_free_fall_is_exact_backward_euler():
     np.testing.assert_allclose(x - quad.rest_m, np.broadcast_to(h * h * g * 10, x.shape), atol=1e-10)
 
 
-def test_step_satisfies_the_discrete_equation_of_motion_and_conserves_momentum():
+@pytest.mark.parametrize("exact", [False, True])
+def test_step_satisfies_the_discrete_equation_of_motion_and_conserves_momentum(exact):
     """A free body with random velocities, its muscle on, stiffness damping: the converged step solves
-    M (v1 - v0) / h = f(x1) - beta K_n v1 (K_n assembled here, independently), and the total momentum is
-    unchanged (the flesh's and the damping's forces sum to zero)."""
+    M (v1 - v0) / h = f(x1) - beta K_n v1 (K_n assembled here, independently: projected, or exact as
+    ArtiSynth damps), and the total momentum is unchanged (the flesh's and the damping's forces sum to zero)."""
     model, quad, sim = _body()
     body = HexBody(sim, quad, np.arange(quad.n_nodes), density_kg_m3=1040.0)
     rng = np.random.default_rng(7)
     x0, v0 = quad.rest_m + rng.normal(0, 3e-4, quad.rest_m.shape), rng.normal(0, 0.05, quad.rest_m.shape)
-    a, h, beta = np.array([0.6]), 0.004, 0.02
-    x1, v1, r = body.step(x0, v0, h, a, beta_s=beta, tol=1e-9)
+    a, h = np.array([0.6]), 0.004
+    beta = 0.002 if exact else 0.02  # the exact K is indefinite here: a larger beta leaves the step's Hessian so
+    x1, v1, r = body.step(x0, v0, h, a, beta_s=beta, tol=1e-9, exact_damping=exact)
     assert r.converged
     m = body.masses_kg
     _, f = body.sim.energy_and_forces(quad.virtual_positions(x1), a)
     f = quad.node_forces(f)
-    Kn = quad.node_stiffness(sim.tangent(quad.virtual_positions(x0), a).assemble())
+    Kn = quad.node_stiffness(sim.tangent(quad.virtual_positions(x0), a, project=not exact).assemble())
+    other = quad.node_stiffness(sim.tangent(quad.virtual_positions(x0), a, project=exact).assemble())
+    assert abs(Kn - other).max() > 1e-3 * abs(Kn).max()  # the two dampings differ here
     damp = (Kn @ (x1 - x0).reshape(-1)).reshape(-1, 3) / h
     lhs = m[:, None] * (v1 - v0) / h
     np.testing.assert_allclose(lhs, f - beta * damp, atol=1e-7 * np.abs(f).max())

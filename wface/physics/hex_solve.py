@@ -255,10 +255,13 @@ class HexBody:
         activations_start=None,
         tol: float = 1e-6,
         max_iterations: int = 25,
+        exact_damping: bool = False,
     ) -> tuple[np.ndarray, np.ndarray, HexSolve]:
         """One backward Euler step from (``x_m``, ``v_m_s``) of length ``dt_s`` under ``activations``
         (module docstring). ``held_m`` (n, 3): where the held nodes go at the step's end (default:
-        they stay); ``activations_start``: at x_n, for the damping stiffness (default: ``activations``).
+        they stay); ``activations_start``: at x_n, for the damping stiffness (default: ``activations``);
+        ``exact_damping``: damp with the exact stiffness at x_n, as ArtiSynth does, not the projected one
+        (where it is indefinite, a large ``beta_s`` makes the step's Hessian so, and the solve refuses it).
 
         Returns:
             (x_{n+1}, v_{n+1}, ``HexSolve`` of the step).
@@ -277,7 +280,7 @@ class HexBody:
         kn_free = kn_rows = None
         if beta_s > 0:
             a_n = activations if activations_start is None else activations_start
-            Ky = self.sim.tangent(self.quad.virtual_positions(x_n), a_n).assemble()
+            Ky = self.sim.tangent(self.quad.virtual_positions(x_n), a_n, project=not exact_damping).assemble()
             if self._T_all is None:
                 self._T_all = self.quad.dof_map()
             kn_rows = (self._T_free.T @ Ky @ self._T_all).tocsr()  # (3k, 3n): free rows, all columns
