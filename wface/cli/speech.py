@@ -76,7 +76,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--speech-dir",
-        help="folder holding the gesture folders (default: MODEL_DATA/speech, or ../shared/data/artisynth-face/speech)",
+        help="folder holding the gesture folders, the only one looked in when given "
+        "(default: MODEL_DATA/speech, or ../shared/data/artisynth-face/speech)",
     )
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--overwrite", action="store_true", help="replace the results of another run that OUT holds")
@@ -107,8 +108,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--data",
-        help="the artisynth-face data folder for --setup artisynth (default: --model's folder "
-        "or ../shared/data/artisynth-face)",
+        help="the artisynth-face data folder for --setup artisynth, the only one looked in when given "
+        "(default: --model's folder or ../shared/data/artisynth-face)",
     )
     p.add_argument("--dynamic", action="store_true", help="play through the implicit dynamic FEM (inertia)")
     p.add_argument(
