@@ -1,8 +1,9 @@
 """Off-screen pictures and movies of a face with pyvista (VTK): stills, comparisons, takes.
 
-Conventions (the figures of Sifakis et al. 2005): captured markers red, simulated / tracked markers green; muscles
-yellow when fully active, red when inactive, with a colour bar (``ACTIVATION_LEGEND``) whenever activations are
-shown. Two styles:
+Conventions (the figures of Sifakis et al. 2005): captured markers red, simulated / tracked markers green, named
+by a legend at the panel's top left; muscles yellow when fully active, red when inactive, with a colour bar
+(``ACTIVATION_LEGEND``) whenever activations are shown (``wface.viz.legend``). Bones (the teeth, the mouth's dark
+backdrop) move by the affines given, else by the least-squares fit to their attached nodes. Two styles:
 
 - ``"skin"``: the skin surface coloured by the muscles under it (``wface.viz.muscles``);
 - ``"muscles"``: the muscle volumes (surfaces of their tets at the deformed positions) coloured
