@@ -64,6 +64,29 @@ def test_free_body_conserves_linear_momentum(scheme):
     assert not np.allclose(state.x_m, x0)  # it did move
 
 
+@pytest.mark.parametrize("exact", [False, True])
+def test_backward_euler_step_solves_the_damped_equation_of_motion(exact):
+    """One converged backward Euler step of a free body with its muscle on solves
+    M (v1 - v0) / h = f(x1) - beta K_n v1, K_n at the step's start assembled here: projected, or exact
+    as ArtiSynth damps (``Damping.exact_tangent``); the two K_n differ at this state."""
+    model = box_model((3, 2, 2), cranium_faces=(), muscles=1)
+    sim = Simulator(model, precision="float64")
+    h, beta, a = 1e-3, 2e-4, np.array([0.6])
+    dyn = DynamicSimulator(sim, scheme="be", damping=Damping(0.0, beta, exact_tangent=exact), tol=1e-10)
+    rng = np.random.default_rng(3)
+    x0 = model.rest_positions_m + 5e-4 * rng.normal(size=(model.n_nodes, 3))
+    state = dyn.initial_state(x0, 0.05 * rng.normal(size=(model.n_nodes, 3)), a)
+    new, stats = dyn.step(state, h)
+    assert stats.converged
+    f = sim.energy_and_forces(new.x_m, a)[1]
+    k_n = sim.tangent(x0, a, project=not exact).assemble()
+    other = sim.tangent(x0, a, project=exact).assemble()
+    assert abs(k_n - other).max() > 1e-3 * abs(k_n).max()
+    lhs = dyn.masses_kg[:, None] * (new.v_m_s - state.v_m_s) / h
+    damp = (k_n @ new.v_m_s.reshape(-1)).reshape(-1, 3)
+    np.testing.assert_allclose(lhs, f - beta * damp, atol=1e-6 * np.abs(f).max())
+
+
 def test_constant_activation_with_damping_reaches_the_quasistatic_equilibrium():
     model = box_model((4, 2, 2), muscles=1)
     sim = Simulator(model)

@@ -638,6 +638,7 @@ def test_speech_on_a_face_without_its_muscles_is_refused(model_path, tmp_path, c
     [  # each was accepted and did nothing
         (["--damping-alpha", "1"], "--damping-alpha set(s) the dynamic playback: add --dynamic"),
         (["--no-gravity", "--scheme", "midpoint"], "--scheme, --no-gravity set(s) the dynamic playback"),
+        (["--exact-damping"], "--exact-damping set(s) the dynamic playback"),
         (["--data", "somewhere"], "--data is the artisynth-face folder of --setup artisynth"),
     ],
 )

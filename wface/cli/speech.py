@@ -56,7 +56,8 @@ examples:
 """
 
 
-_DYNAMIC_ONLY = ("scheme", "max_step_ms", "damping_alpha", "damping_beta", "no_gravity")  # used with --dynamic
+# the options that act with --dynamic only
+_DYNAMIC_ONLY = ("scheme", "max_step_ms", "damping_alpha", "damping_beta", "exact_damping", "no_gravity")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -123,6 +124,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--damping-beta", type=non_negative_float, default=0.055, help="stiffness damping beta in s (default 0.055)"
+    )
+    p.add_argument(
+        "--exact-damping",
+        action="store_true",
+        help="stiffness damping with the exact tangent, as ArtiSynth's (default: the projected one)",
     )
     p.add_argument("--no-gravity", action="store_true", help="dynamic playback without gravity")
     p.add_argument(
@@ -232,6 +238,7 @@ def _dynamics(args) -> GestureDynamics | None:
         max_step_s=args.max_step_ms * 1e-3,
         alpha_per_s=args.damping_alpha,
         beta_s=args.damping_beta,
+        exact_damping=args.exact_damping,
         gravity_m_s2=None if args.no_gravity else (0.0, -9.8, 0.0),
     )
 

@@ -26,11 +26,14 @@ class Damping:
     and beta = 2e-4 s, which damps a mode at f Hz with ratio zeta = pi f beta: 6 % at 100 Hz,
     25 % at 400 Hz (the six lowest modes of the 5K-tet built-in face lie at 100-155 Hz), so
     high-frequency mesh noise dies within a few periods while the visible jiggle of the lips and
-    cheeks survives a few oscillations. ``Damping.none()`` switches damping off.
+    cheeks survives a few oscillations. ``Damping.none()`` switches damping off. ``exact_tangent``
+    damps with the exact stiffness instead, as ArtiSynth does (docs/design.md, "Dynamics"): where it
+    is indefinite, a large beta can leave a step's Hessian indefinite.
     """
 
     alpha_per_s: float = 0.0
     beta_s: float = 2.0e-4
+    exact_tangent: bool = False
 
     def __post_init__(self):
         for name in ("alpha_per_s", "beta_s"):

@@ -346,7 +346,8 @@ class DynamicSimulator:
         g_force = None
         if self.gravity_m_s2 is not None:
             g_force = (self.masses_kg[free, None] * self.gravity_m_s2[None, :]).reshape(-1)  # M g on free dofs
-        k_n = sim.tangent(x_n, a_n) if beta > 0 else None  # projected K at the start of the step
+        # K at the start of the step: projected (PSD), or exact as ArtiSynth damps
+        k_n = sim.tangent(x_n, a_n, project=not self.damping.exact_tangent) if beta > 0 else None
         contact = self.contact
         last_pairs: dict = {}  # contact pairs at the latest point where the gradient was evaluated
         if contact is not None:

@@ -36,6 +36,7 @@ class GestureDynamics:
         scheme: "be" (backward Euler, ArtiSynth's) or "midpoint".
         max_step_s: longest time step, seconds.
         alpha_per_s, beta_s: Rayleigh damping C = alpha M + beta K.
+        exact_damping: K exact, as ArtiSynth's, not projected (``Damping.exact_tangent``).
         gravity_m_s2: (3,) gravity in the model frame, or None.
         tol: relative residual of each step's Newton solve.
         max_iterations: Newton iteration cap per step.
@@ -45,6 +46,7 @@ class GestureDynamics:
     max_step_s: float = ARTISYNTH_DYNAMICS.max_step_s
     alpha_per_s: float = ARTISYNTH_DYNAMICS.alpha_per_s
     beta_s: float = ARTISYNTH_DYNAMICS.beta_s
+    exact_damping: bool = False
     gravity_m_s2: tuple | None = ARTISYNTH_DYNAMICS.gravity_m_s2
     tol: float = 1e-6
     max_iterations: int = 25
@@ -95,7 +97,7 @@ def play_dynamic(
     dyn = DynamicSimulator(
         sim,
         scheme=dynamics.scheme,
-        damping=Damping(dynamics.alpha_per_s, dynamics.beta_s),
+        damping=Damping(dynamics.alpha_per_s, dynamics.beta_s, exact_tangent=dynamics.exact_damping),
         gravity_m_s2=dynamics.gravity_m_s2,
         tol=dynamics.tol,
         max_iterations=dynamics.max_iterations,
