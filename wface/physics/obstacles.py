@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wface.controls import as_affine
+from wface.controls import as_affine, bone_affines_from_attached
 from wface.mesh.signed_distance import SignedSurface, oriented_outward
-from wface.model import BONES, FaceModel
+from wface.model import BONES
 
 __all__ = ["HalfSpace", "MeshObstacle", "Sphere", "as_affine", "bone_affines_from_attached", "parse_obstacle"]
 
@@ -147,28 +147,3 @@ def parse_obstacle(spec: str):
             raise ValueError(f"obstacle spec {spec!r}: plane needs 6 numbers PX,PY,PZ,NX,NY,NZ, got {len(nums)}")
         return HalfSpace(tuple(nums[:3]), tuple(nums[3:]))
     raise ValueError(f"obstacle spec {spec!r}: unknown kind {kind!r}; use sphere:X,Y,Z,R or plane:PX,PY,PZ,NX,NY,NZ")
-
-
-def bone_affines_from_attached(model: FaceModel, attached_positions: np.ndarray | None) -> dict[str, np.ndarray]:
-    """World affines (3x4) of cranium and jaw that best map the rest positions of their attached
-    nodes onto ``attached_positions`` (least squares; exact for positions from
-    ``wface.controls.attached_positions_from_affines``). A bone whose nodes do not span 3D gets the best
-    rigid fit (Kabsch); a bone with fewer than 3 nodes keeps the identity."""
-    out = {}
-    for b, bone in enumerate(BONES):
-        sel = model.attached_bone == b
-        X = model.rest_positions_m[model.attached_nodes[sel]]
-        if attached_positions is None or sel.sum() < 3:
-            out[bone] = np.hstack([np.eye(3), np.zeros((3, 1))])
-            continue
-        Y = np.asarray(attached_positions, dtype=np.float64)[sel]
-        c0, c1 = X.mean(axis=0), Y.mean(axis=0)
-        s = np.linalg.svd(X - c0, compute_uv=False)
-        if s[-1] > 1e-6 * s[0]:
-            M = np.linalg.lstsq(X - c0, Y - c1, rcond=None)[0].T
-        else:
-            U, _, Vt = np.linalg.svd((Y - c1).T @ (X - c0))
-            D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-            M = U @ D @ Vt
-        out[bone] = np.hstack([M, (c1 - M @ c0)[:, None]])
-    return out

@@ -82,13 +82,15 @@ def add_marker_legend(plotter, *, captured: bool, simulated: bool) -> float:
     """Which colour is which marker, at the panel's top left (nothing when it shows no markers).
     Returns the share of the panel's height it takes at the top (0 without markers)."""
     labels = marker_legend_labels(captured, simulated)
-    if labels:
-        plotter.add_legend(
-            labels=[[text, rgb] for text, rgb in labels],
-            bcolor="white",
-            face="circle",
-            size=(0.3, 0.05 * len(labels)),
-            loc="upper left",
-            background_opacity=0.8,
-        )
-    return 0.05 * len(labels) + 0.01 if labels else 0.0
+    if not labels:
+        return 0.0
+    height = 0.05 * len(labels)  # share of the panel's height, one line per entry
+    plotter.add_legend(
+        labels=[[text, rgb] for text, rgb in labels],
+        bcolor="white",
+        face="circle",
+        size=(0.3, height),
+        loc="upper left",
+        background_opacity=0.8,
+    )
+    return height + 0.01

@@ -24,7 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 from tqdm.auto import tqdm
 
-from wface.physics.obstacles import bone_affines_from_attached
+from wface.controls import bone_affines_from_attached
 from wface.viz.inside import INSIDE_RGB, inner_surface, throat_quad
 from wface.viz.legend import CAPTURED_RGB, LEGEND_BAND, SIMULATED_RGB, add_activation_legend, add_marker_legend
 from wface.viz.muscles import ACTIVE_RGB, INACTIVE_RGB, SKIN_RGB, activation_colors, skin_muscle_influence
@@ -191,6 +191,7 @@ class _Scene:
         if throat is not None:
             self.p.add_mesh(throat[0], color=INSIDE_RGB, ambient=0.3, diffuse=0.2, specular=0.0)
             self.bones.append(throat)
+        self.bone_names = {b for _, _, bone in self.bones for b in ([bone] if isinstance(bone, str) else bone)}
         self.marker_actors: dict[str, object] = {}
 
     def update(self, x, activations, captured, simulated, *, bone_affines: dict | None = None) -> None:
@@ -213,12 +214,14 @@ class _Scene:
                 actor.prop.color = tuple(INACTIVE_RGB + level * (ACTIVE_RGB - INACTIVE_RGB))
         # bones no affine was given for follow their attached nodes (an edit's or a resim's frames moved
         # the head and jaw, and the teeth and throat stood at rest: an open mouth showed the background)
-        bone_affines = {**bone_affines_from_attached(self.model, x[self.model.attached_nodes]), **(bone_affines or {})}
+        given = bone_affines or {}
+        if self.bone_names - given.keys():  # fitted only where needed: a movie updates every frame
+            given = {**bone_affines_from_attached(self.model, x[self.model.attached_nodes]), **given}
         for bp, rest, bone in self.bones:  # bone: one name, or one per point (the throat's corners)
             names = [bone] * len(rest) if isinstance(bone, str) else list(bone)
             moved = np.array(rest, dtype=np.float64)
             for name in set(names):
-                aff = bone_affines.get(name)
+                aff = given.get(name)
                 if aff is not None:
                     rows = [i for i, n in enumerate(names) if n == name]
                     moved[rows] = rest[rows] @ aff[:, :3].T + aff[:, 3]
