@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 
 from wface.cli.errors import UsageError
-from wface.cli.validate import finite_float, non_negative_float, positive_float
+from wface.cli.validate import finite_float, non_negative_float, options_given, positive_float
 from wface.physics.contact import REGIONS, SURFACES, Contact, parse_obstacle
 
 __all__ = ["add_contact_arguments", "contact_from_args"]
@@ -131,8 +131,7 @@ def contact_from_args(args: argparse.Namespace, model):
     regions = getattr(args, "contact", "") or ""
     specs = getattr(args, "obstacle", []) or []
     if not regions and not specs:
-        defaults = getattr(args, "contact_option_defaults", {})
-        given = ["--" + k.replace("_", "-") for k, v in defaults.items() if getattr(args, k, v) != v]
+        given = options_given(args, getattr(args, "contact_option_defaults", {}))
         if given:  # they were silently dropped
             names = ", ".join(given)
             raise UsageError(f"{names} set(s) the contact, which is off: add --contact REGIONS or --obstacle")

@@ -17,7 +17,7 @@ from pathlib import Path
 from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.errors import UsageError
-from wface.cli.validate import non_negative_float, positive_float, positive_int
+from wface.cli.validate import non_negative_float, options_given, positive_float, positive_int
 from wface.faces.artisynth import import_artisynth
 from wface.files import write_json
 from wface.mesh.surface import boundary_faces
@@ -280,8 +280,7 @@ def _write_pictures_and_usd(args, out: Path, model, result, view, gesture) -> li
 
 def _check_options(args) -> None:
     """Options that would do nothing are usage errors (they were dropped silently)."""
-    defaults = args.dynamic_option_defaults
-    given = ["--" + k.replace("_", "-") for k in _DYNAMIC_ONLY if getattr(args, k) != defaults[k]]
+    given = options_given(args, args.dynamic_option_defaults)
     if given and not args.dynamic:
         raise UsageError(f"{', '.join(given)} set(s) the dynamic playback: add --dynamic, or leave it out")
     if args.data and args.setup != "artisynth":

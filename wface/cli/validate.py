@@ -29,6 +29,7 @@ __all__ = [
     "positive_fraction",
     "positive_int",
     "probability",
+    "options_given",
     "refuse_existing",
     "unit_interval",
 ]
@@ -131,6 +132,11 @@ def npz_file(text: str) -> str:
     if not str(text).lower().endswith(".npz"):
         raise argparse.ArgumentTypeError(f"expected a file name ending in .npz, got {text!r}")
     return text
+
+
+def options_given(args: argparse.Namespace, defaults: dict) -> list[str]:
+    """The options among ``defaults`` ({dest: default}) that ``args`` sets otherwise, as flags ("--max-step-ms")."""
+    return ["--" + k.replace("_", "-") for k, v in defaults.items() if getattr(args, k, v) != v]
 
 
 def refuse_existing(*outputs: tuple[str, str | Path | None], overwrite: bool) -> None:
