@@ -54,6 +54,8 @@ class HexDemo:
         bulk="point",
         lip_surface="smooth",
         lip_points="nodes_and_edges",
+        fibre_stress="deviatoric",
+        other_muscles="passive",
     ):
         from dataclasses import replace
 
@@ -66,7 +68,11 @@ class HexDemo:
         from wface.physics.hexes import embedding_matrix, hex_quadrature, quadrature_model
         from wface.speech.artisynth_demo import face_hexes, lip_opening_demo_model
 
-        self.demo = demo = lip_opening_demo_model(base, data, ring_directions=ring_directions)
+        demo = lip_opening_demo_model(base, data, ring_directions=ring_directions, fibre_stress=fibre_stress)
+        if other_muscles == "off":  # ArtiSynth's GenericMuscle passive is 0.05 Pa: every muscle but OOP carries nothing
+            strength = np.where(np.array(demo.muscle_names) == "OOP", demo.muscle_strength, 0.0)
+            demo = replace(demo, muscle_strength=strength)
+        self.demo = demo
         hexes = face_hexes(data)
         n = int(hexes.max()) + 1
         self.quad = quad = hex_quadrature(demo.rest_positions_m[:n], hexes)
@@ -116,6 +122,8 @@ def play(
     max_iterations: int = 25,
     exact_damping: bool = False,
     ring_directions: str = "nearest",
+    fibre_stress: str = "deviatoric",
+    other_muscles: str = "passive",
     mass_lumping: str = "equal",
     start_from: str = "pushed",
     bulk: str = "point",
@@ -140,6 +148,8 @@ def play(
         bulk=bulk,
         lip_surface=lip_surface,
         lip_points=lip_points,
+        fibre_stress=fibre_stress,
+        other_muscles=other_muscles,
     )
     demo = face.demo
     gesture = read_gesture(data / "speech" / "approximant")
@@ -147,6 +157,10 @@ def play(
     t0, t1 = gesture.duration_s
     times = gesture_times(t0, t1 if end_s is None else min(t1, end_s), fps)
     acts = lambda t: mapping.activations(gesture, demo, np.atleast_1d(t))[0]  # noqa: E731
+    if other_muscles == "off":
+        driven = [demo.muscle_names[i] for i in np.flatnonzero(mapping.activations(gesture, demo, times).max(axis=0))]
+        if set(driven) - {"OOP"}:
+            raise SystemExit(f"--other-muscles off: the gesture also drives {sorted(set(driven) - {'OOP'})}")
     view, occluders, near = ApertureView.for_model(demo), boundary_faces(demo.tets), lip_area_points(demo)
     lips = Contact(demo, regions="lips")
     oop = demo.muscle_names.index("OOP")
@@ -307,6 +321,19 @@ def main(argv=None) -> int:
         action="store_true",
         help="stiffness damping with the exact tangent at the step's start, as ArtiSynth's (default: projected)",
     )
+    p.add_argument(
+        "--fibre-stress",
+        choices=("deviatoric", "blemker"),
+        default="deviatoric",
+        help="the muscles' law: deviatoric with wface's curves (the demo setup's) or with ArtiSynth's BlemkerMuscle "
+        "curves (Material.fibre_stress)",
+    )
+    p.add_argument(
+        "--other-muscles",
+        choices=("passive", "off"),
+        default="passive",
+        help="every muscle but OOP: passive fibres as wface's, or none (ArtiSynth's GenericMuscle passive is 0.05 Pa)",
+    )
     a = p.parse_args(argv)
     if not a.data.is_dir():
         p.error(f"no ArtiSynth face data at {a.data} (--data)")
@@ -329,6 +356,8 @@ def main(argv=None) -> int:
         bulk=a.bulk,
         lip_surface=a.lip_surface,
         lip_points=a.lip_points,
+        fibre_stress=a.fibre_stress,
+        other_muscles=a.other_muscles,
     )
     a.out.mkdir(parents=True, exist_ok=True)
     with open(a.out / "lip_opening.csv", "w", newline="") as fh:
@@ -353,6 +382,8 @@ def main(argv=None) -> int:
         "tol": a.tol,
         "max_iterations": a.max_iterations,
         "exact_damping": a.exact_damping,
+        "fibre_stress": a.fibre_stress,
+        "other_muscles": a.other_muscles,
         "dynamics": DYNAMICS,
         "mesh": run["mesh"],
         "summary": summarise(run["rows"]),

@@ -30,7 +30,8 @@ Muscle fibre of one (tet, muscle) entry, fibre direction d, q = F d, lam = |q|:
     T' (along it); the projected tangent clamps both at zero (T >= 0 always for a >= 0).
 Force-length f_L and passive f_P are the piecewise curves of docs/design.md, "Muscle fibres".
 
-Deviatoric fibres (kernel flag ``deviatoric``, ``Material.fibre_stress = "deviatoric"``): the same
+Deviatoric fibres (kernel flag ``fibre_law``, the index of ``Material.fibre_stress`` in
+``FIBRE_STRESSES``: 0 uniaxial, 1 "deviatoric", 2 "blemker", deviatoric with Blemker's curves): the
 curves of lam~ = phi(J) lam, phi = J^-1/3 (continued by its tangent line below J_c = clamp^3; see
 ``fibre.py`` for d lam~/dF and d2 lam~), P_f = T(lam~) d lam~/dF. Tangent: T' g g^T + T d2 lam~
 (g = d lam~/dF). Its isotropic part T lam d2 phi(J) is a function of J alone, so it joins the
@@ -80,6 +81,13 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
 
     # ------------------------------------------------------------------ element helpers
     @wp.func
+    def law_curves(fibre_law: int):
+        """The fibre curves of a fibre law (0 uniaxial, 1 deviatoric: wface's; 2 deviatoric: Blemker's)."""
+        if fibre_law == 2:
+            return 1
+        return 0
+
+    @wp.func
     def deformation_gradient(x: wp.array(dtype=vec3), tets: wp.array2d(dtype=wp.int32), dm_inv: mat33, t: int):
         x0 = x[tets[t, 0]]
         Ds = wp.matrix_from_cols(x[tets[t, 1]] - x0, x[tets[t, 2]] - x0, x[tets[t, 3]] - x0)
@@ -111,7 +119,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         mu20: S,
         kappa: S,
         clamp: S,
-        deviatoric: int,
+        fibre_law: int,
         entry_start: wp.array(dtype=wp.int32),
         entry_muscle: wp.array(dtype=wp.int32),
         entry_direction: wp.array(dtype=vec3),
@@ -130,16 +138,16 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         energy, P = flesh_stress(F, mu10, mu01, mu20, kappa, clamp)
         for e in range(entry_start[t], entry_start[t + 1]):
             d = entry_direction[e]
-            if deviatoric != 0:
+            if fibre_law != 0:
                 lam, lt, T, dT, W, g = deviatoric_fibre(
-                    F, d, activation[entry_muscle[e]], entry_coef[e], clamp * clamp * clamp
+                    F, d, activation[entry_muscle[e]], entry_coef[e], clamp * clamp * clamp, law_curves(fibre_law)
                 )
                 energy = energy + W
                 P = P + T * g
                 continue
             q = F * d
             lam = wp.length(q)
-            T, dT, W = fibre_tension(lam, activation[entry_muscle[e]], entry_coef[e])
+            T, dT, W = fibre_tension(lam, activation[entry_muscle[e]], entry_coef[e], 0)
             energy = energy + W
             if lam > S(1.0e-12):
                 P = P + (T / lam) * wp.outer(q, d)
@@ -158,7 +166,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         mu20: S,
         kappa: S,
         clamp: S,
-        deviatoric: int,
+        fibre_law: int,
         entry_start: wp.array(dtype=wp.int32),
         entry_muscle: wp.array(dtype=wp.int32),
         entry_direction: wp.array(dtype=vec3),
@@ -175,10 +183,10 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         energy = flesh_energy(F, mu10, mu01, mu20, kappa, clamp)
         for e in range(entry_start[t], entry_start[t + 1]):
             lam = wp.length(F * entry_direction[e])
-            if deviatoric != 0:
+            if fibre_law != 0:
                 phi, dphi, ddphi = volume_factor(wp.determinant(F), clamp * clamp * clamp)
                 lam = phi * lam
-            T, dT, W = fibre_tension(lam, activation[entry_muscle[e]], entry_coef[e])
+            T, dT, W = fibre_tension(lam, activation[entry_muscle[e]], entry_coef[e], law_curves(fibre_law))
             energy = energy + W
         energy_out[t] = rest_volume[t] * energy
 
@@ -192,7 +200,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         d: vec3,
         k: S,
         clamp: S,
-        deviatoric: int,
+        fibre_law: int,
         w: S,
     ):
         """The forces (c1, c2, c3) on nodes 1..3 of one fibre entry at activation ``w`` (node 0 gets minus
@@ -202,12 +210,12 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         lam = wp.length(q)
         P = mat33()
         if lam > S(1.0e-12):
-            if deviatoric != 0:
-                lam0, lt, T, dT, W, g = deviatoric_fibre(F, d, S(0.0), k, clamp * clamp * clamp)
-                fl, dfl, gl = force_length(lt - S(1.0))
+            if fibre_law != 0:
+                lam0, lt, T, dT, W, g = deviatoric_fibre(F, d, S(0.0), k, clamp * clamp * clamp, law_curves(fibre_law))
+                fl, dfl, gl = force_length(lt - S(1.0), law_curves(fibre_law))
                 P = (k * fl) * g
             else:
-                fl, dfl, gl = force_length(lam - S(1.0))
+                fl, dfl, gl = force_length(lam - S(1.0), 0)
                 P = (k * fl / lam) * wp.outer(q, d)
         H = (-w * V0) * (P * wp.transpose(Dmi))
         return vec3(H[0, 0], H[1, 0], H[2, 0]), vec3(H[0, 1], H[1, 1], H[2, 1]), vec3(H[0, 2], H[1, 2], H[2, 2])
@@ -223,18 +231,18 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         entry_direction: wp.array(dtype=vec3),
         entry_coef: wp.array(dtype=S),
         clamp: S,
-        deviatoric: int,
+        fibre_law: int,
         # State in:
         x: wp.array(dtype=vec3),
         # Out:
         forces_out: wp.array2d(dtype=vec3),
     ):
         """f_i(x): active fibre force of each muscle at full activation, (M, n) accumulated
-        (k f_L(lam) d lam/dF, with lam~ and d lam~/dF if ``deviatoric``)."""
+        (k f_L(lam) d lam/dF, with lam~ and d lam~/dF if ``fibre_law`` != 0)."""
         e = wp.tid()
         t = entry_tet[e]
         c1, c2, c3 = fibre_nodal_forces(
-            x, tets, dm_inv[t], rest_volume[t], t, entry_direction[e], entry_coef[e], clamp, deviatoric, S(1.0)
+            x, tets, dm_inv[t], rest_volume[t], t, entry_direction[e], entry_coef[e], clamp, fibre_law, S(1.0)
         )
         m = entry_muscle[e]
         wp.atomic_add(forces_out, m, tets[t, 1], c1)
@@ -253,7 +261,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         entry_direction: wp.array(dtype=vec3),
         entry_coef: wp.array(dtype=S),
         clamp: S,
-        deviatoric: int,
+        fibre_law: int,
         # State in:
         x: wp.array(dtype=vec3),
         weights: wp.array(dtype=S),
@@ -267,7 +275,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         if w != S(0.0):
             t = entry_tet[e]
             c1, c2, c3 = fibre_nodal_forces(
-                x, tets, dm_inv[t], rest_volume[t], t, entry_direction[e], entry_coef[e], clamp, deviatoric, w
+                x, tets, dm_inv[t], rest_volume[t], t, entry_direction[e], entry_coef[e], clamp, fibre_law, w
             )
             wp.atomic_add(forces_out, tets[t, 1], c1)
             wp.atomic_add(forces_out, tets[t, 2], c2)
@@ -294,7 +302,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         mu20: S,
         kappa: S,
         clamp: S,
-        deviatoric: int,
+        fibre_law: int,
         entry_start: wp.array(dtype=wp.int32),
         entry_muscle: wp.array(dtype=wp.int32),
         entry_direction: wp.array(dtype=vec3),
@@ -315,11 +323,13 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         V = mat33()
         wp.svd3(F, U, s, V)
         psi, G, A = flesh_response(s, mu10, mu01, mu20, kappa, clamp)
-        if deviatoric != 0:  # the fibres' isotropic part T lam d2 phi(J) joins the flesh's modes
+        if fibre_law != 0:  # the fibres' isotropic part T lam d2 phi(J) joins the flesh's modes
             c_iso = S(0.0)
             for e in range(entry_start[t], entry_start[t + 1]):
                 act = activation[entry_muscle[e]]
-                lf, lt, T, dT, W, g = deviatoric_fibre(F, entry_direction[e], act, entry_coef[e], clamp * clamp * clamp)
+                lf, lt, T, dT, W, g = deviatoric_fibre(
+                    F, entry_direction[e], act, entry_coef[e], clamp * clamp * clamp, law_curves(fibre_law)
+                )
                 c_iso = c_iso + T * lf
             phi, dphi, ddphi = volume_factor(s[0] * s[1] * s[2], clamp * clamp * clamp)
             G, A = isotropic_volume_terms(G, A, s, c_iso * dphi, c_iso * ddphi)
@@ -369,14 +379,15 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
                     C[r, c] = acc
         for e in range(entry_start[t], entry_start[t + 1]):
             d = entry_direction[e]
-            if deviatoric != 0:
+            if fibre_law != 0:
                 act = activation[entry_muscle[e]]
-                C = deviatoric_fibre_tangent(C, F, d, act, entry_coef[e], clamp * clamp * clamp, project)
+                jc = clamp * clamp * clamp
+                C = deviatoric_fibre_tangent(C, F, d, act, entry_coef[e], jc, law_curves(fibre_law), project)
                 continue
             q = F * d
             lf = wp.length(q)
             if lf > S(1.0e-12):
-                T, dT, W = fibre_tension(lf, activation[entry_muscle[e]], entry_coef[e])
+                T, dT, W = fibre_tension(lf, activation[entry_muscle[e]], entry_coef[e], 0)
                 c1 = T / lf
                 along = dT
                 if project != 0:

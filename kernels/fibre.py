@@ -4,9 +4,12 @@ Fibre stretch lam = |F d|, x = lam - 1. Tension T(lam, a) = k (a f_L(lam) + f_P(
 k = fraction * strength * sigma_max (Teran et al. 2005; Zajac 1989 force-length shape):
 - force-length f_L = 1 - (25/6) x^2 for |x| < 0.4; (25/3)(|x| - 0.6)^2 for 0.4 <= |x| < 0.6; 0 beyond;
 - passive f_P = 0.05 (exp(6.6 x) - 6.6 x - 1) for 0 < x <= 0.4, continued linearly (C1) above, 0 for x <= 0.
+Blemker's curves (``curves`` 1, ``Material.fibre_stress = "blemker"``: ArtiSynth's BlemkerMuscle, Blemker et al.
+2005): f_L = 1 - 4 x^2 for |x| < 0.4, 9 (|x| - 0.6)^2 to |x| = 0.6, 0 beyond; f_P = 0.05 (exp(6.6 x) - 1) for
+0 < x <= 0.4 (not C1 at x = 0), continued linearly above.
 The fibre energy is the integral of T over the stretch from 1, in closed form per piece.
 
-Deviatoric fibre stress (``Material.fibre_stress = "deviatoric"``, ArtiSynth's muscle materials): the
+Deviatoric fibre stress (``Material.fibre_stress`` "deviatoric" or "blemker", ArtiSynth's muscle materials): the
 same curves of the deviatoric stretch lam~ = phi(J) lam, phi(J) = J^-1/3 (J = det F), so the
 Cauchy stress 2 W4 I4~ / J (a a^T - I/3) has no hydrostatic part. With cof F = dJ/dF,
     d lam~/dF = phi q d^T / lam + lam phi'(J) cof F            (= J^-1/3 q d^T / lam - (lam~/3) F^-T),
@@ -40,26 +43,43 @@ def fibre_functions(dtype):
     # Constant expressions are folded here in double precision: inside a kernel, S(25.0 / 6.0)
     # would be evaluated in float32 first.
     C25_18, C25_6, C25_3, C50_3, C25_9 = 25.0 / 18.0, 25.0 / 6.0, 25.0 / 3.0, 50.0 / 3.0, 25.0 / 9.0
+    C4_3 = 4.0 / 3.0
     C033 = 0.05 * 6.6
 
     @wp.func
-    def force_length(x: S):
-        """f_L, df_L/dlam and the integral from 1 of f_L, at lam = 1 + x."""
+    def force_length(x: S, curves: int):
+        """f_L, df_L/dlam and the integral from 1 of f_L, at lam = 1 + x; ``curves`` 0 wface's, 1 Blemker's
+        (1 - 4 x^2 for |x| < 0.4, 9 (|x| - 0.6)^2 to |x| = 0.6, 0 beyond)."""
         ax = wp.abs(x)
         sg = S(1.0)
         if x < S(0.0):
             sg = S(-1.0)
-        g04 = S(0.4) - S(C25_18) * S(0.064)
+        # f = 1 - c_in x^2 inside |x| < 0.4, c_out (|x| - 0.6)^2 outside; c2_* = 2 c_*, c3_* = c_* / 3
+        c_in = S(C25_6)
+        c2_in = S(C25_3)
+        c3_in = S(C25_18)
+        c_out = S(C25_3)
+        c2_out = S(C50_3)
+        c3_out = S(C25_9)
+        if curves != 0:
+            c_in = S(4.0)
+            c2_in = S(8.0)
+            c3_in = S(C4_3)
+            c_out = S(9.0)
+            c2_out = S(18.0)
+            c3_out = S(3.0)
+        g04 = S(0.4) - c3_in * S(0.064)
         if ax < S(0.4):
-            return S(1.0) - S(C25_6) * x * x, -S(C25_3) * x, x - S(C25_18) * x * x * x
+            return S(1.0) - c_in * x * x, -c2_in * x, x - c3_in * x * x * x
         if ax < S(0.6):
             y = ax - S(0.6)
-            return S(C25_3) * y * y, sg * S(C50_3) * y, sg * (g04 + S(C25_9) * (y * y * y + S(0.008)))
-        return S(0.0), S(0.0), sg * (g04 + S(C25_9) * S(0.008))
+            return c_out * y * y, sg * c2_out * y, sg * (g04 + c3_out * (y * y * y + S(0.008)))
+        return S(0.0), S(0.0), sg * (g04 + c3_out * S(0.008))
 
     @wp.func
-    def passive_curve(x: S):
-        """f_P, df_P/dlam and the integral from 1 of f_P, at lam = 1 + x (C1, linear beyond 1.4)."""
+    def passive_curve(x: S, curves: int):
+        """f_P, df_P/dlam and the integral from 1 of f_P, at lam = 1 + x, linear (C1) beyond 1.4; ``curves``
+        0 wface's 0.05 (exp(6.6 x) - 6.6 x - 1), 1 Blemker's 0.05 (exp(6.6 x) - 1) (a kink at lam = 1)."""
         if x <= S(0.0):
             return S(0.0), S(0.0), S(0.0)
         xe = wp.min(x, S(0.4))
@@ -67,6 +87,10 @@ def fibre_functions(dtype):
         f = S(0.05) * (e - S(6.6) * xe - S(1.0))
         df = S(C033) * (e - S(1.0))
         g = S(0.05) * ((e - S(1.0)) / S(6.6) - S(3.3) * xe * xe - xe)
+        if curves != 0:
+            f = S(0.05) * (e - S(1.0))
+            df = S(C033) * e
+            g = S(0.05) * ((e - S(1.0)) / S(6.6) - xe)
         if x > S(0.4):
             y = x - S(0.4)
             g = g + f * y + S(0.5) * df * y * y
@@ -74,10 +98,10 @@ def fibre_functions(dtype):
         return f, df, g
 
     @wp.func
-    def fibre_tension(lam: S, act: S, k: S):
+    def fibre_tension(lam: S, act: S, k: S, curves: int):
         """T, dT/dlam, energy W for one fibre entry (k = fraction * strength * sigma_max)."""
-        fl, dfl, gl = force_length(lam - S(1.0))
-        fp, dfp, gp = passive_curve(lam - S(1.0))
+        fl, dfl, gl = force_length(lam - S(1.0), curves)
+        fp, dfp, gp = passive_curve(lam - S(1.0), curves)
         return k * (act * fl + fp), k * (act * dfl + dfp), k * (act * gl + gp)
 
     @wp.func
@@ -99,14 +123,14 @@ def fibre_functions(dtype):
         return wp.matrix_from_cols(wp.cross(f2, f3), wp.cross(f3, f1), wp.cross(f1, f2))
 
     @wp.func
-    def deviatoric_fibre(F: mat33, d: vec3, act: S, k: S, jc: S):
+    def deviatoric_fibre(F: mat33, d: vec3, act: S, k: S, jc: S, curves: int):
         """One deviatoric fibre entry: lam = |F d|, lam~, T(lam~), dT/dlam~, W(lam~) and d lam~/dF
         (zero where lam <= 1e-12: there lam~ ~ 0 and T = 0)."""
         q = F * d
         lam = wp.length(q)
         phi, dphi, ddphi = volume_factor(wp.determinant(F), jc)
         lt = phi * lam
-        T, dT, W = fibre_tension(lt, act, k)
+        T, dT, W = fibre_tension(lt, act, k, curves)
         grad = mat33()
         if lam > S(1.0e-12):
             grad = (phi / lam) * wp.outer(q, d) + (lam * dphi) * cofactor(F)
@@ -163,12 +187,12 @@ def fibre_functions(dtype):
         return G, A
 
     @wp.func
-    def deviatoric_fibre_tangent(C: mat99, F: mat33, d: vec3, act: S, k: S, jc: S, project: int):
+    def deviatoric_fibre_tangent(C: mat99, F: mat33, d: vec3, act: S, k: S, jc: S, curves: int, project: int):
         """C + the anisotropic part of d2W/dF2 for one deviatoric entry (module docstring):
         T' g g^T + T phi' (a b^T + b a^T) + (T phi / lam) (I - n n^T) (x) d d^T, g = d lam~/dF,
         a = vec(n d^T), b = vec(cof F); the isotropic part T lam d2 phi(J) goes to the flesh's modes.
         ``project``: the (I - n n^T) block's coefficient and the 2x2 block on span{a, b} clamped at 0."""
-        lam, lt, T, dT, W, g = deviatoric_fibre(F, d, act, k, jc)
+        lam, lt, T, dT, W, g = deviatoric_fibre(F, d, act, k, jc, curves)
         if lam <= S(1.0e-12):
             return C
         phi, dphi, ddphi = volume_factor(wp.determinant(F), jc)
@@ -193,13 +217,15 @@ def fibre_functions(dtype):
     def fibre_curves(
         # In:
         lam: wp.array(dtype=S),
+        curves: int,
         # Out:
         curves_out: wp.array2d(dtype=S),
     ):
-        """Columns: f_L, f_L', int f_L, f_P, f_P', int f_P at each stretch (integrals from 1)."""
+        """Columns: f_L, f_L', int f_L, f_P, f_P', int f_P at each stretch (integrals from 1), of ``curves``
+        (0 wface's, 1 Blemker's)."""
         i = wp.tid()
-        fl, dfl, gl = force_length(lam[i] - S(1.0))
-        fp, dfp, gp = passive_curve(lam[i] - S(1.0))
+        fl, dfl, gl = force_length(lam[i] - S(1.0), curves)
+        fp, dfp, gp = passive_curve(lam[i] - S(1.0), curves)
         curves_out[i, 0] = fl
         curves_out[i, 1] = dfl
         curves_out[i, 2] = gl

@@ -222,3 +222,12 @@ def test_coincident_landmarks_are_said_in_words():
 
     with pytest.raises(ValueError, match="all lie at one place"):
         umeyama(np.zeros((4, 3)), np.eye(4, 3))
+
+
+def test_a_refused_contact_leaves_out_as_it_was(tmp_path, model_path, capsys):
+    """A contact refused when it is built (a ball round the whole face) is said before --out is claimed: resim
+    left a directory holding provenance.json alone."""
+    out = tmp_path / "o"
+    ball = ["--obstacle", "sphere:0,0,0,0.5"]
+    code, text = _cli(["resim", "--model", model_path, "--frames", "3", *ball, "--out", out], capsys)
+    assert code != 0 and "surface nodes at rest" in text and not out.exists(), text

@@ -96,7 +96,7 @@ def _fp(lam):
     return np.where(x <= 0, 0.0, np.where(x <= 0.4, f, f + slope * (x - 0.4)))
 
 
-def _warp_curves(lam: np.ndarray) -> np.ndarray:
+def _warp_curves(lam: np.ndarray, curves: int = 0) -> np.ndarray:
     import warp as wp
 
     from wface.kernels.fem import fem_kernels
@@ -105,7 +105,7 @@ def _warp_curves(lam: np.ndarray) -> np.ndarray:
     init_warp()
     k = fem_kernels(wp.float64)
     out = wp.zeros((lam.size, 6), dtype=wp.float64)
-    wp.launch(k.fibre_curves, lam.size, inputs=[wp.array(lam, dtype=wp.float64), out])
+    wp.launch(k.fibre_curves, lam.size, inputs=[wp.array(lam, dtype=wp.float64), curves, out])
     return out.numpy()
 
 
@@ -133,6 +133,49 @@ def test_fibre_curves_match_design_formulas_and_are_c1():
         left, right = _warp_curves(np.array([b - 1e-9])), _warp_curves(np.array([b + 1e-9]))
         np.testing.assert_allclose(left, right, atol=1e-7)
     assert _fl(np.array([1.0]))[0] == 1.0 and c[np.argmin(np.abs(lam - 1.0)), 3] == 0.0
+
+
+def _blemker_active(lam: np.ndarray) -> np.ndarray:
+    """ArtiSynth's BlemkerMuscle.computeStressAndTangent ``fact`` (optLambda 1): its pieces and zero band."""
+    f = np.where(lam <= 0.6, 9 * (lam - 0.4) ** 2, np.where(lam < 1.4, 1 - 4 * (1 - lam) ** 2, 9 * (lam - 1.6) ** 2))
+    return np.where((lam < 0.4) | (lam > 1.6), 0.0, f)
+
+
+def _blemker_passive(lam: np.ndarray) -> np.ndarray:
+    """BlemkerMuscle's ``fpas`` (P1 0.05, P2 6.6, maxLambda 1.4, zero at and below optLambda): P3 lam + P4 above
+    1.4, with P3 = P1 P2 exp(P2 (1.4 - 1)) and P4 = P1 (exp(P2 0.4) - 1) - P3 1.4 (``updateDepCoefs``)."""
+    p1, p2 = 0.05, 6.6
+    p3 = p1 * p2 * np.exp(p2 * 0.4)
+    p4 = p1 * (np.exp(p2 * 0.4) - 1) - p3 * 1.4
+    f = np.where(lam <= 1.4, p1 * (np.exp(p2 * (lam - 1)) - 1), p3 * lam + p4)
+    return np.where(lam <= 1.0, 0.0, f)
+
+
+def test_blemker_curves_are_artisynths():
+    """``curves`` 1 (``Material.fibre_stress = "blemker"``) against BlemkerMuscle's formulas, their
+    derivatives by central differences and integrals by quadrature."""
+    from scipy.integrate import quad
+
+    lam = np.linspace(0.2, 2.2, 2001)
+    c = _warp_curves(lam, 1)
+    np.testing.assert_allclose(c[:, 0], _blemker_active(lam), atol=1e-14)
+    np.testing.assert_allclose(c[:, 3], _blemker_passive(lam), atol=1e-12)
+    h = 1e-6
+    away = np.min(np.abs(lam[:, None] - np.array([0.4, 0.6, 1.0, 1.4, 1.6])[None]), axis=1) > 10 * h
+    cp, cm = _warp_curves(lam + h, 1), _warp_curves(lam - h, 1)
+    np.testing.assert_allclose(c[away, 1], ((cp[:, 0] - cm[:, 0]) / (2 * h))[away], atol=1e-7)
+    np.testing.assert_allclose(c[away, 4], ((cp[:, 3] - cm[:, 3]) / (2 * h))[away], atol=1e-7)
+    for lv, row in zip(lam[::50], c[::50], strict=True):
+        il = quad(_blemker_active, 1.0, lv, points=[0.4, 0.6, 1.4, 1.6], limit=200)[0]
+        ip = quad(_blemker_passive, 1.0, lv, points=[1.4], limit=200)[0]
+        assert row[2] == pytest.approx(il, abs=1e-10) and row[5] == pytest.approx(ip, abs=1e-10)
+    # where the two laws part: Blemker's active curve lies above wface's (by x^2 / 6 inside |x| < 0.4) and
+    # its passive one starts with slope 0.33 at lam = 1 where wface's starts flat
+    wf = _warp_curves(lam, 0)
+    inner = np.abs(lam - 1) < 0.4
+    np.testing.assert_allclose((c - wf)[inner, 0], (lam[inner] - 1) ** 2 / 6, atol=1e-14)
+    just_above = _warp_curves(np.array([1.0 + 1e-9]), 1)[0]
+    assert just_above[4] == pytest.approx(0.05 * 6.6, rel=1e-6) and _warp_curves(np.array([1.0 + 1e-9]))[0][4] < 1e-6
 
 
 # ---------------------------------------------------------------------- energy, forces, stiffness

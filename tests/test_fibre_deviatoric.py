@@ -24,6 +24,7 @@ _SIGMA = 1.0e5  # the Badin demo's sigma_max (Pa): fibre stresses of the Badin f
 # fibres alone (no flesh: every flesh modulus 0), and with ArtiSynth's Badin flesh (C10, C20, kappa 25 kPa)
 _BARE = Material(mu10_pa=0.0, mu01_pa=0.0, kappa_pa=0.0, sigma_max_pa=_SIGMA, fibre_stress="deviatoric")
 _BADIN = replace(Material.artisynth(), sigma_max_pa=_SIGMA, fibre_stress="deviatoric")
+_BLEMKER = replace(_BADIN, fibre_stress="blemker")  # the same with BlemkerMuscle's curves
 
 
 def _tet(material: Material) -> Simulator:
@@ -86,14 +87,16 @@ def _closed_form_energy(x: np.ndarray, X: np.ndarray, model, a: float) -> float:
     F = (x[1:] - x[0]).T @ np.linalg.inv((X[1:] - X[0]).T)
     lt = np.linalg.det(F) ** (-1 / 3) * np.linalg.norm(F @ model.fibre_direction[0])
     out = wp.zeros((1, 6), dtype=wp.float64)
-    wp.launch(fem_kernels(wp.float64).fibre_curves, 1, inputs=[wp.array([lt], dtype=wp.float64), out])
+    curves = int(model.material.fibre_stress == "blemker")
+    wp.launch(fem_kernels(wp.float64).fibre_curves, 1, inputs=[wp.array([lt], dtype=wp.float64), curves, out])
     gl, gp = out.numpy()[0, [2, 5]]
     k = model.fibre_fraction[0] * model.material.sigma_max_pa
     return model.rest_volume_m3[0] * k * (a * gl + gp)
 
 
-def test_energy_is_the_fibre_curves_of_the_deviatoric_stretch():
-    sim, uni = _tet(_BARE), _tet(replace(_BARE, fibre_stress="uniaxial"))
+@pytest.mark.parametrize("law", ["deviatoric", "blemker"])
+def test_energy_is_the_fibre_curves_of_the_deviatoric_stretch(law):
+    sim, uni = _tet(replace(_BARE, fibre_stress=law)), _tet(replace(_BARE, fibre_stress="uniaxial"))
     X = sim.model.rest_positions_m
     for name, x in _tet_configurations(X).items():
         if name == "inverted":
@@ -105,7 +108,11 @@ def test_energy_is_the_fibre_curves_of_the_deviatoric_stretch():
                 assert abs(uni.energy(x, np.array([a])) - ref) > 1e-6 * abs(ref), "the laws should differ at J != 1"
 
 
-@pytest.mark.parametrize("material", [_BARE, _BADIN], ids=["fibres", "badin"])
+@pytest.mark.parametrize(
+    "material",
+    [_BARE, _BADIN, replace(_BARE, fibre_stress="blemker"), _BLEMKER],
+    ids=["fibres", "badin", "blemker-fibres", "blemker-badin"],
+)
 def test_forces_and_exact_tangent_match_central_differences_on_one_tet(material):
     sim = _tet(material)
     X = sim.model.rest_positions_m
@@ -125,8 +132,9 @@ def test_forces_and_exact_tangent_match_central_differences_on_one_tet(material)
             np.testing.assert_allclose(K, K.T, atol=1e-9 * np.abs(K).max())
 
 
-def test_forces_and_exact_tangent_match_central_differences_on_a_few_tets():
-    model = box_model((2, 1, 1), muscles=2, fibre_direction=(0.8, 0.0, 0.6), material=_BADIN)
+@pytest.mark.parametrize("material", [_BADIN, _BLEMKER], ids=["deviatoric", "blemker"])
+def test_forces_and_exact_tangent_match_central_differences_on_a_few_tets(material):
+    model = box_model((2, 1, 1), muscles=2, fibre_direction=(0.8, 0.0, 0.6), material=material)
     sim = Simulator(model, precision="float64")
     X = model.rest_positions_m
     rng = np.random.default_rng(19)
@@ -171,10 +179,11 @@ def test_pure_volume_change_leaves_the_deviatoric_fibre_unchanged():
         assert abs(np.sum(uni.forces(s * X, a) * (s * X))) > 1e-3 * np.abs(f).max() * 0.01
 
 
-def test_projected_tangent_is_positive_semidefinite():
-    model = box_model((3, 2, 2), muscles=2, fibre_direction=(0.8, 0.0, 0.6), material=_BADIN)
+@pytest.mark.parametrize("material", [_BADIN, _BLEMKER], ids=["deviatoric", "blemker"])
+def test_projected_tangent_is_positive_semidefinite(material):
+    model = box_model((3, 2, 2), muscles=2, fibre_direction=(0.8, 0.0, 0.6), material=material)
     sim = Simulator(model, precision="float64")
-    bare = Simulator(model.with_material(_BARE), precision="float64")
+    bare = Simulator(model.with_material(replace(_BARE, fibre_stress=material.fibre_stress)), precision="float64")
     X = model.rest_positions_m
     rng = np.random.default_rng(21)
     squashed = X @ np.diag([0.3, 1.0, 1.0]).T + 0.001 * rng.normal(size=X.shape)
@@ -262,6 +271,9 @@ def test_uniaxial_is_the_default_and_files_without_the_field_load_as_uniaxial(tm
     assert not np.array_equal(s0.forces(x, a), dev.forces(x, a))
     path = save_model(model.with_material(replace(model.material, fibre_stress="deviatoric")), tmp_path / "dev.npz")
     assert load_model(path).material.fibre_stress == "deviatoric"
+    blemker = save_model(model.with_material(replace(model.material, fibre_stress="blemker")), tmp_path / "bl.npz")
+    assert load_model(blemker).material.fibre_stress == "blemker"
+    assert not np.array_equal(dev.forces(x, a), Simulator(load_model(blemker)).forces(x, a))
     assert load_model(save_model(model, tmp_path / "uni.npz")).material.fibre_stress == "uniaxial"
     # format 2 (older wface versions refuse it rather than drop the law); the uniaxial default stays format 1
     version = {
@@ -269,6 +281,7 @@ def test_uniaxial_is_the_default_and_files_without_the_field_load_as_uniaxial(tm
         for p in (path, tmp_path / "uni.npz")
     }
     assert version == {"dev.npz": 2, "uni.npz": 1} and FORMAT_VERSION >= 2
+    assert json.loads(bytes(np.load(blemker)["header_json"]).decode())["format_version"] == 2
 
 
 def test_unknown_fibre_stress_is_refused_naming_the_field():
@@ -307,6 +320,9 @@ def test_free_active_fibre_keeps_the_volume_only_when_deviatoric(a):
     assert np.log(lam * mu * mu) < -0.05  # J = 0.947 (a = 0.1), 0.910 (0.3): f_L falls as the fibre shortens
     lam_d, mu_d = _free_fibre_equilibrium(Simulator(single.with_material(_BADIN)), a)
     assert lam_d < 0.95 and abs(np.log(lam_d * mu_d * mu_d)) < 1e-10  # the fibre still shortens
+    # Blemker's curves: J = 1 too, and the fibre shortens further (its f_L = 1 - 4 x^2 lies above 1 - 25/6 x^2)
+    lam_b, mu_b = _free_fibre_equilibrium(Simulator(single.with_material(_BLEMKER)), a)
+    assert abs(np.log(lam_b * mu_b * mu_b)) < 1e-10 and lam_b < lam_d
 
 
 def test_model_info_prints_the_fibre_stress(tmp_path, capsys):

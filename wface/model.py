@@ -45,7 +45,7 @@ __all__ = [
 # as format 1, byte for byte as before, so older wface versions read it; one with any of them is
 # refused by a version that would lose it.
 FORMAT_VERSION = 4
-FIBRE_STRESSES = ("uniaxial", "deviatoric")  # Material.fibre_stress; the first is the default
+FIBRE_STRESSES = ("uniaxial", "deviatoric", "blemker")  # Material.fibre_stress; the first is the default
 BONES = ("cranium", "jaw")  # bone ids 0 and 1 in attachment arrays
 FACE_SPAN_M = (0.02, 2.0)  # the rest flesh's largest extent, metres: a lip alone to head and shoulders
 
@@ -63,7 +63,7 @@ class Material:
     Muscle: fibre tension T = sigma_max (a f_L(lam) + f_P(lam)), times the tet's volume fraction,
     of the fibre stretch lam = |F d| (``fibre_stress = "uniaxial"``: Cauchy stress T/J (F d)(F d)^T/lam,
     hydrostatic part T/(3J)) or of the deviatoric stretch lam~ = J^-1/3 |F d| (``"deviatoric"``, as
-    ArtiSynth's BlemkerMuscle and GenericMuscle: no hydrostatic part; docs/design.md, "Muscle fibres").
+    ArtiSynth's muscle materials: no hydrostatic part), "blemker" that with BlemkerMuscle's curves (docs/design.md).
     Checked on construction (``validate``).
     """
 
@@ -74,7 +74,7 @@ class Material:
     inversion_clamp: float = 0.1  # singular values are clamped below at this value (Irving et al. 2004)
     density_kg_m3: float = 1040.0
     mu20_pa: float = 0.0  # coefficient of (I1~ - 3)^2; last so positional use of the others is unchanged
-    fibre_stress: str = "uniaxial"  # or "deviatoric": the fibre curves of J^-1/3 |F d| (FIBRE_STRESSES)
+    fibre_stress: str = "uniaxial"  # "deviatoric", "blemker": fibre curves of J^-1/3 |F d| (FIBRE_STRESSES)
 
     def __post_init__(self) -> None:
         self.validate()

@@ -15,6 +15,7 @@ from wface.basis.capture import MarkerLayout
 from wface.basis.core import load_basis
 from wface.basis.physical import basis_from_face
 from wface.basis.pipeline import analyze_take, default_landmarks, refine_basis, write_analysis
+from wface.cli.take_face import DEFAULT_TETS
 from wface.cli.validate import (
     face_tets,
     frame_range,
@@ -110,7 +111,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "alone at --activation (quasistatic solve). Element names are the muscle names.",
     )
     f.add_argument("--model", help="face model (.npz); default: the built-in face with --tets tets")
-    f.add_argument("--tets", type=face_tets, default=5000, help="size of the built-in face when --model is not given")
+    f.add_argument(
+        "--tets",
+        type=face_tets,
+        default=DEFAULT_TETS,
+        help=f"size of the built-in face when --model is not given (default {DEFAULT_TETS})",
+    )
     f.add_argument("--activation", type=positive_fraction, default=1.0, help="activation of each muscle (default 1)")
     f.add_argument("--out", required=True, type=npz_file, help="basis file to write (.npz)")
     f.add_argument("--overwrite", action="store_true", help="replace an existing --out file")

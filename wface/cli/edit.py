@@ -17,7 +17,7 @@ import numpy as np
 from wface.cli.closing import print_outputs
 from wface.cli.errors import UsageError
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
-from wface.cli.take_face import face_for_take
+from wface.cli.take_face import DEFAULT_TETS, face_for_take
 from wface.cli.validate import face_tets, finite_float, non_negative_int, positive_float, positive_int
 from wface.takes import (
     Take,
@@ -65,7 +65,7 @@ def _common(p: argparse.ArgumentParser) -> None:
         "--tets",
         type=face_tets,
         default=None,
-        help="size of the built-in face when --model is not given (default 5000)",
+        help=f"size of the built-in face when --model is not given (default {DEFAULT_TETS})",
     )
     p.add_argument("--device", default="cpu", help="Warp device: cpu, cuda:0 or auto")
     p.add_argument("--solver", default="auto", choices=["auto", "direct", "cg"], help="linear solver")

@@ -12,7 +12,7 @@ from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
 from wface.cli.simulate import parse_activations
-from wface.cli.take_face import face_for_take
+from wface.cli.take_face import DEFAULT_TETS, face_for_take
 from wface.cli.validate import UsageError, face_tets, finite_float, non_negative_int, positive_float, positive_int
 from wface.physics import Damping, Simulator
 from wface.takes.dynamic import compare_with_quasistatic, quasistatic_reference, resimulate
@@ -107,7 +107,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--tets",
         type=face_tets,
         default=None,
-        help="size of the built-in face when --model is not given (default: the take's face, else 5000)",
+        help=f"size of the built-in face when --model is not given (default: the take's face, else {DEFAULT_TETS})",
     )
     p.add_argument(
         "--scheme",
@@ -256,9 +256,9 @@ def _run(args: argparse.Namespace) -> int:
             head_shake=_head_shake(args.head_shake),
         )
     out = Path(args.out)
+    contact = contact_from_args(args, model)  # a refused contact leaves --out as it was
     claim_take_dir(out, command_provenance("resim", model, args), overwrite=args.overwrite)
     sim = Simulator(model, device=args.device, solver=args.solver)
-    contact = contact_from_args(args, model)
     skin_nodes, _ = skin_mesh(model)
     extra: dict = {}
     reference = take.reference_positions_m

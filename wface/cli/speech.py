@@ -301,9 +301,9 @@ def run_speech(args: argparse.Namespace) -> int:
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
     mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
     _check_model(args, model, gesture, mapping)
+    contact = contact_from_args(args, model)  # a refused contact leaves --out as it was
     claim_take_dir(out, command_provenance("speech", model, args), overwrite=args.overwrite)
     t_load = time.perf_counter() - t_start
-    contact = contact_from_args(args, model)
     dynamics = _dynamics(args)
     view = ApertureView.for_model(model, frontal=args.area_view == "frontal")
     result = simulate_gesture(

@@ -19,7 +19,7 @@ from wface.cli.closing import print_outputs
 from wface.cli.contact_args import add_contact_arguments, contact_from_args
 from wface.cli.errors import UsageError
 from wface.cli.render_mesh_args import add_render_mesh_arguments, render_mesh_from_args
-from wface.cli.take_face import face_record
+from wface.cli.take_face import DEFAULT_TETS, face_record
 from wface.cli.validate import (
     face_tets,
     frame_range,
@@ -174,7 +174,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     _common(d)
-    d.add_argument("--tets", type=face_tets, default=5000, help="size of the built-in face in tets (default 5000)")
+    d.add_argument(
+        "--tets",
+        type=face_tets,
+        default=DEFAULT_TETS,
+        help=f"size of the built-in face in tets (default {DEFAULT_TETS})",
+    )
     d.add_argument("--frames", type=positive_int, default=30, help="frames in the performance (default 30)")
     d.add_argument("--fps", type=positive_float, default=30.0, help="frame rate (default 30)")
     d.add_argument("--noise-mm", type=non_negative_float, default=0.5, help="RMS marker noise in mm (default 0.5)")
@@ -199,7 +204,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--tets",
         type=face_tets,
         default=None,
-        help="size of the built-in face without --model (default 5000)",
+        help=f"size of the built-in face without --model (default {DEFAULT_TETS})",
     )
     t.add_argument("--mocap", required=True, help="marker file: .c3d, .trc or .csv")
     t.add_argument(
@@ -490,7 +495,7 @@ def run_track(args: argparse.Namespace) -> int:
     if args.model and args.tets is not None:
         raise UsageError("--tets does nothing here: it sizes the built-in face, and --model gives the face")
     take = read_mocap(args.mocap)  # a bad file fails before the face is built
-    model = load_model(args.model) if args.model else build_face(args.tets or 5000, progress=True)
+    model = load_model(args.model) if args.model else build_face(args.tets or DEFAULT_TETS, progress=True)
     for note in take.meta.get("notices", []):
         print(f"note: {note}")
     neutral = args.neutral_frame

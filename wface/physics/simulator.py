@@ -21,7 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import scipy.sparse as sp
 
-from wface.model import FaceModel
+from wface.model import FIBRE_STRESSES, FaceModel
 from wface.physics.newton import Equilibrium, newton_quasistatic
 from wface.physics.pressure import pressure_loads
 from wface.physics.stiffness import StiffnessSolver, Tangent
@@ -99,9 +99,9 @@ class Simulator:
         self._k = fem_kernels(scalar)
         k, dev, dt = self._k, self.device, self._np_dtype
         m = model.material
-        self._deviatoric = int(m.fibre_stress == "deviatoric")
+        self._fibre_law = FIBRE_STRESSES.index(m.fibre_stress)  # the kernels' flag (wface.kernels.fem)
         self._material = [dt(m.mu10_pa), dt(m.mu01_pa), dt(m.mu20_pa), dt(m.kappa_pa), dt(m.inversion_clamp)]
-        self._material.append(self._deviatoric)
+        self._material.append(self._fibre_law)
         n, nt = model.n_nodes, model.n_tets
         self._tets = wp.array(model.tets.astype(np.int32), dtype=wp.int32, device=dev)
         self._dm_inv = wp.array(model.dm_inv.astype(dt), dtype=k.mat33, device=dev)
@@ -289,7 +289,7 @@ class Simulator:
             self._entry_dir,
             self._entry_coef,
             self._np_dtype(self.model.material.inversion_clamp),
-            self._deviatoric,
+            self._fibre_law,
         ]
 
     def muscle_forces(self, x: np.ndarray | None = None) -> np.ndarray:
