@@ -18,7 +18,10 @@ this module reproduces each choice on the imported face (``wface.faces.artisynth
   Blemker's active force-length curve (1 - 4 (lam - 1)^2, quadratic tails to 0 at 0.4 and 1.6) is
   close to wface's (``docs/design.md``, "Muscle fibres"). Both are functions of the deviatoric fibre
   stretch J^-1/3 |F d|, so their stress has no hydrostatic part: the setup sets
-  ``Material.fibre_stress = "deviatoric"``; the curves are otherwise wface's.
+  ``Material.fibre_stress = "deviatoric"``; the curves are otherwise wface's. ``"blemker"`` has
+  BlemkerMuscle's own curves, for every muscle (one law per material): its passive curve on the other
+  muscles, whose GenericMuscle passive is 0.05 Pa, overshoots the sag, so the setup keeps "deviatoric"
+  (README, "Hexes and fibre directions").
 - Boundary (``demo_attachments``): ``attachFaceToSkull`` fixes every inner-surface node
   (``atlas_internal.node``) except the lip, cheek and nose free lists, on top of the edge, nose and
   zygomatic-ligament lists that the import attaches; the jaw list stays on the jaw.
@@ -342,7 +345,8 @@ def lip_opening_demo_model(
             (I1~ - 3)^2, bulk 10 C10), whatever the model's (an import saved before wface had the C20
             term carries 1175 Pa as mu01); False keeps the model's.
         fibre_stress: ``Material.fibre_stress`` of every muscle, "deviatoric" as ArtiSynth's muscle
-            materials (module docstring) or "uniaxial" (None: keep the model's).
+            materials (module docstring), "blemker" (those with BlemkerMuscle's curves) or "uniaxial"
+            (None: keep the model's).
         ring_directions: the ring's fibre directions, "nearest" (the 7M polyline's nearest segment) or
             "delaunay" (ArtiSynth's blend; ``oop_ring_entries``).
 
