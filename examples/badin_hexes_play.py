@@ -66,12 +66,11 @@ class HexDemo:
         from wface.physics.hex_dilatation import MeanDilatation
         from wface.physics.hex_solve import HexBody
         from wface.physics.hexes import embedding_matrix, hex_quadrature, quadrature_model
-        from wface.speech.artisynth_demo import face_hexes, lip_opening_demo_model
+        from wface.speech.artisynth_demo import face_hexes, lip_opening_demo_model, without_idle_fibres
 
         demo = lip_opening_demo_model(base, data, ring_directions=ring_directions, fibre_stress=fibre_stress)
         if other_muscles == "off":  # ArtiSynth's GenericMuscle passive is 0.05 Pa: every muscle but OOP carries nothing
-            strength = np.where(np.array(demo.muscle_names) == "OOP", demo.muscle_strength, 0.0)
-            demo = replace(demo, muscle_strength=strength)
+            demo = without_idle_fibres(demo, ["OOP"])
         self.demo = demo
         hexes = face_hexes(data)
         n = int(hexes.max()) + 1
@@ -158,7 +157,7 @@ def play(
     times = gesture_times(t0, t1 if end_s is None else min(t1, end_s), fps)
     acts = lambda t: mapping.activations(gesture, demo, np.atleast_1d(t))[0]  # noqa: E731
     if other_muscles == "off":
-        driven = [demo.muscle_names[i] for i in np.flatnonzero(mapping.activations(gesture, demo, times).max(axis=0))]
+        driven = mapping.driven_muscles(gesture, demo)
         if set(driven) - {"OOP"}:
             raise SystemExit(f"--other-muscles off: the gesture also drives {sorted(set(driven) - {'OOP'})}")
     view, occluders, near = ApertureView.for_model(demo), boundary_faces(demo.tets), lip_area_points(demo)

@@ -12,6 +12,7 @@ from wface.speech.artisynth_demo import (
     lip_opening_demo_model,
     oop_ring_entries,
     ring_hexes,
+    without_idle_fibres,
 )
 
 # The model's tets are the import's conforming split of the hexes less the slivers it removed
@@ -146,3 +147,37 @@ def test_artisynth_ring_directions_close_to_nearest_segment(badin_model):
     assert 1.0 < np.median(angle) < 10.0 and np.percentile(angle, 90) < 25.0
     with pytest.raises(ValueError, match="nearest' or 'delaunay"):
         oop_ring_entries(badin_model, data, directions="closest")
+
+
+def test_idle_muscles_lose_their_fibres_and_driven_ones_keep_them(badin_model, demo):
+    """without_idle_fibres: the approximant drives OOP alone (``GestureMapping.driven_muscles``), so every other
+    muscle gets strength 0; their passive fibres then do no work (forces at a stretched state equal those of
+    the model whose other muscles' fibre entries are removed), and OOP's are unchanged."""
+    from dataclasses import replace
+
+    from wface.physics import Simulator
+    from wface.speech.gestures import map_gesture_to_model, read_gesture
+
+    gesture = read_gesture(data_path("artisynth-face", "speech", "approximant"))
+    driven = map_gesture_to_model(gesture, demo).driven_muscles(gesture, demo)
+    assert driven == ["OOP"]
+    idle = without_idle_fibres(demo, driven)
+    oop = demo.muscle_names.index("OOP")
+    assert idle.muscle_strength[oop] == demo.muscle_strength[oop] and np.count_nonzero(idle.muscle_strength) == 1
+    assert idle.metadata["idle_muscles_without_fibres"] == [n for n in demo.muscle_names if n != "OOP"]
+    keep = demo.fibre_muscle == oop
+    only_oop = replace(
+        demo,
+        fibre_tet=demo.fibre_tet[keep],
+        fibre_muscle=demo.fibre_muscle[keep],
+        fibre_fraction=demo.fibre_fraction[keep],
+        fibre_direction=demo.fibre_direction[keep],
+    )
+    x = demo.rest_positions_m * np.array([1.06, 0.97, 1.02])  # every fibre direction stretched or shortened
+    a = np.zeros(demo.n_muscles)
+    a[oop] = 0.2
+    f_idle, f_only = Simulator(idle).forces(x, a), Simulator(only_oop).forces(x, a)
+    np.testing.assert_allclose(f_idle, f_only, atol=1e-9 * np.abs(f_only).max())
+    assert np.abs(Simulator(demo).forces(x, a) - f_only).max() > 1e-3 * np.abs(f_only).max()
+    with pytest.raises(ValueError, match="not in the model"):
+        without_idle_fibres(demo, ["OOP", "risorius"])

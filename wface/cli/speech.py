@@ -23,7 +23,7 @@ from wface.files import write_json
 from wface.mesh.surface import boundary_faces
 from wface.model import load_model
 from wface.speech.aperture import ApertureView
-from wface.speech.artisynth_demo import lip_opening_demo_model
+from wface.speech.artisynth_demo import lip_opening_demo_model, without_idle_fibres
 from wface.speech.dynamic import GestureDynamics
 from wface.speech.gestures import map_gesture_to_model, read_gesture
 from wface.speech.output import write_aperture_pictures, write_gesture_usd, write_lip_opening, write_states
@@ -41,7 +41,8 @@ beta = 0.055 s, gravity). The lip opening area is the mouth aperture in mm^2 see
 orthographic camera against its green plane at Badin x = 0.1 m (--area-view frontal: straight from
 the front); the Mouth_Up - Mouth_Down distance is reported too. --setup artisynth sets the face up
 as ArtiSynth's BadinFaceDemoLipOpening (its ten OOP rings, muscle stress 1e5 Pa, inner surface fixed,
-its flesh law and deviatoric fibre stress). Writes report.json, lip_opening.csv and .png, the
+its flesh law and deviatoric fibre stress; --idle-muscles off: the muscles the gesture never drives carry
+no fibres, as there). Writes report.json, lip_opening.csv and .png, the
 aperture pictures of the first and last frames, states.npz (every frame's node positions, markers
 and activations: np.load) and animation.usdc.
 
@@ -53,6 +54,8 @@ examples:
   wface speech --model badin.npz --gesture approximant --setup artisynth --dynamic --contact lips --out dyn
   wface speech --model badin.npz --gesture approximant --setup artisynth --contact lips,skull \\
       --contact-inside-at-rest push --out skull   # ArtiSynth's lip-skull contact (jaw and maxilla)
+  wface speech --model badin.npz --gesture approximant --setup artisynth --idle-muscles off --dynamic \
+      --exact-damping --contact lips,skull --contact-inside-at-rest push --out as_demo   # nearest ArtiSynth's demo
 """
 
 
@@ -111,6 +114,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--data",
         help="the artisynth-face data folder for --setup artisynth, the only one looked in when given "
         "(default: --model's folder or ../shared/data/artisynth-face)",
+    )
+    p.add_argument(
+        "--idle-muscles",
+        choices=["passive", "off"],
+        default="passive",
+        help="with --setup artisynth, the muscles the gesture never drives: wface's passive fibres (default) or "
+        "none, as ArtiSynth's demo (its GenericMuscle's passive stress is 0.05 Pa)",
     )
     p.add_argument("--dynamic", action="store_true", help="play through the implicit dynamic FEM (inertia)")
     p.add_argument(
@@ -283,6 +293,8 @@ def _check_options(args) -> None:
     given = options_given(args, args.dynamic_option_defaults)
     if given and not args.dynamic:
         raise UsageError(f"{', '.join(given)} set(s) the dynamic playback: add --dynamic, or leave it out")
+    if args.idle_muscles != "passive" and args.setup != "artisynth":
+        raise UsageError("--idle-muscles sets up ArtiSynth's demo: add --setup artisynth, or leave it out")
     if args.data and args.setup != "artisynth":
         raise UsageError(
             "--data is the artisynth-face folder of --setup artisynth: add --setup artisynth, or leave it out"
@@ -301,6 +313,8 @@ def run_speech(args: argparse.Namespace) -> int:
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
     mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
     _check_model(args, model, gesture, mapping)
+    if args.idle_muscles == "off":
+        model = without_idle_fibres(model, mapping.driven_muscles(gesture, model))
     contact = contact_from_args(args, model)  # a refused contact leaves --out as it was
     claim_take_dir(out, command_provenance("speech", model, args), overwrite=args.overwrite)
     t_load = time.perf_counter() - t_start
@@ -339,6 +353,7 @@ def run_speech(args: argparse.Namespace) -> int:
             "interpolation": {k: c.order for k, c in gesture.curves.items()},
             "tol": args.tol,
             "setup": args.setup,
+            "idle_muscles_without_fibres": model.metadata.get("idle_muscles_without_fibres", []),
             "material": dataclasses.asdict(model.material),  # the flesh law and fibre stress played
             "lip_surface": args.lip_surface if contact is not None else None,
             "reference_comparison": compare_with_reference(result, gesture.reference_lip_area),

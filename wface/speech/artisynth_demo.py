@@ -322,6 +322,27 @@ def demo_attachments(model: FaceModel, data_dir: str | Path) -> tuple[np.ndarray
     return nodes, jaw[nodes].astype(np.int8)
 
 
+def without_idle_fibres(model: FaceModel, driven) -> FaceModel:
+    """``model`` with every muscle not in ``driven`` at strength 0: no fibres, active or passive.
+
+    ArtiSynth's demo gives the muscles other than OOP ``GenericMuscle``, whose passive stress is
+    0.05 Pa (not scaled by maxStress), so a muscle a gesture never drives carries next to nothing
+    there, where wface's carries its passive fibres (k f_P). On ArtiSynth's hexes with lip and skull
+    contact those fibres close the approximant's floor from 11.3 to 7.9 mm^2 (README, "The other
+    muscles' passive fibres close the floor's gap"). A driven muscle keeps its passive fibres.
+    """
+    driven = set(driven)
+    unknown = driven - set(model.muscle_names)
+    if unknown:
+        raise ValueError(f"driven muscles not in the model: {sorted(unknown)}")
+    keep = np.isin(np.asarray(model.muscle_names), sorted(driven))
+    meta = dict(model.metadata)
+    meta["idle_muscles_without_fibres"] = [n for n, k in zip(model.muscle_names, keep, strict=True) if not k]
+    out = replace(model, muscle_strength=np.where(keep, model.muscle_strength, 0.0), metadata=meta)
+    out.validate()
+    return out
+
+
 def lip_opening_demo_model(
     model: FaceModel,
     data_dir: str | Path,

@@ -137,6 +137,14 @@ class GestureMapping:
                 A[:, i] = np.maximum(A[:, i], v)
         return np.clip(A, 0.0, 1.0)
 
+    def driven_muscles(self, gesture: SpeechGesture, model) -> list[str]:
+        """The model muscles the gesture ever drives above 0 (at its curves' knots and 2,001 times between)."""
+        t0, t1 = gesture.duration_s
+        knots = [c.t0 + c.times for p, c in gesture.curves.items() if p in self.muscles]
+        times = np.concatenate([np.linspace(t0, t1, 2001), *knots])
+        drive = self.activations(gesture, model, times).max(axis=0)
+        return [model.muscle_names[i] for i in np.flatnonzero(drive > 0)]
+
 
 def interpolate(knot_t: np.ndarray, knot_v: np.ndarray, t: np.ndarray, order: str) -> np.ndarray:
     """Interpolate knots (ascending times) at ``t`` with ArtiSynth's ``order``; end values held outside."""
