@@ -55,7 +55,7 @@ class HexDemo:
         lip_surface="smooth",
         lip_points="nodes_and_edges",
         fibre_stress="deviatoric",
-        other_muscles="passive",
+        idle_muscles="passive",
     ):
         from dataclasses import replace
 
@@ -69,7 +69,7 @@ class HexDemo:
         from wface.speech.artisynth_demo import face_hexes, lip_opening_demo_model, without_idle_fibres
 
         demo = lip_opening_demo_model(base, data, ring_directions=ring_directions, fibre_stress=fibre_stress)
-        if other_muscles == "off":  # ArtiSynth's GenericMuscle passive is 0.05 Pa: every muscle but OOP carries nothing
+        if idle_muscles == "off":  # ArtiSynth's GenericMuscle passive is 0.05 Pa: every muscle but OOP carries nothing
             demo = without_idle_fibres(demo, ["OOP"])
         self.demo = demo
         hexes = face_hexes(data)
@@ -122,7 +122,7 @@ def play(
     exact_damping: bool = False,
     ring_directions: str = "nearest",
     fibre_stress: str = "deviatoric",
-    other_muscles: str = "passive",
+    idle_muscles: str = "passive",
     mass_lumping: str = "equal",
     start_from: str = "pushed",
     bulk: str = "point",
@@ -148,7 +148,7 @@ def play(
         lip_surface=lip_surface,
         lip_points=lip_points,
         fibre_stress=fibre_stress,
-        other_muscles=other_muscles,
+        idle_muscles=idle_muscles,
     )
     demo = face.demo
     gesture = read_gesture(data / "speech" / "approximant")
@@ -156,10 +156,10 @@ def play(
     t0, t1 = gesture.duration_s
     times = gesture_times(t0, t1 if end_s is None else min(t1, end_s), fps)
     acts = lambda t: mapping.activations(gesture, demo, np.atleast_1d(t))[0]  # noqa: E731
-    if other_muscles == "off":
+    if idle_muscles == "off":
         driven = mapping.driven_muscles(gesture, demo)
         if set(driven) - {"OOP"}:
-            raise SystemExit(f"--other-muscles off: the gesture also drives {sorted(set(driven) - {'OOP'})}")
+            raise SystemExit(f"--idle-muscles off: the gesture also drives {sorted(set(driven) - {'OOP'})}")
     view, occluders, near = ApertureView.for_model(demo), boundary_faces(demo.tets), lip_area_points(demo)
     lips = Contact(demo, regions="lips")
     oop = demo.muscle_names.index("OOP")
@@ -328,10 +328,11 @@ def main(argv=None) -> int:
         "curves (Material.fibre_stress)",
     )
     p.add_argument(
-        "--other-muscles",
+        "--idle-muscles",
         choices=("passive", "off"),
         default="passive",
-        help="every muscle but OOP: passive fibres as wface's, or none (ArtiSynth's GenericMuscle passive is 0.05 Pa)",
+        help="every muscle but OOP (the approximant drives OOP alone): passive fibres as wface's, or none "
+        "(ArtiSynth's GenericMuscle passive is 0.05 Pa; wface speech --idle-muscles)",
     )
     a = p.parse_args(argv)
     if not a.data.is_dir():
@@ -356,7 +357,7 @@ def main(argv=None) -> int:
         lip_surface=a.lip_surface,
         lip_points=a.lip_points,
         fibre_stress=a.fibre_stress,
-        other_muscles=a.other_muscles,
+        idle_muscles=a.idle_muscles,
     )
     a.out.mkdir(parents=True, exist_ok=True)
     with open(a.out / "lip_opening.csv", "w", newline="") as fh:
@@ -382,7 +383,7 @@ def main(argv=None) -> int:
         "max_iterations": a.max_iterations,
         "exact_damping": a.exact_damping,
         "fibre_stress": a.fibre_stress,
-        "other_muscles": a.other_muscles,
+        "idle_muscles": a.idle_muscles,
         "dynamics": DYNAMICS,
         "mesh": run["mesh"],
         "summary": summarise(run["rows"]),

@@ -243,7 +243,7 @@ def test_badin_hexes_play_example(badin_model_path, tmp_path):
 
 
 def test_badin_hexes_play_with_artisynths_muscle_laws(badin_model_path, tmp_path):
-    """--fibre-stress blemker --other-muscles off (BlemkerMuscle's curves; the other muscles' passive fibres
+    """--fibre-stress blemker --idle-muscles off (BlemkerMuscle's curves; the other muscles' passive fibres
     off, as ArtiSynth's GenericMuscle's 0.05 Pa) runs, converges and says so in report.json."""
     import json
 
@@ -251,8 +251,8 @@ def test_badin_hexes_play_with_artisynths_muscle_laws(badin_model_path, tmp_path
 
     example = _example("badin_hexes_play")
     argv = ["--model", str(badin_model_path), "--data", str(data_path("artisynth-face")), "--contact", ""]
-    argv += ["--end", "0.02", "--fibre-stress", "blemker", "--other-muscles", "off", "--out", str(tmp_path)]
+    argv += ["--end", "0.02", "--fibre-stress", "blemker", "--idle-muscles", "off", "--out", str(tmp_path)]
     assert example.main(argv) == 0
     report = json.loads((tmp_path / "report.json").read_text())
-    assert report["fibre_stress"] == "blemker" and report["other_muscles"] == "off"
+    assert report["fibre_stress"] == "blemker" and report["idle_muscles"] == "off"
     assert report["summary"]["residual_rel_max"] <= 1e-4
