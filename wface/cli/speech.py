@@ -54,7 +54,7 @@ examples:
   wface speech --model badin.npz --gesture approximant --setup artisynth --dynamic --contact lips --out dyn
   wface speech --model badin.npz --gesture approximant --setup artisynth --contact lips,skull \\
       --contact-inside-at-rest push --out skull   # ArtiSynth's lip-skull contact (jaw and maxilla)
-  wface speech --model badin.npz --gesture approximant --setup artisynth --idle-muscles off --dynamic \
+  wface speech --model badin.npz --gesture approximant --setup artisynth --idle-muscles off --dynamic \\
       --exact-damping --contact lips,skull --contact-inside-at-rest push --out as_demo   # nearest ArtiSynth's demo
 """
 
