@@ -109,27 +109,35 @@ def _warp_curves(lam: np.ndarray, curves: int = 0) -> np.ndarray:
     return out.numpy()
 
 
-def test_fibre_curves_match_design_formulas_and_are_c1():
+_BREAKS = (0.4, 0.6, 1.0, 1.4, 1.6)  # the curves' pieces meet here
+
+
+def _check_curves(curves: int, active, passive, passive_atol: float) -> tuple[np.ndarray, np.ndarray]:
+    """The ``fibre_curves`` kernel's columns for ``curves`` against numpy's ``active`` and ``passive``, their
+    derivatives by central differences away from the breakpoints and their integrals from 1 (the fibre energy
+    per unit volume and sigma_max) by quadrature. Returns the stretches and the columns."""
     from scipy.integrate import quad
 
     lam = np.linspace(0.2, 2.2, 2001)
-    c = _warp_curves(lam)
-    np.testing.assert_allclose(c[:, 0], _fl(lam), atol=1e-14)
-    np.testing.assert_allclose(c[:, 3], _fp(lam), atol=1e-13)
-    # derivatives by central differences away from the breakpoints
+    c = _warp_curves(lam, curves)
+    np.testing.assert_allclose(c[:, 0], active(lam), atol=1e-14)
+    np.testing.assert_allclose(c[:, 3], passive(lam), atol=passive_atol)
     h = 1e-6
-    breaks = np.array([0.4, 0.6, 1.0, 1.4, 1.6])
-    away = np.min(np.abs(lam[:, None] - breaks[None]), axis=1) > 10 * h
-    cp, cm = _warp_curves(lam + h), _warp_curves(lam - h)
+    away = np.min(np.abs(lam[:, None] - np.array(_BREAKS)[None]), axis=1) > 10 * h
+    cp, cm = _warp_curves(lam + h, curves), _warp_curves(lam - h, curves)
     np.testing.assert_allclose(c[away, 1], ((cp[:, 0] - cm[:, 0]) / (2 * h))[away], atol=1e-7)
     np.testing.assert_allclose(c[away, 4], ((cp[:, 3] - cm[:, 3]) / (2 * h))[away], atol=1e-7)
-    # integrals from 1 (the fibre energy per unit volume and sigma_max) against quadrature
     for lv, row in zip(lam[::50], c[::50], strict=True):
-        il = quad(_fl, 1.0, lv, points=[0.4, 0.6, 1.4, 1.6], limit=200)[0]
-        ip = quad(_fp, 1.0, lv, points=[1.4], limit=200)[0]
+        il = quad(active, 1.0, lv, points=[0.4, 0.6, 1.4, 1.6], limit=200)[0]
+        ip = quad(passive, 1.0, lv, points=[1.4], limit=200)[0]
         assert row[2] == pytest.approx(il, abs=1e-10) and row[5] == pytest.approx(ip, abs=1e-10)
+    return lam, c
+
+
+def test_fibre_curves_match_design_formulas_and_are_c1():
+    lam, c = _check_curves(0, _fl, _fp, 1e-13)
     # C1 at every breakpoint: values and slopes agree from both sides (to O(h) of the slope change)
-    for b in breaks:
+    for b in _BREAKS:
         left, right = _warp_curves(np.array([b - 1e-9])), _warp_curves(np.array([b + 1e-9]))
         np.testing.assert_allclose(left, right, atol=1e-7)
     assert _fl(np.array([1.0]))[0] == 1.0 and c[np.argmin(np.abs(lam - 1.0)), 3] == 0.0
@@ -154,21 +162,7 @@ def _blemker_passive(lam: np.ndarray) -> np.ndarray:
 def test_blemker_curves_are_artisynths():
     """``curves`` 1 (``Material.fibre_stress = "blemker"``) against BlemkerMuscle's formulas, their
     derivatives by central differences and integrals by quadrature."""
-    from scipy.integrate import quad
-
-    lam = np.linspace(0.2, 2.2, 2001)
-    c = _warp_curves(lam, 1)
-    np.testing.assert_allclose(c[:, 0], _blemker_active(lam), atol=1e-14)
-    np.testing.assert_allclose(c[:, 3], _blemker_passive(lam), atol=1e-12)
-    h = 1e-6
-    away = np.min(np.abs(lam[:, None] - np.array([0.4, 0.6, 1.0, 1.4, 1.6])[None]), axis=1) > 10 * h
-    cp, cm = _warp_curves(lam + h, 1), _warp_curves(lam - h, 1)
-    np.testing.assert_allclose(c[away, 1], ((cp[:, 0] - cm[:, 0]) / (2 * h))[away], atol=1e-7)
-    np.testing.assert_allclose(c[away, 4], ((cp[:, 3] - cm[:, 3]) / (2 * h))[away], atol=1e-7)
-    for lv, row in zip(lam[::50], c[::50], strict=True):
-        il = quad(_blemker_active, 1.0, lv, points=[0.4, 0.6, 1.4, 1.6], limit=200)[0]
-        ip = quad(_blemker_passive, 1.0, lv, points=[1.4], limit=200)[0]
-        assert row[2] == pytest.approx(il, abs=1e-10) and row[5] == pytest.approx(ip, abs=1e-10)
+    lam, c = _check_curves(1, _blemker_active, _blemker_passive, 1e-12)
     # where the two laws part: Blemker's active curve lies above wface's (by x^2 / 6 inside |x| < 0.4) and
     # its passive one starts with slope 0.33 at lam = 1 where wface's starts flat
     wf = _warp_curves(lam, 0)
