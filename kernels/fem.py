@@ -81,13 +81,6 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
 
     # ------------------------------------------------------------------ element helpers
     @wp.func
-    def law_curves(fibre_law: int):
-        """The fibre curves of a fibre law (0 uniaxial, 1 deviatoric: wface's; 2 deviatoric: Blemker's)."""
-        if fibre_law == 2:
-            return 1
-        return 0
-
-    @wp.func
     def deformation_gradient(x: wp.array(dtype=vec3), tets: wp.array2d(dtype=wp.int32), dm_inv: mat33, t: int):
         x0 = x[tets[t, 0]]
         Ds = wp.matrix_from_cols(x[tets[t, 1]] - x0, x[tets[t, 2]] - x0, x[tets[t, 3]] - x0)
@@ -120,6 +113,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         kappa: S,
         clamp: S,
         fibre_law: int,
+        muscle_curves: wp.array(dtype=wp.int32),
         entry_start: wp.array(dtype=wp.int32),
         entry_muscle: wp.array(dtype=wp.int32),
         entry_direction: wp.array(dtype=vec3),
@@ -138,16 +132,16 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         energy, P = flesh_stress(F, mu10, mu01, mu20, kappa, clamp)
         for e in range(entry_start[t], entry_start[t + 1]):
             d = entry_direction[e]
+            m = entry_muscle[e]
             if fibre_law != 0:
-                lam, lt, T, dT, W, g = deviatoric_fibre(
-                    F, d, activation[entry_muscle[e]], entry_coef[e], clamp * clamp * clamp, law_curves(fibre_law)
-                )
+                jc = clamp * clamp * clamp
+                lam, lt, T, dT, W, g = deviatoric_fibre(F, d, activation[m], entry_coef[e], jc, muscle_curves[m])
                 energy = energy + W
                 P = P + T * g
                 continue
             q = F * d
             lam = wp.length(q)
-            T, dT, W = fibre_tension(lam, activation[entry_muscle[e]], entry_coef[e], 0)
+            T, dT, W = fibre_tension(lam, activation[m], entry_coef[e], muscle_curves[m])
             energy = energy + W
             if lam > S(1.0e-12):
                 P = P + (T / lam) * wp.outer(q, d)
@@ -167,6 +161,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         kappa: S,
         clamp: S,
         fibre_law: int,
+        muscle_curves: wp.array(dtype=wp.int32),
         entry_start: wp.array(dtype=wp.int32),
         entry_muscle: wp.array(dtype=wp.int32),
         entry_direction: wp.array(dtype=vec3),
@@ -186,7 +181,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
             if fibre_law != 0:
                 phi, dphi, ddphi = volume_factor(wp.determinant(F), clamp * clamp * clamp)
                 lam = phi * lam
-            T, dT, W = fibre_tension(lam, activation[entry_muscle[e]], entry_coef[e], law_curves(fibre_law))
+            T, dT, W = fibre_tension(lam, activation[entry_muscle[e]], entry_coef[e], muscle_curves[entry_muscle[e]])
             energy = energy + W
         energy_out[t] = rest_volume[t] * energy
 
@@ -201,6 +196,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         k: S,
         clamp: S,
         fibre_law: int,
+        curves: int,
         w: S,
     ):
         """The forces (c1, c2, c3) on nodes 1..3 of one fibre entry at activation ``w`` (node 0 gets minus
@@ -211,11 +207,11 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         P = mat33()
         if lam > S(1.0e-12):
             if fibre_law != 0:
-                lam0, lt, T, dT, W, g = deviatoric_fibre(F, d, S(0.0), k, clamp * clamp * clamp, law_curves(fibre_law))
-                fl, dfl, gl = force_length(lt - S(1.0), law_curves(fibre_law))
+                lam0, lt, T, dT, W, g = deviatoric_fibre(F, d, S(0.0), k, clamp * clamp * clamp, curves)
+                fl, dfl, gl = force_length(lt - S(1.0), curves)
                 P = (k * fl) * g
             else:
-                fl, dfl, gl = force_length(lam - S(1.0), 0)
+                fl, dfl, gl = force_length(lam - S(1.0), curves)
                 P = (k * fl / lam) * wp.outer(q, d)
         H = (-w * V0) * (P * wp.transpose(Dmi))
         return vec3(H[0, 0], H[1, 0], H[2, 0]), vec3(H[0, 1], H[1, 1], H[2, 1]), vec3(H[0, 2], H[1, 2], H[2, 2])
@@ -232,6 +228,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         entry_coef: wp.array(dtype=S),
         clamp: S,
         fibre_law: int,
+        muscle_curves: wp.array(dtype=wp.int32),
         # State in:
         x: wp.array(dtype=vec3),
         # Out:
@@ -241,10 +238,20 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         (k f_L(lam) d lam/dF, with lam~ and d lam~/dF if ``fibre_law`` != 0)."""
         e = wp.tid()
         t = entry_tet[e]
-        c1, c2, c3 = fibre_nodal_forces(
-            x, tets, dm_inv[t], rest_volume[t], t, entry_direction[e], entry_coef[e], clamp, fibre_law, S(1.0)
-        )
         m = entry_muscle[e]
+        c1, c2, c3 = fibre_nodal_forces(
+            x,
+            tets,
+            dm_inv[t],
+            rest_volume[t],
+            t,
+            entry_direction[e],
+            entry_coef[e],
+            clamp,
+            fibre_law,
+            muscle_curves[m],
+            S(1.0),
+        )
         wp.atomic_add(forces_out, m, tets[t, 1], c1)
         wp.atomic_add(forces_out, m, tets[t, 2], c2)
         wp.atomic_add(forces_out, m, tets[t, 3], c3)
@@ -262,6 +269,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         entry_coef: wp.array(dtype=S),
         clamp: S,
         fibre_law: int,
+        muscle_curves: wp.array(dtype=wp.int32),
         # State in:
         x: wp.array(dtype=vec3),
         weights: wp.array(dtype=S),
@@ -271,11 +279,13 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         """sum_i w_i f_i(x), (n,) accumulated: ``muscle_forces`` weighted and summed over the muscles,
         without the (M, n) array (the load of a linear prediction, ``RowsLinearization.predict``)."""
         e = wp.tid()
-        w = weights[entry_muscle[e]]
+        m = entry_muscle[e]
+        w = weights[m]
         if w != S(0.0):
             t = entry_tet[e]
+            coef = entry_coef[e]
             c1, c2, c3 = fibre_nodal_forces(
-                x, tets, dm_inv[t], rest_volume[t], t, entry_direction[e], entry_coef[e], clamp, fibre_law, w
+                x, tets, dm_inv[t], rest_volume[t], t, entry_direction[e], coef, clamp, fibre_law, muscle_curves[m], w
             )
             wp.atomic_add(forces_out, tets[t, 1], c1)
             wp.atomic_add(forces_out, tets[t, 2], c2)
@@ -303,6 +313,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         kappa: S,
         clamp: S,
         fibre_law: int,
+        muscle_curves: wp.array(dtype=wp.int32),
         entry_start: wp.array(dtype=wp.int32),
         entry_muscle: wp.array(dtype=wp.int32),
         entry_direction: wp.array(dtype=vec3),
@@ -328,7 +339,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
             for e in range(entry_start[t], entry_start[t + 1]):
                 act = activation[entry_muscle[e]]
                 lf, lt, T, dT, W, g = deviatoric_fibre(
-                    F, entry_direction[e], act, entry_coef[e], clamp * clamp * clamp, law_curves(fibre_law)
+                    F, entry_direction[e], act, entry_coef[e], clamp * clamp * clamp, muscle_curves[entry_muscle[e]]
                 )
                 c_iso = c_iso + T * lf
             phi, dphi, ddphi = volume_factor(s[0] * s[1] * s[2], clamp * clamp * clamp)
@@ -382,12 +393,13 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
             if fibre_law != 0:
                 act = activation[entry_muscle[e]]
                 jc = clamp * clamp * clamp
-                C = deviatoric_fibre_tangent(C, F, d, act, entry_coef[e], jc, law_curves(fibre_law), project)
+                curves = muscle_curves[entry_muscle[e]]
+                C = deviatoric_fibre_tangent(C, F, d, act, entry_coef[e], jc, curves, project)
                 continue
             q = F * d
             lf = wp.length(q)
             if lf > S(1.0e-12):
-                T, dT, W = fibre_tension(lf, activation[entry_muscle[e]], entry_coef[e], 0)
+                T, dT, W = fibre_tension(lf, activation[entry_muscle[e]], entry_coef[e], muscle_curves[entry_muscle[e]])
                 c1 = T / lf
                 along = dT
                 if project != 0:

@@ -6,7 +6,10 @@ k = fraction * strength * sigma_max (Teran et al. 2005; Zajac 1989 force-length 
 - passive f_P = 0.05 (exp(6.6 x) - 6.6 x - 1) for 0 < x <= 0.4, continued linearly (C1) above, 0 for x <= 0.
 Blemker's curves (``curves`` 1, ``Material.fibre_stress = "blemker"``: ArtiSynth's BlemkerMuscle, Blemker et al.
 2005): f_L = 1 - 4 x^2 for |x| < 0.4, 9 (|x| - 0.6)^2 to |x| = 0.6, 0 beyond; f_P = 0.05 (exp(6.6 x) - 1) for
-0 < x <= 0.4 (not C1 at x = 0), continued linearly above.
+0 < x <= 0.4 (not C1 at x = 0), continued linearly above. Generic curves (``curves`` 2, ArtiSynth's
+GenericMuscle): f_L = 1 at every stretch and no passive stress (GenericMuscle's, 0.05 Pa (exp(6.6 x) - 1) / lam,
+is not scaled by sigma_max: at most 0.65 Pa up to lam~ = 1.4, 6.5e-6 of its 1e5 Pa, so it is left out).
+A muscle's curves are its own (``Material.muscle_curves``, index into ``FIBRE_CURVES``).
 The fibre energy is the integral of T over the stretch from 1, in closed form per piece.
 
 Deviatoric fibre stress (``Material.fibre_stress`` "deviatoric" or "blemker", ArtiSynth's muscle materials): the
@@ -49,7 +52,9 @@ def fibre_functions(dtype):
     @wp.func
     def force_length(x: S, curves: int):
         """f_L, df_L/dlam and the integral from 1 of f_L, at lam = 1 + x; ``curves`` 0 wface's, 1 Blemker's
-        (1 - 4 x^2 for |x| < 0.4, 9 (|x| - 0.6)^2 to |x| = 0.6, 0 beyond)."""
+        (1 - 4 x^2 for |x| < 0.4, 9 (|x| - 0.6)^2 to |x| = 0.6, 0 beyond), 2 generic (1 everywhere)."""
+        if curves == 2:
+            return S(1.0), S(0.0), x
         ax = wp.abs(x)
         sg = S(1.0)
         if x < S(0.0):
@@ -61,7 +66,7 @@ def fibre_functions(dtype):
         c_out = S(C25_3)
         c2_out = S(C50_3)
         c3_out = S(C25_9)
-        if curves != 0:
+        if curves == 1:
             c_in = S(4.0)
             c2_in = S(8.0)
             c3_in = S(C4_3)
@@ -79,15 +84,15 @@ def fibre_functions(dtype):
     @wp.func
     def passive_curve(x: S, curves: int):
         """f_P, df_P/dlam and the integral from 1 of f_P, at lam = 1 + x, linear (C1) beyond 1.4; ``curves``
-        0 wface's 0.05 (exp(6.6 x) - 6.6 x - 1), 1 Blemker's 0.05 (exp(6.6 x) - 1) (a kink at lam = 1)."""
-        if x <= S(0.0):
+        0 wface's 0.05 (exp(6.6 x) - 6.6 x - 1), 1 Blemker's 0.05 (exp(6.6 x) - 1) (a kink at lam = 1), 2 none."""
+        if x <= S(0.0) or curves == 2:
             return S(0.0), S(0.0), S(0.0)
         xe = wp.min(x, S(0.4))
         e = wp.exp(S(6.6) * xe)
         f = S(0.05) * (e - S(6.6) * xe - S(1.0))
         df = S(C033) * (e - S(1.0))
         g = S(0.05) * ((e - S(1.0)) / S(6.6) - S(3.3) * xe * xe - xe)
-        if curves != 0:
+        if curves == 1:
             f = S(0.05) * (e - S(1.0))
             df = S(C033) * e
             g = S(0.05) * ((e - S(1.0)) / S(6.6) - xe)

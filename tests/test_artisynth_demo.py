@@ -181,3 +181,16 @@ def test_idle_muscles_lose_their_fibres_and_driven_ones_keep_them(badin_model, d
     assert np.abs(Simulator(demo).forces(x, a) - f_only).max() > 1e-3 * np.abs(f_only).max()
     with pytest.raises(ValueError, match="not in the model"):
         without_idle_fibres(demo, ["OOP", "risorius"])
+
+
+def test_the_demos_own_muscle_curves(badin_model, demo):
+    """muscle_curves="artisynth": OOP BlemkerMuscle's curves, every other muscle GenericMuscle's, recorded in the
+    metadata; the default keeps wface's on every muscle; without the ring there is no OOP to give them to."""
+    own = lip_opening_demo_model(badin_model, data_path("artisynth-face"), muscle_curves="artisynth")
+    curves = dict(own.material.muscle_curves)
+    assert curves.pop("OOP") == "blemker" and set(curves.values()) == {"generic"}
+    assert sorted(curves) == sorted(n for n in own.muscle_names if n != "OOP")
+    assert own.metadata["artisynth_lip_opening_demo"]["muscle_curves"] == "artisynth"
+    assert demo.material.muscle_curves == () and demo.metadata["artisynth_lip_opening_demo"]["muscle_curves"] == "law"
+    with pytest.raises(ValueError, match="set ring=True"):
+        lip_opening_demo_model(badin_model, data_path("artisynth-face"), ring=False, muscle_curves="artisynth")

@@ -172,6 +172,15 @@ def test_blemker_curves_are_artisynths():
     assert just_above[4] == pytest.approx(0.05 * 6.6, rel=1e-6) and _warp_curves(np.array([1.0 + 1e-9]))[0][4] < 1e-6
 
 
+def test_generic_curves_are_artisynths():
+    """``curves`` 2 (``Material.muscle_curves``: ArtiSynth's GenericMuscle): f_L = 1 at every stretch, no
+    passive stress (GenericMuscle's, 0.05 Pa (exp(6.6 x) - 1) / lam, is not scaled by maxStress: below 1 Pa up to
+    its maxLambda 1.4, where the curves above are scaled by sigma_max = 1e5 Pa)."""
+    lam, c = _check_curves(2, np.ones_like, np.zeros_like, 0.0)
+    np.testing.assert_allclose(c[:, 2], lam - 1, atol=1e-14)  # integral of f_L from 1
+    assert 0.05 * (np.exp(6.6 * 0.4) - 1) / 1.4 < 1.0  # the passive stress left out, Pa
+
+
 # ---------------------------------------------------------------------- energy, forces, stiffness
 def test_rest_state_has_zero_force_and_energy(box_sim):
     X = box_sim.model.rest_positions_m

@@ -42,7 +42,8 @@ orthographic camera against its green plane at Badin x = 0.1 m (--area-view fron
 the front); the Mouth_Up - Mouth_Down distance is reported too. --setup artisynth sets the face up
 as ArtiSynth's BadinFaceDemoLipOpening (its ten OOP rings, muscle stress 1e5 Pa, inner surface fixed,
 its flesh law and deviatoric fibre stress; --idle-muscles off: the muscles the gesture never drives carry
-no fibres, as there). Writes report.json, lip_opening.csv and .png, the
+no fibres, as there; --muscle-curves artisynth: BlemkerMuscle's curves on OOP and GenericMuscle's, with no
+force-length curve and no passive stress, on the others, as there). Writes report.json, lip_opening.csv and .png, the
 aperture pictures of the first and last frames, states.npz (every frame's node positions, markers
 and activations: np.load) and animation.usdc.
 
@@ -56,6 +57,8 @@ examples:
       --contact-inside-at-rest push --out skull   # ArtiSynth's lip-skull contact (jaw and maxilla)
   wface speech --model badin.npz --gesture approximant --setup artisynth --idle-muscles off --dynamic \\
       --exact-damping --contact lips,skull --contact-inside-at-rest push --out as_demo   # nearest ArtiSynth's demo
+  wface speech --model badin.npz --gesture closure --setup artisynth --muscle-curves artisynth --dynamic \\
+      --exact-damping --contact lips,skull --contact-inside-at-rest push --out closure_as   # its muscle laws
 """
 
 
@@ -121,6 +124,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="passive",
         help="with --setup artisynth, the muscles the gesture never drives: wface's passive fibres (default) or "
         "none, as ArtiSynth's demo (its GenericMuscle's passive stress is 0.05 Pa)",
+    )
+    p.add_argument(
+        "--muscle-curves",
+        choices=["wface", "artisynth"],
+        default="wface",
+        help="with --setup artisynth, the muscles' force-length and passive curves: wface's on every muscle "
+        "(default) or the demo's own, BlemkerMuscle's on OOP and GenericMuscle's (no force-length, no passive "
+        "stress) on the others",
     )
     p.add_argument("--dynamic", action="store_true", help="play through the implicit dynamic FEM (inertia)")
     p.add_argument(
@@ -293,8 +304,12 @@ def _check_options(args) -> None:
     given = options_given(args, args.dynamic_option_defaults)
     if given and not args.dynamic:
         raise UsageError(f"{', '.join(given)} set(s) the dynamic playback: add --dynamic, or leave it out")
-    if args.idle_muscles != "passive" and args.setup != "artisynth":
-        raise UsageError("--idle-muscles sets up ArtiSynth's demo: add --setup artisynth, or leave it out")
+    for option, value, default in (
+        ("--idle-muscles", args.idle_muscles, "passive"),
+        ("--muscle-curves", args.muscle_curves, "wface"),
+    ):
+        if value != default and args.setup != "artisynth":
+            raise UsageError(f"{option} sets up ArtiSynth's demo: add --setup artisynth, or leave it out")
     if args.data and args.setup != "artisynth":
         raise UsageError(
             "--data is the artisynth-face folder of --setup artisynth: add --setup artisynth, or leave it out"
@@ -309,7 +324,8 @@ def run_speech(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
     model = _load_model(Path(args.model))
     if args.setup == "artisynth":
-        model = lip_opening_demo_model(model, _data_dir(args))
+        curves = "artisynth" if args.muscle_curves == "artisynth" else "law"
+        model = lip_opening_demo_model(model, _data_dir(args), muscle_curves=curves)
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
     mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
     _check_model(args, model, gesture, mapping)

@@ -34,7 +34,10 @@ def model_summary(model: FaceModel) -> dict:
         "bbox_m": [x.min(axis=0).tolist(), x.max(axis=0).tolist()],
         "bones": sorted(model.bone_meshes),
         "action_units": sorted(model.facs, key=lambda s: int(s[2:])),
-        "material": {k: v if isinstance(v, str) else float(v) for k, v in vars(model.material).items()},
+        "material": {
+            k: v if isinstance(v, str) else dict(v) if k == "muscle_curves" else float(v)
+            for k, v in vars(model.material).items()
+        },
         "muscle_volume_cm3": dict(
             zip(model.muscle_names, np.round(model.muscle_volume_m3() * 1e6, 4).tolist(), strict=True)
         ),

@@ -101,7 +101,9 @@ class Simulator:
         m = model.material
         self._fibre_law = FIBRE_STRESSES.index(m.fibre_stress)  # the kernels' flag (wface.kernels.fem)
         self._material = [dt(m.mu10_pa), dt(m.mu01_pa), dt(m.mu20_pa), dt(m.kappa_pa), dt(m.inversion_clamp)]
-        self._material.append(self._fibre_law)
+        curves = m.curves_of(model.muscle_names) if model.n_muscles else np.zeros(1, np.int32)
+        self._muscle_curves = wp.array(curves, dtype=wp.int32, device=dev)  # FIBRE_CURVES index per muscle
+        self._material += [self._fibre_law, self._muscle_curves]
         n, nt = model.n_nodes, model.n_tets
         self._tets = wp.array(model.tets.astype(np.int32), dtype=wp.int32, device=dev)
         self._dm_inv = wp.array(model.dm_inv.astype(dt), dtype=k.mat33, device=dev)
@@ -290,6 +292,7 @@ class Simulator:
             self._entry_coef,
             self._np_dtype(self.model.material.inversion_clamp),
             self._fibre_law,
+            self._muscle_curves,
         ]
 
     def muscle_forces(self, x: np.ndarray | None = None) -> np.ndarray:

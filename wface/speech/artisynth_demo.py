@@ -19,9 +19,11 @@ this module reproduces each choice on the imported face (``wface.faces.artisynth
   close to wface's (``docs/design.md``, "Muscle fibres"). Both are functions of the deviatoric fibre
   stretch J^-1/3 |F d|, so their stress has no hydrostatic part: the setup sets
   ``Material.fibre_stress = "deviatoric"``; the curves are otherwise wface's. ``"blemker"`` has
-  BlemkerMuscle's own curves, for every muscle (one law per material): its passive curve on the other
-  muscles, whose GenericMuscle passive is 0.05 Pa, overshoots the sag, so the setup keeps "deviatoric"
-  (README, "Hexes and fibre directions").
+  BlemkerMuscle's own curves, for every muscle: its passive curve on the other muscles, whose GenericMuscle
+  passive is 0.05 Pa, overshoots the sag (README, "Hexes and fibre directions"). ``muscle_curves="artisynth"``
+  gives each muscle its own demo material's curves (``Material.muscle_curves``): OOP BlemkerMuscle's, every
+  other muscle GenericMuscle's (f_L = 1, no passive stress). The default stays wface's curves on every
+  muscle, with which the README's earlier measurements were made.
 - Boundary (``demo_attachments``): ``attachFaceToSkull`` fixes every inner-surface node
   (``atlas_internal.node``) except the lip, cheek and nose free lists, on top of the edge, nose and
   zygomatic-ligament lists that the import attaches; the jaw list stays on the jaw.
@@ -353,6 +355,7 @@ def lip_opening_demo_model(
     flesh: bool = True,
     fibre_stress: str | None = "deviatoric",
     ring_directions: str = "nearest",
+    muscle_curves: str = "law",
 ) -> FaceModel:
     """The imported Badin face set up as ``BadinFaceDemoLipOpening`` (module docstring), each part optional.
 
@@ -370,6 +373,8 @@ def lip_opening_demo_model(
             (None: keep the model's).
         ring_directions: the ring's fibre directions, "nearest" (the 7M polyline's nearest segment) or
             "delaunay" (ArtiSynth's blend; ``oop_ring_entries``).
+        muscle_curves: "law" (every muscle the curves of ``fibre_stress``) or "artisynth" (the demo's own:
+            BlemkerMuscle's on OOP, GenericMuscle's on every other muscle; needs ``ring``).
 
     Returns:
         A new, validated ``FaceModel`` (the input is not changed).
@@ -406,6 +411,15 @@ def lip_opening_demo_model(
         out = out.with_material(replace(out.material, sigma_max_pa=float(max_stress_pa)))
     if fibre_stress is not None:
         out = out.with_material(replace(out.material, fibre_stress=fibre_stress))
+    if muscle_curves not in ("law", "artisynth"):
+        raise ValueError(f"muscle_curves must be 'law' or 'artisynth', got {muscle_curves!r}")
+    if muscle_curves == "artisynth":
+        if "OOP" not in out.muscle_names:
+            raise ValueError(
+                "muscle_curves='artisynth' gives the demo's OOP ring BlemkerMuscle's curves: set ring=True"
+            )
+        own = {m: "blemker" if m == "OOP" else "generic" for m in out.muscle_names if m not in out.pressure_actuators}
+        out = out.with_material(replace(out.material, muscle_curves=own))
     if boundary:
         nodes, bone = demo_attachments(model, data_dir)
         out = replace(out, attached_nodes=nodes, attached_bone=bone)
@@ -416,6 +430,7 @@ def lip_opening_demo_model(
         "boundary": "demo" if boundary else "import",
         "flesh": "artisynth" if flesh else "model",
         "fibre_stress": out.material.fibre_stress,
+        "muscle_curves": muscle_curves,
         "ring_directions": ring_directions if ring else None,
     }
     out = replace(out, metadata=meta)

@@ -25,79 +25,26 @@ from pathlib import Path
 import numpy as np
 
 from wface.files import FileFormatError, load_npz, save_npz
+from wface.model.material import Material, ModelError
 
 __all__ = [
     "BONES",
-    "FIBRE_STRESSES",
     "FORMAT_VERSION",
     "BoneMesh",
     "FaceModel",
     "JawJoint",
-    "Material",
-    "ModelError",
     "load_model",
     "model_sha256",
     "save_model",
 ]
 
 # 2: the material may carry mu20_pa or fibre_stress. 3: the model has pressure actuators. 4: the jaw
-# joint has a closing range (JawJoint.max_closing_sine > 0). A model without these is still written
-# as format 1, byte for byte as before, so older wface versions read it; one with any of them is
-# refused by a version that would lose it.
-FORMAT_VERSION = 4
-FIBRE_STRESSES = ("uniaxial", "deviatoric", "blemker")  # Material.fibre_stress; the first is the default
+# joint has a closing range (JawJoint.max_closing_sine > 0). 5: the material names muscles' own fibre
+# curves (Material.muscle_curves). A model without these is still written as format 1, byte for byte
+# as before, so older wface versions read it; one with any of them is refused by a version that would lose it.
+FORMAT_VERSION = 5
 BONES = ("cranium", "jaw")  # bone ids 0 and 1 in attachment arrays
 FACE_SPAN_M = (0.02, 2.0)  # the rest flesh's largest extent, metres: a lip alone to head and shoulders
-
-
-class ModelError(ValueError):
-    """A face model is inconsistent; the message names the problem and where it is."""
-
-
-@dataclass(frozen=True)
-class Material:
-    """Flesh and muscle material (Teran et al. 2005; docs/design.md, "Flesh").
-
-    Flesh: Psi = mu10 (I1~ - 3) + mu01 (I2~ - 3) + mu20 (I1~ - 3)^2 + kappa/2 (ln J)^2, with
-    I1~ = J^-2/3 I1 and I2~ = J^-4/3 I2 (all moduli in Pa; mu20 is ArtiSynth's C20, default 0).
-    Muscle: fibre tension T = sigma_max (a f_L(lam) + f_P(lam)), times the tet's volume fraction,
-    of the fibre stretch lam = |F d| (``fibre_stress = "uniaxial"``: Cauchy stress T/J (F d)(F d)^T/lam,
-    hydrostatic part T/(3J)) or of the deviatoric stretch lam~ = J^-1/3 |F d| (``"deviatoric"``, as
-    ArtiSynth's muscle materials: no hydrostatic part), "blemker" that with BlemkerMuscle's curves (docs/design.md).
-    Checked on construction (``validate``).
-    """
-
-    mu10_pa: float = 6.0e4
-    mu01_pa: float = 2.0e4
-    kappa_pa: float = 3.0e6
-    sigma_max_pa: float = 3.0e5
-    inversion_clamp: float = 0.1  # singular values are clamped below at this value (Irving et al. 2004)
-    density_kg_m3: float = 1040.0
-    mu20_pa: float = 0.0  # coefficient of (I1~ - 3)^2; last so positional use of the others is unchanged
-    fibre_stress: str = "uniaxial"  # "deviatoric", "blemker": fibre curves of J^-1/3 |F d| (FIBRE_STRESSES)
-
-    def __post_init__(self) -> None:
-        self.validate()
-
-    def validate(self) -> None:
-        """Raise ``ModelError`` naming the field: every value must be finite, mu20_pa >= 0 (the
-        (I1~ - 3)^2 term is then convex in I1~, so it can only stiffen the flesh) and fibre_stress one
-        of ``FIBRE_STRESSES``."""
-        if self.fibre_stress not in FIBRE_STRESSES:
-            raise ModelError(f"material: fibre_stress must be one of {FIBRE_STRESSES}, got {self.fibre_stress!r}")
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.name != "fibre_stress" and not np.isfinite(value):
-                raise ModelError(f"material: {f.name} must be finite, got {value!r}")
-        if self.mu20_pa < 0:
-            raise ModelError(f"material: mu20_pa must be >= 0 (coefficient of (I1~ - 3)^2), got {self.mu20_pa!r}")
-
-    @classmethod
-    def artisynth(cls) -> Material:
-        """ArtiSynth's Badin face flesh (``BadinFaceDemo.setFaceProperties``, Nazari et al. 2010):
-        MooneyRivlinMaterial C10 = 2500 Pa, C20 = 1175 Pa, bulk modulus 10 C10 = 25 kPa. ArtiSynth's
-        bulk potential is kappa/2 (J - 1)^2, wface's kappa/2 (ln J)^2 (docs/design.md, "Flesh")."""
-        return cls(mu10_pa=2500.0, mu01_pa=0.0, mu20_pa=1175.0, kappa_pa=25000.0)
 
 
 @dataclass(frozen=True)
@@ -147,10 +94,6 @@ class BoneMesh:
     vertices_m: np.ndarray  # (k, 3) float64
     triangles: np.ndarray  # (t, 3) int32
     bone: str
-
-
-def _names_json(names) -> str:
-    return json.dumps(list(names))
 
 
 @dataclass
@@ -413,6 +356,9 @@ class FaceModel:
             raise ModelError(f"muscle_strength has shape {self.muscle_strength.shape}, expected ({len(names)},)")
         if np.any(~np.isfinite(self.muscle_strength)) or np.any(self.muscle_strength < 0):
             raise ModelError("muscle_strength must be finite and non-negative")
+        unknown = sorted({m for m, _ in self.material.muscle_curves} - set(names))
+        if unknown:
+            raise ModelError(f"material: muscle_curves names {unknown}, which are not muscles of this model")
 
     def _validate_pressure_actuators(self) -> None:
         for name, max_pa in self.pressure_actuators.items():
@@ -450,11 +396,11 @@ _ARRAY_FIELDS = (
 
 
 def _material_header(material: Material) -> dict:
-    """The material's fields, each of mu20_pa and fibre_stress left out at its default (0, "uniaxial"),
+    """The material's fields, each of mu20_pa, fibre_stress and muscle_curves left out at its default,
     so files and ``model_sha256`` of models without them are those written before they existed; a
     file without them loads with the defaults."""
     defaults = Material()
-    late = ("mu20_pa", "fibre_stress")
+    late = ("mu20_pa", "fibre_stress", "muscle_curves")
     return {
         f.name: getattr(material, f.name)
         for f in fields(Material)
@@ -493,6 +439,8 @@ def _model_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
 
 def _format_version(model: FaceModel) -> int:
     """The oldest format that holds everything the model has (see FORMAT_VERSION)."""
+    if model.material.muscle_curves:
+        return 5
     if model.jaw_joint.max_closing_sine:
         return 4
     if model.pressure_actuators:
