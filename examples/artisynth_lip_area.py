@@ -161,7 +161,7 @@ def read_wface_curve(path: Path) -> tuple[np.ndarray, np.ndarray]:
     )
 
 
-def plot(runs: dict, wface_curves: dict, reference: np.ndarray | None, path: Path) -> None:
+def plot(runs: dict, wface_curves: dict, reference: np.ndarray | None, path: Path, title: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -179,7 +179,7 @@ def plot(runs: dict, wface_curves: dict, reference: np.ndarray | None, path: Pat
         ax.plot(t, a, ":", lw=1.6, label=f"wface: {label}")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("lip opening area (mm$^2$)")
-    ax.set_title("Approximant (OOP to 0.3): ArtiSynth's demo run headless, measured by wface")
+    ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -205,6 +205,11 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--hexes", action="append", default=[], help="[LABEL=]states.npz from badin_hexes_play.py")
     ap.add_argument("--lip-nodes", type=float, nargs="+", default=[], help="times (s) of lip-node distances")
     ap.add_argument("--resolution-mm", type=float, default=0.05, help="scanline spacing of the area measure")
+    ap.add_argument(
+        "--gesture",
+        default="approximant",
+        help="the gesture the runs played (its recorded curve, where the data has samples, is the original's)",
+    )
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
     runs_in = [(*_labelled(s, "run"), read_node_dump) for s in args.runs]
@@ -216,7 +221,7 @@ def main(argv: list[str] | None = None) -> dict:
     hexes = index_of[read_ansys_elements(args.data / f"{MESH_PREFIX}.elem")]
     triangles = hex_boundary_triangles(hexes)
     near = lip_node_ids(args.data, x_rest)
-    gesture_dir = args.data / "speech" / "approximant"
+    gesture_dir = args.data / "speech" / args.gesture
     reference = read_gesture(gesture_dir).reference_lip_area if gesture_dir.is_dir() else None
     args.out.mkdir(parents=True, exist_ok=True)
     report: dict = {"mesh": {"nodes": len(x_rest), "hexes": len(hexes), "boundary_triangles": len(triangles)}}
@@ -252,7 +257,14 @@ def main(argv: list[str] | None = None) -> dict:
     if reference is not None:
         report["original"] = summarise(reference[:, 0], reference[:, 1], None)
     (args.out / "artisynth_lip_area.json").write_text(json.dumps(report, indent=1))
-    plot(runs, wface_curves, reference, args.out / "artisynth_lip_area.png")
+    title = {"approximant": "Approximant (OOP to 0.3)"}.get(args.gesture, args.gesture.capitalize())
+    plot(
+        runs,
+        wface_curves,
+        reference,
+        args.out / "artisynth_lip_area.png",
+        f"{title}: ArtiSynth's demo run headless, measured by wface",
+    )
     print(f"wrote {args.out / 'artisynth_lip_area.json'} and artisynth_lip_area.png")
     return report
 

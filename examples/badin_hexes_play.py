@@ -56,6 +56,7 @@ class HexDemo:
         lip_points="nodes_and_edges",
         fibre_stress="deviatoric",
         idle_muscles="passive",
+        muscle_curves="wface",
     ):
         from dataclasses import replace
 
@@ -68,7 +69,10 @@ class HexDemo:
         from wface.physics.hexes import embedding_matrix, hex_quadrature, quadrature_model
         from wface.speech.artisynth_demo import face_hexes, lip_opening_demo_model, without_idle_fibres
 
-        demo = lip_opening_demo_model(base, data, ring_directions=ring_directions, fibre_stress=fibre_stress)
+        curves = "artisynth" if muscle_curves == "artisynth" else "law"
+        demo = lip_opening_demo_model(
+            base, data, ring_directions=ring_directions, fibre_stress=fibre_stress, muscle_curves=curves
+        )
         if idle_muscles == "off":  # ArtiSynth's GenericMuscle passive is 0.05 Pa: every muscle but OOP carries nothing
             demo = without_idle_fibres(demo, ["OOP"])
         self.demo = demo
@@ -123,6 +127,7 @@ def play(
     ring_directions: str = "nearest",
     fibre_stress: str = "deviatoric",
     idle_muscles: str = "passive",
+    muscle_curves: str = "wface",
     mass_lumping: str = "equal",
     start_from: str = "pushed",
     bulk: str = "point",
@@ -149,12 +154,13 @@ def play(
         lip_points=lip_points,
         fibre_stress=fibre_stress,
         idle_muscles=idle_muscles,
+        muscle_curves=muscle_curves,
     )
     demo = face.demo
     gesture = read_gesture(data / "speech" / "approximant")
     mapping = map_gesture_to_model(gesture, demo)
     t0, t1 = gesture.duration_s
-    times = gesture_times(t0, t1 if end_s is None else min(t1, end_s), fps)
+    times = gesture_times(t0, t1 if end_s is None else end_s, fps)  # past t1 the curves hold their last values
     acts = lambda t: mapping.activations(gesture, demo, np.atleast_1d(t))[0]  # noqa: E731
     if idle_muscles == "off":
         driven = mapping.driven_muscles(gesture, demo)
@@ -265,7 +271,12 @@ def main(argv=None) -> int:
     p.add_argument("--model", type=Path, help="a saved Badin import (wface model import artisynth); default: import")
     p.add_argument("--contact", default="lips,skull", help="contact regions (lips, skull; '' for none)")
     p.add_argument("--fps", type=float, default=25.0, help="output frames per second (steps are 5 ms at most)")
-    p.add_argument("--end", type=float, help="stop at this time (s); default: the gesture's end")
+    p.add_argument(
+        "--end",
+        type=float,
+        help="stop at this time (s); default: the gesture's end; later, the curves hold their last values, as "
+        "ArtiSynth's probes do",
+    )
     p.add_argument(
         "--ring-directions",
         choices=("nearest", "delaunay"),
@@ -334,6 +345,13 @@ def main(argv=None) -> int:
         help="every muscle but OOP (the approximant drives OOP alone): passive fibres as wface's, or none "
         "(ArtiSynth's GenericMuscle passive is 0.05 Pa; wface speech --idle-muscles)",
     )
+    p.add_argument(
+        "--muscle-curves",
+        choices=("wface", "artisynth"),
+        default="wface",
+        help="the muscles' curves: wface's on every muscle, or the demo's own (BlemkerMuscle's on OOP, "
+        "GenericMuscle's, with no passive stress, on the others; wface speech --muscle-curves)",
+    )
     a = p.parse_args(argv)
     if not a.data.is_dir():
         p.error(f"no ArtiSynth face data at {a.data} (--data)")
@@ -358,6 +376,7 @@ def main(argv=None) -> int:
         lip_points=a.lip_points,
         fibre_stress=a.fibre_stress,
         idle_muscles=a.idle_muscles,
+        muscle_curves=a.muscle_curves,
     )
     a.out.mkdir(parents=True, exist_ok=True)
     with open(a.out / "lip_opening.csv", "w", newline="") as fh:
@@ -384,6 +403,7 @@ def main(argv=None) -> int:
         "exact_damping": a.exact_damping,
         "fibre_stress": a.fibre_stress,
         "idle_muscles": a.idle_muscles,
+        "muscle_curves": a.muscle_curves,
         "dynamics": DYNAMICS,
         "mesh": run["mesh"],
         "summary": summarise(run["rows"]),

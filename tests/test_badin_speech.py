@@ -327,3 +327,50 @@ def test_dynamic_playback_area_outputs_cli(tmp_path, badin_model_path):
     assert json.loads(meta["lip_opening_area_mm2"]) == pytest.approx(area) and meta["mode"] == "dynamic"
     for name in ("lip_opening.png", "aperture_first.png", "aperture_last.png"):
         assert (out / name).stat().st_size > 1000
+
+
+def test_the_lower_lips_oom_is_the_oomi_probes_own(badin_model):
+    """with_lower_oom: the OOM fibre entries nearer the lower lip's surface become OOMl_l/OOMl_r (what ArtiSynth's
+    OOMl exciter drives); played with every OOM part at one activation the split model is the one it was (same
+    forces), the fricative's OOMi probe drives the lower part alone, and the closure's OOM bundle every part."""
+    from wface.physics import Simulator
+    from wface.speech.gestures import with_lower_oom
+
+    split = with_lower_oom(badin_model)
+    assert split.muscle_names[-2:] == ["OOMl_l", "OOMl_r"] and split.n_muscles == badin_model.n_muscles + 2
+    y = split.rest_positions_m[split.tets[split.fibre_tet]].mean(axis=1)[:, 1]  # up
+    for side in ("l", "r"):
+        upper, lower = (split.fibre_muscle == split.muscle_index(f"{n}_{side}") for n in ("OOM", "OOMl"))
+        assert upper.sum() > 1000 and lower.sum() > 1000
+        mouth = np.mean([split.marker_positions_m[split.marker_names.index(m)][1] for m in ("Mouth_Up", "Mouth_Down")])
+        assert np.median(y[lower]) < mouth < np.median(y[upper])  # the lower lip's part lies below the mouth line
+    x = badin_model.rest_positions_m * np.array([1.03, 0.98, 1.01])
+    a = np.linspace(0.1, 0.6, badin_model.n_muscles)
+    oom = [badin_model.muscle_index(n) for n in ("OOM_l", "OOM_r")]
+    a_split = np.concatenate([a, a[oom]])
+    f0, f1 = Simulator(badin_model).forces(x, a), Simulator(split).forces(x, a_split)
+    np.testing.assert_allclose(f1, f0, rtol=0, atol=1e-12 * np.abs(f0).max())
+    d = data_path("artisynth-face", "speech")
+    fr = map_gesture_to_model(read_gesture(d / "fricative"), split, lower_oom="lower")
+    assert fr.muscles["OOMi"] == ["OOMl_l", "OOMl_r"]
+    assert map_gesture_to_model(read_gesture(d / "closure"), split).muscles["OOM"] == [
+        "OOM_l",
+        "OOM_r",
+        "OOMl_l",
+        "OOMl_r",
+    ]
+    with pytest.raises(ValueError, match="with_lower_oom"):
+        map_gesture_to_model(read_gesture(d / "fricative"), badin_model, lower_oom="lower")
+
+
+def test_fricative_with_the_lower_lips_oom_cli(tmp_path, badin_model_path):
+    """--lower-oom lower: the OOMi probe drives OOMl_l/OOMl_r, the split's new muscles (report and CSV say so)."""
+    from wface.cli import main
+
+    out = tmp_path / "fricative_lower"
+    args = ["speech", "--model", str(badin_model_path), "--gesture", "fricative", "--max-frames", "2", "--no-usd"]
+    assert main([*args, "--lower-oom", "lower", "--out", str(out)]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert any("OOMl_l/OOMl_r" in n for n in rep["notes"]), rep["notes"]
+    header = (out / "lip_opening.csv").read_text().splitlines()[0].split(",")
+    assert "a_OOMl_l" in header and "a_OOM_l" not in header

@@ -256,3 +256,11 @@ def test_badin_hexes_play_with_artisynths_muscle_laws(badin_model_path, tmp_path
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["fibre_stress"] == "blemker" and report["idle_muscles"] == "off"
     assert report["summary"]["residual_rel_max"] <= 1e-4
+    # --muscle-curves artisynth is the same physics for the approximant: OOP BlemkerMuscle's curves, every other
+    # muscle GenericMuscle's, which at activation 0 exerts nothing, as a muscle of strength 0
+    own = tmp_path / "own"
+    argv = argv[: argv.index("--fibre-stress")] + ["--muscle-curves", "artisynth", "--out", str(own)]
+    assert example.main(argv) == 0
+    assert json.loads((own / "report.json").read_text())["muscle_curves"] == "artisynth"
+    x0, x1 = (np.load(d / "states.npz")["x_hex_m"] for d in (tmp_path, own))
+    np.testing.assert_allclose(x1, x0, rtol=0, atol=1e-9)  # metres; the steps converge to 1e-4 of their load

@@ -67,7 +67,7 @@ public class RunLipOpening {
 
    public static void main (String[] args) throws Exception {
       if (args.length != 3) {
-         System.err.println ("usage: RunLipOpening NODES_OUT.txt END_TIME_S OOP_PROBE.txt");
+         System.err.println ("usage: RunLipOpening NODES_OUT.txt END_TIME_S OOP_PROBE.txt|- [-Dlip.probes=FILE=BUNDLE,...]");
          System.exit (2);
       }
       double tEnd = Double.parseDouble (args[1]);
@@ -135,7 +135,22 @@ public class RunLipOpening {
          responses.put ("maxilla", mech.setCollisionResponse (face, maxilla));
       }
       PrintWriter contacts = contactsFile == null ? null : new PrintWriter (new BufferedWriter (new FileWriter (contactsFile)));
-      demo.addInputProbe (new NumericInputProbe (oop, "excitation", args[2]));
+      if (!args[2].equals ("-")) { // "-": OOP is not driven (a gesture's other probes, lip.probes, are)
+         demo.addInputProbe (new NumericInputProbe (oop, "excitation", args[2]));
+      }
+      // -Dlip.probes=FILE=BUNDLE,FILE=exciters/NAME,...: more excitation curves, as a gesture's 0probes.art has them
+      String probes = System.getProperty ("lip.probes");
+      for (String spec : probes == null ? new String[0] : probes.split (",")) {
+         String[] kv = spec.split ("=");
+         artisynth.core.modelbase.ModelComponent target = kv[1].startsWith ("exciters/")
+            ? face.getMuscleExciters ().get (kv[1].substring ("exciters/".length ()))
+            : face.getMuscleBundles ().get (kv[1]);
+         if (target == null) {
+            throw new IllegalArgumentException ("lip.probes: the face has no muscle bundle or exciter " + kv[1]);
+         }
+         demo.addInputProbe (new NumericInputProbe (target, "excitation", kv[0]));
+         System.out.println ("probe " + kv[0] + " drives " + kv[1]);
+      }
       demo.initialize (0);
       double h = mech.getMaxStepSize ();
       int steps = (int)Math.round (tEnd / h);

@@ -25,7 +25,7 @@ from wface.model import load_model
 from wface.speech.aperture import ApertureView
 from wface.speech.artisynth_demo import lip_opening_demo_model, without_idle_fibres
 from wface.speech.dynamic import GestureDynamics
-from wface.speech.gestures import map_gesture_to_model, read_gesture
+from wface.speech.gestures import map_gesture_to_model, read_gesture, with_lower_oom
 from wface.speech.output import write_aperture_pictures, write_gesture_usd, write_lip_opening, write_states
 from wface.speech.playback import compare_with_reference, lip_area_points, simulate_gesture, summarize
 from wface.takes.provenance import command_provenance
@@ -100,9 +100,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--all-probes", action="store_true", help="also play probes marked active=false")
     p.add_argument(
         "--lower-oom",
-        choices=["whole", "skip"],
+        choices=["whole", "lower", "skip"],
         default="whole",
-        help="what the OOMl exciter drives: the whole OOM (default, approximation) or nothing",
+        help="what the OOMl exciter drives: the whole OOM (default, approximation), its lower lip's part (as "
+        "ArtiSynth's exciter: the OOM fibre entries nearer the lower lip's surface become muscles OOMl_l and "
+        "OOMl_r) or nothing",
     )
     add_contact_arguments(
         p, smoothing_mm=0.1, freeze_below=None, obstacles=False, where="every frame's solve", lip_surface="smooth"
@@ -327,6 +329,8 @@ def run_speech(args: argparse.Namespace) -> int:
         curves = "artisynth" if args.muscle_curves == "artisynth" else "law"
         model = lip_opening_demo_model(model, _data_dir(args), muscle_curves=curves)
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
+    if args.lower_oom == "lower":
+        model = with_lower_oom(model)
     mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
     _check_model(args, model, gesture, mapping)
     if args.idle_muscles == "off":

@@ -28,8 +28,9 @@ Mapping to a wface model: the driven bundle ``OOP`` becomes the model muscles ``
 (the Badin face's muscles are bilateral, the original mirrors the left fibres). The exciter ``OOMl``
 (probe ``OOMi``: the inferior/lower orbicularis oris marginalis) has no muscle of its own in the
 imported model, whose ``OOM_l``/``OOM_r`` run through both lips; it maps to ``OOM_l``/``OOM_r`` as an
-approximation (``lower_oom="whole"``, stated in ``GestureMapping.notes``), or is left out
-(``lower_oom="skip"``).
+approximation (``lower_oom="whole"``, stated in ``GestureMapping.notes``), to the lower lip's part of them
+(``lower_oom="lower"`` on a model from ``with_lower_oom``, whose ``OOMl_l``/``OOMl_r`` are that part), or is
+left out (``lower_oom="skip"``).
 """
 
 from __future__ import annotations
@@ -53,9 +54,11 @@ __all__ = [
     "read_excitation_curve",
     "read_gesture",
     "read_probes",
+    "with_lower_oom",
 ]
 
 GESTURES = ("closure", "fricative", "approximant")
+LOWER_OOM = {"OOM_l": "OOMl_l", "OOM_r": "OOMl_r"}  # with_lower_oom: each side's lower-lip part
 INTERPOLATIONS = ("Step", "Linear", "CubicStep", "Cubic")
 
 
@@ -322,6 +325,39 @@ def held_gesture(gesture: SpeechGesture, levels, *, probe: str = "OOP") -> Speec
     return replace(gesture, name=f"{gesture.name} ({probe} held)", curves={probe: curve}, reference_lip_area=None)
 
 
+def with_lower_oom(model):
+    """The model with the lower lip's part of ``OOM_l`` and ``OOM_r`` as muscles of their own, ``OOMl_l`` and
+    ``OOMl_r``: what ArtiSynth's exciter ``OOMl`` drives (its targets are the OOM bundle's elements in the lower lip,
+    ``artisynth_models``' ``face/exciters/OOMl.art``). A fibre entry is the lower lip's when its tet's centroid lies
+    nearer a node of the lower lip's collision surface (surface group ``lower_lip``) than one of the upper lip's.
+    The new muscles keep their side's strength and own curves (``Material.muscle_curves``); the FACS table is not
+    changed. Played with every OOM part at one activation the model is the one it was."""
+    from scipy.spatial import cKDTree
+
+    missing = [
+        n for n in (*LOWER_OOM, "upper_lip", "lower_lip") if n not in (*model.muscle_names, *model.surface_groups)
+    ]
+    if missing:
+        raise ValueError(f"with_lower_oom needs the Badin face's OOM_l, OOM_r and lip surfaces; missing {missing}")
+    x = model.rest_positions_m
+    centroid = x[model.tets[model.fibre_tet]].mean(axis=1)
+    d_up, _ = cKDTree(x[np.unique(model.surface_groups["upper_lip"])]).query(centroid)
+    d_low, _ = cKDTree(x[np.unique(model.surface_groups["lower_lip"])]).query(centroid)
+    names, muscle = list(model.muscle_names), model.fibre_muscle.copy()
+    strength, curves = list(model.muscle_strength), dict(model.material.muscle_curves)
+    for side, lower in LOWER_OOM.items():
+        i = names.index(side)
+        muscle[(model.fibre_muscle == i) & (d_low < d_up)] = len(names)
+        names.append(lower)
+        strength.append(model.muscle_strength[i])
+        if side in curves:
+            curves[lower] = curves[side]
+    meta = dict(model.metadata, lower_oom=dict(LOWER_OOM))
+    material = replace(model.material, muscle_curves=curves)
+    out = replace(model, muscle_names=names, fibre_muscle=muscle, muscle_strength=np.array(strength), material=material)
+    return replace(out, metadata=meta).validate()
+
+
 def map_gesture_to_model(gesture: SpeechGesture, model, *, lower_oom: str = "whole") -> GestureMapping:
     """Map each playing probe to the model muscles it drives (both sides of a bilateral muscle).
 
@@ -329,11 +365,15 @@ def map_gesture_to_model(gesture: SpeechGesture, model, *, lower_oom: str = "who
         gesture: from ``read_gesture``.
         model: a ``FaceModel`` with Badin muscle names (``OOP_l``, ``OOP_r``, ...).
         lower_oom: what the ``OOMl`` exciter drives: ``"whole"`` (the model's ``OOM_l``/``OOM_r``, an
-            approximation: they span both lips) or ``"skip"``.
+            approximation: they span both lips), ``"lower"`` (their lower lip's part, ``OOMl_l``/``OOMl_r`` of a
+            model from ``with_lower_oom``; the bundle ``OOM`` then drives every part) or ``"skip"``.
     """
-    if lower_oom not in ("whole", "skip"):
-        raise ValueError(f"lower_oom must be 'whole' or 'skip', got {lower_oom!r}")
+    if lower_oom not in ("whole", "lower", "skip"):
+        raise ValueError(f"lower_oom must be 'whole', 'lower' or 'skip', got {lower_oom!r}")
     names = list(model.muscle_names)
+    split = all(n in names for n in LOWER_OOM.values())
+    if lower_oom == "lower" and not split:
+        raise ValueError("lower_oom='lower' drives OOMl_l and OOMl_r: split the model first (with_lower_oom)")
     muscles: dict[str, list[str]] = {}
     unmapped: list[str] = []
     notes: list[str] = []
@@ -346,12 +386,18 @@ def map_gesture_to_model(gesture: SpeechGesture, model, *, lower_oom: str = "who
                 unmapped.append(probe_name)
                 notes.append("OOMl (lower orbicularis oris marginalis) left out: the model has no lower-lip-only OOM")
                 continue
+            if lower_oom == "lower":
+                muscles[probe_name] = list(LOWER_OOM.values())
+                notes.append("OOMl (lower orbicularis oris marginalis) drives OOMl_l/OOMl_r, OOM's lower-lip part")
+                continue
             base = "OOM"
             notes.append(
                 "OOMl (lower orbicularis oris marginalis) drives the model's whole OOM_l/OOM_r, which also run "
                 "through the upper lip (approximation)"
             )
         found = [n for n in names if n == base or n.rsplit("_", 1)[0] == base]
+        if base == "OOM" and split:  # the bundle drives its lower-lip part too
+            found += list(LOWER_OOM.values())
         if found:
             muscles[probe_name] = found
         else:
