@@ -194,3 +194,37 @@ def test_the_demos_own_muscle_curves(badin_model, demo):
     assert demo.material.muscle_curves == () and demo.metadata["artisynth_lip_opening_demo"]["muscle_curves"] == "law"
     with pytest.raises(ValueError, match="set ring=True"):
         lip_opening_demo_model(badin_model, data_path("artisynth-face"), ring=False, muscle_curves="artisynth")
+
+
+def test_the_demos_own_muscle_elements(badin_model, demo):
+    """demo_muscle_entries: whole hexes within 6 mm of a bundle's fibres, as ArtiSynth's addElementsNearFibres
+    picks them (its own lists, dumped by RunLipOpening -Dlip.muscles, hold these counts but for OOM 704, MENT 92,
+    RIS 216, LLSAN 152, DLI 120, LAO 74, BUC 60: README); muscle_elements="artisynth" puts every muscle but OOP
+    on them, fraction 1, and leaves OOP's rings as they were."""
+    from wface.speech.artisynth_demo import _tets_in_hexes, demo_muscle_entries, face_hexes
+
+    data = data_path("artisynth-face")
+    entries = demo_muscle_entries(badin_model, data)
+    owner = _tets_in_hexes(badin_model, face_hexes(data), badin_model.rest_positions_m)
+    hexes = {
+        b: sum(len(np.unique(owner[entries[f"{b}_{s}"][0]])) for s in "lr")
+        for b in ("OOM", "MENT", "RIS", "LLS", "LLSAN", "DAO", "DLI", "LAO", "ZYG", "BUC")
+    }
+    assert hexes == {
+        "OOM": 698, "MENT": 90, "RIS": 215, "LLS": 102, "LLSAN": 148, "DAO": 60, "DLI": 118, "LAO": 76, "ZYG": 50,
+        "BUC": 22,
+    }  # fmt: skip
+    assert "OOP" not in entries and "OOP_l" not in entries
+    for tets, d in entries.values():
+        np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
+        assert np.all(owner[tets] >= 0)
+    own = lip_opening_demo_model(badin_model, data, muscle_elements="artisynth")
+    assert own.metadata["artisynth_lip_opening_demo"]["muscle_elements"] == "artisynth"
+    oom = own.fibre_muscle == own.muscle_index("OOM_l")
+    assert np.array_equal(own.fibre_tet[oom], np.sort(entries["OOM_l"][0])) and np.all(own.fibre_fraction[oom] == 1)
+    oop_own, oop_demo = (m.fibre_muscle == m.muscle_index("OOP") for m in (own, demo))
+    assert np.array_equal(own.fibre_tet[oop_own], demo.fibre_tet[oop_demo])
+    assert np.array_equal(own.fibre_direction[oop_own], demo.fibre_direction[oop_demo])
+    assert np.all(np.diff(own.fibre_tet) >= 0)
+    with pytest.raises(ValueError, match="muscle_elements must be"):
+        lip_opening_demo_model(badin_model, data, muscle_elements="hexes")

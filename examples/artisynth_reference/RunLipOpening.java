@@ -151,6 +151,27 @@ public class RunLipOpening {
          demo.addInputProbe (new NumericInputProbe (target, "excitation", kv[0]));
          System.out.println ("probe " + kv[0] + " drives " + kv[1]);
       }
+      String muscleFile = System.getProperty ("lip.muscles"); // each bundle's and exciter's elements, by number
+      if (muscleFile != null) {
+         try (PrintWriter mf = new PrintWriter (new BufferedWriter (new FileWriter (muscleFile)))) {
+            for (MuscleBundle b : face.getMuscleBundles ()) {
+               mf.print ("bundle " + b.getName ());
+               for (artisynth.core.femmodels.MuscleElementDesc d : b.getElements ()) {
+                  mf.print (" " + d.getElement ().getNumber ());
+               }
+               mf.println ();
+            }
+            for (artisynth.core.mechmodels.MuscleExciter x : face.getMuscleExciters ()) {
+               mf.print ("exciter " + x.getName ());
+               for (int k = 0; k < x.numTargets (); k++) {
+                  if (x.getTarget (k) instanceof artisynth.core.femmodels.MuscleElementDesc) {
+                     mf.print (" " + ((artisynth.core.femmodels.MuscleElementDesc)x.getTarget (k)).getElement ().getNumber ());
+                  }
+               }
+               mf.println ();
+            }
+         }
+      }
       demo.initialize (0);
       double h = mech.getMaxStepSize ();
       int steps = (int)Math.round (tEnd / h);

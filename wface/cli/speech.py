@@ -43,7 +43,8 @@ the front); the Mouth_Up - Mouth_Down distance is reported too. --setup artisynt
 as ArtiSynth's BadinFaceDemoLipOpening (its ten OOP rings, muscle stress 1e5 Pa, inner surface fixed,
 its flesh law and deviatoric fibre stress; --idle-muscles off: the muscles the gesture never drives carry
 no fibres, as there; --muscle-curves artisynth: BlemkerMuscle's curves on OOP and GenericMuscle's, with no
-force-length curve and no passive stress, on the others, as there). Writes report.json, lip_opening.csv and .png, the
+force-length curve and no passive stress, on the others, as there; --muscle-elements artisynth: every other
+muscle on the demo's own whole hexes). Writes report.json, lip_opening.csv and .png, the
 aperture pictures of the first and last frames, states.npz (every frame's node positions, markers
 and activations: np.load) and animation.usdc.
 
@@ -134,6 +135,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="with --setup artisynth, the muscles' force-length and passive curves: wface's on every muscle "
         "(default) or the demo's own, BlemkerMuscle's on OOP and GenericMuscle's (no force-length, no passive "
         "stress) on the others",
+    )
+    p.add_argument(
+        "--muscle-elements",
+        choices=["import", "artisynth"],
+        default="import",
+        help="with --setup artisynth, every muscle but OOP as the import embeds it (default) or as the demo "
+        "has it: the whole hexes whose centres lie within 6 mm of its fibres",
     )
     p.add_argument("--dynamic", action="store_true", help="play through the implicit dynamic FEM (inertia)")
     p.add_argument(
@@ -309,6 +317,7 @@ def _check_options(args) -> None:
     for option, value, default in (
         ("--idle-muscles", args.idle_muscles, "passive"),
         ("--muscle-curves", args.muscle_curves, "wface"),
+        ("--muscle-elements", args.muscle_elements, "import"),
     ):
         if value != default and args.setup != "artisynth":
             raise UsageError(f"{option} sets up ArtiSynth's demo: add --setup artisynth, or leave it out")
@@ -327,7 +336,9 @@ def run_speech(args: argparse.Namespace) -> int:
     model = _load_model(Path(args.model))
     if args.setup == "artisynth":
         curves = "artisynth" if args.muscle_curves == "artisynth" else "law"
-        model = lip_opening_demo_model(model, _data_dir(args), muscle_curves=curves)
+        model = lip_opening_demo_model(
+            model, _data_dir(args), muscle_curves=curves, muscle_elements=args.muscle_elements
+        )
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
     if args.lower_oom == "lower":
         model = with_lower_oom(model)

@@ -67,6 +67,7 @@ __all__ = [
     "BADIN_TO_WFACE",
     "CANONICAL_MUSCLES",
     "MESH_PREFIX",
+    "badin_muscle_fibres",
     "badin_to_wface",
     "import_artisynth",
     "read_badin_fibres",
@@ -172,6 +173,12 @@ def read_badin_fibres(directory: str | Path) -> dict[str, list[np.ndarray]]:
                 run = []
         out[name] = polylines
     return out
+
+
+def badin_muscle_fibres(directory: str | Path) -> dict[str, list[np.ndarray]]:
+    """Model muscle -> fibre polylines in wface's frame: ``<badin>_l`` the file's left fibres, ``<badin>_r`` them
+    mirrored across the midsagittal plane (ArtiSynth's ``addRightSideMuscles``), as the import embeds them."""
+    return _muscle_sides({k: [badin_to_wface(f) for f in v] for k, v in read_badin_fibres(directory).items()})
 
 
 def _classify_boundary(tris: np.ndarray, external: np.ndarray, internal: np.ndarray) -> dict[str, np.ndarray]:
@@ -290,9 +297,8 @@ def import_artisynth(
     jaw_joint = _jaw_joint(condyle_distance_m, track_length_m)
 
     # ---- muscles
-    fibres_b = read_badin_fibres(directory)
-    fibres_l = {k: [badin_to_wface(f) for f in v] for k, v in fibres_b.items()}
-    muscle_fibres = _muscle_sides(fibres_l)
+    fibres_l = {k: [badin_to_wface(f) for f in v] for k, v in read_badin_fibres(directory).items()}
+    muscle_fibres = _muscle_sides(fibres_l)  # badin_muscle_fibres; the left fibres also place markers
     muscle_names = list(muscle_fibres)
     fibre_tet, fibre_muscle, fibre_fraction, fibre_direction, n_overfull = _embed_muscles(
         x, tets, muscle_fibres, fibre_radius_m

@@ -66,7 +66,7 @@ import numpy as np
 from scipy.spatial import Delaunay, cKDTree
 
 from wface.faces.ansys import hexes_to_tets, read_ansys_elements, read_ansys_nodes, read_int_list
-from wface.faces.artisynth import FIXED_NODE_FILES, JAW_NODE_FILE, MESH_PREFIX
+from wface.faces.artisynth import FIXED_NODE_FILES, JAW_NODE_FILE, MESH_PREFIX, badin_muscle_fibres
 from wface.faces.fibres import point_segment_distance
 from wface.mesh.closest import SurfaceQuery
 from wface.model import FaceModel, Material
@@ -292,6 +292,59 @@ def oop_ring_entries(
     return tets.astype(np.int32), per_hex[owner[tets]]
 
 
+DEMO_MUSCLE_THICKNESS_M = 0.006  # BadinFemMuscleFaceDemo.muscleThickness
+
+
+def demo_muscle_entries(
+    model: FaceModel, data_dir: str | Path, *, thickness_m: float = DEMO_MUSCLE_THICKNESS_M
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The demo's own elements of every muscle but OOP (whose rings ``oop_ring_entries`` gives), as
+    ``BadinFemMuscleFaceDemo.setMuscleElements`` makes them: ``MuscleBundle.addElementsNearFibres`` takes every
+    hex whose centre (its nodes' mean; a wedge's six) lies within ``thickness_m`` of one of the bundle's fibre
+    segments, both sides, whole (fraction 1), and ``computeElementDirections`` gives each the Delaunay blend of the
+    bundle's fibre directions (``delaunay_fibre_directions``; the nearest segment's where the fibres are too few
+    to span a volume). A hex goes to the side (``_l``, ``_r``) of its nearest segment. Returns {model muscle:
+    (tet ids, unit directions)}, the tets those whose centroid lies in a chosen hex.
+
+    Against ArtiSynth's own lists on the Badin face (``RunLipOpening -Dlip.muscles``; README, "Speech gestures"),
+    hexes per bundle here / there: OOM 698 / 704, MENT 90 / 92, RIS 215 / 216, LLS 102 / 102, LLSAN 148 / 152,
+    DAO 60 / 60, DLI 118 / 120, LAO 76 / 74 (74 shared), ZYG 50 / 50, BUC 22 / 60; every other hex here is there.
+    """
+    from scipy.spatial import QhullError
+
+    fibres = badin_muscle_fibres(data_dir)
+    hexes = face_hexes(data_dir)
+    x = model.rest_positions_m
+    centre = np.array([x[np.unique(h)].mean(axis=0) for h in hexes])
+    owner = _tets_in_hexes(model, hexes, x)
+    out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    bundles = dict.fromkeys(n.rsplit("_", 1)[0] if n[-2:] in ("_l", "_r") else n for n in fibres)
+    for bundle in bundles:
+        if bundle == "OOP":
+            continue
+        sides = [n for n in fibres if n == bundle or n.rsplit("_", 1)[0] == bundle]
+        seg = [(n, p[k], p[k + 1]) for n in sides for p in fibres[n] for k in range(len(p) - 1)]
+        side = np.array([sides.index(n) for n, _, _ in seg])
+        a, b = np.array([s[1] for s in seg]), np.array([s[2] for s in seg])
+        dist, nearest = point_segment_distance(centre, a, b)
+        chosen = np.flatnonzero(dist.min(axis=1) < thickness_m)
+        tangent = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
+        try:
+            per_hex = delaunay_fibre_directions(centre[chosen], 0.5 * (a + b), tangent)
+        except QhullError:  # fewer fibres than a volume needs: the nearest segment's direction
+            per_hex = tangent[nearest[chosen]]
+        hex_side = np.full(len(hexes), -1)
+        hex_side[chosen] = side[nearest[chosen]]
+        direction = np.zeros((len(hexes), 3))
+        direction[chosen] = per_hex
+        tets = np.flatnonzero(owner >= 0)
+        tets = tets[hex_side[owner[tets]] >= 0]
+        for k, name in enumerate(sides):
+            mine = tets[hex_side[owner[tets]] == k]
+            out[name] = (mine.astype(np.int32), direction[owner[mine]])
+    return out
+
+
 def demo_attachments(model: FaceModel, data_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """(attached node ids, bone 0 cranium / 1 jaw) of ``attachFaceToSkull`` + the import's lists.
 
@@ -345,6 +398,22 @@ def without_idle_fibres(model: FaceModel, driven) -> FaceModel:
     return out
 
 
+def _with_entries(model: FaceModel, entries: dict[str, tuple[np.ndarray, np.ndarray]]) -> FaceModel:
+    """The model with the fibre entries of each muscle named in ``entries`` replaced by (tets, directions),
+    fraction 1 each; entries stay sorted by tet."""
+    ids = [model.muscle_names.index(n) for n in entries if n in model.muscle_names]
+    keep = ~np.isin(model.fibre_muscle, ids)
+    named = [(model.muscle_names.index(n), t, d) for n, (t, d) in entries.items() if n in model.muscle_names]
+    ft = np.concatenate([model.fibre_tet[keep], *[t for _, t, _ in named]])
+    fm = np.concatenate([model.fibre_muscle[keep], *[np.full(len(t), i) for i, t, _ in named]])
+    ff = np.concatenate([model.fibre_fraction[keep], *[np.ones(len(t)) for _, t, _ in named]])
+    fd = np.concatenate([model.fibre_direction[keep], *[d for _, _, d in named]])
+    order = np.argsort(ft, kind="stable")
+    return replace(
+        model, fibre_tet=ft[order], fibre_muscle=fm[order], fibre_fraction=ff[order], fibre_direction=fd[order]
+    )
+
+
 def lip_opening_demo_model(
     model: FaceModel,
     data_dir: str | Path,
@@ -356,6 +425,7 @@ def lip_opening_demo_model(
     fibre_stress: str | None = "deviatoric",
     ring_directions: str = "nearest",
     muscle_curves: str = "law",
+    muscle_elements: str = "import",
 ) -> FaceModel:
     """The imported Badin face set up as ``BadinFaceDemoLipOpening`` (module docstring), each part optional.
 
@@ -375,6 +445,8 @@ def lip_opening_demo_model(
             "delaunay" (ArtiSynth's blend; ``oop_ring_entries``).
         muscle_curves: "law" (every muscle the curves of ``fibre_stress``) or "artisynth" (the demo's own:
             BlemkerMuscle's on OOP, GenericMuscle's on every other muscle; needs ``ring``).
+        muscle_elements: "import" (every muscle but OOP as the import embeds it: the tets its fibres pass
+            near, by volume fraction) or "artisynth" (the demo's own whole hexes, ``demo_muscle_entries``).
 
     Returns:
         A new, validated ``FaceModel`` (the input is not changed).
@@ -403,6 +475,10 @@ def lip_opening_demo_model(
             muscle_strength=strength,
             facs=facs,
         )
+    if muscle_elements not in ("import", "artisynth"):
+        raise ValueError(f"muscle_elements must be 'import' or 'artisynth', got {muscle_elements!r}")
+    if muscle_elements == "artisynth":
+        out = _with_entries(out, demo_muscle_entries(out, data_dir))
     if flesh:
         art = Material.artisynth()
         law = {f: getattr(art, f) for f in ("mu10_pa", "mu01_pa", "mu20_pa", "kappa_pa")}
@@ -431,6 +507,7 @@ def lip_opening_demo_model(
         "flesh": "artisynth" if flesh else "model",
         "fibre_stress": out.material.fibre_stress,
         "muscle_curves": muscle_curves,
+        "muscle_elements": muscle_elements,
         "ring_directions": ring_directions if ring else None,
     }
     out = replace(out, metadata=meta)
