@@ -147,11 +147,8 @@ def _log(progress: bool, t0: float, msg: str) -> None:
 
 
 def read_badin_fibres(directory: str | Path) -> dict[str, list[np.ndarray]]:
-    """Left-side fibres of the used Badin muscles, in the Badin frame: {name: [polyline (p, 3), ...]}.
-
-    A fibre point id missing from the point file splits the polyline there (ArtiSynth skips the
-    segments that touch it).
-    """
+    """Left-side fibres of the used Badin muscles, in the Badin frame: {name: [polyline (p, 3), ...]}. A fibre
+    point id missing from the point file splits the polyline there (ArtiSynth skips the segments that touch it)."""
     directory = Path(directory)
     ids, pts = read_ansys_nodes(directory / FIBRE_POINT_FILE)
     pos = {int(i): p for i, p in zip(ids, pts, strict=True)}
@@ -176,8 +173,7 @@ def read_badin_fibres(directory: str | Path) -> dict[str, list[np.ndarray]]:
 
 
 def badin_muscle_fibres(directory: str | Path) -> dict[str, list[np.ndarray]]:
-    """Model muscle -> fibre polylines in wface's frame: ``<badin>_l`` the file's left fibres, ``<badin>_r`` them
-    mirrored across the midsagittal plane (ArtiSynth's ``addRightSideMuscles``), as the import embeds them."""
+    """Model muscle -> fibre polylines in wface's frame, both sides, as the import embeds them (``_muscle_sides``)."""
     return _muscle_sides({k: [badin_to_wface(f) for f in v] for k, v in read_badin_fibres(directory).items()})
 
 

@@ -63,7 +63,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import Delaunay, cKDTree
+from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from wface.faces.ansys import hexes_to_tets, read_ansys_elements, read_ansys_nodes, read_int_list
 from wface.faces.artisynth import FIXED_NODE_FILES, JAW_NODE_FILE, MESH_PREFIX, badin_muscle_fibres
@@ -310,8 +310,6 @@ def demo_muscle_entries(
     hexes per bundle here / there: OOM 698 / 704, MENT 90 / 92, RIS 215 / 216, LLS 102 / 102, LLSAN 148 / 152,
     DAO 60 / 60, DLI 118 / 120, LAO 76 / 74 (74 shared), ZYG 50 / 50, BUC 22 / 60; every other hex here is there.
     """
-    from scipy.spatial import QhullError
-
     fibres = badin_muscle_fibres(data_dir)
     hexes = face_hexes(data_dir)
     x = model.rest_positions_m

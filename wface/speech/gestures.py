@@ -41,6 +41,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 __all__ = [
     "GESTURES",
@@ -332,8 +333,6 @@ def with_lower_oom(model):
     nearer a node of the lower lip's collision surface (surface group ``lower_lip``) than one of the upper lip's.
     The new muscles keep their side's strength and own curves (``Material.muscle_curves``); the FACS table is not
     changed. Played with every OOM part at one activation the model is the one it was."""
-    from scipy.spatial import cKDTree
-
     missing = [
         n for n in (*LOWER_OOM, "upper_lip", "lower_lip") if n not in (*model.muscle_names, *model.surface_groups)
     ]
