@@ -1,4 +1,5 @@
-"""The approximant played on ArtiSynth's own hexes, with lip and skull contact and inertia.
+"""The approximant (or another gesture, ``--gesture``) played on ArtiSynth's own hexes, with lip and skull contact
+and inertia.
 
 ArtiSynth's lip-opening demo, run from its source (README, "The elements, not the contact"), keeps
 11 mm^2 of the mouth open at the approximant's end on its trilinear hexes and 1.5 mm^2 on wface's
@@ -18,6 +19,8 @@ Writes OUT/lip_opening.csv (the columns of ``wface speech``'s, which ``examples/
     python examples/badin_hexes_play.py --model badin.npz --out hexplay          # about 1 hour on 2 cores
     python examples/badin_hexes_play.py --model badin.npz --contact skull --out hexplay_skull
     python examples/badin_hexes_play.py --model badin.npz --end 0.1 --out short  # the first 0.1 s
+    python examples/badin_hexes_play.py --model badin.npz --gesture fricative --muscle-curves artisynth \\
+        --muscle-elements artisynth --lower-oom lower --out fricative   # another gesture, ArtiSynth's muscles
 
 Data: ../shared/data/artisynth-face (ArtiSynth Models, BSD-style; cite Nazari et al. 2010 and
 Stavness et al.).
@@ -57,6 +60,8 @@ class HexDemo:
         fibre_stress="deviatoric",
         idle_muscles="passive",
         muscle_curves="wface",
+        muscle_elements="import",
+        lower_oom="whole",
     ):
         from dataclasses import replace
 
@@ -68,11 +73,19 @@ class HexDemo:
         from wface.physics.hex_solve import HexBody
         from wface.physics.hexes import embedding_matrix, hex_quadrature, quadrature_model
         from wface.speech.artisynth_demo import face_hexes, lip_opening_demo_model, without_idle_fibres
+        from wface.speech.gestures import with_lower_oom
 
         curves = "artisynth" if muscle_curves == "artisynth" else "law"
         demo = lip_opening_demo_model(
-            base, data, ring_directions=ring_directions, fibre_stress=fibre_stress, muscle_curves=curves
+            base,
+            data,
+            ring_directions=ring_directions,
+            fibre_stress=fibre_stress,
+            muscle_curves=curves,
+            muscle_elements=muscle_elements,
         )
+        if lower_oom == "lower":  # the OOMl exciter's own muscles, OOM's lower-lip part
+            demo = with_lower_oom(demo)
         if idle_muscles == "off":  # ArtiSynth's GenericMuscle passive is 0.05 Pa: every muscle but OOP carries nothing
             demo = without_idle_fibres(demo, ["OOP"])
         self.demo = demo
@@ -128,6 +141,9 @@ def play(
     fibre_stress: str = "deviatoric",
     idle_muscles: str = "passive",
     muscle_curves: str = "wface",
+    muscle_elements: str = "import",
+    gesture_name: str = "approximant",
+    lower_oom: str = "whole",
     mass_lumping: str = "equal",
     start_from: str = "pushed",
     bulk: str = "point",
@@ -155,10 +171,12 @@ def play(
         fibre_stress=fibre_stress,
         idle_muscles=idle_muscles,
         muscle_curves=muscle_curves,
+        muscle_elements=muscle_elements,
+        lower_oom=lower_oom,
     )
     demo = face.demo
-    gesture = read_gesture(data / "speech" / "approximant")
-    mapping = map_gesture_to_model(gesture, demo)
+    gesture = read_gesture(data / "speech" / gesture_name)
+    mapping = map_gesture_to_model(gesture, demo, lower_oom=lower_oom)
     t0, t1 = gesture.duration_s
     times = gesture_times(t0, t1 if end_s is None else end_s, fps)  # past t1 the curves hold their last values
     acts = lambda t: mapping.activations(gesture, demo, np.atleast_1d(t))[0]  # noqa: E731
@@ -352,6 +370,20 @@ def main(argv=None) -> int:
         help="the muscles' curves: wface's on every muscle, or the demo's own (BlemkerMuscle's on OOP, "
         "GenericMuscle's, with no passive stress, on the others; wface speech --muscle-curves)",
     )
+    p.add_argument("--gesture", default="approximant", help="the gesture played (closure, fricative, approximant)")
+    p.add_argument(
+        "--muscle-elements",
+        choices=("import", "artisynth"),
+        default="import",
+        help="every muscle but OOP as the import embeds it, or on the demo's whole hexes "
+        "(wface speech --muscle-elements)",
+    )
+    p.add_argument(
+        "--lower-oom",
+        choices=("whole", "lower", "skip"),
+        default="whole",
+        help="what the OOMl exciter drives (wface speech --lower-oom)",
+    )
     a = p.parse_args(argv)
     if not a.data.is_dir():
         p.error(f"no ArtiSynth face data at {a.data} (--data)")
@@ -377,6 +409,9 @@ def main(argv=None) -> int:
         fibre_stress=a.fibre_stress,
         idle_muscles=a.idle_muscles,
         muscle_curves=a.muscle_curves,
+        muscle_elements=a.muscle_elements,
+        gesture_name=a.gesture,
+        lower_oom=a.lower_oom,
     )
     a.out.mkdir(parents=True, exist_ok=True)
     with open(a.out / "lip_opening.csv", "w", newline="") as fh:
@@ -404,6 +439,9 @@ def main(argv=None) -> int:
         "fibre_stress": a.fibre_stress,
         "idle_muscles": a.idle_muscles,
         "muscle_curves": a.muscle_curves,
+        "muscle_elements": a.muscle_elements,
+        "gesture": a.gesture,
+        "lower_oom": a.lower_oom,
         "dynamics": DYNAMICS,
         "mesh": run["mesh"],
         "summary": summarise(run["rows"]),

@@ -264,3 +264,9 @@ def test_badin_hexes_play_with_artisynths_muscle_laws(badin_model_path, tmp_path
     assert json.loads((own / "report.json").read_text())["muscle_curves"] == "artisynth"
     x0, x1 = (np.load(d / "states.npz")["x_hex_m"] for d in (tmp_path, own))
     np.testing.assert_allclose(x1, x0, rtol=0, atol=1e-9)  # metres; the steps converge to 1e-4 of their load
+    # another gesture with ArtiSynth's muscles: their elements and the OOMl exciter on the lower lip's OOM
+    fric = tmp_path / "fricative"
+    argv = argv[: argv.index("--muscle-curves")] + ["--gesture", "fricative", "--muscle-elements", "artisynth"]
+    assert example.main([*argv, "--lower-oom", "lower", "--out", str(fric)]) == 0
+    report = json.loads((fric / "report.json").read_text())
+    assert (report["gesture"], report["muscle_elements"], report["lower_oom"]) == ("fricative", "artisynth", "lower")
