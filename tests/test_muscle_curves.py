@@ -12,6 +12,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from tests.test_fibre_deviatoric import _fd_forces, _fd_stiffness
 from wface.model import FIBRE_CURVES, FORMAT_VERSION, Material, ModelError, load_model, model_sha256, save_model
 from wface.physics import Simulator
 from wface.testing.models import box_model, single_tet_model
@@ -31,19 +32,6 @@ def _state(X: np.ndarray, seed: int) -> np.ndarray:
     return X @ np.diag([1.15, 0.9, 0.85]).T + 0.001 * np.random.default_rng(seed).normal(size=X.shape)
 
 
-def _fd(sim: Simulator, x: np.ndarray, a: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """(-dE/dx, -df/dx) by central differences."""
-    g, K = np.zeros_like(x), np.zeros((x.size, x.size))
-    for i in range(len(x)):
-        for d in range(3):
-            xp, xm = x.copy(), x.copy()
-            xp[i, d] += h
-            xm[i, d] -= h
-            g[i, d] = -(sim.energy(xp, a) - sim.energy(xm, a)) / (2 * h)
-            K[:, 3 * i + d] = -(sim.forces(xp, a) - sim.forces(xm, a)).ravel() / (2 * h)
-    return g, K
-
-
 @pytest.mark.parametrize("law", ["deviatoric", "uniaxial"])
 def test_mixed_curves_forces_and_exact_tangent_match_central_differences(law):
     model = _box(replace(_BADIN, fibre_stress=law, muscle_curves=_MIXED))
@@ -51,7 +39,7 @@ def test_mixed_curves_forces_and_exact_tangent_match_central_differences(law):
     for seed, a in ((30, np.array([0.8, 0.3])), (31, np.array([0.0, 1.0])), (32, np.array([0.5, 0.0]))):
         x = _state(model.rest_positions_m, seed)
         f = sim.forces(x, a)
-        g, Kfd = _fd(sim, x, a, 1e-8)
+        g, Kfd = _fd_forces(sim, x, a, 1e-8), _fd_stiffness(sim, x, a, 1e-8)
         assert np.abs(g - f).max() < _FD_REL * np.abs(f).max()
         K = sim.assemble_stiffness(x, a, project=False).toarray()
         assert np.abs(K - Kfd).max() < _FD_REL * np.abs(K).max()

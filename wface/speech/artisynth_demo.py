@@ -315,6 +315,7 @@ def demo_muscle_entries(
     x = model.rest_positions_m
     centre = np.array([x[np.unique(h)].mean(axis=0) for h in hexes])
     owner = _tets_in_hexes(model, hexes, x)
+    in_hex = np.flatnonzero(owner >= 0)
     out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     bundles = dict.fromkeys(n.rsplit("_", 1)[0] if n[-2:] in ("_l", "_r") else n for n in fibres)
     for bundle in bundles:
@@ -335,8 +336,7 @@ def demo_muscle_entries(
         hex_side[chosen] = side[nearest[chosen]]
         direction = np.zeros((len(hexes), 3))
         direction[chosen] = per_hex
-        tets = np.flatnonzero(owner >= 0)
-        tets = tets[hex_side[owner[tets]] >= 0]
+        tets = in_hex[hex_side[owner[in_hex]] >= 0]
         for k, name in enumerate(sides):
             mine = tets[hex_side[owner[tets]] == k]
             out[name] = (mine.astype(np.int32), direction[owner[mine]])
