@@ -34,6 +34,12 @@
 //   -Dlip.softincomp=ELEMENT|NODAL|FULL  how the flesh's bulk term is integrated (the demo leaves ArtiSynth's
 //                                 AUTO: ELEMENT, one mean dilatation per element, on the hexes)
 //   -Dlip.step=SECONDS            the integrator's step (the demo's: 0.005)
+//   -Dlip.directions=FILE         also write each bundle's fibres at rest, a line each: "fibre bundle x0 y0 z0 x1 y1 z1"
+//                                 (the two points, where ArtiSynth attached them), and each muscle element's fibre
+//                                 direction, a line each: "bundle element_number ux uy uz" (as
+//                                 computeElementDirections left it); Badin frame, metres
+//   -Dlip.fixed=FILE              also write the nodes the bones hold, a line each: "node_index fixed|attached"
+//                                 (not dynamic, as attachFaceToSkull leaves the cranium's; attached, the jaw's)
 //   -Dlip.contacts=FILE           also write the contacts at every dump: per frame a line "T <time s> <count>",
 //                                 then per contact "x0 y0 z0 x1 y1 z1 nx ny nz force_N pair" (the two contact
 //                                 points, the normal and the force, Badin frame; pair: lips, jaw or maxilla)
@@ -169,6 +175,34 @@ public class RunLipOpening {
                   }
                }
                mf.println ();
+            }
+         }
+      }
+      String dirFile = System.getProperty ("lip.directions"); // each bundle element's rest fibre direction
+      if (dirFile != null) {
+         try (PrintWriter df = new PrintWriter (new BufferedWriter (new FileWriter (dirFile)))) {
+            for (MuscleBundle b : face.getMuscleBundles ()) {
+               for (artisynth.core.mechmodels.Muscle f : b.getFibres ()) {
+                  maspack.matrix.Point3d p0 = f.getFirstPoint ().getPosition ();
+                  maspack.matrix.Point3d p1 = f.getSecondPoint ().getPosition ();
+                  df.println ("fibre " + b.getName () + " " + p0.x + " " + p0.y + " " + p0.z + " " + p1.x + " " + p1.y
+                     + " " + p1.z);
+               }
+               for (artisynth.core.femmodels.MuscleElementDesc d : b.getElements ()) {
+                  maspack.matrix.Vector3d u = d.getDirection ();
+                  df.println (b.getName () + " " + d.getElement ().getNumber () + " " + u.x + " " + u.y + " " + u.z);
+               }
+            }
+         }
+      }
+      String fixedFile = System.getProperty ("lip.fixed"); // the nodes the bones hold
+      if (fixedFile != null) {
+         try (PrintWriter ff = new PrintWriter (new BufferedWriter (new FileWriter (fixedFile)))) {
+            for (int i = 0; i < face.numNodes (); i++) {
+               FemNode3d n = face.getNode (i);
+               if (!n.isDynamic () || n.isAttached ()) {
+                  ff.println (i + " " + (n.isAttached () ? "attached" : "fixed"));
+               }
             }
          }
       }

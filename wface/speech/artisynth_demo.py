@@ -69,6 +69,8 @@ from wface.faces.ansys import hexes_to_tets, read_ansys_elements, read_ansys_nod
 from wface.faces.artisynth import FIXED_NODE_FILES, JAW_NODE_FILE, MESH_PREFIX, badin_muscle_fibres
 from wface.faces.fibres import point_segment_distance
 from wface.mesh.closest import SurfaceQuery
+from wface.mesh.embed import containing_tets
+from wface.mesh.surface import boundary_faces
 from wface.model import FaceModel, Material
 
 __all__ = [
@@ -295,6 +297,30 @@ def oop_ring_entries(
 DEMO_MUSCLE_THICKNESS_M = 0.006  # BadinFemMuscleFaceDemo.muscleThickness
 
 
+def attached_fibres(model: FaceModel, fibres: dict[str, list[np.ndarray]]) -> dict[str, list[np.ndarray]]:
+    """The fibres with their points where ArtiSynth attaches them. ``BadinFaceDemo.addMuscles`` makes each fibre
+    point a marker with ``FemModel3d.addNumberedMarker(pos, id)``, which projects a point that lies in no element
+    onto the nearest element's surface (``findElementForMarker``, project=true); a point inside stays. On the Badin
+    face 60 of the 232 fibre points lie in no element, up to 4 mm out (BUC's). Here the surface is the model's
+    boundary (the hexes' faces split into triangles), so a projected point lies within 0.5 mm of ArtiSynth's (its
+    hex faces are bilinear; ``RunLipOpening -Dlip.directions`` dumps its fibres). The k nearest tets searched for
+    the one holding a point are many (256), because the Badin tets range from 0.1 to 10 mm."""
+    x = model.rest_positions_m
+    points = np.concatenate([np.concatenate(polys) for polys in fibres.values()])
+    tet, _ = containing_tets(points, x, model.tets, k=256)
+    out = points.copy()
+    outside = np.flatnonzero(tet < 0)
+    if outside.size:
+        out[outside] = SurfaceQuery(x, boundary_faces(model.tets)).closest(points[outside]).point_m
+    result, k = {}, 0
+    for name, polys in fibres.items():
+        result[name] = []
+        for poly in polys:
+            result[name].append(out[k : k + len(poly)])
+            k += len(poly)
+    return result
+
+
 def demo_muscle_entries(
     model: FaceModel, data_dir: str | Path, *, thickness_m: float = DEMO_MUSCLE_THICKNESS_M
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -306,11 +332,15 @@ def demo_muscle_entries(
     to span a volume). A hex goes to the side (``_l``, ``_r``) of its nearest segment. Returns {model muscle:
     (tet ids, unit directions)}, the tets those whose centroid lies in a chosen hex.
 
-    Against ArtiSynth's own lists on the Badin face (``RunLipOpening -Dlip.muscles``; README, "Speech gestures"),
-    hexes per bundle here / there: OOM 698 / 704, MENT 90 / 92, RIS 215 / 216, LLS 102 / 102, LLSAN 148 / 152,
-    DAO 60 / 60, DLI 118 / 120, LAO 76 / 74 (74 shared), ZYG 50 / 50, BUC 22 / 60; every other hex here is there.
+    The fibres are where ArtiSynth attaches them (``attached_fibres``). Against ArtiSynth's own lists on the Badin
+    face (``RunLipOpening -Dlip.muscles``; README, "Speech gestures"), hexes per bundle here / there: OOM 704 / 704,
+    MENT 92 / 92, RIS 215 / 216, LLS 102 / 102, LLSAN 152 / 152, DAO 60 / 60, DLI 121 / 120, LAO 76 / 74, ZYG 50 /
+    50, BUC 61 / 60, all of theirs here but one RIS and one BUC hex (with the fibres' points as the data has them:
+    OOM 698, MENT 90, LLSAN 148, DLI 118, BUC 22). The directions agree (median 0 degrees) but for hexes whose
+    Delaunay tet is not unique: mirror-image fibres put four midpoints on one sphere, and ArtiSynth's TetGen picks
+    another of the tets than Qhull (OOM: 120 of 704 hexes more than 5 degrees apart, MENT 12, the rest at most 3).
     """
-    fibres = badin_muscle_fibres(data_dir)
+    fibres = attached_fibres(model, badin_muscle_fibres(data_dir))
     hexes = face_hexes(data_dir)
     x = model.rest_positions_m
     centre = np.array([x[np.unique(h)].mean(axis=0) for h in hexes])
@@ -344,12 +374,15 @@ def demo_muscle_entries(
 
 
 def demo_attachments(model: FaceModel, data_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """(attached node ids, bone 0 cranium / 1 jaw) of ``attachFaceToSkull`` + the import's lists.
+    """(attached node ids, bone 0 cranium / 1 jaw) of the import's lists + ``attachFaceToSkull``.
 
-    Original nodes: the import's fixed lists plus every ``atlas_internal.node`` node not on the lip,
-    cheek or nose free lists; the jaw list (``face_jaw_attachments.txt``, 0-based positions) on the
-    jaw. Nodes the import added follow: a face-centre or edge node on the inner surface whose
-    neighbours on that surface are all fixed is fixed too.
+    Original nodes, in ArtiSynth's order: ``BadinFaceDemo.build`` fixes the import's lists (edge, nose and
+    zygomatic-ligament nodes), then the lip-opening demo's ``attachFaceToSkull`` fixes every
+    ``atlas_internal.node`` node and frees the lip, cheek and nose free lists, so a node on a free list is free
+    even where the import's lists fix it (32 nose nodes of the Badin face; ``RunLipOpening -Dlip.fixed`` dumps
+    ArtiSynth's set, which this one equals); the jaw list (``face_jaw_attachments.txt``, 0-based positions) on
+    the jaw. Nodes the import added follow: a face-centre or edge node on the inner surface whose neighbours on
+    that surface are all fixed is fixed too.
     """
     data_dir = Path(data_dir)
     n_file = read_ansys_nodes(data_dir / f"{MESH_PREFIX}.node")[0].size
@@ -357,7 +390,7 @@ def demo_attachments(model: FaceModel, data_dir: str | Path) -> tuple[np.ndarray
     inner = _node_ids(data_dir, read_ansys_nodes(data_dir / "atlas_internal.node")[0], "atlas_internal.node")
     free = np.concatenate([_node_ids(data_dir, read_int_list(data_dir / f), f) for f in FREE_NODE_FILES])
     cranium = np.zeros(model.n_nodes, bool)
-    cranium[np.concatenate([*fixed, np.setdiff1d(inner, free)])] = True
+    cranium[np.setdiff1d(np.concatenate([*fixed, inner]), free)] = True
     jaw = np.zeros(model.n_nodes, bool)
     jaw[np.unique(read_int_list(data_dir / JAW_NODE_FILE))] = True
     # added nodes on the inner surface: fixed when every inner-surface neighbour is
