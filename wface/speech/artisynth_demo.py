@@ -24,9 +24,9 @@ this module reproduces each choice on the imported face (``wface.faces.artisynth
   gives each muscle its own demo material's curves (``Material.muscle_curves``): OOP BlemkerMuscle's, every
   other muscle GenericMuscle's (f_L = 1, no passive stress). The default stays wface's curves on every
   muscle, with which the README's earlier measurements were made.
-- Boundary (``demo_attachments``): ``attachFaceToSkull`` fixes every inner-surface node
-  (``atlas_internal.node``) except the lip, cheek and nose free lists, on top of the edge, nose and
-  zygomatic-ligament lists that the import attaches; the jaw list stays on the jaw.
+- Boundary (``demo_attachments``): after the edge, nose and zygomatic-ligament lists that the import
+  attaches, ``attachFaceToSkull`` fixes every inner-surface node (``atlas_internal.node``) and frees the lip,
+  cheek and nose free lists, 32 of the nose list's nodes among them; the jaw list stays on the jaw.
 - Dynamics (``ARTISYNTH_DYNAMICS``): ConstrainedBackwardEuler with steps of at most 5 ms, density
   1040 kg/m^3, Rayleigh damping alpha = 19 1/s (particle damping), beta = 0.055 s (stiffness
   damping), gravity 9.8 m/s^2 down (Badin -z, wface -Y).
