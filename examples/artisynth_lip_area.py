@@ -181,7 +181,12 @@ def plot(runs: dict, wface_curves: dict, reference: np.ndarray | None, path: Pat
     ax.set_ylabel("lip opening area (mm$^2$)")
     ax.set_title(title)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    n_curves = len(ax.get_lines())
+    if n_curves > 4:  # many curves: the legend goes below the axes, where it covers none of them
+        fig.set_figheight(4.6 + 0.2 * ((n_curves + 1) // 2))
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False)
+    else:
+        ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
