@@ -312,13 +312,8 @@ def attached_fibres(model: FaceModel, fibres: dict[str, list[np.ndarray]]) -> di
     outside = np.flatnonzero(tet < 0)
     if outside.size:
         out[outside] = SurfaceQuery(x, boundary_faces(model.tets)).closest(points[outside]).point_m
-    result, k = {}, 0
-    for name, polys in fibres.items():
-        result[name] = []
-        for poly in polys:
-            result[name].append(out[k : k + len(poly)])
-            k += len(poly)
-    return result
+    pieces = iter(np.split(out, np.cumsum([len(p) for polys in fibres.values() for p in polys])[:-1]))
+    return {name: [next(pieces) for _ in polys] for name, polys in fibres.items()}
 
 
 def demo_muscle_entries(
