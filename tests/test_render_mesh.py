@@ -314,6 +314,41 @@ def test_a_take_carries_its_render_mesh_into_resim(tmp_path, capsys):
     assert not (tmp_path / "gone" / "animation_render_mesh.usdc").exists()
 
 
+def test_containing_tets_finds_a_large_tet_among_small_ones():
+    """The tet holding a point is found however far its centroid is: a point in a large tet, crowded by 400 small
+    tets whose centroids are all nearer to it (a search of the nearest centroids alone, as this used to be, gives -1
+    there), and random points on a jittered box mesh agree with testing every tet."""
+    from wface.mesh.embed import containing_tets
+    from wface.testing.box import box_tet_mesh
+
+    big = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [0.0, 10.0, 0.0], [0.0, 0.0, 10.0]])
+    rng = np.random.default_rng(3)
+    base = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.0, 0.01, 0.0], [0.0, 0.0, 0.01]])
+    small = [base + np.array([-0.03 - 0.02 * rng.random(), 0.1 * rng.random(), 0.1 * rng.random()]) for _ in range(400)]
+    x = np.concatenate([big, *small])
+    tets = np.arange(len(x)).reshape(-1, 4)
+    p = np.array([[0.05, 0.05, 0.05]])
+    tet, w = containing_tets(p, x, tets)
+    assert tet[0] == 0
+    np.testing.assert_allclose(w[0] @ x[tets[0]], p[0], atol=1e-14)
+    assert np.all(w[0] >= 0)
+
+    x, tets = box_tet_mesh((4, 3, 3), (1.0, 0.8, 0.7))
+    x = x + 0.03 * rng.standard_normal(x.shape)
+    q = rng.uniform(-0.05, 1.05, size=(500, 3)) * [1.0, 0.8, 0.7]
+    tet, w = containing_tets(q, x, tets)
+    for i, t in enumerate(tet):  # brute force: the point's weights in every tet
+        D = np.stack([x[tets[:, j]] - x[tets[:, 0]] for j in (1, 2, 3)], axis=2)
+        w123 = np.linalg.solve(D, (q[i] - x[tets[:, 0]])[:, :, None])[:, :, 0]
+        holds = np.column_stack([1.0 - w123.sum(axis=1), w123]).min(axis=1) >= -1e-9
+        if t < 0:
+            assert not holds.any()
+        else:
+            assert holds[t]
+            np.testing.assert_allclose(w[i] @ x[tets[t]], q[i], atol=1e-12)
+    assert (tet >= 0).sum() > 300 and (tet < 0).sum() > 20
+
+
 def test_containing_tets_nearest_for_points_just_outside():
     """A point just outside the mesh is in no tet (-1); with nearest=True it takes the tet it is least
     outside of, one whose face it lies beyond."""

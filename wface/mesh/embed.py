@@ -112,34 +112,84 @@ class PointBinding:
         return out
 
 
-def containing_tets(points, x, tets, k: int = 16, *, nearest: bool = False):
-    """(tet id or -1, (n, 4) weights) of the tet containing each point (among the k nearest centroids).
+def _box_pairs(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """(point ids, box ids) of every axis-aligned box (lo, hi: (m, 3)) that holds a point, found through a uniform
+    grid of cells over the boxes. The cell is the boxes' median size, doubled until the boxes cover at most 64
+    cells each on average (a few huge boxes must not fill memory)."""
+    origin = lo.min(axis=0) - tol
+    h = max(float(np.median((hi - lo).max(axis=1))), 1e-12)
+    while True:
+        i0 = np.floor((lo - tol - origin) / h).astype(np.int64)
+        span = np.floor((hi + tol - origin) / h).astype(np.int64) - i0 + 1
+        count = span.prod(axis=1)
+        if count.sum() <= 64 * len(lo):
+            break
+        h *= 2.0
+    dims = (i0 + span).max(axis=0)
+    box = np.repeat(np.arange(len(lo)), count)
+    local = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    sy, sz = span[box, 1], span[box, 2]
+    cell = i0[box] + np.column_stack([local // (sy * sz), (local // sz) % sy, local % sz])
+    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    order = np.argsort(key, kind="stable")
+    key, box = key[order], box[order]
+    pc = np.floor((points - origin) / h).astype(np.int64)
+    valid = np.all((pc >= 0) & (pc < dims), axis=1)
+    pkey = (pc[:, 0] * dims[1] + pc[:, 1]) * dims[2] + pc[:, 2]
+    first = np.searchsorted(key, pkey, side="left")
+    n = np.where(valid, np.searchsorted(key, pkey, side="right") - first, 0)
+    pid = np.repeat(np.arange(len(points)), n)
+    cand = box[np.repeat(first, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
+    inside = np.all((points[pid] >= lo[cand] - tol) & (points[pid] <= hi[cand] + tol), axis=1)
+    return pid[inside], cand[inside]
 
-    ``nearest``: a point in none of them takes the candidate it is least outside of (largest smallest
-    barycentric weight; e.g. a point under a curved face that the tets flatten) instead of -1."""
-    tree = cKDTree(x[tets].mean(axis=1))
-    _, cand = tree.query(points, k=min(k, len(tets)))
-    cand = cand.reshape(len(points), -1)
+
+def _barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """(k, 4) barycentric weights of (k, 3) points in (k, 4, 3) tets."""
+    D = np.stack([corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0], corners[:, 3] - corners[:, 0]], axis=2)
+    w123 = np.linalg.solve(D, (points - corners[:, 0])[:, :, None])[:, :, 0]
+    return np.column_stack([1.0 - w123.sum(axis=1), w123])
+
+
+def containing_tets(points, x, tets, k: int = 16, *, nearest: bool = False):
+    """(tet id or -1, (n, 4) weights) of the tet containing each point: every tet whose bounding box holds the point
+    is tested (``_box_pairs``), so a large tet among small ones is found; a point on a face shared by several tets
+    takes the one whose centroid is nearest.
+
+    ``nearest``: a point in no tet takes, among the ``k`` tets with the nearest centroids, the one it is least
+    outside of (largest smallest barycentric weight; e.g. a point under a curved face that the tets flatten) instead
+    of -1 (its weights are then those in that tet)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    x = np.asarray(x, dtype=np.float64)
+    tets = np.asarray(tets, dtype=np.int64)
+    corners = x[tets]
+    lo, hi = corners.min(axis=1), corners.max(axis=1)
+    tol = 1e-9 * float(np.max(hi - lo)) if len(tets) else 0.0
     found = np.full(len(points), -1, dtype=np.int64)
     weights = np.zeros((len(points), 4))
-    best, best_min = np.full(len(points), -1, dtype=np.int64), np.full(len(points), -np.inf)
-    for j in range(cand.shape[1]):
-        todo = np.flatnonzero(found < 0)
-        if not todo.size:
-            break
-        t = cand[todo, j]
-        p = x[tets[t]]
-        D = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]], axis=2)
-        w123 = np.linalg.solve(D, (points[todo] - p[:, 0])[:, :, None])[:, :, 0]
-        w = np.column_stack([1.0 - w123.sum(axis=1), w123])
+    if not len(tets) or not len(points):
+        return found, weights
+    centroid = corners.mean(axis=1)
+    for s in range(0, len(points), 65536):  # bounded memory
+        pid, cand = _box_pairs(points[s : s + 65536], lo, hi, tol)
+        pid = pid + s
+        w = _barycentric(points[pid], corners[cand])
         hit = w.min(axis=1) >= -_INSIDE_TOL
-        found[todo[hit]] = t[hit]
-        weights[todo[hit]] = w[hit]
-        better = w.min(axis=1) > best_min[todo]
-        best[todo[better]], best_min[todo[better]] = t[better], w.min(axis=1)[better]
-    if nearest:
-        out = found < 0
-        found[out] = best[out]
+        pid, cand, w = pid[hit], cand[hit], w[hit]
+        d2 = np.sum((centroid[cand] - points[pid]) ** 2, axis=1)
+        order = np.lexsort((d2, pid))  # per point, the nearest centroid first
+        pid, cand, w = pid[order], cand[order], w[order]
+        first = np.r_[True, pid[1:] != pid[:-1]][: len(pid)]
+        found[pid[first]], weights[pid[first]] = cand[first], w[first]
+    out = np.flatnonzero(found < 0)
+    if nearest and out.size:
+        _, near = cKDTree(centroid).query(points[out], k=min(k, len(tets)))
+        near = near.reshape(len(out), -1)
+        w = _barycentric(np.repeat(points[out], near.shape[1], axis=0), corners[near.reshape(-1)])
+        w = w.reshape(len(out), near.shape[1], 4)
+        j = np.argmax(w.min(axis=2), axis=1)
+        found[out] = near[np.arange(len(out)), j]
+        weights[out] = w[np.arange(len(out)), j]
     return found, weights
 
 
