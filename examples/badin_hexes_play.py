@@ -72,7 +72,12 @@ class HexDemo:
         from wface.physics.hex_dilatation import MeanDilatation
         from wface.physics.hex_solve import HexBody
         from wface.physics.hexes import embedding_matrix, hex_quadrature, quadrature_model
-        from wface.speech.artisynth_demo import face_hexes, lip_opening_demo_model, without_idle_fibres
+        from wface.speech.artisynth_demo import (
+            face_hexes,
+            lip_opening_demo_model,
+            ooml_exciter_tets,
+            without_idle_fibres,
+        )
         from wface.speech.gestures import with_lower_oom
 
         curves = "artisynth" if muscle_curves == "artisynth" else "law"
@@ -84,8 +89,8 @@ class HexDemo:
             muscle_curves=curves,
             muscle_elements=muscle_elements,
         )
-        if lower_oom == "lower":  # the OOMl exciter's own muscles, OOM's lower-lip part
-            demo = with_lower_oom(demo)
+        if lower_oom in ("lower", "exciter"):  # the OOMl exciter's own muscles, OOM's lower-lip part
+            demo = with_lower_oom(demo, ooml_exciter_tets(demo, data) if lower_oom == "exciter" else None)
         if idle_muscles == "off":  # ArtiSynth's GenericMuscle passive is 0.05 Pa: every muscle but OOP carries nothing
             demo = without_idle_fibres(demo, ["OOP"])
         self.demo = demo
@@ -176,7 +181,7 @@ def play(
     )
     demo = face.demo
     gesture = read_gesture(data / "speech" / gesture_name)
-    mapping = map_gesture_to_model(gesture, demo, lower_oom=lower_oom)
+    mapping = map_gesture_to_model(gesture, demo, lower_oom="lower" if lower_oom == "exciter" else lower_oom)
     t0, t1 = gesture.duration_s
     times = gesture_times(t0, t1 if end_s is None else end_s, fps)  # past t1 the curves hold their last values
     acts = lambda t: mapping.activations(gesture, demo, np.atleast_1d(t))[0]  # noqa: E731
@@ -380,7 +385,7 @@ def main(argv=None) -> int:
     )
     p.add_argument(
         "--lower-oom",
-        choices=("whole", "lower", "skip"),
+        choices=("whole", "lower", "exciter", "skip"),
         default="whole",
         help="what the OOMl exciter drives (wface speech --lower-oom)",
     )

@@ -268,3 +268,33 @@ def test_the_demos_own_muscle_elements(badin_model, demo):
     assert np.all(np.diff(own.fibre_tet) >= 0)
     with pytest.raises(ValueError, match="muscle_elements must be"):
         lip_opening_demo_model(badin_model, data, muscle_elements="hexes")
+
+
+def test_the_oomi_exciters_own_targets(badin_model, demo):
+    """ooml_exciter_tets: the OOMl exciter's targets (exciters/OOMl.art, positions in the OOM bundle's element list)
+    are 232 of OOM's 704 hexes. ArtiSynth's own exciter, dumped by RunLipOpening -Dlip.muscles, targets elements 13,
+    14, 15, ... 21, 29 first: the OOM list's positions 7-15 and 23. Every target lies in the lower lip: the split by the
+    lips' surfaces (with_lower_oom's default) holds them all and tets of 69 hexes more, at the mouth's corners. The split
+    model's OOMl muscles sit on exactly those tets (OOM on the demo's own elements)."""
+    from wface.speech.artisynth_demo import _tets_in_hexes, _hex_elements, face_hexes, ooml_exciter_tets
+    from wface.speech.gestures import with_lower_oom
+
+    data = data_path("artisynth-face")
+    mask = ooml_exciter_tets(demo, data)
+    assert mask.shape == (len(demo.tets),)
+    owner = _tets_in_hexes(demo, face_hexes(data), demo.rest_positions_m)
+    numbers, _ = _hex_elements(data)
+    target = np.unique(owner[mask])
+    assert len(target) == 232
+    assert numbers[target][:10].tolist() == [13, 14, 15, 16, 17, 18, 19, 20, 21, 29]
+    assert np.array_equal(mask, np.isin(owner, target) & (owner >= 0))  # whole hexes
+    own = lip_opening_demo_model(badin_model, data, muscle_elements="artisynth")  # OOM on the demo's 704 hexes
+    exact, nearer = with_lower_oom(own, mask), with_lower_oom(own)
+    lower = [exact.muscle_index(n) for n in ("OOMl_l", "OOMl_r")]
+    on = np.isin(exact.fibre_muscle, lower)
+    oom = np.isin(own.fibre_muscle, [own.muscle_index(n) for n in ("OOM_l", "OOM_r")])
+    assert np.array_equal(on, oom & mask[own.fibre_tet])
+    near_hexes = np.unique(owner[nearer.fibre_tet[np.isin(nearer.fibre_muscle, lower)]])
+    assert set(target) <= set(near_hexes) and len(near_hexes) - len(target) == 69  # tets of 69 hexes more
+    with pytest.raises(ValueError, match="one per tet"):
+        with_lower_oom(demo, mask[:-1])

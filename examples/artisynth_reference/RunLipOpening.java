@@ -35,9 +35,14 @@
 //                                 AUTO: ELEMENT, one mean dilatation per element, on the hexes)
 //   -Dlip.step=SECONDS            the integrator's step (the demo's: 0.005)
 //   -Dlip.directions=FILE         also write each bundle's fibres at rest, a line each: "fibre bundle x0 y0 z0 x1 y1 z1"
-//                                 (the two points, where ArtiSynth attached them), and each muscle element's fibre
-//                                 direction, a line each: "bundle element_number ux uy uz" (as
+//                                 (the two points, where ArtiSynth attached them), then "restfibre bundle x0 y0 z0 x1 y1
+//                                 z1" (their rest positions, which computeElementDirections reads), and each muscle
+//                                 element's fibre direction and the rest position of the point it was computed at (the
+//                                 element's warping point), a line each: "bundle element_number ux uy uz cx cy cz" (as
 //                                 computeElementDirections left it); Badin frame, metres
+//   -Dlip.redirect=positions      compute every bundle's element directions again from its fibre points' current
+//                                 positions instead of their rest positions (equal to within 2e-13 m at the start):
+//                                 where fibre midpoints are cospherical that rounding picks other Delaunay tets
 //   -Dlip.fixed=FILE              also write the nodes the bones hold, a line each: "node_index fixed|attached"
 //                                 (not dynamic, as attachFaceToSkull leaves the cranium's; attached, the jaw's)
 //   -Dlip.contacts=FILE           also write the contacts at every dump: per frame a line "T <time s> <count>",
@@ -70,6 +75,59 @@ import artisynth.models.face.BadinFaceDemoLipOpening;
 public class RunLipOpening {
    static final double DUMP_INTERVAL_S = 0.01;
    static int dumpNodes; // the node file's nodes: the dump leaves out nodes added by -Dlip.mesh
+
+   /**
+    * Every bundle's element directions computed again as computeElementDirections does, but from the fibre
+    * points' current positions, which at the start equal their rest positions to within 2e-13 m (the two are
+    * computed by different arithmetic). Prints, per bundle, how many elements then turn more than 5 degrees.
+    */
+   private static void redirectFromPositions (FemMuscleModel face) {
+      for (MuscleBundle b : face.getMuscleBundles ()) {
+         int nf = b.getFibres ().size ();
+         if (nf == 0 || b.getElements ().size () == 0) {
+            continue;
+         }
+         maspack.matrix.Point3d[] mids = new maspack.matrix.Point3d[nf];
+         maspack.matrix.Vector3d[] dirs = new maspack.matrix.Vector3d[nf];
+         for (int i = 0; i < nf; i++) {
+            artisynth.core.mechmodels.Muscle f = b.getFibres ().get (i);
+            maspack.matrix.Point3d p0 = f.getFirstPoint ().getPosition ();
+            maspack.matrix.Point3d p1 = f.getSecondPoint ().getPosition ();
+            mids[i] = new maspack.matrix.Point3d ();
+            mids[i].add (p1, p0); // as MuscleBundle.getFibreRestDistanceInterpolator
+            mids[i].scale (1 / 2.0);
+            dirs[i] = new maspack.matrix.Vector3d ();
+            dirs[i].sub (p1, p0);
+            dirs[i].normalize ();
+         }
+         maspack.geometry.DelaunayInterpolator interp = new maspack.geometry.DelaunayInterpolator ();
+         interp.setPoints (mids);
+         int turned = 0;
+         for (MuscleElementDesc d : b.getElements ()) {
+            maspack.matrix.Vector3d before = new maspack.matrix.Vector3d (d.getDirection ());
+            d.interpolateDirection (interp, dirs);
+            maspack.matrix.Vector3d after = d.getDirection ();
+            double c = Math.abs (before.dot (after)) / (before.norm () * after.norm ());
+            if (c < Math.cos (Math.toRadians (5))) {
+               turned++;
+            }
+         }
+         System.out.println ("redirect " + b.getName () + ": " + turned + " of " + b.getElements ().size ()
+            + " elements turned more than 5 degrees");
+      }
+   }
+
+   /** A fibre point's rest position as MuscleBundle.getRestPosition reads it. */
+   private static maspack.matrix.Point3d restPosition (artisynth.core.mechmodels.Point p) {
+      maspack.matrix.Point3d r = new maspack.matrix.Point3d ();
+      if (p instanceof FemNode3d) {
+         r.set (((FemNode3d)p).getRestPosition ());
+      }
+      else {
+         ((artisynth.core.femmodels.FemMarker)p).getRestPosition (r);
+      }
+      return r;
+   }
 
    public static void main (String[] args) throws Exception {
       if (args.length != 3) {
@@ -157,6 +215,9 @@ public class RunLipOpening {
          demo.addInputProbe (new NumericInputProbe (target, "excitation", kv[0]));
          System.out.println ("probe " + kv[0] + " drives " + kv[1]);
       }
+      if ("positions".equals (System.getProperty ("lip.redirect"))) {
+         redirectFromPositions (face);
+      }
       String muscleFile = System.getProperty ("lip.muscles"); // each bundle's and exciter's elements, by number
       if (muscleFile != null) {
          try (PrintWriter mf = new PrintWriter (new BufferedWriter (new FileWriter (muscleFile)))) {
@@ -187,10 +248,17 @@ public class RunLipOpening {
                   maspack.matrix.Point3d p1 = f.getSecondPoint ().getPosition ();
                   df.println ("fibre " + b.getName () + " " + p0.x + " " + p0.y + " " + p0.z + " " + p1.x + " " + p1.y
                      + " " + p1.z);
+                  maspack.matrix.Point3d r0 = restPosition (f.getFirstPoint ());
+                  maspack.matrix.Point3d r1 = restPosition (f.getSecondPoint ());
+                  df.println ("restfibre " + b.getName () + " " + r0.x + " " + r0.y + " " + r0.z + " " + r1.x + " "
+                     + r1.y + " " + r1.z);
                }
                for (artisynth.core.femmodels.MuscleElementDesc d : b.getElements ()) {
                   maspack.matrix.Vector3d u = d.getDirection ();
-                  df.println (b.getName () + " " + d.getElement ().getNumber () + " " + u.x + " " + u.y + " " + u.z);
+                  maspack.matrix.Point3d c = new maspack.matrix.Point3d ();
+                  d.getElement ().getWarpingPoint ().computeRestPosition (c, d.getElement ().getNodes ());
+                  df.println (b.getName () + " " + d.getElement ().getNumber () + " " + u.x + " " + u.y + " " + u.z + " "
+                     + c.x + " " + c.y + " " + c.z);
                }
             }
          }

@@ -23,7 +23,7 @@ from wface.files import write_json
 from wface.mesh.surface import boundary_faces
 from wface.model import load_model
 from wface.speech.aperture import ApertureView
-from wface.speech.artisynth_demo import lip_opening_demo_model, without_idle_fibres
+from wface.speech.artisynth_demo import lip_opening_demo_model, ooml_exciter_tets, without_idle_fibres
 from wface.speech.dynamic import GestureDynamics
 from wface.speech.gestures import map_gesture_to_model, read_gesture, with_lower_oom
 from wface.speech.output import write_aperture_pictures, write_gesture_usd, write_lip_opening, write_states
@@ -101,11 +101,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--all-probes", action="store_true", help="also play probes marked active=false")
     p.add_argument(
         "--lower-oom",
-        choices=["whole", "lower", "skip"],
+        choices=["whole", "lower", "exciter", "skip"],
         default="whole",
-        help="what the OOMl exciter drives: the whole OOM (default, approximation), its lower lip's part (as "
-        "ArtiSynth's exciter: the OOM fibre entries nearer the lower lip's surface become muscles OOMl_l and "
-        "OOMl_r) or nothing",
+        help="what the OOMl exciter drives: the whole OOM (default, approximation), its lower lip's part (the OOM "
+        "fibre entries nearer the lower lip's surface become muscles OOMl_l and OOMl_r), exactly the exciter's "
+        "own targets (ArtiSynth's OOMl.art: 232 of OOM's hexes; with --setup artisynth) or nothing",
     )
     add_contact_arguments(
         p, smoothing_mm=0.1, freeze_below=None, obstacles=False, where="every frame's solve", lip_surface="smooth"
@@ -321,6 +321,11 @@ def _check_options(args) -> None:
     ):
         if value != default and args.setup != "artisynth":
             raise UsageError(f"{option} sets up ArtiSynth's demo: add --setup artisynth, or leave it out")
+    if args.lower_oom == "exciter" and args.setup != "artisynth":
+        raise UsageError(
+            "--lower-oom exciter takes the targets of ArtiSynth's demo on its hexes: add --setup artisynth, or use "
+            "--lower-oom lower"
+        )
     if args.data and args.setup != "artisynth":
         raise UsageError(
             "--data is the artisynth-face folder of --setup artisynth: add --setup artisynth, or leave it out"
@@ -340,9 +345,11 @@ def run_speech(args: argparse.Namespace) -> int:
             model, _data_dir(args), muscle_curves=curves, muscle_elements=args.muscle_elements
         )
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
-    if args.lower_oom == "lower":
-        model = with_lower_oom(model)
-    mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
+    if args.lower_oom in ("lower", "exciter"):
+        targets = ooml_exciter_tets(model, _data_dir(args)) if args.lower_oom == "exciter" else None
+        model = with_lower_oom(model, targets)
+    lower_oom = "lower" if args.lower_oom == "exciter" else args.lower_oom
+    mapping = map_gesture_to_model(gesture, model, lower_oom=lower_oom)
     _check_model(args, model, gesture, mapping)
     if args.idle_muscles == "off":
         model = without_idle_fibres(model, mapping.driven_muscles(gesture, model))

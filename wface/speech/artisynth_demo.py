@@ -11,8 +11,8 @@ this module reproduces each choice on the imported face (``wface.faces.artisynth
   14th column of the .elem file). Each element is muscle over its whole volume (fraction 1); its
   fibre direction is that of the nearest segment of one closed polyline through the centroids of
   the 7M ring's hexes (wedges skipped: ``loadoop("7M")``, ``setFibresFromElementCentroids``,
-  ``computeElementDirections``). The element numbers are vendored below (``OOP_RING_ELEMENTS``) with
-  the ArtiSynth Models licence notice: they are not in the face data folder.
+  ``computeElementDirections``). The element numbers are vendored (``OOP_RING_ELEMENTS``,
+  ``wface.speech.artisynth_lists``, with the ArtiSynth Models licence notice): they are not in the face data folder.
 - Muscle material: ``BlemkerMuscle`` with ``maxStress`` 1e5 Pa for OOP and the ``GenericMuscle``
   with 1e5 Pa for the others (``ARTISYNTH_MAX_STRESS_PA``; wface's default sigma_max is 3e5 Pa).
   Blemker's active force-length curve (1 - 4 (lam - 1)^2, quadratic tails to 0 at 0.4 and 1.6) is
@@ -38,23 +38,7 @@ this module reproduces each choice on the imported face (``wface.faces.artisynth
 - Not reproduced: every rigid body of the demo, the tongue among them, is hidden in its picture, so
   nothing but the face occludes the plane; the tongue mesh is not in the face data.
 
-ArtiSynth Models licence (applies to ``OOP_RING_ELEMENTS``): Copyright (c) 2014, contributing Authors
-and Organizations as indicated in subpackage COPYRIGHT notices. All rights reserved. Redistribution
-and use of the ArtiSynth Models package in source and binary forms, with or without modification,
-are permitted provided that the following conditions are met: 1. Redistributions of source code and
-data must retain all copyright notices, this list of conditions and the following disclaimer.
-2. Redistributions in binary form must reproduce all copyright notices, this list of conditions and
-the following disclaimer in the documentation and/or other materials provided with the distribution.
-3. Academic publication of work based on these models provides appropriate citations to the original
-work, as indicated on the ArtiSynth Models download site. THIS SOFTWARE AND DATA IS PROVIDED BY THE
-COPYRIGHT HOLDERS AND CONTRIBUTORS "AS IS" AND ANY EXPRESS OR IMPLIED WARRANTIES, INCLUDING, BUT NOT
-LIMITED TO, THE IMPLIED WARRANTIES OF MERCHANTABILITY AND FITNESS FOR A PARTICULAR PURPOSE ARE
-DISCLAIMED. IN NO EVENT SHALL THE COPYRIGHT HOLDER OR CONTRIBUTORS BE LIABLE FOR ANY DIRECT, INDIRECT,
-INCIDENTAL, SPECIAL, EXEMPLARY, OR CONSEQUENTIAL DAMAGES (INCLUDING, BUT NOT LIMITED TO, PROCUREMENT OF
-SUBSTITUTE GOODS OR SERVICES; LOSS OF USE, DATA, OR PROFITS; OR BUSINESS INTERRUPTION) HOWEVER CAUSED
-AND ON ANY THEORY OF LIABILITY, WHETHER IN CONTRACT, STRICT LIABILITY, OR TORT (INCLUDING NEGLIGENCE OR
-OTHERWISE) ARISING IN ANY WAY OUT OF THE USE OF THIS SOFTWARE, EVEN IF ADVISED OF THE POSSIBILITY OF
-SUCH DAMAGE. Cite Nazari et al. 2010 and the ArtiSynth face papers (Stavness et al.).
+The ArtiSynth Models licence that covers the vendored lists is in ``wface.speech.artisynth_lists``.
 """
 
 from __future__ import annotations
@@ -72,6 +56,7 @@ from wface.mesh.closest import SurfaceQuery
 from wface.mesh.embed import containing_tets
 from wface.mesh.surface import boundary_faces
 from wface.model import FaceModel, Material
+from wface.speech.artisynth_lists import OOML_EXCITER_TARGETS, OOP_RING_ELEMENTS
 
 __all__ = [
     "ARTISYNTH_DYNAMICS",
@@ -84,6 +69,7 @@ __all__ = [
     "demo_attachments",
     "face_hexes",
     "lip_opening_demo_model",
+    "ooml_exciter_tets",
     "oop_ring_entries",
     "ring_hexes",
 ]
@@ -109,51 +95,6 @@ class ArtisynthDynamics:
 ARTISYNTH_DYNAMICS = ArtisynthDynamics()
 
 # geometry/oop/<ring>_elements.txt of artisynth_models (licence in the module docstring)
-_RINGS_TEXT = {
-    "5Du": (
-        "5337 5351 5352 5353 5354 5355 5356 5357 5358 5359 5360 5361 5362 5363 2192 2191 2190 2189 2188 2187 "
-        "2186 2185 2184 2183 2182 2181 2180 2166"
-    ),
-    "6Sl": (
-        "3047 889 838 837 836 835 824 823 505 506 507 908 909 508 3679 4080 4079 3678 3677 3676 3994 3995 "
-        "4006 4007 4008 4009 4060 6218"
-    ),
-    "6M": (
-        "2111 2112 2113 2114 2115 2116 2117 2118 2119 2120 2121 2122 2123 2124 2125 3120 2140 2141 2142 2143 "
-        "2144 2145 2146 2147 2148 2149 2150 2151 2152 5323 5322 5321 5320 5319 5318 5317 5316 5315 5314 5313 "
-        "5312 5311 6291 5296 5295 5294 5293 5292 5291 5290 5289 5288 5287 5286 5285 5284 5283 5282"
-    ),
-    "6Du": (
-        "4762 4763 4078 4077 4076 4075 4074 4068 4067 4066 4065 4064 4063 4062 4061 890 891 892 893 894 895 "
-        "896 897 903 904 905 906 907 1592 1591"
-    ),
-    "7Sl": (
-        "3049 524 121 831 830 834 826 825 122 123 124 910 911 125 3296 4082 4081 3295 3294 3293 3996 3997 "
-        "4005 4001 4002 3292 3695 6220"
-    ),
-    "7M": (
-        "2218 2217 2216 2215 2214 2213 2212 2211 2210 3125 2209 3124 2208 2207 2206 3123 2138 2126 2127 2128 "
-        "2129 2130 2131 2132 2133 2134 2135 2136 2137 5308 5307 5306 5305 5304 5303 5302 5301 5300 5299 5298 "
-        "5297 5309 6294 5377 5378 5379 6295 5380 6296 5381 5382 5383 5384 5385 5386 5387 5388 5389"
-    ),
-    "7Du": (
-        "6248 4765 4766 4767 6249 4768 6250 4769 3807 3809 3311 3312 3817 3313 3314 3854 683 143 142 646 141 "
-        "140 638 636 1598 3079 1597 3078 1596 1595 1594 3077"
-    ),
-    "8Su": (
-        "4605 6264 6263 4604 4477 3522 4472 4463 4462 4460 4410 4409 4408 4407 4828 1657 1236 1237 1238 1239 "
-        "1289 1291 1292 1301 351 1306 1433 3092 3093 1434"
-    ),
-    "8Mu": (
-        "5398 6302 6303 5399 5400 5401 5402 5403 5404 5405 5406 5407 5408 5409 5410 2239 2238 2237 2236 2235 "
-        "2234 2233 2232 2231 2230 2229 2228 3132 3131 2227"
-    ),
-    "8Du": (
-        "1656 1610 1609 1608 4770 6265 6266 4771 4772 4773 4774 4775 4776 4777 4778 4779 4780 4781 4827 1607 "
-        "1606 1605 1604 1603 1602 1601 1600 3095 3094 1599"
-    ),
-}
-OOP_RING_ELEMENTS: dict[str, tuple[int, ...]] = {k: tuple(int(v) for v in s.split()) for k, s in _RINGS_TEXT.items()}
 
 
 def _hex_elements(data_dir: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -316,6 +257,45 @@ def attached_fibres(model: FaceModel, fibres: dict[str, list[np.ndarray]]) -> di
     return {name: [next(pieces) for _ in polys] for name, polys in fibres.items()}
 
 
+def _bundle_segments(fibres: dict[str, list[np.ndarray]], bundle: str):
+    """(side names, (s,) side of each segment, (s, 3) segment starts, (s, 3) ends) of a bundle's fibres, both sides."""
+    sides = [n for n in fibres if n == bundle or n.rsplit("_", 1)[0] == bundle]
+    seg = [(n, p[k], p[k + 1]) for n in sides for p in fibres[n] for k in range(len(p) - 1)]
+    side = np.array([sides.index(n) for n, _, _ in seg])
+    return sides, side, np.array([s[1] for s in seg]), np.array([s[2] for s in seg])
+
+
+def _near_fibres(centre: np.ndarray, a: np.ndarray, b: np.ndarray, thickness_m: float):
+    """(rows of the hexes whose centre lies within ``thickness_m`` of a segment, in the mesh's order (as
+    ``MuscleBundle.addElementsNearFibres`` lists them), (h, s) nearest-segment index per hex)."""
+    dist, nearest = point_segment_distance(centre, a, b)
+    return np.flatnonzero(dist.min(axis=1) < thickness_m), nearest
+
+
+def ooml_exciter_tets(model: FaceModel, data_dir: str | Path, *, thickness_m: float = DEMO_MUSCLE_THICKNESS_M):
+    """(n_tets,) bool: the tets (centroid in a hex) of the demo's ``OOMl`` exciter, its targets
+    (``OOML_EXCITER_TARGETS``: positions in the OOM bundle's element list) taken from the OOM hexes that
+    ``demo_muscle_entries`` chooses, in the mesh's order (704 on the Badin face, ArtiSynth's own list). On the Badin
+    face 232 hexes, all in the lower lip; ``with_lower_oom``'s split by the lips' surfaces takes these and tets of 69
+    hexes more, at the mouth's corners."""
+    data_dir = Path(data_dir)
+    fibres = attached_fibres(model, badin_muscle_fibres(data_dir))
+    hexes = face_hexes(data_dir)
+    x = model.rest_positions_m
+    centre = np.array([x[np.unique(h)].mean(axis=0) for h in hexes])
+    _, _, a, b = _bundle_segments(fibres, "OOM")
+    oom, _ = _near_fibres(centre, a, b, thickness_m)
+    if max(OOML_EXCITER_TARGETS) >= len(oom):
+        raise ValueError(
+            f"the OOMl exciter targets the OOM bundle's element {max(OOML_EXCITER_TARGETS)} (0-based), but this face's "
+            f"OOM bundle has {len(oom)} elements: not ArtiSynth's Badin face"
+        )
+    target = np.zeros(len(hexes), dtype=bool)
+    target[oom[list(OOML_EXCITER_TARGETS)]] = True
+    owner = _tets_in_hexes(model, hexes, x)
+    return (owner >= 0) & target[np.maximum(owner, 0)]
+
+
 def demo_muscle_entries(
     model: FaceModel, data_dir: str | Path, *, thickness_m: float = DEMO_MUSCLE_THICKNESS_M
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -346,12 +326,8 @@ def demo_muscle_entries(
     for bundle in bundles:
         if bundle == "OOP":
             continue
-        sides = [n for n in fibres if n == bundle or n.rsplit("_", 1)[0] == bundle]
-        seg = [(n, p[k], p[k + 1]) for n in sides for p in fibres[n] for k in range(len(p) - 1)]
-        side = np.array([sides.index(n) for n, _, _ in seg])
-        a, b = np.array([s[1] for s in seg]), np.array([s[2] for s in seg])
-        dist, nearest = point_segment_distance(centre, a, b)
-        chosen = np.flatnonzero(dist.min(axis=1) < thickness_m)
+        sides, side, a, b = _bundle_segments(fibres, bundle)
+        chosen, nearest = _near_fibres(centre, a, b, thickness_m)
         tangent = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
         try:
             per_hex = delaunay_fibre_directions(centre[chosen], 0.5 * (a + b), tangent)

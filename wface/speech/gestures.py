@@ -326,27 +326,36 @@ def held_gesture(gesture: SpeechGesture, levels, *, probe: str = "OOP") -> Speec
     return replace(gesture, name=f"{gesture.name} ({probe} held)", curves={probe: curve}, reference_lip_area=None)
 
 
-def with_lower_oom(model):
+def with_lower_oom(model, lower_tets=None):
     """The model with the lower lip's part of ``OOM_l`` and ``OOM_r`` as muscles of their own, ``OOMl_l`` and
     ``OOMl_r``: what ArtiSynth's exciter ``OOMl`` drives (its targets are the OOM bundle's elements in the lower lip,
-    ``artisynth_models``' ``face/exciters/OOMl.art``). A fibre entry is the lower lip's when its tet's centroid lies
-    nearer a node of the lower lip's collision surface (surface group ``lower_lip``) than one of the upper lip's.
-    The new muscles keep their side's strength and own curves (``Material.muscle_curves``); the FACS table is not
-    changed. Played with every OOM part at one activation the model is the one it was."""
+    ``artisynth_models``' ``face/exciters/OOMl.art``). A fibre entry is the lower lip's when its tet is in
+    ``lower_tets`` ((n_tets,) bool; ``wface.speech.artisynth_demo.ooml_exciter_tets`` gives the exciter's own
+    targets) or, without it, when its tet's centroid lies nearer a node of the lower lip's collision surface
+    (surface group ``lower_lip``) than one of the upper lip's. The new muscles keep their side's strength and own
+    curves (``Material.muscle_curves``); the FACS table is not changed. Played with every OOM part at one
+    activation the model is the one it was."""
     missing = [
         n for n in (*LOWER_OOM, "upper_lip", "lower_lip") if n not in (*model.muscle_names, *model.surface_groups)
     ]
     if missing:
         raise ValueError(f"with_lower_oom needs the Badin face's OOM_l, OOM_r and lip surfaces; missing {missing}")
-    x = model.rest_positions_m
-    centroid = x[model.tets[model.fibre_tet]].mean(axis=1)
-    d_up, _ = cKDTree(x[np.unique(model.surface_groups["upper_lip"])]).query(centroid)
-    d_low, _ = cKDTree(x[np.unique(model.surface_groups["lower_lip"])]).query(centroid)
+    if lower_tets is None:
+        x = model.rest_positions_m
+        centroid = x[model.tets[model.fibre_tet]].mean(axis=1)
+        d_up, _ = cKDTree(x[np.unique(model.surface_groups["upper_lip"])]).query(centroid)
+        d_low, _ = cKDTree(x[np.unique(model.surface_groups["lower_lip"])]).query(centroid)
+        in_lower = d_low < d_up
+    else:
+        lower_tets = np.asarray(lower_tets, dtype=bool)
+        if lower_tets.shape != (len(model.tets),):
+            raise ValueError(f"lower_tets: expected ({len(model.tets)},) bools, one per tet, got {lower_tets.shape}")
+        in_lower = lower_tets[model.fibre_tet]
     names, muscle = list(model.muscle_names), model.fibre_muscle.copy()
     strength, curves = list(model.muscle_strength), dict(model.material.muscle_curves)
     for side, lower in LOWER_OOM.items():
         i = names.index(side)
-        muscle[(model.fibre_muscle == i) & (d_low < d_up)] = len(names)
+        muscle[(model.fibre_muscle == i) & in_lower] = len(names)
         names.append(lower)
         strength.append(model.muscle_strength[i])
         if side in curves:
