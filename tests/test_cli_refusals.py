@@ -100,6 +100,16 @@ def test_another_speech_gesture_is_another_take():
     assert not same_take(closure, approximant) and same_take(closure, tighter)
 
 
+def test_provenance_leaves_the_parsers_bookkeeping_out():
+    """The option defaults a parser keeps to tell which options were given are not options of the run."""
+    face = build_face(1000)
+    args = argparse.Namespace(
+        gesture="closure", tol=1e-4, dynamic_option_defaults={"scheme": "euler"}, contact_option_defaults={"a": 1}
+    )
+    options = command_provenance("speech", face, args)["options"]
+    assert options == {"tol": 1e-4}
+
+
 def test_model_build_counts_the_pressure_actuator_apart(tmp_path, capsys):
     code, text = _cli(["model", "build", "--tets", "1000", "--out", tmp_path / "f.npz"], capsys)
     assert code == 0 and "35 muscles and 1 pressure actuator" in text

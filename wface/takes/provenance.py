@@ -141,7 +141,8 @@ _NOT_OPTIONS = (
     "no_movie",
     "no_usd",
     "dynamic_option_defaults",
-)
+    "contact_option_defaults",
+)  # parser bookkeeping (the defaults that say which options were given), not options
 _SOURCE_KEYS = (
     "take", "model", "tets", "mocap", "from_", "to", "mix", "expression", "add", "activation", "frames", "gesture",
     "speech_dir",
