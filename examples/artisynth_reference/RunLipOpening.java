@@ -441,11 +441,13 @@ public class RunLipOpening {
 
    /**
     * Moves every muscle element descriptor whose element is a key of {@code children} onto those tets, one
-    * descriptor per tet with the element's fibre direction; descriptors of other elements stay. Returns
-    * the number of descriptors made.
+    * descriptor per tet with the element's fibre direction; descriptors of other elements stay. An exciter's
+    * target moves with it (until 2026-12-07 the exciters kept the removed descriptors, so OOMl drove nothing
+    * on tets). Returns the number of descriptors made.
     */
    static int moveMuscles (FemMuscleModel face, java.util.Map<FemElement3d, java.util.List<TetElement>> children) {
       int made = 0;
+      java.util.Map<MuscleElementDesc, java.util.List<MuscleElementDesc>> movedTo = new java.util.HashMap<> ();
       for (MuscleBundle bundle : face.getMuscleBundles ()) {
          java.util.ArrayList<MuscleElementDesc> descs = new java.util.ArrayList<> ();
          for (MuscleElementDesc desc : bundle.getElements ()) {
@@ -461,12 +463,28 @@ public class RunLipOpening {
                throw new IllegalStateException ("muscle element of " + bundle.getName () + " has no single direction");
             }
             bundle.getElements ().remove (desc);
+            java.util.List<MuscleElementDesc> made_here = new java.util.ArrayList<> ();
             for (TetElement tet : tets) {
                MuscleElementDesc d = new MuscleElementDesc ();
                d.setElement (tet);
                d.setDirection (new maspack.matrix.Vector3d (direction));
                bundle.addElement (d);
+               made_here.add (d);
                made++;
+            }
+            movedTo.put (desc, made_here);
+         }
+      }
+      // an exciter that targets a moved descriptor (OOMl: 232 of OOM's) targets its tets' instead, at its gain
+      for (artisynth.core.mechmodels.MuscleExciter x : face.getMuscleExciters ()) {
+         for (int k = x.numTargets () - 1; k >= 0; k--) {
+            java.util.List<MuscleElementDesc> to = movedTo.get (x.getTarget (k));
+            if (to != null) {
+               double gain = x.getGain (k);
+               x.removeTarget (x.getTarget (k));
+               for (MuscleElementDesc d : to) {
+                  x.addTarget (d, gain);
+               }
             }
          }
       }

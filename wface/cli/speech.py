@@ -44,7 +44,8 @@ as ArtiSynth's BadinFaceDemoLipOpening (its ten OOP rings, muscle stress 1e5 Pa,
 its flesh law and deviatoric fibre stress; --idle-muscles off: the muscles the gesture never drives carry
 no fibres, as there; --muscle-curves artisynth: BlemkerMuscle's curves on OOP and GenericMuscle's, with no
 force-length curve and no passive stress, on the others, as there; --muscle-elements artisynth: every other
-muscle on the demo's own whole hexes). Writes report.json, lip_opening.csv and .png, the
+muscle on the demo's own whole hexes; --lower-oom exciter: the exciter OOMl on exactly its 232 target
+hexes, the lower lip's part of OOM). Writes report.json, lip_opening.csv and .png, the
 aperture pictures of the first and last frames, states.npz (every frame's node positions, markers
 and activations: np.load) and animation.usdc.
 
@@ -60,6 +61,9 @@ examples:
       --exact-damping --contact lips,skull --contact-inside-at-rest push --out as_demo   # nearest ArtiSynth's demo
   wface speech --model badin.npz --gesture closure --setup artisynth --muscle-curves artisynth --dynamic \\
       --exact-damping --contact lips,skull --contact-inside-at-rest push --out closure_as   # its muscle laws
+  wface speech --model badin.npz --gesture fricative --setup artisynth --muscle-curves artisynth \\
+      --muscle-elements artisynth --lower-oom exciter --dynamic --exact-damping --contact lips,skull \\
+      --contact-inside-at-rest push --out fricative_as   # ArtiSynth's muscles, elements and exciter
 """
 
 
