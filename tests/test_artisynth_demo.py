@@ -273,10 +273,10 @@ def test_the_demos_own_muscle_elements(badin_model, demo):
 def test_the_oomi_exciters_own_targets(badin_model, demo):
     """ooml_exciter_tets: the OOMl exciter's targets (exciters/OOMl.art, positions in the OOM bundle's element list)
     are 232 of OOM's 704 hexes. ArtiSynth's own exciter, dumped by RunLipOpening -Dlip.muscles, targets elements 13,
-    14, 15, ... 21, 29 first: the OOM list's positions 7-15 and 23. Every target lies in the lower lip: the split by the
-    lips' surfaces (with_lower_oom's default) holds them all and tets of 69 hexes more, at the mouth's corners. The split
-    model's OOMl muscles sit on exactly those tets (OOM on the demo's own elements)."""
-    from wface.speech.artisynth_demo import _tets_in_hexes, _hex_elements, face_hexes, ooml_exciter_tets
+    14, 15, ... 21, 29 first: the OOM list's positions 7-15 and 23. Every target lies in the lower lip: the split by
+    the lips' surfaces (with_lower_oom's default) holds them all and tets of 69 hexes more, at the mouth's corners.
+    The split model's OOMl muscles sit on exactly those tets (OOM on the demo's own elements)."""
+    from wface.speech.artisynth_demo import _hex_elements, _tets_in_hexes, face_hexes, ooml_exciter_tets
     from wface.speech.gestures import with_lower_oom
 
     data = data_path("artisynth-face")
