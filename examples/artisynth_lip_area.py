@@ -7,8 +7,10 @@ the occluders the boundary of ArtiSynth's own hex mesh) and sets each run's curv
 recorded output (``speech/approximant/lip_opening_area.txt``) and, optionally, wface's own curves
 (``lip_opening.csv`` from ``wface speech --out DIR``). wface's own play on ArtiSynth's hexes
 (``states.npz`` from ``examples/badin_hexes_play.py``, ``--hexes``) is measured as ArtiSynth's runs are,
-on the same nodes and boundary; ``--lip-nodes`` gives the mean distance of the lip collision surfaces'
-nodes between every two runs at chosen times. See README.md, "ArtiSynth itself, run headless".
+on the same nodes and boundary, and so is a ``wface speech`` run on the import's tets (its ``states.npz``,
+``--tets``: the node file's nodes, which the import keeps first, measured on ArtiSynth's hex boundary);
+``--lip-nodes`` gives the mean distance of the lip collision surfaces' nodes between every two runs at chosen
+times. See README.md, "ArtiSynth itself, run headless".
 
     python examples/artisynth_lip_area.py as_shipped=nodes_all.txt no_contact=nodes_none.txt \\
         --data ../shared/data/artisynth-face --out out/artisynth_runs
@@ -16,6 +18,8 @@ nodes between every two runs at chosen times. See README.md, "ArtiSynth itself, 
         --data ../shared/data/artisynth-face --out out/artisynth_runs
     python examples/artisynth_lip_area.py demo=nodes_all.txt --hexes "wface, hexes"=hexplay/states.npz \\
         --lip-nodes 0.28 0.44 0.6 --data ../shared/data/artisynth-face --out out/hexes
+    python examples/artisynth_lip_area.py fricative=nodes_fricative.txt --tets "wface, tets"=fricative/states.npz \\
+        --lip-nodes 0.4 0.6 --gesture fricative --data ../shared/data/artisynth-face --out out/tets
 
 Writes ``artisynth_lip_area.json`` (per run and frame: area, its discretisation error, the aperture's
 width and height; per run: area at rest, before the excitation and over t >= 0.6 s, when it first falls
@@ -85,6 +89,19 @@ def read_hex_states(path: str | Path, n_nodes: int) -> tuple[np.ndarray, np.ndar
     if x.shape[1] != n_nodes:
         raise ValueError(f"{path}: {x.shape[1]} hex nodes, the mesh has {n_nodes}")
     return np.asarray(t, dtype=np.float64), np.full(len(t), np.nan), x @ BADIN_TO_WFACE  # the inverse rotation
+
+
+def read_speech_states(path: str | Path, n_nodes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(times (F,) s, OOP (F,) NaN, node positions (F, n, 3) m, Badin frame) of a ``wface speech`` run on the
+    import's tets (its states.npz): the first ``n_nodes`` nodes, the node file's, which the import keeps first in
+    the file's order."""
+    with np.load(path) as s:
+        if "node_positions_m" not in s:
+            raise ValueError(f"{path}: no node_positions_m (a states.npz from wface speech?)")
+        x, t = s["node_positions_m"], s["times_s"]
+    if x.shape[1] < n_nodes:
+        raise ValueError(f"{path}: {x.shape[1]} nodes, fewer than the node file's {n_nodes}: not a Badin import")
+    return np.asarray(t, dtype=np.float64), np.full(len(t), np.nan), x[:, :n_nodes] @ BADIN_TO_WFACE
 
 
 def lip_node_distances(runs: dict, near: np.ndarray, times_s) -> dict:
@@ -173,6 +190,8 @@ def plot(runs: dict, wface_curves: dict, reference: np.ndarray | None, path: Pat
     for label, run in runs.items():
         if run.get("source") == "wface on the hexes":
             ax.plot(run["times_s"], run["area_mm2"], "-.", lw=1.8, label=f"wface: {label}")
+        elif run.get("source") == "wface on its tets":
+            ax.plot(run["times_s"], run["area_mm2"], "--", lw=1.6, label=f"wface: {label}")
         else:
             ax.plot(run["times_s"], run["area_mm2"], lw=1.6, label=f"ArtiSynth run here: {label}")
     for label, (t, a) in wface_curves.items():
@@ -202,12 +221,18 @@ def _labelled(spec: str, what: str) -> tuple[str, Path]:
     return label, Path(path)
 
 
+_SOURCES = {read_node_dump: "ArtiSynth", read_hex_states: "wface on the hexes", read_speech_states: "wface on its tets"}
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+", help="[LABEL=]NODES.txt: RunLipOpening dumps (label: the file name)")
     ap.add_argument("--data", type=Path, required=True, help="the ArtiSynth Badin face data folder")
     ap.add_argument("--wface", action="append", default=[], help="[LABEL=]lip_opening.csv from wface speech")
     ap.add_argument("--hexes", action="append", default=[], help="[LABEL=]states.npz from badin_hexes_play.py")
+    ap.add_argument(
+        "--tets", action="append", default=[], help="[LABEL=]states.npz from wface speech on the Badin import"
+    )
     ap.add_argument("--lip-nodes", type=float, nargs="+", default=[], help="times (s) of lip-node distances")
     ap.add_argument("--resolution-mm", type=float, default=0.05, help="scanline spacing of the area measure")
     ap.add_argument(
@@ -219,6 +244,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = ap.parse_args(argv)
     runs_in = [(*_labelled(s, "run"), read_node_dump) for s in args.runs]
     runs_in += [(*_labelled(s, "--hexes"), read_hex_states) for s in args.hexes]
+    runs_in += [(*_labelled(s, "--tets"), read_speech_states) for s in args.tets]
     wface_curves = {label: read_wface_curve(p) for label, p in (_labelled(s, "--wface") for s in args.wface)}
     numbers, x_rest = read_ansys_nodes(args.data / f"{MESH_PREFIX}.node")
     index_of = np.full(int(numbers.max()) + 1, -1, dtype=np.int64)
@@ -240,7 +266,7 @@ def main(argv: list[str] | None = None) -> dict:
             "dump": str(path),
             "times_s": times.tolist(),
             "oop": None if np.isnan(oop).all() else oop.tolist(),
-            "source": "wface on the hexes" if read is read_hex_states else "ArtiSynth",
+            "source": _SOURCES[read],
             "area_mm2": area[:, 0].tolist(),
             "error_mm2": area[:, 1].tolist(),
             "width_mm": area[:, 2].tolist(),

@@ -152,6 +152,27 @@ def test_hex_states_are_measured_as_artisynth_runs_with_lip_node_distances(rest_
     assert report["lip_node_distance_mm"]["dump / rest"]["0.01"] == pytest.approx(1.0, abs=1e-6)
 
 
+def test_speech_states_on_the_tets_are_measured_on_the_file_nodes(rest_dump, tmp_path):
+    """--tets: a wface speech run on the import (states.npz: every node, the node file's first, wface's frame) is
+    measured on the node file's nodes, as the dumps are; a states.npz with fewer nodes is refused."""
+    from wface.faces.artisynth import badin_to_wface
+
+    data, path, n = rest_dump
+    ex = _example("artisynth_lip_area")
+    times, _, X = ex.read_node_dump(path, n)
+    extra = np.full((len(times), 7, 3), 9.0)  # the nodes the import adds after the file's
+    x = np.concatenate([np.stack([badin_to_wface(f) for f in X]), extra], axis=1)
+    states = tmp_path / "states.npz"
+    np.savez(states, node_positions_m=x, times_s=times)
+    with pytest.raises(ValueError, match="fewer than the node file's"):
+        ex.read_speech_states(states, n + 8)
+    report = ex.main([f"dump={path}", "--tets", f"tets={states}", "--lip-nodes", "0.01"] + [
+        "--data", str(data), "--out", str(tmp_path)])  # fmt: skip
+    np.testing.assert_allclose(report["runs"]["tets"]["area_mm2"], report["runs"]["dump"]["area_mm2"], atol=1e-6)
+    assert report["runs"]["tets"]["source"] == "wface on its tets"
+    assert report["lip_node_distance_mm"]["dump / tets"]["0.01"] < 1e-6
+
+
 def test_export_wface_tets_writes_the_import_back_in_the_badin_frame(tmp_path):
     """examples/artisynth_reference/export_wface_tets.py: the file RunLipOpening -Dlip.mesh reads."""
     from types import SimpleNamespace
