@@ -112,36 +112,54 @@ class PointBinding:
         return out
 
 
-def _box_pairs(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
-    """(point ids, box ids) of every axis-aligned box (lo, hi: (m, 3)) that holds a point, found through a uniform
-    grid of cells over the boxes. The cell is the boxes' median size, doubled until the boxes cover at most 64
+@dataclass
+class _BoxGrid:
+    """A uniform grid of cells over axis-aligned boxes (lo, hi: (m, 3)), each box listed in every cell it covers
+    (``box`` sorted by cell ``key``). The cell is the boxes' median size, doubled until the boxes cover at most 64
     cells each on average (a few huge boxes must not fill memory)."""
-    origin = lo.min(axis=0) - tol
-    h = max(float(np.median((hi - lo).max(axis=1))), 1e-12)
-    while True:
-        i0 = np.floor((lo - tol - origin) / h).astype(np.int64)
-        span = np.floor((hi + tol - origin) / h).astype(np.int64) - i0 + 1
-        count = span.prod(axis=1)
-        if count.sum() <= 64 * len(lo):
-            break
-        h *= 2.0
-    dims = (i0 + span).max(axis=0)
-    box = np.repeat(np.arange(len(lo)), count)
-    local = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-    sy, sz = span[box, 1], span[box, 2]
-    cell = i0[box] + np.column_stack([local // (sy * sz), (local // sz) % sy, local % sz])
-    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
-    order = np.argsort(key, kind="stable")
-    key, box = key[order], box[order]
-    pc = np.floor((points - origin) / h).astype(np.int64)
-    valid = np.all((pc >= 0) & (pc < dims), axis=1)
-    pkey = (pc[:, 0] * dims[1] + pc[:, 1]) * dims[2] + pc[:, 2]
-    first = np.searchsorted(key, pkey, side="left")
-    n = np.where(valid, np.searchsorted(key, pkey, side="right") - first, 0)
-    pid = np.repeat(np.arange(len(points)), n)
-    cand = box[np.repeat(first, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
-    inside = np.all((points[pid] >= lo[cand] - tol) & (points[pid] <= hi[cand] + tol), axis=1)
-    return pid[inside], cand[inside]
+
+    lo: np.ndarray
+    hi: np.ndarray
+    tol: float
+    origin: np.ndarray
+    h: float
+    dims: np.ndarray
+    key: np.ndarray
+    box: np.ndarray
+
+    @classmethod
+    def build(cls, lo: np.ndarray, hi: np.ndarray, tol: float) -> _BoxGrid:
+        origin = lo.min(axis=0) - tol
+        h = max(float(np.median((hi - lo).max(axis=1))), 1e-12)
+        while True:
+            i0 = np.floor((lo - tol - origin) / h).astype(np.int64)
+            span = np.floor((hi + tol - origin) / h).astype(np.int64) - i0 + 1
+            count = span.prod(axis=1)
+            if count.sum() <= 64 * len(lo):
+                break
+            h *= 2.0
+        dims = (i0 + span).max(axis=0)
+        box = np.repeat(np.arange(len(lo)), count)
+        local = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+        sy, sz = span[box, 1], span[box, 2]
+        cell = i0[box] + np.column_stack([local // (sy * sz), (local // sz) % sy, local % sz])
+        key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+        order = np.argsort(key, kind="stable")
+        return cls(lo, hi, tol, origin, h, dims, key[order], box[order])
+
+    def pairs(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(point ids, box ids) of every box that holds a point."""
+        dims = self.dims
+        pc = np.floor((points - self.origin) / self.h).astype(np.int64)
+        valid = np.all((pc >= 0) & (pc < dims), axis=1)
+        pkey = (pc[:, 0] * dims[1] + pc[:, 1]) * dims[2] + pc[:, 2]
+        first = np.searchsorted(self.key, pkey, side="left")
+        n = np.where(valid, np.searchsorted(self.key, pkey, side="right") - first, 0)
+        pid = np.repeat(np.arange(len(points)), n)
+        cand = self.box[np.repeat(first, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
+        lo, hi, tol = self.lo[cand], self.hi[cand], self.tol
+        inside = np.all((points[pid] >= lo - tol) & (points[pid] <= hi + tol), axis=1)
+        return pid[inside], cand[inside]
 
 
 def _barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
@@ -153,7 +171,7 @@ def _barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
 
 def containing_tets(points, x, tets, k: int = 16, *, nearest: bool = False):
     """(tet id or -1, (n, 4) weights) of the tet containing each point: every tet whose bounding box holds the point
-    is tested (``_box_pairs``), so a large tet among small ones is found; a point on a face shared by several tets
+    is tested (``_BoxGrid``), so a large tet among small ones is found; a point on a face shared by several tets
     takes the one whose centroid is nearest.
 
     ``nearest``: a point in no tet takes, among the ``k`` tets with the nearest centroids, the one it is least
@@ -170,8 +188,9 @@ def containing_tets(points, x, tets, k: int = 16, *, nearest: bool = False):
     if not len(tets) or not len(points):
         return found, weights
     centroid = corners.mean(axis=1)
+    grid = _BoxGrid.build(lo, hi, tol)
     for s in range(0, len(points), 65536):  # bounded memory
-        pid, cand = _box_pairs(points[s : s + 65536], lo, hi, tol)
+        pid, cand = grid.pairs(points[s : s + 65536])
         pid = pid + s
         w = _barycentric(points[pid], corners[cand])
         hit = w.min(axis=1) >= -_INSIDE_TOL

@@ -94,8 +94,6 @@ class ArtisynthDynamics:
 
 ARTISYNTH_DYNAMICS = ArtisynthDynamics()
 
-# geometry/oop/<ring>_elements.txt of artisynth_models (licence in the module docstring)
-
 
 def _hex_elements(data_dir: Path) -> tuple[np.ndarray, np.ndarray]:
     """(ANSYS element numbers (m,), hexes as ANSYS node numbers (m, 8)) of the face mesh."""
@@ -244,17 +242,25 @@ def attached_fibres(model: FaceModel, fibres: dict[str, list[np.ndarray]]) -> di
     onto the nearest element's surface (``findElementForMarker``, project=true); a point inside stays. On the Badin
     face 60 of the 232 fibre points lie in no element, up to 4 mm out (BUC's). Here the surface is the model's
     boundary (the hexes' faces split into triangles), so a projected point lies within 0.5 mm of ArtiSynth's (its
-    hex faces are bilinear; ``RunLipOpening -Dlip.directions`` dumps its fibres). The k nearest tets searched for
-    the one holding a point are many (256), because the Badin tets range from 0.1 to 10 mm."""
+    hex faces are bilinear; ``RunLipOpening -Dlip.directions`` dumps its fibres)."""
     x = model.rest_positions_m
     points = np.concatenate([np.concatenate(polys) for polys in fibres.values()])
-    tet, _ = containing_tets(points, x, model.tets, k=256)
+    tet, _ = containing_tets(points, x, model.tets)
     out = points.copy()
     outside = np.flatnonzero(tet < 0)
     if outside.size:
         out[outside] = SurfaceQuery(x, boundary_faces(model.tets)).closest(points[outside]).point_m
     pieces = iter(np.split(out, np.cumsum([len(p) for polys in fibres.values() for p in polys])[:-1]))
     return {name: [next(pieces) for _ in polys] for name, polys in fibres.items()}
+
+
+def _demo_hexes(model: FaceModel, data_dir: Path):
+    """(the fibres where ArtiSynth attaches them, (m, 8) face hexes, (m, 3) hex centres: their nodes' mean, a
+    wedge's six) of the demo's muscle-element choice."""
+    fibres = attached_fibres(model, badin_muscle_fibres(data_dir))
+    hexes = face_hexes(data_dir)
+    x = model.rest_positions_m
+    return fibres, hexes, np.array([x[np.unique(h)].mean(axis=0) for h in hexes])
 
 
 def _bundle_segments(fibres: dict[str, list[np.ndarray]], bundle: str):
@@ -278,11 +284,7 @@ def ooml_exciter_tets(model: FaceModel, data_dir: str | Path, *, thickness_m: fl
     ``demo_muscle_entries`` chooses, in the mesh's order (704 on the Badin face, ArtiSynth's own list). On the Badin
     face 232 hexes, all in the lower lip; ``with_lower_oom``'s split by the lips' surfaces takes these and tets of 69
     hexes more, at the mouth's corners."""
-    data_dir = Path(data_dir)
-    fibres = attached_fibres(model, badin_muscle_fibres(data_dir))
-    hexes = face_hexes(data_dir)
-    x = model.rest_positions_m
-    centre = np.array([x[np.unique(h)].mean(axis=0) for h in hexes])
+    fibres, hexes, centre = _demo_hexes(model, Path(data_dir))
     _, _, a, b = _bundle_segments(fibres, "OOM")
     oom, _ = _near_fibres(centre, a, b, thickness_m)
     if max(OOML_EXCITER_TARGETS) >= len(oom):
@@ -292,7 +294,7 @@ def ooml_exciter_tets(model: FaceModel, data_dir: str | Path, *, thickness_m: fl
         )
     target = np.zeros(len(hexes), dtype=bool)
     target[oom[list(OOML_EXCITER_TARGETS)]] = True
-    owner = _tets_in_hexes(model, hexes, x)
+    owner = _tets_in_hexes(model, hexes, model.rest_positions_m)
     return (owner >= 0) & target[np.maximum(owner, 0)]
 
 
@@ -312,14 +314,12 @@ def demo_muscle_entries(
     MENT 92 / 92, RIS 215 / 216, LLS 102 / 102, LLSAN 152 / 152, DAO 60 / 60, DLI 121 / 120, LAO 76 / 74, ZYG 50 /
     50, BUC 61 / 60, all of theirs here but one RIS and one BUC hex (with the fibres' points as the data has them:
     OOM 698, MENT 90, LLSAN 148, DLI 118, BUC 22). The directions agree (median 0 degrees) but for hexes whose
-    Delaunay tet is not unique: mirror-image fibres put four midpoints on one sphere, and ArtiSynth's TetGen picks
-    another of the tets than Qhull (OOM: 120 of 704 hexes more than 5 degrees apart, MENT 12, the rest at most 3).
+    Delaunay tet is not unique: mirror-image fibres put four midpoints on one sphere up to rounding, ArtiSynth's
+    pick is made by that rounding (docs/design.md) and Qhull's is another (OOM: 120 of 704 hexes more than 5 degrees
+    apart, MENT 12, the rest at most 3).
     """
-    fibres = attached_fibres(model, badin_muscle_fibres(data_dir))
-    hexes = face_hexes(data_dir)
-    x = model.rest_positions_m
-    centre = np.array([x[np.unique(h)].mean(axis=0) for h in hexes])
-    owner = _tets_in_hexes(model, hexes, x)
+    fibres, hexes, centre = _demo_hexes(model, Path(data_dir))
+    owner = _tets_in_hexes(model, hexes, model.rest_positions_m)
     in_hex = np.flatnonzero(owner >= 0)
     out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     bundles = dict.fromkeys(n.rsplit("_", 1)[0] if n[-2:] in ("_l", "_r") else n for n in fibres)
