@@ -111,6 +111,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         mu01: S,
         mu20: S,
         kappa: S,
+        kq: S,
         clamp: S,
         fibre_law: int,
         muscle_curves: wp.array(dtype=wp.int32),
@@ -129,7 +130,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         t = wp.tid()
         Dmi = dm_inv[t]
         F = deformation_gradient(x, tets, Dmi, t)
-        energy, P = flesh_stress(F, mu10, mu01, mu20, kappa, clamp)
+        energy, P = flesh_stress(F, mu10, mu01, mu20, kappa, kq, clamp)
         for e in range(entry_start[t], entry_start[t + 1]):
             d = entry_direction[e]
             m = entry_muscle[e]
@@ -159,6 +160,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         mu01: S,
         mu20: S,
         kappa: S,
+        kq: S,
         clamp: S,
         fibre_law: int,
         muscle_curves: wp.array(dtype=wp.int32),
@@ -175,7 +177,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         """Per-tet energy V0 (psi_ext(s) + sum over fibre entries of W)."""
         t = wp.tid()
         F = deformation_gradient(x, tets, dm_inv[t], t)
-        energy = flesh_energy(F, mu10, mu01, mu20, kappa, clamp)
+        energy = flesh_energy(F, mu10, mu01, mu20, kappa, kq, clamp)
         for e in range(entry_start[t], entry_start[t + 1]):
             lam = wp.length(F * entry_direction[e])
             if fibre_law != 0:
@@ -311,6 +313,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         mu01: S,
         mu20: S,
         kappa: S,
+        kq: S,
         clamp: S,
         fibre_law: int,
         muscle_curves: wp.array(dtype=wp.int32),
@@ -333,7 +336,7 @@ def fem_kernels(dtype):  # noqa: C901 - one closure per scalar type keeps both v
         s = vec3()
         V = mat33()
         wp.svd3(F, U, s, V)
-        psi, G, A = flesh_response(s, mu10, mu01, mu20, kappa, clamp)
+        psi, G, A = flesh_response(s, mu10, mu01, mu20, kappa, kq, clamp)
         if fibre_law != 0:  # the fibres' isotropic part T lam d2 phi(J) joins the flesh's modes
             c_iso = S(0.0)
             for e in range(entry_start[t], entry_start[t + 1]):

@@ -105,7 +105,40 @@ def flesh_functions(dtype):
         return mu20 * u * u, c * u * du, H, Tc
 
     @wp.func
-    def flesh_derivatives(sh: vec3, delta: vec3, mu10: S, mu01: S, mu20: S, kappa: S, order: int):
+    def quadratic_bulk_derivatives(sh: vec3, delta: vec3, inv: vec3, kq: S, order: int):
+        """kq/2 (J - 1)^2 (J = prod s^_i) at s^: value, gradient, Hessian (order >= 2) and third
+        derivative contracted with delta (order >= 3), from J_i = J / s_i, J_ij = J / (s_i s_j) (i != j)
+        and J_ijl = J / (s_i s_j s_l) (i, j, l distinct), the others 0 (module docstring)."""
+        J = sh[0] * sh[1] * sh[2]
+        up = kq * (J - S(1.0))  # U'(J); U'' = kq, U''' = 0
+        Ji = vec3(J * inv[0], J * inv[1], J * inv[2])
+        g = up * Ji
+        H = mat33()
+        Tc = mat33()
+        if order >= 2:
+            for i in range(3):
+                for j in range(3):
+                    jij = S(0.0)
+                    if i != j:
+                        jij = Ji[i] * inv[j]
+                    H[i, j] = kq * Ji[i] * Ji[j] + up * jij
+                    if order >= 3:
+                        for l in range(3):
+                            jil = S(0.0)
+                            jjl = S(0.0)
+                            jijl = S(0.0)
+                            if i != l:
+                                jil = Ji[i] * inv[l]
+                            if j != l:
+                                jjl = Ji[j] * inv[l]
+                            if i != j and i != l and j != l:
+                                jijl = jij * inv[l]
+                            t = kq * (jil * Ji[j] + Ji[i] * jjl + jij * Ji[l]) + up * jijl
+                            Tc[j, l] = Tc[j, l] + delta[i] * t
+        return S(0.5) * kq * (J - S(1.0)) * (J - S(1.0)), g, H, Tc
+
+    @wp.func
+    def flesh_derivatives(sh: vec3, delta: vec3, mu10: S, mu01: S, mu20: S, kappa: S, kq: S, order: int):
         """psi, gradient, Hessian (order >= 2) at s^ (all > 0), and the third derivative contracted
         with delta (order >= 3); higher-order outputs are zero when not requested."""
         psi = S(-3.0) * (mu10 + mu01)
@@ -158,6 +191,12 @@ def flesh_functions(dtype):
                                 if i == l:
                                     t = t + S(2.0) * kappa * L * inv[i] * inv[i] * inv[i]
                             Tc[j, l] = Tc[j, l] + delta[i] * t
+        if kq != S(0.0):
+            pq, gq, Hq, Tq = quadratic_bulk_derivatives(sh, delta, inv, kq, order)
+            psi = psi + pq
+            g = g + gq
+            H = H + Hq
+            Tc = Tc + Tq
         if mu20 != S(0.0):
             p20, g20, H20, T20 = c20_derivatives(sh, delta, j23, inv, mu20, order)
             psi = psi + p20
@@ -176,13 +215,13 @@ def flesh_functions(dtype):
         return sh, delta
 
     @wp.func
-    def flesh_gradient_s(s: vec3, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
+    def flesh_gradient_s(s: vec3, mu10: S, mu01: S, mu20: S, kappa: S, kq: S, clamp: S):
         """psi_ext and its gradient G in singular values."""
         sh, delta = clamp_values(s, clamp)
         order = 1
         if delta[0] != S(0.0) or delta[1] != S(0.0) or delta[2] != S(0.0):
             order = 2
-        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, mu20, kappa, order)
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, mu20, kappa, kq, order)
         G = g
         Hd = H * delta
         for j in range(3):
@@ -191,7 +230,7 @@ def flesh_functions(dtype):
         return psi + wp.dot(g, delta), G
 
     @wp.func
-    def flesh_invariants(F: mat33, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
+    def flesh_invariants(F: mat33, mu10: S, mu01: S, mu20: S, kappa: S, kq: S, clamp: S):
         """(ok, psi, P) from the invariants of F (module docstring); ok = 0 where the singular values
         may reach below ``clamp`` (then psi = 0, P = 0: use the SVD)."""
         J = wp.determinant(F)
@@ -209,33 +248,36 @@ def flesh_functions(dtype):
         d1 = j23 * (S(2.0) * F - S(C2_3) * I1 * finv_t)
         d2 = (j23 * j23) * (S(2.0) * (I1 * F - FC) - S(C4_3) * I2 * finv_t)
         P = (mu10 + S(2.0) * mu20 * u) * d1 + mu01 * d2 + (kappa * L) * finv_t
+        if kq != S(0.0):  # kq/2 (J - 1)^2: dJ/dF = J F^-T
+            psi = psi + S(0.5) * kq * (J - S(1.0)) * (J - S(1.0))
+            P = P + (kq * (J - S(1.0)) * J) * finv_t
         return 1, psi, P
 
     @wp.func
-    def flesh_stress_svd(F: mat33, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
+    def flesh_stress_svd(F: mat33, mu10: S, mu01: S, mu20: S, kappa: S, kq: S, clamp: S):
         """(psi_ext, P = U diag(G) V^T) by the signed SVD: the path near and past inversion."""
         U = mat33()
         s = vec3()
         V = mat33()
         wp.svd3(F, U, s, V)
-        psi, G = flesh_gradient_s(s, mu10, mu01, mu20, kappa, clamp)
+        psi, G = flesh_gradient_s(s, mu10, mu01, mu20, kappa, kq, clamp)
         return psi, U * wp.diag(G) * wp.transpose(V)
 
     @wp.func
-    def flesh_stress(F: mat33, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
+    def flesh_stress(F: mat33, mu10: S, mu01: S, mu20: S, kappa: S, kq: S, clamp: S):
         """(psi_ext, P = d psi_ext / dF) of the flesh at F: the invariants where no singular value is
         near the clamp, else the signed SVD (module docstring)."""
-        ok, psi, P = flesh_invariants(F, mu10, mu01, mu20, kappa, clamp)
+        ok, psi, P = flesh_invariants(F, mu10, mu01, mu20, kappa, kq, clamp)
         if ok == 0:
-            psi, P = flesh_stress_svd(F, mu10, mu01, mu20, kappa, clamp)
+            psi, P = flesh_stress_svd(F, mu10, mu01, mu20, kappa, kq, clamp)
         return psi, P
 
     @wp.func
-    def flesh_energy(F: mat33, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
+    def flesh_energy(F: mat33, mu10: S, mu01: S, mu20: S, kappa: S, kq: S, clamp: S):
         """psi_ext at F: the invariants where no singular value is near the clamp, else the SVD."""
-        ok, psi, P = flesh_invariants(F, mu10, mu01, mu20, kappa, clamp)
+        ok, psi, P = flesh_invariants(F, mu10, mu01, mu20, kappa, kq, clamp)
         if ok == 0:
-            psi, P = flesh_stress_svd(F, mu10, mu01, mu20, kappa, clamp)
+            psi, P = flesh_stress_svd(F, mu10, mu01, mu20, kappa, kq, clamp)
         return psi
 
     @wp.kernel(module="unique", enable_backward=False)
@@ -246,6 +288,7 @@ def flesh_functions(dtype):
         mu01: S,
         mu20: S,
         kappa: S,
+        kq: S,
         clamp: S,
         # Out:
         ok_out: wp.array(dtype=wp.int32),
@@ -256,11 +299,11 @@ def flesh_functions(dtype):
     ):
         """Both evaluations of the flesh stress at F (tests: they agree wherever the invariants apply)."""
         i = wp.tid()
-        ok, psi, P = flesh_invariants(F[i], mu10, mu01, mu20, kappa, clamp)
+        ok, psi, P = flesh_invariants(F[i], mu10, mu01, mu20, kappa, kq, clamp)
         ok_out[i] = ok
         psi_inv_out[i] = psi
         P_inv_out[i] = P
-        psi_s, P_s = flesh_stress_svd(F[i], mu10, mu01, mu20, kappa, clamp)
+        psi_s, P_s = flesh_stress_svd(F[i], mu10, mu01, mu20, kappa, kq, clamp)
         psi_svd_out[i] = psi_s
         P_svd_out[i] = P_s
 
@@ -284,13 +327,13 @@ def flesh_functions(dtype):
         V_out[t] = V
 
     @wp.func
-    def flesh_response(s: vec3, mu10: S, mu01: S, mu20: S, kappa: S, clamp: S):
+    def flesh_response(s: vec3, mu10: S, mu01: S, mu20: S, kappa: S, kq: S, clamp: S):
         """psi_ext, its gradient G and Hessian A in the signed singular values s."""
         sh, delta = clamp_values(s, clamp)
         order = 2
         if delta[0] != S(0.0) or delta[1] != S(0.0) or delta[2] != S(0.0):
             order = 3
-        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, mu20, kappa, order)
+        psi, g, H, Tc = flesh_derivatives(sh, delta, mu10, mu01, mu20, kappa, kq, order)
         G = g
         Hd = H * delta
         A = mat33()
@@ -314,6 +357,7 @@ def flesh_functions(dtype):
         mu01: S,
         mu20: S,
         kappa: S,
+        kq: S,
         clamp: S,
         # Out:
         psi_out: wp.array(dtype=S),
@@ -322,7 +366,7 @@ def flesh_functions(dtype):
     ):
         """The flesh energy density psi_ext(s), its gradient and Hessian (tests, plots)."""
         i = wp.tid()
-        psi, G, A = flesh_response(s[i], mu10, mu01, mu20, kappa, clamp)
+        psi, G, A = flesh_response(s[i], mu10, mu01, mu20, kappa, kq, clamp)
         psi_out[i] = psi
         grad_out[i] = G
         hess_out[i] = A
@@ -334,6 +378,7 @@ def flesh_functions(dtype):
     for f in (
         clamp_values,
         c20_derivatives,
+        quadratic_bulk_derivatives,
         flesh_derivatives,
         flesh_gradient_s,
         flesh_response,

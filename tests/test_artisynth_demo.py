@@ -120,6 +120,13 @@ def test_demo_flesh_is_artisynths_law_whatever_the_model_file(badin_model):
     assert demo.metadata["artisynth_lip_opening_demo"]["flesh"] == "artisynth"
     kept = lip_opening_demo_model(old, data_path("artisynth-face"), ring=False, boundary=False, flesh=False)
     assert kept.material.mu01_pa == 1175.0 and kept.material.mu20_pa == 0.0
+    # the bulk potential: wface's log one unless the demo's own quadratic one is asked for
+    assert demo.material.bulk_potential == "log" == demo.metadata["artisynth_lip_opening_demo"]["bulk_potential"]
+    quad = lip_opening_demo_model(
+        old, data_path("artisynth-face"), ring=False, boundary=False, bulk_potential="quadratic"
+    )
+    assert quad.material.bulk_potential == "quadratic" and quad.material.kappa_pa == 25000.0
+    assert quad.metadata["artisynth_lip_opening_demo"]["bulk_potential"] == "quadratic"
 
 
 def _saddle_ring(n: int = 24):

@@ -644,6 +644,7 @@ def test_speech_on_a_face_without_its_muscles_is_refused(model_path, tmp_path, c
         (["--muscle-curves", "artisynth"], "--muscle-curves sets up ArtiSynth's demo: add --setup artisynth"),
         (["--muscle-elements", "artisynth"], "--muscle-elements sets up ArtiSynth's demo: add --setup artisynth"),
         (["--lower-oom", "exciter"], "--lower-oom exciter takes the targets of ArtiSynth's demo on its hexes"),
+        (["--bulk-potential", "quadratic"], "--bulk-potential sets up ArtiSynth's demo: add --setup artisynth"),
     ],
 )
 def test_speech_options_that_would_do_nothing_are_usage_errors(model_path, tmp_path, capsys, extra, said):

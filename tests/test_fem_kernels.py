@@ -4,6 +4,8 @@ the activations, and float32 against float64."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -15,8 +17,13 @@ _ROUNDOFF = 1e-12  # float64 round-off relative to the force scale of an element
 _FD_REL = 2e-6  # central differences with h = 1e-6 edge: O(h^2) truncation + O(eps/h) round-off
 
 
-# the default flesh and ArtiSynth's Badin flesh (C10 and C20 (I1~ - 3)^2, no C01; docs/design.md, "Flesh")
-_MATERIALS = {"default": Material(), "c20": Material.artisynth()}
+# the default flesh, ArtiSynth's Badin flesh (C10 and C20 (I1~ - 3)^2, no C01; docs/design.md, "Flesh"), and
+# that with ArtiSynth's quadratic bulk potential kappa/2 (J - 1)^2
+_MATERIALS = {
+    "default": Material(),
+    "c20": Material.artisynth(),
+    "quadratic_bulk": replace(Material.artisynth(), bulk_potential="quadratic"),
+}
 
 
 @pytest.fixture(scope="module", params=list(_MATERIALS))
@@ -379,7 +386,7 @@ def test_flesh_energy_density_matches_closed_form_mooney_rivlin():
     wp.launch(
         k.flesh_in_singular_values,
         n,
-        inputs=[wp.array(S, dtype=wp.vec3d), mu10, mu01, mat.mu20_pa, kappa, mat.inversion_clamp, p, g, H],
+        inputs=[wp.array(S, dtype=wp.vec3d), mu10, mu01, mat.mu20_pa, kappa, 0.0, mat.inversion_clamp, p, g, H],
     )
     e, hc, hd = np.eye(3), 1e-30, 1e-6
     for i, s in enumerate(S):

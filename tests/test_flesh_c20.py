@@ -1,4 +1,5 @@
-"""The flesh's C20 term mu20 (I1~ - 3)^2 (ArtiSynth's MooneyRivlinMaterial; docs/design.md, "Flesh"):
+"""The flesh's C20 term mu20 (I1~ - 3)^2 (ArtiSynth's MooneyRivlinMaterial; docs/design.md, "Flesh"), and
+its quadratic bulk potential kappa/2 (J - 1)^2 beside the log one (Material.bulk_potential):
 the density, its gradient and Hessian in singular values against the closed form (complex step) above
 the inversion clamp and against central differences of the kernel's own energy below it (the
 third-derivative path); the material's checks and its file round trip, and that a model without the
@@ -7,7 +8,7 @@ term is written and hashed as before."""
 from __future__ import annotations
 
 import json
-from dataclasses import fields
+from dataclasses import fields, replace
 
 import numpy as np
 import pytest
@@ -19,19 +20,24 @@ _MATERIALS = {
     "c20_alone": Material(mu10_pa=0.0, mu01_pa=0.0, mu20_pa=1.0, kappa_pa=0.0),
     "artisynth": Material.artisynth(),
     "all_terms": Material(mu10_pa=2500.0, mu01_pa=800.0, mu20_pa=1175.0, kappa_pa=25000.0),
+    # the quadratic bulk potential kappa/2 (J - 1)^2 (ArtiSynth's default), alone and with the rest
+    "quadratic_alone": Material(mu10_pa=0.0, mu01_pa=0.0, kappa_pa=1.0, bulk_potential="quadratic"),
+    "artisynth_quadratic": replace(Material.artisynth(), bulk_potential="quadratic"),
 }
 _H_FD = 1e-6  # central-difference step in the singular values (dimensionless)
 _FD_TOL = 1e-7  # relative to the largest entry: O(h^2) truncation ~1e-12 + O(eps/h) round-off ~1e-10
 
 
 def _psi_closed_form(s, mat: Material):
-    """psi(s) = mu10 u + mu01 (J^-4/3 I2 - 3) + mu20 u^2 + kappa/2 ln^2 J, u = J^-2/3 I1 - 3
-    (complex-step friendly)."""
+    """psi(s) = mu10 u + mu01 (J^-4/3 I2 - 3) + mu20 u^2 + kappa/2 ln^2 J (or kappa/2 (J - 1)^2),
+    u = J^-2/3 I1 - 3 (complex-step friendly)."""
     J = s[0] * s[1] * s[2]
     I1 = s[0] ** 2 + s[1] ** 2 + s[2] ** 2
     I2 = (s[0] * s[1]) ** 2 + (s[0] * s[2]) ** 2 + (s[1] * s[2]) ** 2
     u = J ** (-2 / 3) * I1 - 3
     dev = mat.mu10_pa * u + mat.mu01_pa * (J ** (-4 / 3) * I2 - 3) + mat.mu20_pa * u**2
+    if mat.bulk_potential == "quadratic":
+        return dev + 0.5 * mat.kappa_pa * (J - 1) ** 2
     return dev + 0.5 * mat.kappa_pa * np.log(J) ** 2
 
 
@@ -46,7 +52,7 @@ def _density(S: np.ndarray, mat: Material):
     k = fem_kernels(wp.float64)
     n = len(S)
     p, g, H = wp.zeros(n, dtype=wp.float64), wp.zeros(n, dtype=wp.vec3d), wp.zeros(n, dtype=wp.mat33d)
-    args = [mat.mu10_pa, mat.mu01_pa, mat.mu20_pa, mat.kappa_pa, mat.inversion_clamp]
+    args = [mat.mu10_pa, mat.mu01_pa, mat.mu20_pa, *mat.bulk_moduli_pa(), mat.inversion_clamp]
     wp.launch(k.flesh_in_singular_values, n, inputs=[wp.array(S, dtype=wp.vec3d), *args, p, g, H])
     return p.numpy(), g.numpy(), H.numpy()
 
@@ -125,7 +131,7 @@ def test_model_file_keeps_c20_and_a_file_without_it_loads_as_zero(tmp_path):
     # a model without the term: header and fingerprint as before the field existed
     plain = save_model(model, tmp_path / "plain.npz")
     header = json.loads(bytes(np.load(plain)["header_json"]).decode())
-    late = ("mu20_pa", "fibre_stress", "muscle_curves")  # fields written only away from their defaults
+    late = ("mu20_pa", "fibre_stress", "muscle_curves", "bulk_potential")  # written only away from their defaults
     old_fields = {f.name: getattr(model.material, f.name) for f in fields(Material) if f.name not in late}
     assert header["material"] == old_fields and header["format_version"] == 1
     assert load_model(plain).material.mu20_pa == 0.0

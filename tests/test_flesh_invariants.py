@@ -14,6 +14,9 @@ _MATERIALS = {
     "builtin": Material(),
     "artisynth": Material.artisynth(),
     "all_terms": Material(mu10_pa=2500.0, mu01_pa=800.0, mu20_pa=1175.0, kappa_pa=25000.0),
+    "quadratic_bulk": Material(
+        mu10_pa=2500.0, mu01_pa=800.0, mu20_pa=1175.0, kappa_pa=25000.0, bulk_potential="quadratic"
+    ),
 }
 
 
@@ -41,7 +44,7 @@ def _paths(F: np.ndarray, mat: Material, dtype: str = "float64"):
         wp.zeros(n, dtype=S),
         wp.zeros(n, dtype=m33),
     ]
-    args = [mat.mu10_pa, mat.mu01_pa, mat.mu20_pa, mat.kappa_pa, mat.inversion_clamp]
+    args = [mat.mu10_pa, mat.mu01_pa, mat.mu20_pa, *mat.bulk_moduli_pa(), mat.inversion_clamp]
     wp.launch(k.flesh_stress_paths, n, inputs=[wp.array(F.astype(dtype), dtype=m33), *args, *out])
     return [a.numpy().astype(np.float64) if i else a.numpy() for i, a in enumerate(out)]
 

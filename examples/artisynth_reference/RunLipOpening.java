@@ -164,6 +164,13 @@ public class RunLipOpening {
       if (System.getProperty ("lip.softincomp") != null) {
          face.setSoftIncompMethod (artisynth.core.femmodels.FemModel.IncompMethod.valueOf (System.getProperty ("lip.softincomp")));
       }
+      if (System.getProperty ("lip.bulk") != null) { // the flesh's bulk potential: QUADRATIC (the demo's) or LOGARITHMIC
+         artisynth.core.materials.IncompressibleMaterialBase flesh =
+            (artisynth.core.materials.IncompressibleMaterialBase)face.getMaterial ().clone ();
+         flesh.setBulkPotential (
+            artisynth.core.materials.IncompressibleMaterialBase.BulkPotential.valueOf (System.getProperty ("lip.bulk")));
+         face.setMaterial (flesh);
+      }
       if (System.getProperty ("lip.step") != null) {
          mech.setMaxStepSize (Double.parseDouble (System.getProperty ("lip.step")));
       }
@@ -185,7 +192,8 @@ public class RunLipOpening {
       System.out.println (
          "nodes " + face.numNodes () + ", elements " + face.numElements () + ", OOP elements "
          + oop.getElements ().size () + ", step " + mech.getMaxStepSize () + " s, " + mech.getIntegrator ()
-         + ", soft incompressibility " + face.getSoftIncompMethod () + ", gravity " + mech.getGravity () + ", contact " + contact + ", penetration tol "
+         + ", soft incompressibility " + face.getSoftIncompMethod () + ", bulk potential "
+         + ((artisynth.core.materials.IncompressibleMaterialBase)face.getMaterial ()).getBulkPotential () + ", gravity " + mech.getGravity () + ", contact " + contact + ", penetration tol "
          + mech.getPenetrationTol () + " m"
          + (lips == null ? "" : ", lip contact friction " + lips.getFriction () + " collider " + lips.getColliderType ()
             + " compliance " + lips.getCompliance () + " bilateral " + lips.getBilateralVertexContact ()

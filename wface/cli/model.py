@@ -192,7 +192,8 @@ def _info(args: argparse.Namespace) -> int:
     mat = s["material"]
     print(
         f"  flesh mu10 {mat['mu10_pa']:g} Pa, mu01 {mat['mu01_pa']:g} Pa, mu20 {mat['mu20_pa']:g} Pa, "
-        f"kappa {mat['kappa_pa']:g} Pa; muscle sigma_max {mat['sigma_max_pa']:g} Pa, "
+        f"kappa {mat['kappa_pa']:g} Pa ({mat.get('bulk_potential', 'log')} bulk potential); "
+        f"muscle sigma_max {mat['sigma_max_pa']:g} Pa, "
         f"{mat['fibre_stress']} fibre stress" + "".join(f"; {m} {c} curves" for m, c in mat["muscle_curves"].items())
     )
     fit = s.get("fit")

@@ -45,7 +45,8 @@ its flesh law and deviatoric fibre stress; --idle-muscles off: the muscles the g
 no fibres, as there; --muscle-curves artisynth: BlemkerMuscle's curves on OOP and GenericMuscle's, with no
 force-length curve and no passive stress, on the others, as there; --muscle-elements artisynth: every other
 muscle on the demo's own whole hexes; --lower-oom exciter: the exciter OOMl on exactly its 232 target
-hexes, the lower lip's part of OOM). Writes report.json, lip_opening.csv and .png, the
+hexes, the lower lip's part of OOM; --bulk-potential quadratic: the flesh's bulk energy kappa/2 (J - 1)^2,
+ArtiSynth's, where wface's is kappa/2 (ln J)^2). Writes report.json, lip_opening.csv and .png, the
 aperture pictures of the first and last frames, states.npz (every frame's node positions, markers
 and activations: np.load) and animation.usdc.
 
@@ -64,6 +65,9 @@ examples:
   wface speech --model badin.npz --gesture fricative --setup artisynth --muscle-curves artisynth \\
       --muscle-elements artisynth --lower-oom exciter --dynamic --exact-damping --contact lips,skull \\
       --contact-inside-at-rest push --out fricative_as   # ArtiSynth's muscles, elements and exciter
+  wface speech --model badin.npz --gesture fricative --setup artisynth --muscle-curves artisynth \\
+      --muscle-elements artisynth --lower-oom exciter --bulk-potential quadratic --dynamic --exact-damping \\
+      --contact lips,skull --contact-inside-at-rest push --out fricative_quad   # and its bulk potential
 """
 
 
@@ -114,39 +118,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_contact_arguments(
         p, smoothing_mm=0.1, freeze_below=None, obstacles=False, where="every frame's solve", lip_surface="smooth"
     )
-    p.add_argument(
-        "--setup",
-        choices=["import", "artisynth"],
-        default="import",
-        help="the face as imported (default) or as ArtiSynth's BadinFaceDemoLipOpening sets it up",
-    )
-    p.add_argument(
-        "--data",
-        help="the artisynth-face data folder for --setup artisynth, the only one looked in when given "
-        "(default: --model's folder or ../shared/data/artisynth-face)",
-    )
-    p.add_argument(
-        "--idle-muscles",
-        choices=["passive", "off"],
-        default="passive",
-        help="with --setup artisynth, the muscles the gesture never drives: wface's passive fibres (default) or "
-        "none, as ArtiSynth's demo (its GenericMuscle's passive stress is 0.05 Pa)",
-    )
-    p.add_argument(
-        "--muscle-curves",
-        choices=["wface", "artisynth"],
-        default="wface",
-        help="with --setup artisynth, the muscles' force-length and passive curves: wface's on every muscle "
-        "(default) or the demo's own, BlemkerMuscle's on OOP and GenericMuscle's (no force-length, no passive "
-        "stress) on the others",
-    )
-    p.add_argument(
-        "--muscle-elements",
-        choices=["import", "artisynth"],
-        default="import",
-        help="with --setup artisynth, every muscle but OOP as the import embeds it (default) or as the demo "
-        "has it: the whole hexes whose centres lie within 6 mm of its fibres",
-    )
+    _add_setup_arguments(p)
     p.add_argument("--dynamic", action="store_true", help="play through the implicit dynamic FEM (inertia)")
     p.add_argument(
         "--scheme", choices=["be", "midpoint"], default="be", help="dynamic scheme (default be, ArtiSynth's)"
@@ -188,6 +160,50 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="animation.usdc without the UsdSkel rig (the rig costs one solve per muscle, ~20 s each on Badin)",
     )
     p.set_defaults(func=run_speech, dynamic_option_defaults={k: p.get_default(k) for k in _DYNAMIC_ONLY})
+
+
+def _add_setup_arguments(p: argparse.ArgumentParser) -> None:
+    """--setup and the options that set up ArtiSynth's demo with it (usage errors without it)."""
+    p.add_argument(
+        "--setup",
+        choices=["import", "artisynth"],
+        default="import",
+        help="the face as imported (default) or as ArtiSynth's BadinFaceDemoLipOpening sets it up",
+    )
+    p.add_argument(
+        "--data",
+        help="the artisynth-face data folder for --setup artisynth, the only one looked in when given "
+        "(default: --model's folder or ../shared/data/artisynth-face)",
+    )
+    p.add_argument(
+        "--idle-muscles",
+        choices=["passive", "off"],
+        default="passive",
+        help="with --setup artisynth, the muscles the gesture never drives: wface's passive fibres (default) or "
+        "none, as ArtiSynth's demo (its GenericMuscle's passive stress is 0.05 Pa)",
+    )
+    p.add_argument(
+        "--muscle-curves",
+        choices=["wface", "artisynth"],
+        default="wface",
+        help="with --setup artisynth, the muscles' force-length and passive curves: wface's on every muscle "
+        "(default) or the demo's own, BlemkerMuscle's on OOP and GenericMuscle's (no force-length, no passive "
+        "stress) on the others",
+    )
+    p.add_argument(
+        "--muscle-elements",
+        choices=["import", "artisynth"],
+        default="import",
+        help="with --setup artisynth, every muscle but OOP as the import embeds it (default) or as the demo "
+        "has it: the whole hexes whose centres lie within 6 mm of its fibres",
+    )
+    p.add_argument(
+        "--bulk-potential",
+        choices=["log", "quadratic"],
+        default="log",
+        help="with --setup artisynth, the flesh's bulk energy: wface's kappa/2 (ln J)^2 (default) or the demo's "
+        "own kappa/2 (J - 1)^2 (ArtiSynth's QUADRATIC); the two part as the volume changes",
+    )
 
 
 def _load_model(path: Path):
@@ -322,6 +338,7 @@ def _check_options(args) -> None:
         ("--idle-muscles", args.idle_muscles, "passive"),
         ("--muscle-curves", args.muscle_curves, "wface"),
         ("--muscle-elements", args.muscle_elements, "import"),
+        ("--bulk-potential", args.bulk_potential, "log"),
     ):
         if value != default and args.setup != "artisynth":
             raise UsageError(f"{option} sets up ArtiSynth's demo: add --setup artisynth, or leave it out")
@@ -346,7 +363,11 @@ def run_speech(args: argparse.Namespace) -> int:
     if args.setup == "artisynth":
         curves = "artisynth" if args.muscle_curves == "artisynth" else "law"
         model = lip_opening_demo_model(
-            model, _data_dir(args), muscle_curves=curves, muscle_elements=args.muscle_elements
+            model,
+            _data_dir(args),
+            muscle_curves=curves,
+            muscle_elements=args.muscle_elements,
+            bulk_potential=args.bulk_potential,
         )
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
     if args.lower_oom in ("lower", "exciter"):

@@ -40,9 +40,10 @@ __all__ = [
 
 # 2: the material may carry mu20_pa or fibre_stress. 3: the model has pressure actuators. 4: the jaw
 # joint has a closing range (JawJoint.max_closing_sine > 0). 5: the material names muscles' own fibre
-# curves (Material.muscle_curves). A model without these is still written as format 1, byte for byte
+# curves (Material.muscle_curves). 6: the flesh's bulk potential is not the default (Material.bulk_potential
+# "quadratic"). A model without these is still written as format 1, byte for byte
 # as before, so older wface versions read it; one with any of them is refused by a version that would lose it.
-FORMAT_VERSION = 5
+FORMAT_VERSION = 6
 BONES = ("cranium", "jaw")  # bone ids 0 and 1 in attachment arrays
 FACE_SPAN_M = (0.02, 2.0)  # the rest flesh's largest extent, metres: a lip alone to head and shoulders
 
@@ -396,11 +397,11 @@ _ARRAY_FIELDS = (
 
 
 def _material_header(material: Material) -> dict:
-    """The material's fields, each of mu20_pa, fibre_stress and muscle_curves left out at its default,
+    """The material's fields, each of mu20_pa, fibre_stress, muscle_curves and bulk_potential left out at its default,
     so files and ``model_sha256`` of models without them are those written before they existed; a
     file without them loads with the defaults."""
     defaults = Material()
-    late = ("mu20_pa", "fibre_stress", "muscle_curves")
+    late = ("mu20_pa", "fibre_stress", "muscle_curves", "bulk_potential")
     return {
         f.name: getattr(material, f.name)
         for f in fields(Material)
@@ -439,6 +440,8 @@ def _model_arrays(model: FaceModel) -> tuple[dict[str, np.ndarray], dict]:
 
 def _format_version(model: FaceModel) -> int:
     """The oldest format that holds everything the model has (see FORMAT_VERSION)."""
+    if model.material.bulk_potential != "log":
+        return 6
     if model.material.muscle_curves:
         return 5
     if model.jaw_joint.max_closing_sine:

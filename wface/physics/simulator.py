@@ -100,7 +100,9 @@ class Simulator:
         k, dev, dt = self._k, self.device, self._np_dtype
         m = model.material
         self._fibre_law = FIBRE_STRESSES.index(m.fibre_stress)  # the kernels' flag (wface.kernels.fem)
-        self._material = [dt(m.mu10_pa), dt(m.mu01_pa), dt(m.mu20_pa), dt(m.kappa_pa), dt(m.inversion_clamp)]
+        kappa_log, kappa_quadratic = m.bulk_moduli_pa()
+        self._material = [dt(m.mu10_pa), dt(m.mu01_pa), dt(m.mu20_pa), dt(kappa_log), dt(kappa_quadratic)]
+        self._material.append(dt(m.inversion_clamp))
         curves = m.curves_of(model.muscle_names) if model.n_muscles else np.zeros(1, np.int32)
         self._muscle_curves = wp.array(curves, dtype=wp.int32, device=dev)  # FIBRE_CURVES index per muscle
         self._material += [self._fibre_law, self._muscle_curves]

@@ -428,6 +428,7 @@ def lip_opening_demo_model(
     ring_directions: str = "nearest",
     muscle_curves: str = "law",
     muscle_elements: str = "import",
+    bulk_potential: str = "log",
 ) -> FaceModel:
     """The imported Badin face set up as ``BadinFaceDemoLipOpening`` (module docstring), each part optional.
 
@@ -440,6 +441,9 @@ def lip_opening_demo_model(
         flesh: the demo's flesh law, ``Material.artisynth()``'s mu10, mu01, mu20 and kappa (C10, C20
             (I1~ - 3)^2, bulk 10 C10), whatever the model's (an import saved before wface had the C20
             term carries 1175 Pa as mu01); False keeps the model's.
+        bulk_potential: with ``flesh``, ``Material.bulk_potential``: "log" (wface's kappa/2 (ln J)^2,
+            the default, with which the README's figures were measured) or "quadratic" (the demo's own
+            kappa/2 (J - 1)^2, ArtiSynth's default ``BulkPotential``).
         fibre_stress: ``Material.fibre_stress`` of every muscle, "deviatoric" as ArtiSynth's muscle
             materials (module docstring), "blemker" (those with BlemkerMuscle's curves) or "uniaxial"
             (None: keep the model's).
@@ -484,7 +488,7 @@ def lip_opening_demo_model(
     if flesh:
         art = Material.artisynth()
         law = {f: getattr(art, f) for f in ("mu10_pa", "mu01_pa", "mu20_pa", "kappa_pa")}
-        out = out.with_material(replace(out.material, **law))
+        out = out.with_material(replace(out.material, **law, bulk_potential=bulk_potential))
     if max_stress_pa is not None:
         out = out.with_material(replace(out.material, sigma_max_pa=float(max_stress_pa)))
     if fibre_stress is not None:
@@ -507,6 +511,7 @@ def lip_opening_demo_model(
         "max_stress_pa": max_stress_pa,
         "boundary": "demo" if boundary else "import",
         "flesh": "artisynth" if flesh else "model",
+        "bulk_potential": out.material.bulk_potential,
         "fibre_stress": out.material.fibre_stress,
         "muscle_curves": muscle_curves,
         "muscle_elements": muscle_elements,
