@@ -6,8 +6,10 @@ nodes 1..3, node 0 gets minus their sum (Teran et al. 2003, 2005; docs/design.md
 Flesh (isotropic, on the signed singular values s of F = U diag(s) V^T, det U = det V = +1, the
 smallest singular value carrying the sign of det F; Irving et al. 2004):
 
-    psi(s) = mu10 (J^-2/3 I1 - 3) + mu01 (J^-4/3 I2 - 3) + mu20 (J^-2/3 I1 - 3)^2 + kappa/2 (ln J)^2,
-    J = s1 s2 s3, I1 = sum s_i^2, I2 = sum_{i<j} s_i^2 s_j^2.
+    psi(s) = mu10 (J^-2/3 I1 - 3) + mu01 (J^-4/3 I2 - 3) + mu20 (J^-2/3 I1 - 3)^2 + kappa/2 (ln J)^2
+             + kq/2 (J - 1)^2,
+    J = s1 s2 s3, I1 = sum s_i^2, I2 = sum_{i<j} s_i^2 s_j^2 (kq: ArtiSynth's quadratic bulk potential,
+    ``Material.bulk_potential``; one of kappa and kq is 0).
 
 Inversion: singular values are clamped below at c (``clamp``), s^ = max(s, c). So that forces stay
 the exact gradient of an energy (energy line search, finite-difference tests) the energy is

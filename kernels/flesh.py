@@ -1,17 +1,19 @@
 """Isotropic flesh in singular values (Warp device code, float64 and float32; docs/design.md, "Flesh").
 
-psi(s) = mu10 u + mu01 (J^-4/3 I2 - 3) + mu20 u^2 + kappa/2 (ln J)^2,  u = J^-2/3 I1 - 3,
+psi(s) = mu10 u + mu01 (J^-4/3 I2 - 3) + mu20 u^2 + kappa/2 (ln J)^2 + kq/2 (J - 1)^2,  u = J^-2/3 I1 - 3,
 J = s1 s2 s3, I1 = sum s_i^2, I2 = sum_{i<j} s_i^2 s_j^2, on the signed singular values of
 F = U diag(s) V^T (det U = det V = +1, the smallest carrying the sign of det F: Irving et al. 2004).
 The mu20 term is ArtiSynth's C20 (I1~ - 3)^2 (its ``MooneyRivlinMaterial``); with mu20 = 0 it is
-skipped, so the other terms' arithmetic is that of the law without it, bit for bit.
+skipped, so the other terms' arithmetic is that of the law without it, bit for bit. kq is the
+modulus of ArtiSynth's quadratic bulk potential (``Material.bulk_potential``; the simulator passes
+kappa or kq, the other 0); with kq = 0 it is skipped likewise.
 
 Where no singular value is below the clamp, the energy and its first Piola stress are evaluated
 from the invariants of C = F^T F instead (``flesh_invariants``: no SVD, about half the cost of a
 force evaluation; docs/design.md, "Inversion safety"):
-    psi = mu10 u + mu01 (J^-4/3 I2 - 3) + mu20 u^2 + kappa/2 (ln J)^2,
+    psi = mu10 u + mu01 (J^-4/3 I2 - 3) + mu20 u^2 + kappa/2 (ln J)^2 + kq/2 (J - 1)^2,
     P = (mu10 + 2 mu20 u) J^-2/3 (2 F - 2/3 I1 F^-T) + mu01 J^-4/3 (2 (I1 F - F C) - 4/3 I2 F^-T)
-        + kappa ln J F^-T,
+        + (kappa ln J + kq (J - 1) J) F^-T,
 the same function. The test for it is s_min >= 2 J / I1 >= c (the two larger eigenvalues of C
 multiply to at most (I1 / 2)^2, so the smallest is at least 4 J^2 / I1^2): sufficient, never
 wrong; near inversion it falls back to the SVD.

@@ -74,3 +74,12 @@ def test_model_with_the_quadratic_potential_saves_as_format_6_and_loads_with_it(
 def test_an_unknown_potential_is_refused_by_name():
     with pytest.raises(ModelError, match=r"bulk_potential must be one of \('log', 'quadratic'\), got 'cubic'"):
         Material(bulk_potential="cubic")
+
+
+def test_model_info_prints_the_bulk_potential(tmp_path, capsys):
+    from wface.cli import main
+
+    quad = replace(Material.artisynth(), bulk_potential="quadratic")
+    path = save_model(box_model((2, 1, 1), muscles=0).with_material(quad), tmp_path / "quad.npz")
+    assert main(["model", "info", str(path)]) == 0
+    assert "kappa 25000 Pa (quadratic bulk potential)" in capsys.readouterr().out

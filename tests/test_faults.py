@@ -645,6 +645,7 @@ def test_speech_on_a_face_without_its_muscles_is_refused(model_path, tmp_path, c
         (["--muscle-elements", "artisynth"], "--muscle-elements sets up ArtiSynth's demo: add --setup artisynth"),
         (["--lower-oom", "exciter"], "--lower-oom exciter takes the targets of ArtiSynth's demo on its hexes"),
         (["--bulk-potential", "quadratic"], "--bulk-potential sets up ArtiSynth's demo: add --setup artisynth"),
+        (["--ring-directions", "delaunay"], "--ring-directions sets up ArtiSynth's demo: add --setup artisynth"),
     ],
 )
 def test_speech_options_that_would_do_nothing_are_usage_errors(model_path, tmp_path, capsys, extra, said):
@@ -652,6 +653,25 @@ def test_speech_options_that_would_do_nothing_are_usage_errors(model_path, tmp_p
         ["speech", "--model", model_path, "--gesture", "closure", *extra, "--out", tmp_path / "s"], capsys
     )
     assert code == 2 and said in text, text
+    assert not (tmp_path / "s").exists()
+
+
+def test_speech_setup_options_reach_the_demo_setup(model_path, tmp_path, capsys, monkeypatch):
+    """--ring-directions and --bulk-potential are handed to lip_opening_demo_model (stopped there)."""
+    import wface.cli.speech as cli_speech
+
+    seen = {}
+
+    def setup(model, data_dir, **kwargs):
+        seen.update(kwargs)
+        raise cli_speech.UsageError("stopped after the setup")
+
+    monkeypatch.setattr(cli_speech, "lip_opening_demo_model", setup)
+    extra = ["--setup", "artisynth", "--ring-directions", "delaunay", "--bulk-potential", "quadratic"]
+    argv = ["speech", "--model", model_path, "--gesture", "closure", *extra, "--out", tmp_path / "s"]
+    code, text = _cli(argv, capsys)
+    assert code == 2 and "stopped after the setup" in text, text
+    assert seen["ring_directions"] == "delaunay" and seen["bulk_potential"] == "quadratic"
     assert not (tmp_path / "s").exists()
 
 

@@ -45,8 +45,9 @@ its flesh law and deviatoric fibre stress; --idle-muscles off: the muscles the g
 no fibres, as there; --muscle-curves artisynth: BlemkerMuscle's curves on OOP and GenericMuscle's, with no
 force-length curve and no passive stress, on the others, as there; --muscle-elements artisynth: every other
 muscle on the demo's own whole hexes; --lower-oom exciter: the exciter OOMl on exactly its 232 target
-hexes, the lower lip's part of OOM; --bulk-potential quadratic: the flesh's bulk energy kappa/2 (J - 1)^2,
-ArtiSynth's, where wface's is kappa/2 (ln J)^2). Writes report.json, lip_opening.csv and .png, the
+hexes, the lower lip's part of OOM; --ring-directions delaunay: the OOP rings' fibre directions blended as
+ArtiSynth blends them; --bulk-potential quadratic: the flesh's bulk energy kappa/2 (J - 1)^2, ArtiSynth's,
+where wface's is kappa/2 (ln J)^2). Writes report.json, lip_opening.csv and .png, the
 aperture pictures of the first and last frames, states.npz (every frame's node positions, markers
 and activations: np.load) and animation.usdc.
 
@@ -198,6 +199,13 @@ def _add_setup_arguments(p: argparse.ArgumentParser) -> None:
         "has it: the whole hexes whose centres lie within 6 mm of its fibres",
     )
     p.add_argument(
+        "--ring-directions",
+        choices=["nearest", "delaunay"],
+        default="nearest",
+        help="with --setup artisynth, the OOP rings' fibre directions: the fibre ring's nearest segment (default) or "
+        "ArtiSynth's own blend of the segments around each ring hex (its DelaunayInterpolator)",
+    )
+    p.add_argument(
         "--bulk-potential",
         choices=["log", "quadratic"],
         default="log",
@@ -339,6 +347,7 @@ def _check_options(args) -> None:
         ("--muscle-curves", args.muscle_curves, "wface"),
         ("--muscle-elements", args.muscle_elements, "import"),
         ("--bulk-potential", args.bulk_potential, "log"),
+        ("--ring-directions", args.ring_directions, "nearest"),
     ):
         if value != default and args.setup != "artisynth":
             raise UsageError(f"{option} sets up ArtiSynth's demo: add --setup artisynth, or leave it out")
@@ -368,6 +377,7 @@ def run_speech(args: argparse.Namespace) -> int:
             muscle_curves=curves,
             muscle_elements=args.muscle_elements,
             bulk_potential=args.bulk_potential,
+            ring_directions=args.ring_directions,
         )
     gesture = read_gesture(_gesture_dir(args), include_inactive=args.all_probes)
     if args.lower_oom in ("lower", "exciter"):
