@@ -33,6 +33,8 @@
 //   -Dlip.damping=NS_PER_M        its damping
 //   -Dlip.softincomp=ELEMENT|NODAL|FULL  how the flesh's bulk term is integrated (the demo leaves ArtiSynth's
 //                                 AUTO: ELEMENT, one mean dilatation per element, on the hexes)
+//   -Dlip.bulk=QUADRATIC|LOGARITHMIC  the flesh's bulk potential: kappa/2 (J - 1)^2 (the demo's, ArtiSynth's default)
+//                                 or kappa/2 (ln J)^2 (wface's default)
 //   -Dlip.step=SECONDS            the integrator's step (the demo's: 0.005)
 //   -Dlip.directions=FILE         also write each bundle's fibres at rest, a line each: "fibre bundle x0 y0 z0 x1 y1 z1"
 //                                 (the two points, where ArtiSynth attached them), then "restfibre bundle x0 y0 z0 x1 y1
