@@ -21,7 +21,7 @@ from wface.cli.validate import non_negative_float, options_given, positive_float
 from wface.faces.artisynth import import_artisynth
 from wface.files import write_json
 from wface.mesh.surface import boundary_faces
-from wface.model import load_model
+from wface.model import BULK_POTENTIALS, load_model
 from wface.speech.aperture import ApertureView
 from wface.speech.artisynth_demo import lip_opening_demo_model, ooml_exciter_tets, without_idle_fibres
 from wface.speech.dynamic import GestureDynamics
@@ -74,6 +74,8 @@ examples:
 
 # the options that act with --dynamic only
 _DYNAMIC_ONLY = ("scheme", "max_step_ms", "damping_alpha", "damping_beta", "exact_damping", "no_gravity")
+# the options that set up ArtiSynth's demo, with --setup artisynth only (the order they are checked in)
+_SETUP_ONLY = ("idle_muscles", "muscle_curves", "muscle_elements", "bulk_potential", "ring_directions")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -207,11 +209,12 @@ def _add_setup_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--bulk-potential",
-        choices=["log", "quadratic"],
+        choices=list(BULK_POTENTIALS),
         default="log",
         help="with --setup artisynth, the flesh's bulk energy: wface's kappa/2 (ln J)^2 (default) or the demo's "
         "own kappa/2 (J - 1)^2 (ArtiSynth's QUADRATIC); the two part as the volume changes",
     )
+    p.set_defaults(setup_option_defaults={k: p.get_default(k) for k in _SETUP_ONLY})
 
 
 def _load_model(path: Path):
@@ -342,14 +345,8 @@ def _check_options(args) -> None:
     given = options_given(args, args.dynamic_option_defaults)
     if given and not args.dynamic:
         raise UsageError(f"{', '.join(given)} set(s) the dynamic playback: add --dynamic, or leave it out")
-    for option, value, default in (
-        ("--idle-muscles", args.idle_muscles, "passive"),
-        ("--muscle-curves", args.muscle_curves, "wface"),
-        ("--muscle-elements", args.muscle_elements, "import"),
-        ("--bulk-potential", args.bulk_potential, "log"),
-        ("--ring-directions", args.ring_directions, "nearest"),
-    ):
-        if value != default and args.setup != "artisynth":
+    for option in options_given(args, args.setup_option_defaults):
+        if args.setup != "artisynth":
             raise UsageError(f"{option} sets up ArtiSynth's demo: add --setup artisynth, or leave it out")
     if args.lower_oom == "exciter" and args.setup != "artisynth":
         raise UsageError(

@@ -27,11 +27,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from wface.model import BULK_POTENTIALS
 from wface.physics.hexes import HexQuadrature
 
-__all__ = ["BULK_POTENTIALS", "MeanDilatation"]
-
-BULK_POTENTIALS = ("quadratic", "log")
+__all__ = ["MeanDilatation"]
 
 
 def _cofactor(F: np.ndarray) -> np.ndarray:
