@@ -110,7 +110,7 @@ class HexDemo:
                 stiffness_n_per_m=stiffness_n_per_m,
                 smoothing_m=smoothing_m,
                 surface=lip_surface,
-                ignore_inside_at_rest=False,
+                inside_at_rest="push",
                 edge_midpoints=lip_points == "nodes_and_edges",  # "nodes": as ArtiSynth's vertex penetrations
             )
         free = demo.free_nodes[demo.free_nodes < n]

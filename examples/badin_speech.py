@@ -76,7 +76,7 @@ _STYLE = {
 _CONTACT = {
     "contact": ("lips", {}),
     "skull": ("lips,skull", {}),
-    "skullpushed": ("lips,skull", {"ignore_inside_at_rest": False}),
+    "skullpushed": ("lips,skull", {"inside_at_rest": "push"}),
     "skullteeth": ("lips,skull,teeth", {}),
 }
 

@@ -20,7 +20,7 @@ def _winding_number(p: np.ndarray, v: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def test_teeth_overlap_the_flesh_in_the_data_and_are_ignored_at_rest(badin_model):
     m = badin_model
-    raw = Contact(m, regions="teeth", ignore_inside_at_rest=False)
+    raw = Contact(m, regions="teeth", inside_at_rest="push")
     pen = raw.penetration(m.rest_positions_m)
     assert pen["max_penetration_m"] > 5e-3  # measured 8.7 mm (lower teeth), 7.2 mm (upper)
     # Not a sign or frame error: the deepest nodes are inside the (nearly closed) teeth meshes by

@@ -195,6 +195,7 @@ def test_signed_surface_of_inconsistent_closed_mesh():
         # a ball round the whole face pushed it out through itself (resim: the sparse solver's raw message)
         ({"obstacles": ["sphere:0,0,0,0.5"]}, r"holds (\d+) of the face's \1 surface nodes at rest"),
         ({"obstacles": ["plane:0,0,0.5,0,0,1"]}, "is a solid the skin is pushed out of"),
+        ({"regions": "teeth", "inside_at_rest": "keep"}, "inside_at_rest must be one of ignore, push, hold"),
     ],
 )
 def test_bad_input_is_refused(face, kwargs, message):
@@ -202,6 +203,54 @@ def test_bad_input_is_refused(face, kwargs, message):
     specs = kwargs.pop("obstacles", [])
     with pytest.raises(ValueError, match=message):
         Contact(face, obstacles=[parse_obstacle(o) for o in specs], **kwargs)
+
+
+def test_nodes_inside_at_rest_are_held_at_their_rest_depth(face):
+    """inside_at_rest="hold": the flesh nodes inside the teeth at rest stay in contact with their rest depth as
+    their gap. The rest state carries no force; deeper by d they carry the penalty of d (k d^2 / 2 each, the
+    plain penalty), outward none, and the forces are the energy's gradient."""
+    import dataclasses
+
+    from wface.model import BoneMesh
+
+    # the built-in face's flesh clears its teeth at rest: teeth moved 1.5 mm forward, into the lips
+    meshes = {
+        name: BoneMesh(m.vertices_m + (0.0, 0.0, 1.5e-3 if "teeth" in name else 0.0), m.triangles, m.bone)
+        for name, m in face.bone_meshes.items()
+    }
+    face = dataclasses.replace(face, bone_meshes=meshes)
+    x0 = face.rest_positions_m
+    ignore = Contact(face, regions="teeth")
+    push = Contact(face, regions="teeth", inside_at_rest="push")
+    hold = Contact(face, regions="teeth", inside_at_rest="hold")
+    assert hold.held_at_rest == ignore.ignored_at_rest and sum(hold.held_at_rest.values()) > 0
+    assert hold.ignored_at_rest == {} and push.held_at_rest == {}
+    assert [len(n) for n in hold.rigid_nodes] == [len(n) for n in push.rigid_nodes]  # every node may touch
+    assert push.energy(x0) > 0 and hold.energy(x0) == 0.0 and not np.any(hold.forces(x0))
+    at_rest = push.evaluate(x0)  # the held nodes, each with its deepest mesh's outward normal
+    deepest = {}
+    for i, n, g in zip(at_rest.node, at_rest.normal, at_rest.penetration_m, strict=True):
+        if g > deepest.get(i, (0.0, None))[0]:
+            deepest[i] = (g, n)
+    ids = np.array(sorted(deepest))
+    normals = np.array([deepest[i][1] for i in ids])
+    d_m = 1e-5
+    deeper, outward = x0.copy(), x0.copy()
+    deeper[ids] -= d_m * normals
+    outward[ids] += d_m * normals
+    assert hold.energy(outward) == 0.0
+    k = hold.stiffness_n_per_m
+    pairs = hold.evaluate(deeper)
+    assert set(pairs.node) == set(ids)
+    assert np.median(pairs.penetration_m) == pytest.approx(d_m, rel=1e-6)  # the rest depth is the gap
+    assert hold.energy(deeper) == pytest.approx(0.5 * k * np.sum(pairs.penetration_m**2))
+    rng = np.random.default_rng(3)
+    f, h = pairs.forces(), 1e-9
+    for _ in range(4):
+        v = np.zeros_like(x0)
+        v[ids] = rng.standard_normal((ids.size, 3))
+        fd = (hold.energy(deeper + h * v) - hold.energy(deeper - h * v)) / (2 * h)
+        assert fd == pytest.approx(-np.sum(f * v), rel=_FD_RTOL, abs=1e-12)
 
 
 def test_bad_positions_are_refused(face):

@@ -54,7 +54,7 @@ def test_defaults_and_the_contact_they_build():
         parser.parse_args(["simulate", "--model", "m", "--out", "o", "--contact", "gums"])
 
 
-def test_inside_at_rest_is_ignored_unless_asked_to_push():
+def test_inside_at_rest_is_ignored_unless_asked_to_push_or_hold():
     from wface.cli.contact_args import contact_from_args
     from wface.faces.builtin import build_face
 
@@ -72,6 +72,10 @@ def test_inside_at_rest_is_ignored_unless_asked_to_push():
         pushed = contact_from_args(push, model)
         assert pushed.ignored_at_rest == {}  # nothing left out: every contact node may touch every mesh
         assert all(len(k) <= len(p) for k, p in zip(kept, pushed.rigid_nodes, strict=True))
+        hold = parser.parse_args([*base, "--lip-surface", surface, "--contact-inside-at-rest", "hold"])
+        held = contact_from_args(hold, model)  # every node may touch, those inside at rest from their depth
+        assert held.inside_at_rest == "hold" and held.held_at_rest == ignoring.ignored_at_rest
+        assert [len(n) for n in held.rigid_nodes] == [len(n) for n in pushed.rigid_nodes]
 
 
 def test_freezing_asks_for_the_faceted_lips():

@@ -105,8 +105,8 @@ def test_badin_skull_contact_is_the_jaw_and_maxilla_and_free_at_rest(badin_model
     assert [name for name, _ in c.rigid] == ["jaw", "maxilla"]
     assert c.penetration(badin_model.rest_positions_m)["max_penetration_m"] == 0.0
     # the flesh lies up to 0.6 mm inside the maxilla (0.05 mm the jaw) in the source data: those nodes are
-    # left out of that mesh's contact at rest (ignore_inside_at_rest), as for the teeth
-    raw = Contact(badin_model, regions="skull", ignore_inside_at_rest=False).penetration(badin_model.rest_positions_m)
+    # left out of that mesh's contact at rest (inside_at_rest="ignore"), as for the teeth
+    raw = Contact(badin_model, regions="skull", inside_at_rest="push").penetration(badin_model.rest_positions_m)
     assert 0.3e-3 < raw["sources"]["maxilla"]["max_penetration_m"] < 1e-3
     assert raw["sources"]["jaw"]["max_penetration_m"] < 0.1e-3
     assert c.ignored_at_rest["maxilla"] == raw["sources"]["maxilla"]["active_nodes"]

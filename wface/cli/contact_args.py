@@ -12,7 +12,7 @@ import argparse
 
 from wface.cli.errors import UsageError
 from wface.cli.validate import finite_float, non_negative_float, options_given, positive_float
-from wface.physics.contact import REGIONS, SURFACES, Contact, parse_obstacle
+from wface.physics.contact import INSIDE_AT_REST, REGIONS, SURFACES, Contact, parse_obstacle
 
 __all__ = ["add_contact_arguments", "contact_from_args"]
 
@@ -89,11 +89,13 @@ def add_contact_arguments(
     )
     p.add_argument(
         "--contact-inside-at-rest",
-        choices=["ignore", "push"],
+        choices=list(INSIDE_AT_REST),
         default="ignore",
         help="flesh nodes that lie inside a bone or teeth mesh at rest (the Badin data: up to 8.7 mm in the teeth, "
-        "0.58 mm in the maxilla): left out of that mesh's contact (default, the rest shape stays an equilibrium) "
-        "or pushed out like every other node, as ArtiSynth's collisions do (docs/design.md, 'Contact')",
+        "0.58 mm in the maxilla): left out of that mesh's contact (ignore: the default, the rest shape stays an "
+        "equilibrium), pushed out like every other node (push: ArtiSynth's collisions beyond their penetration "
+        "tolerance) or held in contact at their rest depth (hold: ArtiSynth's within it, e.g. its 1 mm lip-skull "
+        "tolerance on wface's tets). docs/design.md, 'Contact'",
     )
     p.add_argument(
         "--freeze-below",
@@ -150,6 +152,6 @@ def contact_from_args(args: argparse.Namespace, model):
         stiffness_n_per_m=args.contact_stiffness,
         smoothing_m=args.contact_smoothing_mm * 1e-3,
         freeze_below=None if args.freeze_below < 0 else args.freeze_below,
-        ignore_inside_at_rest=getattr(args, "contact_inside_at_rest", "ignore") == "ignore",
+        inside_at_rest=getattr(args, "contact_inside_at_rest", "ignore"),
         surface=surface,
     )

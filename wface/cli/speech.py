@@ -429,8 +429,11 @@ def run_speech(args: argparse.Namespace) -> int:
             "reference_comparison": compare_with_reference(result, gesture.reference_lip_area),
             "contact_stiffness_n_per_m": None if contact is None else contact.stiffness_n_per_m,
             "contact_smoothing_m": None if contact is None else contact.smoothing_m,
-            # flesh inside a bone or teeth mesh at rest: {mesh: nodes left out}, or {} when pushed out
+            # flesh inside a bone or teeth mesh at rest: {mesh: nodes} left out (ignore) or held at their rest
+            # depth (hold); both {} when pushed out
+            "contact_inside_at_rest": None if contact is None else contact.inside_at_rest,
             "contact_ignored_at_rest": None if contact is None else contact.ignored_at_rest,
+            "contact_held_at_rest": None if contact is None else contact.held_at_rest,
             "setup_seconds": t_load,
             "wall_seconds": time.perf_counter() - t_start,
             "lip_opening_definition": "distance between the Mouth_Up and Mouth_Down skin markers (mm)",

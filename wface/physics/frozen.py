@@ -36,7 +36,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from wface.physics.contact import Contact, ContactPairs
+from wface.physics.contact import Contact
+from wface.physics.contact_pairs import ContactPairs
 from wface.physics.smooth_contact import CombinedPairs
 
 __all__ = ["FrozenContact", "concat_pairs", "exact_self_hessian"]
