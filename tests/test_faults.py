@@ -646,6 +646,11 @@ def test_speech_on_a_face_without_its_muscles_is_refused(model_path, tmp_path, c
         (["--lower-oom", "exciter"], "--lower-oom exciter takes the targets of ArtiSynth's demo on its hexes"),
         (["--bulk-potential", "quadratic"], "--bulk-potential sets up ArtiSynth's demo: add --setup artisynth"),
         (["--ring-directions", "delaunay"], "--ring-directions sets up ArtiSynth's demo: add --setup artisynth"),
+        (
+            ["--bulk-potential", "log"],
+            "--bulk-potential sets up ArtiSynth's demo: add --setup artisynth",
+        ),  # the default
+        (["--no-exact-damping"], "--exact-damping set(s) the dynamic playback"),
     ],
 )
 def test_speech_options_that_would_do_nothing_are_usage_errors(model_path, tmp_path, capsys, extra, said):
@@ -673,6 +678,31 @@ def test_speech_setup_options_reach_the_demo_setup(model_path, tmp_path, capsys,
     assert code == 2 and "stopped after the setup" in text, text
     assert seen["ring_directions"] == "delaunay" and seen["bulk_potential"] == "quadratic"
     assert not (tmp_path / "s").exists()
+
+
+def test_speech_setup_artisynth_exact_is_the_demos_every_choice():
+    """--setup artisynth-exact: the five setup options at the demo's choice and the exact damping with --dynamic;
+    an option given wins, its default value included; --setup artisynth keeps wface's defaults."""
+    from wface.cli import build_parser
+    from wface.cli.speech import _check_options
+
+    def played(*extra):
+        args = build_parser().parse_args(["speech", "--model", "m.npz", "--gesture", "fricative", "--out", "o", *extra])
+        _check_options(args)
+        keys = ("setup", "setup_preset", "muscle_curves", "muscle_elements", "ring_directions", "bulk_potential")
+        return tuple(getattr(args, k) for k in (*keys, "lower_oom", "exact_damping", "idle_muscles"))
+
+    demo = ("artisynth", "artisynth", "delaunay", "quadratic", "exciter")
+    assert played("--setup", "artisynth-exact") == ("artisynth", "artisynth-exact", *demo, False, "passive")
+    assert played("--setup", "artisynth-exact", "--dynamic")[-2] is True
+    assert played("--setup", "artisynth-exact", "--dynamic", "--no-exact-damping")[-2] is False
+    own = played(
+        "--setup", "artisynth-exact", "--bulk-potential", "log", "--lower-oom", "whole", "--idle-muscles", "off"
+    )
+    assert own == ("artisynth", "artisynth-exact", "artisynth", "artisynth", "delaunay", "log", "whole", False, "off")
+    wface = ("wface", "import", "nearest", "log", "whole", False, "passive")
+    assert played("--setup", "artisynth", "--dynamic") == ("artisynth", "artisynth", *wface)
+    assert played() == ("import", "import", *wface)
 
 
 def test_the_speech_dir_given_is_the_only_one_looked_in(model_path, tmp_path, capsys):

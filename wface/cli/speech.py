@@ -47,7 +47,8 @@ force-length curve and no passive stress, on the others, as there; --muscle-elem
 muscle on the demo's own whole hexes; --lower-oom exciter: the exciter OOMl on exactly its 232 target
 hexes, the lower lip's part of OOM; --ring-directions delaunay: the OOP rings' fibre directions blended as
 ArtiSynth blends them; --bulk-potential quadratic: the flesh's bulk energy kappa/2 (J - 1)^2, ArtiSynth's,
-where wface's is kappa/2 (ln J)^2). Writes report.json, lip_opening.csv and .png, the
+where wface's is kappa/2 (ln J)^2); --setup artisynth-exact: each of these but --idle-muscles at the
+demo's choice, and --exact-damping with --dynamic, an option given still winning. Writes report.json, lip_opening.csv and .png, the
 aperture pictures of the first and last frames, states.npz (every frame's node positions, markers
 and activations: np.load) and animation.usdc.
 
@@ -69,6 +70,8 @@ examples:
   wface speech --model badin.npz --gesture fricative --setup artisynth --muscle-curves artisynth \\
       --muscle-elements artisynth --lower-oom exciter --bulk-potential quadratic --dynamic --exact-damping \\
       --contact lips,skull --contact-inside-at-rest push --out fricative_quad   # and its bulk potential
+  wface speech --model badin.npz --gesture approximant --setup artisynth-exact --dynamic \\
+      --contact lips,skull --contact-inside-at-rest hold --out as_exact   # every one of the demo's choices
 """
 
 
@@ -76,6 +79,19 @@ examples:
 _DYNAMIC_ONLY = ("scheme", "max_step_ms", "damping_alpha", "damping_beta", "exact_damping", "no_gravity")
 # the options that set up ArtiSynth's demo, with --setup artisynth only (the order they are checked in)
 _SETUP_ONLY = ("idle_muscles", "muscle_curves", "muscle_elements", "bulk_potential", "ring_directions")
+_SETUPS = ("import", "artisynth", "artisynth-exact")
+# The options --setup artisynth-exact changes, each with its default and the demo's own choice. They parse to
+# None when not given, so that an option given with its default value still wins over the preset. Not
+# --idle-muscles: with the demo's curves the idle muscles but OOP carry no passive stress anyway, and OOP, idle
+# in the closure and the fricative, keeps BlemkerMuscle's passive curve in the demo.
+_PRESET = {
+    "muscle_curves": ("wface", "artisynth"),
+    "muscle_elements": ("import", "artisynth"),
+    "ring_directions": ("nearest", "delaunay"),
+    "bulk_potential": ("log", "quadratic"),
+    "lower_oom": ("whole", "exciter"),
+    "exact_damping": (False, True),  # with --dynamic
+}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -113,8 +129,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--lower-oom",
         choices=["whole", "lower", "exciter", "skip"],
-        default="whole",
-        help="what the OOMl exciter drives: the whole OOM (default, approximation), its lower lip's part (the OOM "
+        help="what the OOMl exciter drives: the whole OOM (default, approximation; exciter with --setup "
+        "artisynth-exact), its lower lip's part (the OOM "
         "fibre entries nearer the lower lip's surface become muscles OOMl_l and OOMl_r), exactly the exciter's "
         "own targets (ArtiSynth's OOMl.art: 232 of OOM's hexes; with --setup artisynth) or nothing",
     )
@@ -137,8 +153,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--exact-damping",
-        action="store_true",
-        help="stiffness damping with the exact tangent, as ArtiSynth's (default: the projected one)",
+        action=argparse.BooleanOptionalAction,
+        help="stiffness damping with the exact tangent, as ArtiSynth's (default: the projected one; the exact "
+        "one with --setup artisynth-exact)",
     )
     p.add_argument("--no-gravity", action="store_true", help="dynamic playback without gravity")
     p.add_argument(
@@ -169,9 +186,12 @@ def _add_setup_arguments(p: argparse.ArgumentParser) -> None:
     """--setup and the options that set up ArtiSynth's demo with it (usage errors without it)."""
     p.add_argument(
         "--setup",
-        choices=["import", "artisynth"],
+        choices=list(_SETUPS),
         default="import",
-        help="the face as imported (default) or as ArtiSynth's BadinFaceDemoLipOpening sets it up",
+        help="the face as imported (default) or as ArtiSynth's BadinFaceDemoLipOpening sets it up (artisynth); "
+        "artisynth-exact: the same with every option below at the demo's own choice (--muscle-curves artisynth "
+        "--muscle-elements artisynth --ring-directions delaunay --bulk-potential quadratic --lower-oom exciter, "
+        "and --exact-damping with --dynamic); an option given still wins",
     )
     p.add_argument(
         "--data",
@@ -188,7 +208,6 @@ def _add_setup_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--muscle-curves",
         choices=["wface", "artisynth"],
-        default="wface",
         help="with --setup artisynth, the muscles' force-length and passive curves: wface's on every muscle "
         "(default) or the demo's own, BlemkerMuscle's on OOP and GenericMuscle's (no force-length, no passive "
         "stress) on the others",
@@ -196,21 +215,18 @@ def _add_setup_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--muscle-elements",
         choices=["import", "artisynth"],
-        default="import",
         help="with --setup artisynth, every muscle but OOP as the import embeds it (default) or as the demo "
         "has it: the whole hexes whose centres lie within 6 mm of its fibres",
     )
     p.add_argument(
         "--ring-directions",
         choices=["nearest", "delaunay"],
-        default="nearest",
         help="with --setup artisynth, the OOP rings' fibre directions: the fibre ring's nearest segment (default) or "
         "ArtiSynth's own blend of the segments around each ring hex (its DelaunayInterpolator)",
     )
     p.add_argument(
         "--bulk-potential",
         choices=list(BULK_POTENTIALS),
-        default="log",
         help="with --setup artisynth, the flesh's bulk energy: wface's kappa/2 (ln J)^2 (default) or the demo's "
         "own kappa/2 (J - 1)^2 (ArtiSynth's QUADRATIC); the two part as the volume changes",
     )
@@ -341,13 +357,20 @@ def _write_pictures_and_usd(args, out: Path, model, result, view, gesture) -> li
 
 
 def _check_options(args) -> None:
-    """Options that would do nothing are usage errors (they were dropped silently)."""
+    """Options that would do nothing are usage errors (they were dropped silently). Then the preset's options
+    not given take their default or, with --setup artisynth-exact, the demo's choice (``_PRESET``), and
+    artisynth-exact is --setup artisynth from there on (``args.setup_preset`` keeps the name)."""
     given = options_given(args, args.dynamic_option_defaults)
     if given and not args.dynamic:
         raise UsageError(f"{', '.join(given)} set(s) the dynamic playback: add --dynamic, or leave it out")
     for option in options_given(args, args.setup_option_defaults):
-        if args.setup != "artisynth":
+        if args.setup == "import":
             raise UsageError(f"{option} sets up ArtiSynth's demo: add --setup artisynth, or leave it out")
+    exact = args.setup == "artisynth-exact"
+    for key, (default, demo) in _PRESET.items():
+        if getattr(args, key) is None:
+            setattr(args, key, demo if exact and (key != "exact_damping" or args.dynamic) else default)
+    args.setup_preset, args.setup = args.setup, "artisynth" if exact else args.setup
     if args.lower_oom == "exciter" and args.setup != "artisynth":
         raise UsageError(
             "--lower-oom exciter takes the targets of ArtiSynth's demo on its hexes: add --setup artisynth, or use "
@@ -422,7 +445,9 @@ def run_speech(args: argparse.Namespace) -> int:
             "unmapped_probes": mapping.unmapped,
             "interpolation": {k: c.order for k, c in gesture.curves.items()},
             "tol": args.tol,
-            "setup": args.setup,
+            "setup": args.setup_preset,
+            # the setup's options as played (those --setup artisynth-exact sets, and --idle-muscles)
+            "setup_options": {k: getattr(args, k) for k in ("idle_muscles", *_PRESET)},
             "idle_muscles_without_fibres": model.metadata.get("idle_muscles_without_fibres", []),
             "material": dataclasses.asdict(model.material),  # the flesh law and fibre stress played
             "lip_surface": args.lip_surface if contact is not None else None,
