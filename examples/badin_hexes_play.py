@@ -36,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from wface.physics.hexes import WEDGE_RULES
+
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "artisynth-face"
 BULKS = ("point", "element-quadratic", "element-log")
 DYNAMICS = {"max_step_s": 0.005, "alpha_per_s": 19.0, "beta_s": 0.055, "gravity_m_s2": (0.0, -9.8, 0.0)}
@@ -62,6 +64,7 @@ class HexDemo:
         muscle_curves="wface",
         muscle_elements="import",
         lower_oom="whole",
+        wedges="collapsed",
     ):
         from dataclasses import replace
 
@@ -96,7 +99,7 @@ class HexDemo:
         self.demo = demo
         hexes = face_hexes(data)
         n = int(hexes.max()) + 1
-        self.quad = quad = hex_quadrature(demo.rest_positions_m[:n], hexes)
+        self.quad = quad = hex_quadrature(demo.rest_positions_m[:n], hexes, wedges=wedges)
         # the tet split's face and cell centres follow the trilinear field of their hex
         self.embedding = sp.vstack(
             [sp.identity(n, format="csr"), embedding_matrix(quad, demo.rest_positions_m[n:])], format="csr"
@@ -154,6 +157,7 @@ def play(
     bulk: str = "point",
     lip_surface: str = "smooth",
     lip_points: str = "nodes_and_edges",
+    wedges: str = "collapsed",
     progress=print,
 ) -> dict:
     """Per-frame times, areas, lip gaps, solver statistics and hex-node positions of the played approximant."""
@@ -178,6 +182,7 @@ def play(
         muscle_curves=muscle_curves,
         muscle_elements=muscle_elements,
         lower_oom=lower_oom,
+        wedges=wedges,
     )
     demo = face.demo
     gesture = read_gesture(data / "speech" / gesture_name)
@@ -389,6 +394,13 @@ def main(argv=None) -> int:
         default="whole",
         help="what the OOMl exciter drives (wface speech --lower-oom)",
     )
+    p.add_argument(
+        "--wedges",
+        choices=WEDGE_RULES,
+        default="collapsed",
+        help="the 318 hexes collapsed to wedges: the 2x2x2 rule of a collapsed hex (default) or ArtiSynth's "
+        "WedgeElement rule (wface.physics.hexes.wedge_rule)",
+    )
     a = p.parse_args(argv)
     if not a.data.is_dir():
         p.error(f"no ArtiSynth face data at {a.data} (--data)")
@@ -417,6 +429,7 @@ def main(argv=None) -> int:
         muscle_elements=a.muscle_elements,
         gesture_name=a.gesture,
         lower_oom=a.lower_oom,
+        wedges=a.wedges,
     )
     a.out.mkdir(parents=True, exist_ok=True)
     with open(a.out / "lip_opening.csv", "w", newline="") as fh:
@@ -437,6 +450,7 @@ def main(argv=None) -> int:
         "bulk": a.bulk,
         "lip_surface": a.lip_surface,
         "lip_points": a.lip_points,
+        "wedges": a.wedges,
         "fps": a.fps,
         "tol": a.tol,
         "max_iterations": a.max_iterations,

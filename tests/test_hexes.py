@@ -133,6 +133,77 @@ def test_wedge_and_sheared_hex_volumes():
         assert hex_quadrature(x, np.arange(8)[None]).volume_m3 == pytest.approx(volume, rel=1e-12)
 
 
+def _artisynth_wedge(v):
+    """Positions, deformation gradients' rest Jacobians and weights of ArtiSynth's WedgeElement rule on the
+    wedge with bottom triangle v[0:3] and top v[3:6] (its getN / getdNds and integration coordinates)."""
+    a, b, q = 1 / 6, 2 / 3, 1 / np.sqrt(3)
+    pts = [(s1, s2, r) for r in (-q, q) for s1, s2 in ((a, a), (b, a), (a, b))]
+    out = []
+    for s1, s2, r in pts:
+        N = 0.5 * np.array([(1 - s1 - s2) * (1 - r), s1 * (1 - r), s2 * (1 - r)])
+        N = np.concatenate([N, N * (1 + r) / (1 - r)])
+        dN = np.array(
+            [
+                [-0.5 * (1 - r), -0.5 * (1 - r), -0.5 * (1 - s1 - s2)],
+                [0.5 * (1 - r), 0, -0.5 * s1],
+                [0, 0.5 * (1 - r), -0.5 * s2],
+                [-0.5 * (1 + r), -0.5 * (1 + r), 0.5 * (1 - s1 - s2)],
+                [0.5 * (1 + r), 0, 0.5 * s1],
+                [0, 0.5 * (1 + r), 0.5 * s2],
+            ]
+        )
+        J = v.T @ dN  # dX / ds
+        out.append((N @ v, J, abs(np.linalg.det(J)) / 6))  # either handedness of the node order
+    return out
+
+
+@pytest.mark.parametrize("collapse", [((2, 3), (6, 7)), ((4, 7), (5, 6)), ((1, 2), (5, 6))])
+def test_wedge_rule_is_artisynths_wedge_element(collapse):
+    """hex_quadrature(wedges="wedge") on a hex with two parallel edges collapsed: the points, volumes and
+    deformation gradients of ArtiSynth's WedgeElement (written out here from its source) under a nonlinear
+    motion, and the same wedge volume as the 2x2x2 rule; a regular hex or another degeneracy keeps 2x2x2."""
+    from wface.physics.hexes import CORNERS, wedge_rule
+
+    rng = np.random.default_rng(7)
+    x = (CORNERS + 1.0) * np.array([0.5, 1.0, 1.5]) + rng.normal(0, 0.08, (8, 3))
+    hexes = np.arange(8)
+    for a, b in collapse:
+        x[b] = x[a]
+        hexes[b] = a
+    quad = hex_quadrature(x, hexes[None], wedges="wedge")
+    collapsed = hex_quadrature(x, hexes[None])
+    assert quad.volume_m3 == pytest.approx(collapsed.volume_m3, rel=1e-12)  # the volume is exact either way
+    # the wedge's triangles: the corners on the collapsed edges' face are the apex, the others two per layer
+    pair = {a: b for a, b in collapse} | {b: a for a, b in collapse}
+    layers = {}
+    for c in range(8):
+        if c in pair and pair[c] < c:
+            continue
+        k = [i for i in range(3) if CORNERS[collapse[0][0], i] != CORNERS[collapse[1][0], i]][0]
+        layers.setdefault(CORNERS[c, k], []).append(c)
+    bottom, top = (sorted(layers[s], key=lambda c: (c in pair, c)) for s in (-1.0, 1.0))
+    top = [next(t for t in top if np.array_equal(np.delete(CORNERS[t], k), np.delete(CORNERS[c], k))) for c in bottom]
+    motion = lambda p: p + 0.1 * np.sin(p[..., ::-1]) + 0.05 * p**2  # noqa: E731
+    ref = _artisynth_wedge(x[bottom + top])
+    ref_moved = _artisynth_wedge(motion(x[bottom + top]))
+    points = quad.gauss_points_m
+    assert len(points) == 8 and wedge_rule(hexes) is not None
+    for (p, J, vol), (_, J_moved, _) in zip(ref, ref_moved, strict=True):
+        at = np.flatnonzero(np.linalg.norm(points - p, axis=1) < 1e-12)
+        assert at.size in (1, 2)  # two slots hold a point twice, at half its weight
+        assert quad.gauss_volume_m3[at].sum() == pytest.approx(vol, rel=1e-12)
+        F_ref = J_moved @ np.linalg.inv(J)
+        for g in at:
+            F = motion(x).T @ quad.shape_gradients_per_m[g]
+            np.testing.assert_allclose(F, F_ref, rtol=1e-12, atol=1e-12)
+    assert wedge_rule(np.arange(8)) is None
+    other = np.arange(8)
+    other[[1, 3]] = [0, 0]  # three corners of a face collapsed to one: not a wedge
+    assert wedge_rule(other) is None
+    with pytest.raises(ValueError, match="wedges must be one of collapsed, wedge"):
+        hex_quadrature(x, hexes[None], wedges="prism")
+
+
 def test_mirrored_hex_is_reoriented_and_inverted_hex_named():
     model, hexes = _distorted_box()
     mirrored = hexes[:, [0, 3, 2, 1, 4, 7, 6, 5]]
@@ -169,6 +240,11 @@ def test_badin_hexes(badin_model):
     quad = hex_quadrature(badin_model.rest_positions_m[:n], hexes)
     assert len(hexes) == 6342 and quad.gauss_volume_m3.min() > 0
     assert quad.volume_m3 == pytest.approx(float(badin_model.rest_volume_m3.sum()), rel=5e-4)
+    # its 318 wedges (K = L, O = P) take ArtiSynth's wedge rule: the same volume, only their points move
+    wedged = hex_quadrature(badin_model.rest_positions_m[:n], hexes, wedges="wedge")
+    moved = np.linalg.norm(wedged.gauss_points_m - quad.gauss_points_m, axis=1).reshape(-1, 8).max(axis=1) > 0
+    assert moved.sum() == 318 and wedged.gauss_volume_m3.min() > 0
+    assert wedged.volume_m3 == pytest.approx(quad.volume_m3, rel=1e-12)
 
 
 def test_badin_hexes_example(badin_model_path, tmp_path):

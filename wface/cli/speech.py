@@ -48,9 +48,9 @@ muscle on the demo's own whole hexes; --lower-oom exciter: the exciter OOMl on e
 hexes, the lower lip's part of OOM; --ring-directions delaunay: the OOP rings' fibre directions blended as
 ArtiSynth blends them; --bulk-potential quadratic: the flesh's bulk energy kappa/2 (J - 1)^2, ArtiSynth's,
 where wface's is kappa/2 (ln J)^2); --setup artisynth-exact: each of these but --idle-muscles at the
-demo's choice, and --exact-damping with --dynamic, an option given still winning. Writes report.json, lip_opening.csv and .png, the
-aperture pictures of the first and last frames, states.npz (every frame's node positions, markers
-and activations: np.load) and animation.usdc.
+demo's choice, and --exact-damping with --dynamic, an option given still winning. Writes report.json,
+lip_opening.csv and .png, the aperture pictures of the first and last frames, states.npz (every frame's
+node positions, markers and activations: np.load) and animation.usdc.
 
 examples:
   wface speech --model ../shared/data/artisynth-face --gesture closure --out closure_out

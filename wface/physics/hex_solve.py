@@ -36,7 +36,7 @@ from types import SimpleNamespace
 import numpy as np
 import scipy.sparse as sp
 
-from wface.physics.hexes import GAUSS_POINTS, HexQuadrature, shape_functions
+from wface.physics.hexes import HexQuadrature
 from wface.physics.newton import decrease_from_slopes
 from wface.solvers.linear import DirectFactor
 
@@ -63,9 +63,7 @@ def hex_masses(quad: HexQuadrature, density_kg_m3: float, lumping: str = "rows")
         first[:, 1:] = srt[:, 1:] != srt[:, :-1]  # each distinct node of a hex once
         share = np.where(first, (mass / first.sum(axis=1))[:, None], 0.0)
         return np.bincount(srt.reshape(-1), weights=share.reshape(-1), minlength=quad.n_nodes)
-    N, _ = shape_functions(GAUSS_POINTS)  # (8 points, 8 nodes); Gauss weights 1
-    g_local = np.tile(np.arange(8), len(quad.hexes))  # Gauss point of each quadrature point in its hex
-    share = density_kg_m3 * quad.gauss_volume_m3[:, None] * N[g_local]  # (G, 8)
+    share = density_kg_m3 * quad.gauss_volume_m3[:, None] * quad.shape_values  # (G, 8)
     nodes = quad.hexes[quad.hex_of_point]  # (G, 8)
     return np.bincount(nodes.reshape(-1), weights=share.reshape(-1), minlength=quad.n_nodes)
 

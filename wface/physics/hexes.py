@@ -13,10 +13,15 @@ y = T x, a fixed sparse linear map of the hex nodes: forces T^T f_y, stiffness T
 law, fibres, inversion clamp and projected tangent of ``wface.kernels.fem`` serve the hexes
 unchanged (each Gauss point's tangent is projected on its own, so the sum stays PSD).
 
-This is the element of ArtiSynth's face models (full 2x2x2 integration, ``HexElement``); a degenerate
-hex (repeated nodes: a wedge) is integrated as a collapsed hex, where ArtiSynth uses its
-``WedgeElement``. Used to set wface's split tets beside the original's hexes (README, "Speech
-gestures"; docs/design.md, "Hexes beside tets").
+This is the element of ArtiSynth's face models (full 2x2x2 integration, ``HexElement``). A degenerate
+hex whose two parallel edges collapse (a wedge: the Badin face's 318 hexes with K = L and O = P) is
+integrated as a collapsed hex by default; ``wedges="wedge"`` integrates it as ArtiSynth's
+``WedgeElement`` does: the collapsed hex's field is the wedge's (Duffy: in each layer the bilinear
+functions of a quad with one edge collapsed are the triangle's barycentric coordinates), so only the
+points differ, the 3-point triangle rule (barycentric 2/3, 1/6, 1/6) times 2-point Gauss across, weight
+1/6 each, placed in the hex's natural coordinates with weight (1/6) / det(ds/dxi) (``wedge_rule``). Its 6
+points fill the hex's 8 slots, two of them twice at half weight. Used to set wface's split tets beside the
+original's hexes (README, "Speech gestures"; docs/design.md, "Hexes beside tets").
 """
 
 from __future__ import annotations
@@ -30,7 +35,15 @@ from scipy.spatial import cKDTree
 from wface.mesh.embed import containing_tets
 from wface.model import FaceModel
 
-__all__ = ["HexQuadrature", "embedding_matrix", "hex_quadrature", "quadrature_model", "trilinear_points"]
+__all__ = [
+    "WEDGE_RULES",
+    "HexQuadrature",
+    "embedding_matrix",
+    "hex_quadrature",
+    "quadrature_model",
+    "trilinear_points",
+    "wedge_rule",
+]
 
 CORNERS = np.array(
     [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]],
@@ -38,6 +51,8 @@ CORNERS = np.array(
 )
 GAUSS_POINTS = CORNERS / np.sqrt(3.0)  # 2x2x2 Gauss-Legendre, weight 1 each
 _MIRROR = np.array([0, 3, 2, 1, 4, 7, 6, 5])  # the same hex with the opposite handedness
+WEDGE_RULES = ("collapsed", "wedge")  # how a hex collapsed to a wedge is integrated (``hex_quadrature``)
+_TRIANGLE_RULE = ((2 / 3, 1 / 6, 1 / 6), (1 / 6, 2 / 3, 1 / 6), (1 / 6, 1 / 6, 2 / 3))  # (L0, L1, L_apex)
 
 
 def shape_functions(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -65,6 +80,7 @@ class HexQuadrature:
     gauss_volume_m3: np.ndarray  # (G,) w_g det J_g
     hex_of_point: np.ndarray  # (G,) row of ``hexes``
     shape_gradients_per_m: np.ndarray  # (G, 8, 3) dN_a/dX at each Gauss point, of its hex's 8 nodes
+    shape_values: np.ndarray  # (G, 8) N_a at each Gauss point
 
     @property
     def n_nodes(self) -> int:
@@ -95,12 +111,49 @@ class HexQuadrature:
         return (T3.T @ virtual_stiffness @ T3).tocsr()
 
 
-def hex_quadrature(x_rest_m: np.ndarray, hexes: np.ndarray) -> HexQuadrature:
+def wedge_rule(hex_nodes) -> tuple[np.ndarray, np.ndarray] | None:
+    """ArtiSynth's ``WedgeElement`` rule in the natural coordinates of a hex whose two parallel edges
+    collapse (8 node ids, two pairs equal): (8, 3) points and (8,) weights (module docstring), or None
+    for any other hex. The triangles lie in the plane of the collapsed edges' axis d and the axis e they
+    collapse at (e = sigma); with eta = sigma xi_e, the triangle's barycentric coordinates are
+    L_apex = (1 + eta) / 2 and L0, L1 = (1 -+ xi_d)(1 - eta) / 4, so det(ds/dxi) = (1 - eta) / 8."""
+    h = np.asarray(hex_nodes).reshape(8)
+    pairs = [(a, b) for a in range(8) for b in range(a + 1, 8) if h[a] == h[b]]
+    if len(pairs) != 2:
+        return None
+    (a0, b0), (a1, b1) = pairs
+    axes = [np.flatnonzero(CORNERS[a] != CORNERS[b]) for a, b in pairs]
+    if any(len(k) != 1 for k in axes) or axes[0][0] != axes[1][0]:
+        return None
+    d = int(axes[0][0])
+    same = [k for k in range(3) if k != d and CORNERS[a0, k] == CORNERS[a1, k]]
+    if len(same) != 1:  # the two collapsed edges must lie on one face, across the third axis
+        return None
+    e = same[0]
+    across, sigma = 3 - d - e, CORNERS[a0, e]
+    points, weights = [], []
+    for z in (-1.0, 1.0):
+        for l0, l1, apex in _TRIANGLE_RULE:
+            eta = 2.0 * apex - 1.0
+            p = np.empty(3)
+            p[d], p[e], p[across] = (l1 - l0) / (l0 + l1), sigma * eta, z / np.sqrt(3.0)
+            points.append(p)
+            weights.append((1.0 / 6.0) / ((1.0 - eta) / 8.0))
+    slots = [0, 0, 1, 1, 2, 3, 4, 5]  # 6 points in 8 slots: the first two twice, at half weight
+    w = np.array(weights)[slots] * np.array([0.5, 0.5, 0.5, 0.5, 1, 1, 1, 1])
+    return np.array(points)[slots], w
+
+
+def hex_quadrature(x_rest_m: np.ndarray, hexes: np.ndarray, *, wedges: str = "collapsed") -> HexQuadrature:
     """The quadrature tets of the hexes ``hexes`` (m, 8) over nodes ``x_rest_m`` (n, 3).
 
     A hex whose Jacobian is negative at its centre is mirrored (its node order is left-handed);
     a hex whose Jacobian is not positive at every Gauss point after that is an error naming it.
+    ``wedges``: a hex collapsed to a wedge gets the 2x2x2 rule ("collapsed", default) or ArtiSynth's
+    wedge rule ("wedge", ``wedge_rule``).
     """
+    if wedges not in WEDGE_RULES:
+        raise ValueError(f"wedges must be one of {', '.join(WEDGE_RULES)}, got {wedges!r}")
     x = np.asarray(x_rest_m, dtype=np.float64)
     hexes = np.array(hexes, dtype=np.int64).reshape(-1, 8)
     if hexes.size and (hexes.min() < 0 or hexes.max() >= len(x)):
@@ -108,9 +161,17 @@ def hex_quadrature(x_rest_m: np.ndarray, hexes: np.ndarray) -> HexQuadrature:
     _, dN_c = shape_functions(np.zeros((1, 3)))
     det_c = np.linalg.det(np.einsum("mad,ae->mde", x[hexes], dN_c[0]))
     hexes[det_c < 0] = hexes[det_c < 0][:, _MIRROR]
-    N, dN = shape_functions(GAUSS_POINTS)  # (8, 8), (8, 8, 3)
+    m = len(hexes)
+    xi = np.broadcast_to(GAUSS_POINTS, (m, 8, 3)).copy()  # each hex's points and weights
+    wts = np.ones((m, 8))
+    if wedges == "wedge":
+        for i in np.flatnonzero([len(set(h)) == 6 for h in hexes.tolist()]):
+            rule = wedge_rule(hexes[i])
+            if rule is not None:
+                xi[i], wts[i] = rule
+    N, dN = shape_functions(xi.reshape(-1, 3))  # (G, 8), (G, 8, 3)
     X = x[hexes]  # (m, 8, 3)
-    J = np.einsum("mad,gae->mgde", X, dN)  # (m, g, 3, 3): dX_d / dxi_e
+    J = np.einsum("mad,mgae->mgde", X, dN.reshape(m, 8, 8, 3))  # (m, g, 3, 3): dX_d / dxi_e
     det = np.linalg.det(J)
     bad = np.flatnonzero((det <= 0).any(axis=1))
     if bad.size:
@@ -118,10 +179,11 @@ def hex_quadrature(x_rest_m: np.ndarray, hexes: np.ndarray) -> HexQuadrature:
             f"{bad.size} hexes have a non-positive Jacobian at a Gauss point (rows {bad[:5].tolist()}): "
             "twisted or inverted elements"
         )
-    dNdX = np.einsum("gae,mged->mgad", dN, np.linalg.inv(J))  # (m, g, 8, 3)
-    m, G = len(hexes), 8 * len(hexes)
-    s = np.cbrt(6.0 * det).reshape(G)  # Gauss weights are 1
-    w_centre = np.broadcast_to(N[None], (m, 8, 8)).reshape(G, 8)
+    dNdX = np.einsum("mgae,mged->mgad", dN.reshape(m, 8, 8, 3), np.linalg.inv(J))  # (m, g, 8, 3)
+    G = 8 * m
+    volume = (wts * det).reshape(G)  # w_g det J_g
+    s = np.cbrt(6.0 * volume)
+    w_centre = N
     w_edge = dNdX.reshape(G, 8, 3) * s[:, None, None]
     # rows of the virtual nodes 4 p + k: y0 = sum N x; y_k = y0 + s dN/dX_k . x
     W = np.empty((G, 4, 8))
@@ -143,9 +205,10 @@ def hex_quadrature(x_rest_m: np.ndarray, hexes: np.ndarray) -> HexQuadrature:
         virtual_rest_m=rest.reshape(-1, 3),
         virtual_tets=np.arange(4 * G, dtype=np.int32).reshape(G, 4),
         gauss_points_m=y0,
-        gauss_volume_m3=det.reshape(G),
+        gauss_volume_m3=volume,
         hex_of_point=np.repeat(np.arange(m), 8),
         shape_gradients_per_m=dNdX.reshape(G, 8, 3),
+        shape_values=N,
     )
 
 
