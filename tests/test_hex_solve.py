@@ -163,6 +163,37 @@ def test_step_satisfies_the_discrete_equation_of_motion_and_conserves_momentum(e
     np.testing.assert_allclose(m @ v1, m @ v0, atol=1e-12 * np.abs(m @ np.abs(v0)).max())
 
 
+def test_exact_damping_takes_the_exact_mean_dilatation():
+    """With one volume ratio per hex (MeanDilatation), the exact damping is the exact tangent of the flesh and of
+    the bulk term both: the step solves M (v1 - v0) / h = f(x1) - beta K_n v1 with K_n's bulk part unprojected, as
+    ArtiSynth damps with its incompressibility (the projected bulk Hessian, which the step took before, differs)."""
+    from dataclasses import replace
+
+    from wface.physics.hex_dilatation import MeanDilatation
+
+    model, hexes = _distorted_box()
+    quad = hex_quadrature(model.rest_positions_m, hexes)
+    flesh = replace(model, material=replace(model.material, kappa_pa=0.0, bulk_potential="quadratic"))
+    sim = Simulator(quadrature_model(flesh, quad))
+    bulk = MeanDilatation(quad, 2.5e4, "quadratic")
+    body = HexBody(sim, quad, np.arange(quad.n_nodes), density_kg_m3=1040.0, dilatation=bulk)
+    rng = np.random.default_rng(5)
+    centre = quad.rest_m.mean(axis=0)
+    x0 = centre + 0.8 * (quad.rest_m - centre) + rng.normal(0, 3e-4, quad.rest_m.shape)  # compressed: J ~ 0.5
+    v0 = rng.normal(0, 0.05, quad.rest_m.shape)
+    exact, projected = bulk.hessian(x0, project=False), bulk.hessian(x0)
+    assert abs(exact - projected).max() > 1e-2 * abs(exact).max()  # the bulk term's Hessian is indefinite here
+    a, h, beta = np.array([0.6]), 0.004, 0.002
+    x1, v1, r = body.step(x0, v0, h, a, beta_s=beta, tol=1e-9, max_iterations=60, exact_damping=True)
+    assert r.converged
+    _, f = body.sim.energy_and_forces(quad.virtual_positions(x1), a)
+    f = quad.node_forces(f) + bulk.energy_and_forces(x1)[1]
+    Kn = quad.node_stiffness(sim.tangent(quad.virtual_positions(x0), a, project=False).assemble()) + exact
+    damp = (Kn @ (x1 - x0).reshape(-1)).reshape(-1, 3) / h
+    lhs = body.masses_kg[:, None] * (v1 - v0) / h
+    np.testing.assert_allclose(lhs, f - beta * damp, atol=1e-7 * np.abs(f).max())
+
+
 def test_held_nodes_moving_in_a_step_enter_the_damping():
     """Held nodes moved during the step: the free rows of the equation of motion hold with the damping
     K_n (x1 - x0) over all nodes, the held ones' motion included."""

@@ -283,7 +283,7 @@ class HexBody:
                 self._T_all = self.quad.dof_map()
             kn_rows = (self._T_free.T @ Ky @ self._T_all).tocsr()  # (3k, 3n): free rows, all columns
             if self.dilatation is not None:
-                kn_rows = (kn_rows + self.dilatation.hessian(x_n)[self.dofs]).tocsr()
+                kn_rows = (kn_rows + self.dilatation.hessian(x_n, project=not exact_damping)[self.dofs]).tocsr()
             kn_free = kn_rows[:, self.dofs].tocsr()
         yhat = (x_n + h * v_n)[self.free].reshape(-1)
         hess = sp.diags((1.0 / h**2 + alpha_per_s / h) * m3)
