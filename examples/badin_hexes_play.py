@@ -186,7 +186,7 @@ def play(
     )
     demo = face.demo
     gesture = read_gesture(data / "speech" / gesture_name)
-    mapping = map_gesture_to_model(gesture, demo, lower_oom="lower" if lower_oom == "exciter" else lower_oom)
+    mapping = map_gesture_to_model(gesture, demo, lower_oom=lower_oom)
     t0, t1 = gesture.duration_s
     times = gesture_times(t0, t1 if end_s is None else end_s, fps)  # past t1 the curves hold their last values
     acts = lambda t: mapping.activations(gesture, demo, np.atleast_1d(t))[0]  # noqa: E731

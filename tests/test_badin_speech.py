@@ -353,14 +353,17 @@ def test_the_lower_lips_oom_is_the_oomi_probes_own(badin_model):
     d = data_path("artisynth-face", "speech")
     fr = map_gesture_to_model(read_gesture(d / "fricative"), split, lower_oom="lower")
     assert fr.muscles["OOMi"] == ["OOMl_l", "OOMl_r"]
+    # "exciter": the same mapping, on a split made from the exciter's own targets (the split is the caller's)
+    assert map_gesture_to_model(read_gesture(d / "fricative"), split, lower_oom="exciter").muscles == fr.muscles
     assert map_gesture_to_model(read_gesture(d / "closure"), split).muscles["OOM"] == [
         "OOM_l",
         "OOM_r",
         "OOMl_l",
         "OOMl_r",
     ]
-    with pytest.raises(ValueError, match="with_lower_oom"):
-        map_gesture_to_model(read_gesture(d / "fricative"), badin_model, lower_oom="lower")
+    for unsplit in ("lower", "exciter"):
+        with pytest.raises(ValueError, match="with_lower_oom"):
+            map_gesture_to_model(read_gesture(d / "fricative"), badin_model, lower_oom=unsplit)
 
 
 def test_fricative_with_the_lower_lips_oom_cli(tmp_path, badin_model_path):

@@ -403,8 +403,7 @@ def run_speech(args: argparse.Namespace) -> int:
     if args.lower_oom in ("lower", "exciter"):
         targets = ooml_exciter_tets(model, _data_dir(args)) if args.lower_oom == "exciter" else None
         model = with_lower_oom(model, targets)
-    lower_oom = "lower" if args.lower_oom == "exciter" else args.lower_oom
-    mapping = map_gesture_to_model(gesture, model, lower_oom=lower_oom)
+    mapping = map_gesture_to_model(gesture, model, lower_oom=args.lower_oom)
     _check_model(args, model, gesture, mapping)
     if args.idle_muscles == "off":
         model = without_idle_fibres(model, mapping.driven_muscles(gesture, model))

@@ -374,14 +374,16 @@ def map_gesture_to_model(gesture: SpeechGesture, model, *, lower_oom: str = "who
         model: a ``FaceModel`` with Badin muscle names (``OOP_l``, ``OOP_r``, ...).
         lower_oom: what the ``OOMl`` exciter drives: ``"whole"`` (the model's ``OOM_l``/``OOM_r``, an
             approximation: they span both lips), ``"lower"`` (their lower lip's part, ``OOMl_l``/``OOMl_r`` of a
-            model from ``with_lower_oom``; the bundle ``OOM`` then drives every part) or ``"skip"``.
+            model from ``with_lower_oom``; the bundle ``OOM`` then drives every part), ``"exciter"`` (the same,
+            the model split on the exciter's own targets, ``with_lower_oom(model, ooml_exciter_tets(...))``) or
+            ``"skip"``.
     """
-    if lower_oom not in ("whole", "lower", "skip"):
-        raise ValueError(f"lower_oom must be 'whole', 'lower' or 'skip', got {lower_oom!r}")
+    if lower_oom not in ("whole", "lower", "exciter", "skip"):
+        raise ValueError(f"lower_oom must be 'whole', 'lower', 'exciter' or 'skip', got {lower_oom!r}")
     names = list(model.muscle_names)
     split = all(n in names for n in LOWER_OOM.values())
-    if lower_oom == "lower" and not split:
-        raise ValueError("lower_oom='lower' drives OOMl_l and OOMl_r: split the model first (with_lower_oom)")
+    if lower_oom in ("lower", "exciter") and not split:
+        raise ValueError(f"lower_oom={lower_oom!r} drives OOMl_l and OOMl_r: split the model first (with_lower_oom)")
     muscles: dict[str, list[str]] = {}
     unmapped: list[str] = []
     notes: list[str] = []
@@ -394,7 +396,7 @@ def map_gesture_to_model(gesture: SpeechGesture, model, *, lower_oom: str = "who
                 unmapped.append(probe_name)
                 notes.append("OOMl (lower orbicularis oris marginalis) left out: the model has no lower-lip-only OOM")
                 continue
-            if lower_oom == "lower":
+            if lower_oom in ("lower", "exciter"):
                 muscles[probe_name] = list(LOWER_OOM.values())
                 notes.append("OOMl (lower orbicularis oris marginalis) drives OOMl_l/OOMl_r, OOM's lower-lip part")
                 continue
