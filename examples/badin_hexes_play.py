@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from wface.physics.hexes import WEDGE_RULES
+from wface.speech.gestures import LOWER_OOM_CHOICES
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "artisynth-face"
 BULKS = ("point", "element-quadratic", "element-log")
@@ -390,7 +391,7 @@ def main(argv=None) -> int:
     )
     p.add_argument(
         "--lower-oom",
-        choices=("whole", "lower", "exciter", "skip"),
+        choices=LOWER_OOM_CHOICES,
         default="whole",
         help="what the OOMl exciter drives (wface speech --lower-oom)",
     )

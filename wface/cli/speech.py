@@ -25,7 +25,7 @@ from wface.model import BULK_POTENTIALS, load_model
 from wface.speech.aperture import ApertureView
 from wface.speech.artisynth_demo import lip_opening_demo_model, ooml_exciter_tets, without_idle_fibres
 from wface.speech.dynamic import GestureDynamics
-from wface.speech.gestures import map_gesture_to_model, read_gesture, with_lower_oom
+from wface.speech.gestures import LOWER_OOM_CHOICES, map_gesture_to_model, read_gesture, with_lower_oom
 from wface.speech.output import write_aperture_pictures, write_gesture_usd, write_lip_opening, write_states
 from wface.speech.playback import compare_with_reference, lip_area_points, simulate_gesture, summarize
 from wface.takes.provenance import command_provenance
@@ -128,7 +128,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--all-probes", action="store_true", help="also play probes marked active=false")
     p.add_argument(
         "--lower-oom",
-        choices=["whole", "lower", "exciter", "skip"],
+        choices=list(LOWER_OOM_CHOICES),
         help="what the OOMl exciter drives: the whole OOM (default, approximation; exciter with --setup "
         "artisynth-exact), its lower lip's part (the OOM "
         "fibre entries nearer the lower lip's surface become muscles OOMl_l and OOMl_r), exactly the exciter's "

@@ -121,7 +121,7 @@ def wedge_rule(hex_nodes) -> tuple[np.ndarray, np.ndarray] | None:
     pairs = [(a, b) for a in range(8) for b in range(a + 1, 8) if h[a] == h[b]]
     if len(pairs) != 2:
         return None
-    (a0, b0), (a1, b1) = pairs
+    (a0, _), (a1, _) = pairs
     axes = [np.flatnonzero(CORNERS[a] != CORNERS[b]) for a, b in pairs]
     if any(len(k) != 1 for k in axes) or axes[0][0] != axes[1][0]:
         return None

@@ -45,6 +45,7 @@ from scipy.spatial import cKDTree
 
 __all__ = [
     "GESTURES",
+    "LOWER_OOM_CHOICES",
     "ExcitationCurve",
     "GestureMapping",
     "Probe",
@@ -60,6 +61,7 @@ __all__ = [
 
 GESTURES = ("closure", "fricative", "approximant")
 LOWER_OOM = {"OOM_l": "OOMl_l", "OOM_r": "OOMl_r"}  # with_lower_oom: each side's lower-lip part
+LOWER_OOM_CHOICES = ("whole", "lower", "exciter", "skip")  # what the OOMl exciter drives (map_gesture_to_model)
 INTERPOLATIONS = ("Step", "Linear", "CubicStep", "Cubic")
 
 
@@ -378,8 +380,9 @@ def map_gesture_to_model(gesture: SpeechGesture, model, *, lower_oom: str = "who
             the model split on the exciter's own targets, ``with_lower_oom(model, ooml_exciter_tets(...))``) or
             ``"skip"``.
     """
-    if lower_oom not in ("whole", "lower", "exciter", "skip"):
-        raise ValueError(f"lower_oom must be 'whole', 'lower', 'exciter' or 'skip', got {lower_oom!r}")
+    if lower_oom not in LOWER_OOM_CHOICES:
+        *first, last = (repr(c) for c in LOWER_OOM_CHOICES)
+        raise ValueError(f"lower_oom must be {', '.join(first)} or {last}, got {lower_oom!r}")
     names = list(model.muscle_names)
     split = all(n in names for n in LOWER_OOM.values())
     if lower_oom in ("lower", "exciter") and not split:
